@@ -1,0 +1,161 @@
+"""Kinematics of the 3-joint arm of Dong & Zhu (2016), Table 1.
+
+Frames and conventions (see ``docs/architecture.md``):
+
+* Global frame at the centre of joint 2, z up. The floor is at ``z = -L0``.
+* Joint 1 rotates about global z; joints 2 and 3 are pitch joints.
+* ``theta3 = 0`` means the forearm is *perpendicular* to the upper arm. This is the only reading of
+  the paper's home pose ``(0, 90 deg, 0)`` that is not singular.
+
+Forward kinematics (eq. 8)::
+
+    r = l1 cos(theta2) + l2 sin(theta2 + theta3)
+    x = r cos(theta1),  y = r sin(theta1)
+    z = l1 sin(theta2) - l2 cos(theta2 + theta3)
+
+All functions are pure and accept a single joint vector of shape (3,) or a batch of shape (N, 3).
+Angles are radians, lengths metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+# Table 1 of the paper.
+L0 = 0.1778  # base column, floor mount to joint 2 [m]; not part of the kinematics
+L1 = 0.454025  # upper arm [m]
+L2 = 0.4445  # forearm [m]
+JOINT_RATE_LIMITS = np.array([10.304, 0.412, 0.412])  # theta_dot_max [rad/s]
+HOME = np.array([0.0, np.pi / 2, 0.0])  # [rad]
+
+# Joint position limits: ours (the paper only says it limits the workspace to avoid singularities).
+# Inside this box r >= 0.073 m (away from the shoulder singularity r = 0) and |theta3| <= 70 deg
+# (away from the elbow singularity theta3 = +-90 deg), so det J never vanishes; see tests.
+JOINT_LOWER = np.radians([-170.0, 20.0, -70.0])
+JOINT_UPPER = np.radians([170.0, 100.0, 60.0])
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """The arm's published constants: what every agent may know.
+
+    Attributes:
+        link_lengths: (l0, l1, l2) in metres.
+        joint_rate_limits: theta_dot_max per joint, rad/s, shape (3,).
+        joint_lower: lower joint limits, rad, shape (3,).
+        joint_upper: upper joint limits, rad, shape (3,).
+        home: home joint angles, rad, shape (3,).
+    """
+
+    link_lengths: tuple[float, float, float] = (L0, L1, L2)
+    joint_rate_limits: FloatArray = field(default_factory=lambda: JOINT_RATE_LIMITS.copy())
+    joint_lower: FloatArray = field(default_factory=lambda: JOINT_LOWER.copy())
+    joint_upper: FloatArray = field(default_factory=lambda: JOINT_UPPER.copy())
+    home: FloatArray = field(default_factory=lambda: HOME.copy())
+
+
+def forward_kinematics(theta: ArrayLike) -> FloatArray:
+    """End-effector position X_E = f(Theta) (eq. 8).
+
+    Args:
+        theta: joint angles, rad, shape (3,) or (N, 3).
+
+    Returns:
+        End-effector position in the global frame, metres, shape (3,) or (N, 3).
+    """
+    q = np.asarray(theta, dtype=float)
+    t1, t2, t3 = q[..., 0], q[..., 1], q[..., 2]
+    r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
+    z = L1 * np.sin(t2) - L2 * np.cos(t2 + t3)
+    return np.stack([r * np.cos(t1), r * np.sin(t1), z], axis=-1)
+
+
+def elbow_position(theta: ArrayLike) -> FloatArray:
+    """Position of joint 3 (the elbow) in the global frame, metres, shape (3,) or (N, 3)."""
+    q = np.asarray(theta, dtype=float)
+    t1, t2 = q[..., 0], q[..., 1]
+    r = L1 * np.cos(t2)
+    return np.stack([r * np.cos(t1), r * np.sin(t1), L1 * np.sin(t2)], axis=-1)
+
+
+def jacobian(theta: ArrayLike) -> FloatArray:
+    """Analytic Jacobian J = df/dTheta (eq. 9), shape (3, 3) or (N, 3, 3), metres per radian."""
+    q = np.asarray(theta, dtype=float)
+    t1, t2, t3 = q[..., 0], q[..., 1], q[..., 2]
+    c1, s1 = np.cos(t1), np.sin(t1)
+    r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
+    dr2 = -L1 * np.sin(t2) + L2 * np.cos(t2 + t3)
+    dr3 = L2 * np.cos(t2 + t3)
+    dz2 = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
+    dz3 = L2 * np.sin(t2 + t3)
+    zero = np.zeros_like(t1)
+    rows = [
+        np.stack([-r * s1, dr2 * c1, dr3 * c1], axis=-1),
+        np.stack([r * c1, dr2 * s1, dr3 * s1], axis=-1),
+        np.stack([zero, dz2, dz3], axis=-1),
+    ]
+    return np.stack(rows, axis=-2)
+
+
+def jacobian_determinant(theta: ArrayLike) -> FloatArray:
+    """det J = l1 l2 r cos(theta3) (closed form), m^3; zero at r = 0 or theta3 = +-90 deg."""
+    q = np.asarray(theta, dtype=float)
+    t2, t3 = q[..., 1], q[..., 2]
+    r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
+    return L1 * L2 * r * np.cos(t3)
+
+
+def inverse_kinematics(position: ArrayLike) -> FloatArray:
+    """Every closed-form solution of f(Theta) = X for one point.
+
+    There are up to four: joint 1 facing the point (r > 0) or facing away (r < 0), each with two
+    elbow solutions. Angles are wrapped to (-pi, pi]. No joint limits are applied; use
+    :func:`within_limits` to filter.
+
+    Args:
+        position: target point in the global frame, metres, shape (3,).
+
+    Returns:
+        Solutions, rad, shape (K, 3) with K in {0, 2, 4} (0 when the point is out of reach).
+    """
+    x, y, z = np.asarray(position, dtype=float)
+    rho = float(np.hypot(x, y))
+    base = float(np.arctan2(y, x))
+    solutions = []
+    for sign_r, t1 in ((1.0, base), (-1.0, base + np.pi)):
+        r = sign_r * rho
+        # Planar 2-link problem. Expanding sin/cos(theta2 + theta3):
+        #   r = (l1 + l2 s3) c2 + l2 c3 s2 = a c2 + b s2
+        #   z = (l1 + l2 s3) s2 - l2 c3 c2 = a s2 - b c2
+        # so r^2 + z^2 = a^2 + b^2 = l1^2 + l2^2 + 2 l1 l2 s3.
+        s3 = (r * r + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
+        if abs(s3) > 1.0 + 1e-12:
+            continue
+        s3 = float(np.clip(s3, -1.0, 1.0))
+        c3_abs = float(np.sqrt(1.0 - s3 * s3))
+        for c3 in (c3_abs, -c3_abs):
+            t3 = np.arctan2(s3, c3)
+            a, b = L1 + L2 * s3, L2 * c3
+            t2 = np.arctan2(a * z + b * r, a * r - b * z)
+            solutions.append([_wrap(t1), _wrap(t2), _wrap(t3)])
+    if not solutions:
+        return np.zeros((0, 3))
+    return np.unique(np.round(np.array(solutions), 15), axis=0)
+
+
+def within_limits(theta: ArrayLike, lower: ArrayLike = JOINT_LOWER, upper: ArrayLike = JOINT_UPPER,
+                  tol: float = 1e-12) -> NDArray[np.bool_]:
+    """Whether joint angles lie inside [lower, upper] (inclusive, with ``tol`` rad slack)."""
+    q = np.asarray(theta, dtype=float)
+    return np.all((q >= np.asarray(lower) - tol) & (q <= np.asarray(upper) + tol), axis=-1)
+
+
+def _wrap(angle: float) -> float:
+    """Wrap an angle to (-pi, pi]."""
+    wrapped = (angle + np.pi) % (2.0 * np.pi) - np.pi
+    return float(np.pi if wrapped == -np.pi else wrapped)

@@ -1,0 +1,125 @@
+"""The observation vector and the task's public description.
+
+Everything here is what an agent may know: the observation layout and its scales, the arm's
+published constants, the nominal control period and the capture tolerance. None of it is the
+world's ground truth.
+
+Observation layout (float32, shape (16,), every entry divided by its scale so it is of order one):
+
+=====  ===============================================  ========  ===========
+index  quantity (global frame)                          unit      scale
+=====  ===============================================  ========  ===========
+0-2    estimated target (capture point) position X^_T   m         1 m
+3-5    estimated target velocity Xdot^_T                m/s       0.1 m/s
+6-8    end-effector position X_E                        m         1 m
+9-11   joint angles Theta                               rad       pi rad
+12-14  predicted relative vector X^_T' - X_E (eq. 13)   m         0.5 m
+15     last real control period dt                      s         t_s
+=====  ===============================================  ========  ===========
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from capture_bench.kinematics import ArmSpec
+
+OBSERVATION_SIZE = 16
+OBSERVATION_BOUND = 10.0  # every scaled entry is clipped to [-10, 10]
+POSITION_SCALE = 1.0  # m
+VELOCITY_SCALE = 0.1  # m/s
+ANGLE_SCALE = np.pi  # rad
+RELATIVE_SCALE = 0.5  # m
+
+SLICES = {
+    "target_position": slice(0, 3),
+    "target_velocity": slice(3, 6),
+    "ee_position": slice(6, 9),
+    "joint_angles": slice(9, 12),
+    "relative_position": slice(12, 15),
+    "last_period": slice(15, 16),
+}
+
+
+@dataclass(frozen=True)
+class TaskDescription:
+    """What an environment publishes about itself for agents.
+
+    Attributes:
+        arm: the arm's constants (link lengths, joint rate and position limits, home).
+        control_period: nominal control period t_s, s.
+        capture_tolerance: epsilon of eq. 20, m, shape (3,).
+    """
+
+    arm: ArmSpec = field(default_factory=ArmSpec)
+    control_period: float = 0.05
+    capture_tolerance: NDArray[np.float64] = field(default_factory=lambda: np.full(3, 1e-3))
+
+    def action_to_increment(self, action: NDArray) -> NDArray[np.float64]:
+        """Joint increment requested by an action: dTheta = a * theta_dot_max * t_s, rad, (3,)."""
+        return np.asarray(action, dtype=float) * self.arm.joint_rate_limits * self.control_period
+
+    def increment_to_action(self, increment: NDArray) -> NDArray[np.float32]:
+        """Action that requests a joint increment (inverse of :meth:`action_to_increment`),
+        clipped to the action space [-1, 1]^3."""
+        action = np.asarray(increment, dtype=float) / (
+            self.arm.joint_rate_limits * self.control_period
+        )
+        return np.clip(action, -1.0, 1.0).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Observation:
+    """A decoded observation, in SI units and the global frame (see module docstring)."""
+
+    target_position: NDArray[np.float64]
+    target_velocity: NDArray[np.float64]
+    ee_position: NDArray[np.float64]
+    joint_angles: NDArray[np.float64]
+    relative_position: NDArray[np.float64]
+    last_period: float
+
+
+def observation_space() -> spaces.Box:
+    """The observation space: Box(-10, 10, (16,), float32)."""
+    return spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, (OBSERVATION_SIZE,), np.float32)
+
+
+def encode_observation(
+    target_position: NDArray,
+    target_velocity: NDArray,
+    ee_position: NDArray,
+    joint_angles: NDArray,
+    last_period: float,
+    control_period: float,
+) -> NDArray[np.float32]:
+    """Build the scaled observation vector; the relative vector uses eq. 13 with t_s."""
+    predicted = np.asarray(target_position) + np.asarray(target_velocity) * control_period
+    obs = np.empty(OBSERVATION_SIZE, dtype=np.float64)
+    obs[0:3] = np.asarray(target_position) / POSITION_SCALE
+    obs[3:6] = np.asarray(target_velocity) / VELOCITY_SCALE
+    obs[6:9] = np.asarray(ee_position) / POSITION_SCALE
+    obs[9:12] = np.asarray(joint_angles) / ANGLE_SCALE
+    obs[12:15] = (predicted - np.asarray(ee_position)) / RELATIVE_SCALE
+    obs[15] = last_period / control_period
+    np.clip(obs, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=obs)
+    return obs.astype(np.float32)
+
+
+def decode_observation(obs: NDArray, control_period: float) -> Observation:
+    """Undo the scaling of :func:`encode_observation` (shape (16,) -> SI units)."""
+    o = np.asarray(obs, dtype=np.float64)
+    if o.shape != (OBSERVATION_SIZE,):
+        raise ValueError(f"observation must have shape ({OBSERVATION_SIZE},), got {o.shape}")
+    return Observation(
+        target_position=o[0:3] * POSITION_SCALE,
+        target_velocity=o[3:6] * VELOCITY_SCALE,
+        ee_position=o[6:9] * POSITION_SCALE,
+        joint_angles=o[9:12] * ANGLE_SCALE,
+        relative_position=o[12:15] * RELATIVE_SCALE,
+        last_period=float(o[15] * control_period),
+    )
