@@ -19,6 +19,7 @@ Angles are radians, lengths metres.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +39,8 @@ JOINT_LOWER = np.radians([-170.0, 20.0, -70.0])
 JOINT_UPPER = np.radians([170.0, 100.0, 60.0])
 
 FloatArray = NDArray[np.float64]
+_LOWER_TUPLE = tuple(float(v) for v in JOINT_LOWER)
+_UPPER_TUPLE = tuple(float(v) for v in JOINT_UPPER)
 
 
 @dataclass(frozen=True)
@@ -148,8 +151,12 @@ def inverse_kinematics(position: ArrayLike) -> FloatArray:
     return np.unique(np.round(np.array(solutions), 15), axis=0)
 
 
-def within_limits(theta: ArrayLike, lower: ArrayLike = JOINT_LOWER, upper: ArrayLike = JOINT_UPPER,
-                  tol: float = 1e-12) -> NDArray[np.bool_]:
+def within_limits(
+    theta: ArrayLike,
+    lower: ArrayLike = JOINT_LOWER,
+    upper: ArrayLike = JOINT_UPPER,
+    tol: float = 1e-12,
+) -> NDArray[np.bool_]:
     """Whether joint angles lie inside [lower, upper] (inclusive, with ``tol`` rad slack)."""
     q = np.asarray(theta, dtype=float)
     return np.all((q >= np.asarray(lower) - tol) & (q <= np.asarray(upper) + tol), axis=-1)
@@ -159,3 +166,75 @@ def _wrap(angle: float) -> float:
     """Wrap an angle to (-pi, pi]."""
     wrapped = (angle + np.pi) % (2.0 * np.pi) - np.pi
     return float(np.pi if wrapped == -np.pi else wrapped)
+
+
+def inverse_kinematics_batch(positions: ArrayLike) -> FloatArray:
+    """All four closed-form solutions for a batch of points, NaN where there is none.
+
+    The same maths as :func:`inverse_kinematics`, vectorised (used by the physical-limit bound).
+
+    Args:
+        positions: points in the global frame, metres, shape (N, 3).
+
+    Returns:
+        Solutions, rad, shape (N, 4, 3), ordered (facing, elbow +), (facing, elbow -),
+        (away, elbow +), (away, elbow -); rows of NaN where the point is out of reach.
+    """
+    p = np.asarray(positions, dtype=float).reshape(-1, 3)
+    rho = np.hypot(p[:, 0], p[:, 1])
+    base = np.arctan2(p[:, 1], p[:, 0])
+    z = p[:, 2]
+    out = np.full((p.shape[0], 4, 3), np.nan)
+    s3 = (rho * rho + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
+    ok = np.abs(s3) <= 1.0 + 1e-12
+    s3 = np.clip(s3, -1.0, 1.0)
+    c3_abs = np.sqrt(1.0 - s3 * s3)
+    column = 0
+    for sign_r, t1 in ((1.0, base), (-1.0, base + np.pi)):
+        r = sign_r * rho
+        for c3 in (c3_abs, -c3_abs):
+            a, b = L1 + L2 * s3, L2 * c3
+            t2 = np.arctan2(a * z + b * r, a * r - b * z)
+            sol = np.stack([t1, t2, np.arctan2(s3, c3)], axis=-1)
+            out[:, column] = np.where(ok[:, None], _wrap_array(sol), np.nan)
+            column += 1
+    return out
+
+
+def reachable(
+    position: ArrayLike, lower: ArrayLike | None = None, upper: ArrayLike | None = None
+) -> bool:
+    """Whether a point (global, m, shape (3,)) has an IK solution inside the joint limits.
+
+    Scalar ``math`` version of :func:`inverse_kinematics` (it runs every env step). Only the
+    solutions with joint 1 facing the point (r > 0) are tried: inside the default limits r > 0
+    always (see module docstring); for other limits (``lower``/``upper`` given) the batch IK
+    gives the full answer.
+    """
+    x, y, z = (float(c) for c in position)
+    if lower is not None or upper is not None:
+        lower = JOINT_LOWER if lower is None else lower
+        upper = JOINT_UPPER if upper is None else upper
+        solutions = inverse_kinematics_batch(np.array([[x, y, z]]))[0]
+        return bool(np.any(within_limits(solutions, lower, upper)))
+    lo, hi = _LOWER_TUPLE, _UPPER_TUPLE
+    t1 = math.atan2(y, x)
+    if not lo[0] <= t1 <= hi[0]:
+        return False
+    r = math.hypot(x, y)
+    s3 = (r * r + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
+    if abs(s3) > 1.0:
+        return False
+    c3_abs = math.sqrt(1.0 - s3 * s3)
+    for c3 in (c3_abs, -c3_abs):
+        a, b = L1 + L2 * s3, L2 * c3
+        t2 = math.atan2(a * z + b * r, a * r - b * z)
+        t3 = math.atan2(s3, c3)
+        if lo[1] <= t2 <= hi[1] and lo[2] <= t3 <= hi[2]:
+            return True
+    return False
+
+
+def _wrap_array(angles: FloatArray) -> FloatArray:
+    """Wrap angles to [-pi, pi)."""
+    return (angles + np.pi) % (2.0 * np.pi) - np.pi

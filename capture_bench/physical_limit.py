@@ -1,0 +1,151 @@
+"""The physical limit of an episode: a lower bound on any agent's capture time (DESIGN.md).
+
+Joints are independent velocity-limited integrators, so the joint vectors reachable by time t form
+the box ``|theta_i - theta_i(0)| <= theta_dot_max_i t`` intersected with the joint limits. The
+earliest time at which the true capture point X_T(t) has an inverse-kinematics solution inside
+that box (within the capture tolerance epsilon, component-wise as in eq. 20) bounds every agent's
+capture time from below.
+
+How it is computed:
+
+1. On the grid ``t_k = k * period`` up to the horizon, every closed-form IK solution of X_T(t_k)
+   is tested against the box (exact). Where none lies inside, the tolerance is used: each
+   solution (and the start pose) is clipped to the box and refined by a few projected Newton
+   steps ``theta <- clip(theta + J^-1 (X_T - f(theta)))``; the point is feasible if
+   ``|f(theta) - X_T| < epsilon`` component-wise.
+2. Between the last infeasible and the first feasible grid time, bisection on the continuous
+   trajectory finds the onset to ``period * 2**-20``. The bound is therefore exact to well below
+   the control period, assuming feasibility does not switch on and off again inside one period
+   (the box grows monotonically and the target moves a few mm per period).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from capture_bench.kinematics import forward_kinematics, inverse_kinematics_batch, jacobian
+
+FloatArray = NDArray[np.float64]
+NEWTON_STEPS = 4
+BISECTION_STEPS = 20
+CHUNK = 32
+
+
+@dataclass(frozen=True)
+class PhysicalLimit:
+    """The episode's bound.
+
+    Attributes:
+        time: earliest feasible capture time, s; ``inf`` if the target is never reachable in time.
+        theta: a joint vector, rad, (3,), that reaches the capture point at ``time`` (None if inf).
+    """
+
+    time: float
+    theta: FloatArray | None
+
+
+def feasible_solutions(
+    targets: FloatArray,
+    times: FloatArray,
+    theta0: FloatArray,
+    joint_rate_limits: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    tolerance: FloatArray,
+) -> tuple[NDArray[np.bool_], FloatArray]:
+    """For each time, whether the target is reachable inside the box, and a joint vector that does.
+
+    Args:
+        targets: capture point X_T(t), global, m, (N, 3).
+        times: t, s, (N,).
+        theta0: joint angles at t = 0, rad, (3,).
+        joint_rate_limits: theta_dot_max, rad/s, (3,).
+        lower, upper: joint limits, rad, (3,).
+        tolerance: epsilon, m, (3,).
+
+    Returns:
+        ``(feasible (N,), theta (N, 3))``; theta rows are meaningful where feasible.
+    """
+    n = targets.shape[0]
+    box_lo = np.maximum(lower, theta0 - np.outer(times, joint_rate_limits))  # (N, 3)
+    box_hi = np.minimum(upper, theta0 + np.outer(times, joint_rate_limits))
+    solutions = inverse_kinematics_batch(targets)  # (N, 4, 3), NaN where none
+    inside = np.all((solutions >= box_lo[:, None]) & (solutions <= box_hi[:, None]), axis=2)
+    feasible = inside.any(axis=1)
+    theta = np.zeros((n, 3))
+    first = np.argmax(inside, axis=1)
+    theta[feasible] = solutions[feasible, first[feasible]]
+    todo = ~feasible
+    if np.any(todo):
+        # Tolerance: projected Newton from each clipped solution and from the start pose.
+        starts = np.concatenate([solutions[todo], np.broadcast_to(theta0, (todo.sum(), 1, 3))], 1)
+        lo, hi = box_lo[todo][:, None], box_hi[todo][:, None]
+        goal = targets[todo][:, None]
+        q = np.clip(np.nan_to_num(starts, nan=0.0), lo, hi)
+        for _ in range(NEWTON_STEPS):
+            err = goal - forward_kinematics(q)
+            step = np.linalg.solve(jacobian(q), err[..., None])[..., 0]
+            q = np.clip(q + step, lo, hi)
+        close = np.all(np.abs(forward_kinematics(q) - goal) < tolerance, axis=2)  # (M, 5)
+        rows = np.flatnonzero(todo)
+        hit = close.any(axis=1)
+        feasible[rows[hit]] = True
+        theta[rows[hit]] = q[hit, np.argmax(close[hit], axis=1)]
+    return feasible, theta
+
+
+def physical_limit(
+    target_position: Callable[[FloatArray], FloatArray],
+    theta0: FloatArray,
+    joint_rate_limits: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    tolerance: FloatArray,
+    horizon: float,
+    period: float,
+) -> PhysicalLimit:
+    """The earliest time the true capture point can be reached (see module docstring).
+
+    Args:
+        target_position: X_T(t) for times of shape (N,), returning (N, 3), global, m.
+        theta0: joint angles at t = 0, rad, (3,).
+        joint_rate_limits: theta_dot_max, rad/s, (3,).
+        lower, upper: joint limits, rad, (3,).
+        tolerance: epsilon, m, (3,).
+        horizon: episode limit, s; no bound beyond it.
+        period: grid spacing (the nominal control period t_s), s.
+    """
+    args = (
+        np.asarray(theta0, float),
+        np.asarray(joint_rate_limits, float),
+        np.asarray(lower, float),
+        np.asarray(upper, float),
+        np.asarray(tolerance, float),
+    )
+
+    def check(times: FloatArray) -> tuple[NDArray[np.bool_], FloatArray]:
+        return feasible_solutions(target_position(times), times, *args)
+
+    n_grid = int(np.floor(horizon / period + 1e-9)) + 1
+    for start in range(0, n_grid, CHUNK):
+        times = np.arange(start, min(start + CHUNK, n_grid)) * period
+        ok, theta = check(times)
+        if not ok.any():
+            continue
+        k = int(np.argmax(ok))
+        if start + k == 0:
+            return PhysicalLimit(0.0, theta[0])
+        t_lo, t_hi, best = times[k] - period, times[k], theta[k]
+        for _ in range(BISECTION_STEPS):
+            mid = 0.5 * (t_lo + t_hi)
+            ok_mid, theta_mid = check(np.array([mid]))
+            if ok_mid[0]:
+                t_hi, best = mid, theta_mid[0]
+            else:
+                t_lo = mid
+        return PhysicalLimit(float(t_hi), best)
+    return PhysicalLimit(float("inf"), None)

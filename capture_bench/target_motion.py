@@ -1,0 +1,230 @@
+"""True motion of the non-cooperative target (never seen by agents).
+
+A trajectory is a translation of the target's centre of rotation ``c(t)`` composed with a rotation
+``R(t) = Rot(axis, rate * t) @ R0`` about that centre. The target frame's origin is the capture
+point, offset ``r`` (target frame) from the centre, so
+
+    X_T(t) = c(t) + R(t) r,        Xdot_T(t) = cdot(t) + omega x (R(t) r)        (DESIGN.md)
+
+with ``omega = rate * axis`` in the global frame. Every method takes a time in seconds (float or
+array of shape (N,)) and returns global-frame quantities in metres, m/s, or rotation matrices.
+
+Translations:
+
+* ``LinearDrift`` — constant velocity.
+* ``CircularPath`` — uniform motion on a circle.
+* ``Evasive`` — piecewise-constant acceleration that changes direction at given times ("jinks").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from capture_bench.rotations import axis_angle_to_matrix
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class LinearDrift:
+    """c(t) = start + velocity t (m, m/s, global)."""
+
+    start: FloatArray
+    velocity: FloatArray
+
+    def position(self, t: ArrayLike) -> FloatArray:
+        tt = np.asarray(t, dtype=float)[..., None]
+        return self.start + self.velocity * tt
+
+    def velocity_at(self, t: ArrayLike) -> FloatArray:
+        tt = np.asarray(t, dtype=float)[..., None]
+        return np.broadcast_to(self.velocity, tt.shape[:-1] + (3,)).copy()
+
+
+@dataclass(frozen=True)
+class CircularPath:
+    """c(t) = centre + radius (cos(phase + w t) u + sin(phase + w t) v), u ⟂ v unit vectors."""
+
+    centre: FloatArray
+    radius: float
+    angular_speed: float  # rad/s
+    phase: float
+    u: FloatArray
+    v: FloatArray
+
+    def position(self, t: ArrayLike) -> FloatArray:
+        a = self.phase + self.angular_speed * np.asarray(t, dtype=float)[..., None]
+        return self.centre + self.radius * (np.cos(a) * self.u + np.sin(a) * self.v)
+
+    def velocity_at(self, t: ArrayLike) -> FloatArray:
+        a = self.phase + self.angular_speed * np.asarray(t, dtype=float)[..., None]
+        return self.radius * self.angular_speed * (-np.sin(a) * self.u + np.cos(a) * self.v)
+
+
+@dataclass(frozen=True)
+class Evasive:
+    """Constant-acceleration segments: acceleration ``accelerations[k]`` holds on
+    ``[switch_times[k], switch_times[k+1])`` (``switch_times[0] == 0``)."""
+
+    start: FloatArray
+    initial_velocity: FloatArray
+    switch_times: FloatArray  # (K,)
+    accelerations: FloatArray  # (K, 3)
+    _knots: tuple[FloatArray, FloatArray] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # Position and velocity at every switch time, so evaluation is a lookup + one segment.
+        p, v = [np.asarray(self.start, float)], [np.asarray(self.initial_velocity, float)]
+        for k in range(1, len(self.switch_times)):
+            h = self.switch_times[k] - self.switch_times[k - 1]
+            a = self.accelerations[k - 1]
+            p.append(p[-1] + v[-1] * h + 0.5 * a * h * h)
+            v.append(v[-1] + a * h)
+        object.__setattr__(self, "_knots", (np.array(p), np.array(v)))
+
+    def _segment(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        tt = np.asarray(t, dtype=float)
+        k = np.clip(np.searchsorted(self.switch_times, tt, side="right") - 1, 0, None)
+        return k, (tt - self.switch_times[k])[..., None]
+
+    def position(self, t: ArrayLike) -> FloatArray:
+        k, h = self._segment(t)
+        p, v = self._knots
+        return p[k] + v[k] * h + 0.5 * self.accelerations[k] * h * h
+
+    def velocity_at(self, t: ArrayLike) -> FloatArray:
+        k, h = self._segment(t)
+        return self._knots[1][k] + self.accelerations[k] * h
+
+
+Translation = LinearDrift | CircularPath | Evasive
+
+
+@dataclass(frozen=True)
+class TargetTrajectory:
+    """The full rigid-body motion of the target.
+
+    Attributes:
+        translation: motion of the centre of rotation c(t).
+        initial_rotation: R0, target frame -> global, (3, 3).
+        spin_axis: unit axis of the constant angular velocity, global, (3,).
+        spin_rate: angular speed, rad/s (0 for a non-tumbling target).
+        capture_offset: capture point relative to the centre of rotation, target frame, m, (3,).
+    """
+
+    translation: Translation
+    initial_rotation: FloatArray = field(default_factory=lambda: np.eye(3))
+    spin_axis: FloatArray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    spin_rate: float = 0.0
+    capture_offset: FloatArray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def angular_velocity(self) -> FloatArray:
+        """omega, rad/s, global frame, (3,)."""
+        return self.spin_rate * np.asarray(self.spin_axis, dtype=float)
+
+    def rotation(self, t: float) -> FloatArray:
+        """R(t): target frame -> global, (3, 3)."""
+        return axis_angle_to_matrix(self.spin_axis, self.spin_rate * t) @ self.initial_rotation
+
+    def _offsets(self, t: ArrayLike) -> FloatArray:
+        """R(t) r for scalar or (N,) t -> (3,) or (N, 3), m."""
+        tt = np.asarray(t, dtype=float)
+        r0 = self.initial_rotation @ self.capture_offset
+        if self.spin_rate == 0.0 or not np.any(r0):
+            return np.broadcast_to(r0, tt.shape + (3,)).copy()
+        # Rodrigues applied to a vector, vectorised over t.
+        k = np.asarray(self.spin_axis, dtype=float)
+        a = self.spin_rate * tt[..., None]
+        return r0 * np.cos(a) + np.cross(k, r0) * np.sin(a) + k * (k @ r0) * (1.0 - np.cos(a))
+
+    def position(self, t: ArrayLike) -> FloatArray:
+        """X_T(t): capture point, global, m; (3,) or (N, 3)."""
+        return self.translation.position(t) + self._offsets(t)
+
+    def velocity(self, t: ArrayLike) -> FloatArray:
+        """Xdot_T(t) = cdot + omega x (R r), global, m/s; (3,) or (N, 3)."""
+        return self.translation.velocity_at(t) + np.cross(self.angular_velocity, self._offsets(t))
+
+    def feature_points(self, t: float, points_target: FloatArray) -> FloatArray:
+        """Feature points (4, 3) given in the target frame -> global, m, (4, 3)."""
+        return self.position(t) + points_target @ self.rotation(t).T
+
+
+FEATURE_POINTS = {
+    # DESIGN.md defaults, target frame, m. The first point is the capture point.
+    "non_coplanar": np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, 0.05]]),
+    "coplanar_square": np.array(
+        [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.1, 0.1, 0.0], [0.0, 0.1, 0.0]]
+    ),
+}
+
+
+def random_unit_vector(rng: np.random.Generator) -> FloatArray:
+    """A direction drawn uniformly on the unit sphere, (3,)."""
+    v = rng.normal(size=3)
+    return v / np.linalg.norm(v)
+
+
+def random_rotation(rng: np.random.Generator) -> FloatArray:
+    """A rotation drawn uniformly (normalised Gaussian quaternion), (3, 3)."""
+    w, x, y, z = _unit4(rng)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _unit4(rng: np.random.Generator) -> FloatArray:
+    q = rng.normal(size=4)
+    return q / np.linalg.norm(q)
+
+
+def sample_trajectory(
+    cfg, rng: np.random.Generator, anchor: ArrayLike, horizon: float
+) -> TargetTrajectory:
+    """Draw one true trajectory from a scenario's target ranges.
+
+    Args:
+        cfg: the scenario's ``TargetConfig`` (ranges; degrees converted here).
+        rng: the environment's seeded generator (every draw comes from it, in a fixed order).
+        anchor: the home end-effector position the initial offset is measured from, global, m.
+        horizon: episode limit, s (how far the evasive manoeuvre schedule must reach).
+    """
+    start = np.asarray(anchor, dtype=float) + rng.uniform(*cfg.initial_offset) * random_unit_vector(
+        rng
+    )
+    r0 = random_rotation(rng)
+    spin_axis = random_unit_vector(rng)
+    spin_rate = np.radians(rng.uniform(*cfg.tumble_rate_deg))
+    offset = rng.uniform(*cfg.capture_offset) * random_unit_vector(rng)
+    centre0 = start - r0 @ offset
+    speed = rng.uniform(*cfg.speed)
+    direction = random_unit_vector(rng)
+    translation: Translation
+    if cfg.motion == "circular":
+        radius = rng.uniform(*cfg.circle_radius)
+        omega = rng.uniform(*cfg.circle_speed) / radius * rng.choice([-1.0, 1.0])
+        u = random_unit_vector(rng)
+        v = np.cross(u, random_unit_vector(rng))
+        v /= np.linalg.norm(v)
+        phase = rng.uniform(0.0, 2.0 * np.pi)
+        centre = centre0 - radius * (np.cos(phase) * u + np.sin(phase) * v)
+        translation = CircularPath(centre, radius, omega, phase, u, v)
+    elif cfg.motion == "evasive":
+        times = [0.0]
+        while times[-1] < horizon:
+            times.append(times[-1] + rng.uniform(*cfg.jink_interval))
+        accelerations = np.array(
+            [rng.uniform(*cfg.jink_acceleration) * random_unit_vector(rng) for _ in times]
+        )
+        translation = Evasive(centre0, speed * direction, np.array(times), accelerations)
+    else:  # drift and tumbling share a drifting centre
+        translation = LinearDrift(centre0, speed * direction)
+    return TargetTrajectory(translation, r0, spin_axis, float(spin_rate), offset)
