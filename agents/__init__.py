@@ -1,0 +1,100 @@
+"""Agents for capture-bench: the paper's controller, classic baselines and the privileged oracle.
+
+Every agent follows :class:`agents.protocol.Agent` (SB3-style ``predict`` plus ``reset``) and acts
+in the shared action space ``Box(-1, 1, (3,))``. Build one by name with :func:`make_agent`:
+
+==========================  ==========================================================  =========
+name                        what                                                        sees
+==========================  ==========================================================  =========
+``incremental_ik``          Dong & Zhu (2016) eqs. 13-19, lambda_max, with step cap     public
+``incremental_ik_uncapped`` the same, paper-exact (``cap=False``)                        public
+``pure_pursuit``            straight at X^_T, no look-ahead                             public
+``intercept``               straight at the predicted interception point                public
+``dls``                     damped-least-squares resolved rate, feed-forward + P term   public
+``random``                  uniform random actions (seeded)                             public
+``hold``                    zero action                                                 public
+``oracle``                  "oracle (privileged)": drives to the physical-limit pose    ground truth
+==========================  ==========================================================  =========
+
+Analytic agents are built from ``env.unwrapped.description`` (a
+:class:`capture_bench.observation.TaskDescription`) and nothing else; only the oracle keeps a
+reference to the environment, and it carries ``privileged = True``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from agents.baselines import DampedLeastSquares, Hold, Intercept, PurePursuit, RandomAgent
+from agents.incremental_ik import AnalyticController, IncrementalIK, incremental_step
+from agents.oracle import Oracle
+from agents.protocol import Agent
+
+AgentFactory = Callable[..., Agent]
+
+
+def _public(cls: Callable[..., Agent], **defaults: Any) -> AgentFactory:
+    """Factory that hands the agent the environment's public description only."""
+
+    def factory(env: Any, **kwargs: Any) -> Agent:
+        return cls(env.unwrapped.description, **{**defaults, **kwargs})
+
+    factory.__doc__ = f"Build {cls.__name__} from ``env.unwrapped.description`` only."
+    return factory
+
+
+def _oracle(env: Any, **kwargs: Any) -> Agent:
+    """Build the privileged oracle from the environment itself."""
+    return Oracle(env, **kwargs)
+
+
+AGENTS: dict[str, AgentFactory] = {
+    "incremental_ik": _public(IncrementalIK),
+    "incremental_ik_uncapped": _public(IncrementalIK, cap=False),
+    "pure_pursuit": _public(PurePursuit),
+    "intercept": _public(Intercept),
+    "dls": _public(DampedLeastSquares),
+    "random": _public(RandomAgent),
+    "hold": _public(Hold),
+    "oracle": _oracle,
+}
+
+PRIVILEGED_AGENTS = frozenset({"oracle"})
+
+
+def make_agent(name: str, env: Any, **kwargs: Any) -> Agent:
+    """Build the agent registered as ``name`` for ``env``.
+
+    Args:
+        name: a key of :data:`AGENTS`.
+        env: a capture-bench environment (or a wrapper of one).
+        **kwargs: passed to the agent's constructor (e.g. ``cap=False``, ``seed=3``).
+
+    Raises:
+        ValueError: for an unknown name; the message lists the valid ones.
+    """
+    try:
+        factory = AGENTS[name]
+    except KeyError:
+        valid = ", ".join(sorted(AGENTS))
+        raise ValueError(f"unknown agent {name!r}; valid agents: {valid}") from None
+    return factory(env, **kwargs)
+
+
+__all__ = [
+    "AGENTS",
+    "PRIVILEGED_AGENTS",
+    "Agent",
+    "AgentFactory",
+    "AnalyticController",
+    "DampedLeastSquares",
+    "Hold",
+    "IncrementalIK",
+    "Intercept",
+    "Oracle",
+    "PurePursuit",
+    "RandomAgent",
+    "incremental_step",
+    "make_agent",
+]

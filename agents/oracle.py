@@ -1,0 +1,119 @@
+"""The privileged oracle: it knows the true target trajectory and attains the physical limit.
+
+**Privileged.** Unlike every other agent it reads the world's ground truth through the
+environment's privileged API (``env.unwrapped.physical_limit()``, ``true_target_position(t)``,
+``time``). It is not a controller anyone could deploy; it exists to show that the per-episode lower
+bound on capture time (``capture_bench/physical_limit.py``) is attainable, so ratios to the bound
+are meaningful. Label it "oracle (privileged)" wherever it appears.
+
+Plan, per episode:
+
+1. *Go to the bound.* At the episode's first step it asks ``physical_limit()`` for ``(T, theta*)``:
+   the earliest time ``T`` at which the true capture point has an IK solution ``theta*`` inside the
+   box ``|theta_i - theta_i(0)| <= theta_dot_max_i t``. Each joint is driven straight toward
+   ``theta*`` at up to its full rate, ``a = clip((theta* - theta) / (theta_dot_max t_s), -1, 1)``,
+   so every joint is at ``theta*`` by time T.
+2. *Close in one step.* Before each step it checks whether an IK solution (within joint limits) of
+   the true target position at the *end* of the step, ``X_T(t + t_s)``, is reachable in one step;
+   if so it commands exactly that, which captures at ``t + t_s``. Because the bound's onset falls
+   inside a control period, this is what makes the capture land within one period of T rather
+   than the target drifting away from ``theta*`` while the arm waits there.
+3. *Fallback.* If the bound is infinite (the target is never reachable within the horizon), or the
+   plan is spent without a capture, it runs the paper's incremental IK step (eqs. 13-19, capped)
+   on the true position one period ahead, ``X_T(t + t_s)``, and reports ``mode = "fallback"``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agents.incremental_ik import incremental_step, predict_each, safe_action
+from capture_bench.kinematics import inverse_kinematics, within_limits
+from capture_bench.observation import TaskDescription, decode_observation
+
+
+class Oracle:
+    """Privileged agent that attains the physical-limit bound (see module docstring).
+
+    Args:
+        env: the environment (or a wrapper of it); the oracle reads ``env.unwrapped``'s privileged
+            API and its public ``description``.
+    """
+
+    privileged = True
+    label = "oracle (privileged)"
+
+    def __init__(self, env: Any) -> None:
+        self.world = env.unwrapped
+        self.description: TaskDescription = self.world.description
+        self.theta_star: NDArray[np.float64] | None = None
+        self.bound_time: float | None = None
+        self.mode = "plan"
+        self._last_time = -np.inf
+
+    def reset(self) -> None:
+        """Forget the plan; the next ``predict`` asks the environment for the new bound."""
+        self.theta_star = None
+        self.bound_time = None
+        self.mode = "plan"
+        self._last_time = -np.inf
+
+    def _plan(self) -> None:
+        limit = self.world.physical_limit()
+        self.bound_time = float(limit.time)
+        finite = np.isfinite(self.bound_time) and limit.theta is not None
+        self.theta_star = np.asarray(limit.theta, dtype=float) if finite else None
+        self.mode = "bound" if finite else "fallback"
+
+    def _true_position(self, t: float) -> NDArray[np.float64]:
+        return np.asarray(self.world.true_target_position(float(t)), dtype=float).reshape(3)
+
+    def _one_step_solution(self, theta: NDArray, goal: NDArray) -> NDArray[np.float64] | None:
+        """An IK solution of ``goal`` within joint limits and one step of ``theta``, or None."""
+        arm = self.description.arm
+        reach = arm.joint_rate_limits * self.description.control_period
+        solutions = inverse_kinematics(goal)
+        if solutions.shape[0] == 0:
+            return None
+        ok = within_limits(solutions, arm.joint_lower, arm.joint_upper) & np.all(
+            np.abs(solutions - theta) <= reach * (1.0 - 1e-9), axis=1
+        )
+        if not np.any(ok):
+            return None
+        candidates = solutions[ok]
+        scaled = (candidates - theta) / reach
+        return candidates[int(np.argmin(np.max(np.abs(scaled), axis=1)))]
+
+    def act(self, observation: NDArray) -> NDArray[np.float32]:
+        """Action for one observation, shape (3,), float32, in [-1, 1]."""
+        t = float(self.world.time)
+        if self.bound_time is None or t < self._last_time:  # first step of a new episode
+            self._plan()
+        self._last_time = t
+        desc = self.description
+        theta = decode_observation(observation, desc.control_period).joint_angles
+        goal = self._true_position(t + desc.control_period)
+        scale = desc.arm.joint_rate_limits * desc.control_period
+        direct = self._one_step_solution(theta, goal)
+        if direct is not None:  # capture at the end of this step
+            return safe_action((direct - theta) / scale)
+        if self.theta_star is not None and np.any(np.abs(self.theta_star - theta) > 1e-6):
+            return safe_action((self.theta_star - theta) / scale)  # full rate toward theta*
+        self.mode = "fallback"
+        step = incremental_step(theta, goal, np.zeros(3), desc, cap=True)
+        return safe_action(desc.increment_to_action(step.increment))
+
+    def predict(
+        self,
+        observation: NDArray,
+        state: Any = None,
+        episode_start: NDArray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[NDArray[np.float32], Any]:
+        """SB3-style predict: ``(action, state)``; ``episode_start`` true forces a new plan."""
+        if episode_start is not None and bool(np.any(episode_start)):
+            self.reset()
+        return predict_each(self.act, observation), state

@@ -1,0 +1,240 @@
+"""Tests of the agents: the paper's controller (eqs. 13-19), the baselines and the oracle."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import agents
+from agents import AGENTS, IncrementalIK, Oracle, make_agent
+from agents.incremental_ik import incremental_step, lambda_max_of
+from capture_bench.kinematics import (
+    HOME,
+    JOINT_LOWER,
+    JOINT_UPPER,
+    L1,
+    L2,
+    forward_kinematics,
+    jacobian_determinant,
+)
+from capture_bench.observation import TaskDescription, decode_observation, encode_observation
+
+DESCRIPTION = TaskDescription()
+T_S = DESCRIPTION.control_period
+RATES = DESCRIPTION.arm.joint_rate_limits
+
+
+class PublicEnv:
+    """Stands in for an environment: exposes the public description and nothing else."""
+
+    def __init__(self, description: TaskDescription = DESCRIPTION) -> None:
+        self.unwrapped = SimpleNamespace(description=description)
+
+
+class StubWorld:
+    """Privileged API stub for the oracle: a linearly drifting target and a given bound."""
+
+    def __init__(self, limit_time: float, theta: np.ndarray | None, x0: np.ndarray, v: np.ndarray):
+        self.description = DESCRIPTION
+        self.time = 0.0
+        self._limit = SimpleNamespace(time=limit_time, theta=theta)
+        self._x0, self._v = x0, v
+
+    def physical_limit(self) -> SimpleNamespace:
+        return self._limit
+
+    def true_target_position(self, t: float) -> np.ndarray:
+        return self._x0 + self._v * t
+
+
+def observe(theta, target, velocity=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Encode an observation for joint angles ``theta`` and an estimated target state."""
+    theta = np.asarray(theta, float)
+    return encode_observation(
+        np.asarray(target, float),
+        np.asarray(velocity, float),
+        forward_kinematics(theta),
+        theta,
+        T_S,
+        T_S,
+    )
+
+
+def random_poses(rng: np.random.Generator, n: int) -> np.ndarray:
+    return rng.uniform(JOINT_LOWER, JOINT_UPPER, (n, 3))
+
+
+def singular_poses() -> np.ndarray:
+    """Poses with det J = 0 or nearly: theta3 at +-90 deg, and r = 0 (wrist over joint 1)."""
+    poses = []
+    for t3 in (np.pi / 2, -np.pi / 2, np.pi / 2 - 1e-7, -np.pi / 2 + 1e-9):
+        poses.append([0.3, 1.0, t3])
+    for t3 in (0.0, 0.5, -0.5):
+        # r = l1 cos t2 + l2 sin(t2 + t3) = 0, solved for t2 by bisection.
+        lo, hi = 0.0, np.pi
+        for _ in range(80):
+            mid = 0.5 * (lo + hi)
+            r = L1 * np.cos(mid) + L2 * np.sin(mid + t3)
+            lo, hi = (mid, hi) if r > 0 else (lo, mid)
+        poses.append([-1.0, lo, t3])
+        poses.append([-1.0, lo + 1e-6, t3])
+    return np.array(poses)
+
+
+# --- eqs. 13-19 ------------------------------------------------------------------------------
+
+
+def test_lambda_max_binds_exactly_one_joint_and_respects_the_others():
+    rng = np.random.default_rng(0)
+    for theta in random_poses(rng, 200):
+        target = forward_kinematics(theta) + rng.uniform(-0.3, 0.3, 3)
+        velocity = rng.uniform(-0.05, 0.05, 3)
+        step = incremental_step(theta, target, velocity, DESCRIPTION, cap=False)
+        assert not step.singular
+        rate = step.lambda_max * step.joint_direction  # eq. 17 at lambda_max, rad/s
+        usage = np.abs(rate) / RATES
+        assert np.all(usage <= 1.0 + 1e-12)  # eq. 18 on every joint
+        assert usage.max() == pytest.approx(1.0, abs=1e-12)  # equality on the binding joint
+        assert step.increment == pytest.approx(rate * T_S, abs=1e-15)  # eq. 19
+
+
+def test_lambda_max_of_handles_zero_components_and_batches():
+    u = np.array([[0.0, 2.0, -0.5], [0.0, 0.0, 0.0]])
+    assert lambda_max_of(u, RATES).tolist() == pytest.approx([0.412 / 2.0, 0.0])
+
+
+def test_uncapped_matches_a_hand_computation_of_eqs_13_to_19():
+    rng = np.random.default_rng(1)
+    agent = IncrementalIK(DESCRIPTION, cap=False)
+    for theta in random_poses(rng, 50):
+        obs = observe(
+            theta,
+            forward_kinematics(theta) + rng.uniform(-0.3, 0.3, 3),
+            rng.uniform(-0.05, 0.05, 3),
+        )
+        o = decode_observation(obs, T_S)  # the float32-rounded values the agent sees
+        t1, t2, t3 = o.joint_angles
+        # eq. 8, written out
+        r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
+        x_e = np.array([r * np.cos(t1), r * np.sin(t1), L1 * np.sin(t2) - L2 * np.cos(t2 + t3)])
+        # eq. 9: J by central differences of eq. 8 (independent of kinematics.jacobian)
+        h = 1e-6
+        jac = np.column_stack(
+            [
+                (
+                    forward_kinematics(o.joint_angles + h * e)
+                    - forward_kinematics(o.joint_angles - h * e)
+                )
+                / (2 * h)
+                for e in np.eye(3)
+            ]
+        )
+        x_pred = o.target_position + o.target_velocity * T_S  # eq. 13
+        n = (x_pred - x_e) / np.linalg.norm(x_pred - x_e)  # eq. 14
+        p = np.linalg.inv(jac)  # J^dagger = J^-1
+        u = np.array([sum(p[i, j] * n[j] for j in range(3)) for i in range(3)])  # eq. 17
+        lam = [RATES[i] / abs(u[i]) for i in range(3)]  # eq. 18 solved per joint
+        lambda_max = min(lam)
+        d_theta = lambda_max * u * T_S  # eqs. 16, 19
+        action, state = agent.predict(obs)
+        assert state is None
+        assert action == pytest.approx(d_theta / (RATES * T_S), abs=1e-6)
+        assert agent.last_step.lambda_max == pytest.approx(lambda_max, rel=1e-6)
+
+
+def test_step_cap_lands_on_the_predicted_target():
+    rng = np.random.default_rng(2)
+    for theta in random_poses(rng, 50):
+        x_pred = forward_kinematics(theta) + rng.normal(size=3) * 1e-3  # ~1.7 mm away
+        step = incremental_step(theta, x_pred, np.zeros(3), DESCRIPTION, cap=True)
+        assert step.speed < step.lambda_max
+        landed = forward_kinematics(theta + step.increment)
+        # J dTheta = X_T' - X_E exactly, so only a second-order miss remains (far below 1 mm).
+        miss = np.linalg.norm(landed - x_pred)
+        assert miss < 0.05 * np.linalg.norm(x_pred - forward_kinematics(theta)) and miss < 1e-4
+
+
+def test_singular_pose_uses_the_dls_fallback_without_nan():
+    for theta in singular_poses():
+        assert abs(jacobian_determinant(theta)) < 1e-3
+        step = incremental_step(
+            theta, forward_kinematics(theta) + [0.1, -0.05, 0.02], [0.01, 0, 0], DESCRIPTION
+        )
+        assert step.singular
+        assert np.all(np.isfinite(step.increment))
+        assert np.all(np.abs(step.increment) <= RATES * T_S * (1 + 1e-12))
+
+
+# --- every controller stays in the action space ------------------------------------------------
+
+
+def build_all(x0=None) -> dict[str, object]:
+    built = {name: make_agent(name, PublicEnv()) for name in AGENTS if name != "oracle"}
+    x0 = forward_kinematics(HOME) + [0.2, 0.1, -0.1] if x0 is None else x0
+    world = StubWorld(1.5, HOME + [0.1, -0.3, 0.2], x0, np.array([0.01, 0.0, 0.0]))
+    built["oracle"] = Oracle(SimpleNamespace(unwrapped=world))
+    world_inf = StubWorld(np.inf, None, x0, np.array([0.01, 0.0, 0.0]))
+    built["oracle_unbounded"] = Oracle(SimpleNamespace(unwrapped=world_inf))
+    return built
+
+
+def assert_in_action_space(action, name: str) -> None:
+    assert isinstance(action, np.ndarray), name
+    assert action.shape == (3,), name
+    assert action.dtype == np.float32, name
+    assert np.all(np.isfinite(action)), name
+    assert np.all(np.abs(action) <= 1.0), name
+
+
+def test_every_agent_acts_inside_the_action_space():
+    rng = np.random.default_rng(3)
+    observations = [rng.uniform(-10, 10, 16).astype(np.float32) for _ in range(40)]
+    for theta in np.concatenate([singular_poses(), random_poses(rng, 20)]):
+        x_e = forward_kinematics(theta)
+        observations.append(
+            observe(theta, x_e + rng.uniform(-0.3, 0.3, 3), rng.normal(size=3) * 0.05)
+        )
+        observations.append(observe(theta, x_e))  # target exactly at the end-effector
+    for name, agent in build_all().items():
+        agent.reset()
+        for obs in observations:
+            action, _ = agent.predict(obs)
+            assert_in_action_space(action, name)
+        batch, _ = agent.predict(np.stack(observations[:4]))
+        assert batch.shape == (4, 3) and batch.dtype == np.float32
+
+
+def test_registry_and_unknown_name():
+    assert set(AGENTS) >= {
+        "incremental_ik",
+        "pure_pursuit",
+        "intercept",
+        "dls",
+        "random",
+        "hold",
+        "oracle",
+    }
+    assert agents.PRIVILEGED_AGENTS == {"oracle"}
+    assert Oracle.privileged and "privileged" in Oracle.label
+    assert not any(
+        getattr(make_agent(n, PublicEnv()), "privileged", True) for n in AGENTS if n != "oracle"
+    )
+    with pytest.raises(ValueError, match="valid agents: .*incremental_ik"):
+        make_agent("nope", PublicEnv())
+    assert isinstance(make_agent("incremental_ik", PublicEnv()), agents.Agent)
+
+
+def test_random_agent_is_seeded():
+    obs = observe(HOME, forward_kinematics(HOME) + 0.1)
+    a = [make_agent("random", PublicEnv(), seed=7).predict(obs)[0] for _ in range(2)]
+    b = make_agent("random", PublicEnv(), seed=8).predict(obs)[0]
+    assert np.array_equal(a[0], a[1]) and not np.array_equal(a[0], b)
+
+
+def test_hold_and_uncapped_agree_with_their_definitions():
+    obs = observe(HOME, forward_kinematics(HOME) + [0.2, 0.1, -0.1])
+    assert not np.any(make_agent("hold", PublicEnv()).predict(obs)[0])
+    uncapped = make_agent("incremental_ik_uncapped", PublicEnv())
+    assert uncapped.cap is False and np.max(np.abs(uncapped.predict(obs)[0])) == 1.0
