@@ -1,0 +1,36 @@
+"""Eq. 20 over a whole step, against hand cases and a dense brute force."""
+
+import numpy as np
+
+from capture_bench.capture import first_entry_fraction, within_tolerance
+
+EPS = np.full(3, 1e-3)
+
+
+def test_pass_through_the_box_mid_step_is_a_capture():
+    # Relative vector goes from (-5, 0, 0) mm to (+5, 0, 0) mm: enters the 1 mm box at s = 0.4.
+    s = first_entry_fraction([-5e-3, 0, 0], [5e-3, 0, 0], EPS)
+    assert s is not None and abs(s - 0.4) < 1e-12
+
+
+def test_a_miss_by_more_than_epsilon_in_one_component_is_not():
+    assert first_entry_fraction([-5e-3, 2e-3, 0], [5e-3, 2e-3, 0], EPS) is None
+
+
+def test_touching_the_boundary_is_not_a_capture():
+    assert first_entry_fraction([1e-3, 0, 0], [3e-3, 0, 0], EPS) is None
+    assert not within_tolerance([1e-3, 0, 0], EPS)
+
+
+def test_agrees_with_dense_sampling():
+    rng = np.random.default_rng(0)
+    s_grid = np.linspace(0, 1, 20001)
+    for _ in range(300):
+        d0, d1 = rng.uniform(-4e-3, 4e-3, (2, 3))
+        path = d0 + s_grid[:, None] * (d1 - d0)
+        inside = np.all(np.abs(path) < EPS, axis=1)
+        s = first_entry_fraction(d0, d1, EPS)
+        if inside.any():
+            assert s is not None and abs(s - s_grid[np.argmax(inside)]) < 1e-4
+        else:
+            assert s is None or np.all(np.abs(d0 + s * (d1 - d0)) <= EPS + 1e-12)
