@@ -1,0 +1,178 @@
+"""Leaderboard statistics, checked on synthetic episode records against independent references.
+
+Aggregation is a pure function of the records, so synthetic records are a fair test here; the
+end-to-end runs on the real environment are in ``test_evaluate_cli.py``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from capture_bench.evaluation.aggregate import (
+    Summary,
+    failure_reasons,
+    rank_agents,
+    summarise_all,
+    summary_row,
+)
+from capture_bench.evaluation.metrics import (
+    Estimate,
+    bootstrap_estimate,
+    interquartile_mean,
+    kaplan_meier,
+    paired_comparison,
+    wilson_interval,
+)
+from capture_bench.evaluation.rollout import EpisodeRecord
+
+NAN = math.nan
+
+
+def record(
+    agent: str, seed: int, time: float | None, failure: str = "timeout", **kw
+) -> EpisodeRecord:
+    """A synthetic episode: captured at ``time`` s, or failed with ``failure`` at 10 s."""
+    captured = time is not None
+    values = dict(
+        agent=agent,
+        scenario=kw.pop("scenario", "paper"),
+        seed=seed,
+        outcome="captured" if captured else "failed",
+        failure="" if captured else failure,
+        capture_time=time if captured else NAN,
+        end_time=time if captured else kw.pop("end_time", 10.0),
+        physical_limit_time=1.0,
+        ratio=time / 1.0 if captured else NAN,
+        capture_time_estimated=NAN,
+        distance_at_capture=5e-4 if captured else NAN,
+        relative_speed_at_capture=0.01 if captured else NAN,
+        position_rmse=0.002,
+        velocity_rmse=0.003,
+        mean_nees=6.0,
+        path_length=0.4,
+        saturated_share=0.5,
+        steps=40,
+        wall_clock_s=0.01,
+    )
+    values.update(kw)
+    return EpisodeRecord(**values)
+
+
+def test_wilson_matches_the_closed_form_reference_values():
+    # Reference: Wilson (1927); 8/10 -> [0.4902, 0.9433] (e.g. statsmodels proportion_confint).
+    est = wilson_interval(8, 10)
+    assert est.value == pytest.approx(0.8)
+    assert (est.low, est.high) == pytest.approx((0.4902, 0.9433), abs=1e-4)
+    assert wilson_interval(0, 20).low == 0.0 and wilson_interval(20, 20).high == 1.0
+    assert math.isnan(wilson_interval(0, 0).value)
+
+
+def test_iqm_is_the_mean_of_the_middle_half():
+    x = np.arange(1.0, 9.0)  # 1..8, middle half 3..6
+    assert interquartile_mean(x) == pytest.approx(4.5)
+
+
+def test_bootstrap_is_seeded_contains_its_estimate_and_handles_degenerate_data():
+    rng = np.random.default_rng(0)
+    x = rng.exponential(2.0, 60)
+    a, b = bootstrap_estimate(x, "median"), bootstrap_estimate(x, "median")
+    assert a == b  # fixed seed: identical intervals run to run
+    assert a.value == pytest.approx(np.median(x)) and a.low < a.value < a.high
+    assert bootstrap_estimate(x, "iqm").contains_value()
+    assert math.isnan(bootstrap_estimate([], "mean").value)
+    one = bootstrap_estimate([3.0, NAN], "mean")  # NaN dropped, one value: no interval
+    assert one.value == 3.0 and math.isnan(one.low)
+    assert bootstrap_estimate([2.0, 2.0, 2.0], "median") == Estimate(2.0, 2.0, 2.0)
+
+
+def test_kaplan_meier_matches_a_hand_computed_curve():
+    # events at 1, 2, 3; censored at 2.5 and 4. S: 1 -> 4/5 -> 3/5 -> (censor) -> 3/5*1/2 = 0.3
+    curve = kaplan_meier([1.0, 2.0, 3.0, 2.5, 4.0], [True, True, True, False, False])
+    at = dict(zip(curve.time.tolist(), curve.survival.tolist()))
+    assert at[0.0] == 1.0
+    assert at[1.0] == pytest.approx(0.8) and at[2.0] == pytest.approx(0.6)
+    assert at[3.0] == pytest.approx(0.3)
+    assert np.all(curve.low <= curve.survival + 1e-12) and np.all(
+        curve.survival <= curve.high + 1e-12
+    )
+    median = curve.median()
+    assert median.value == 3.0 and median.contains_value()
+
+
+def test_kaplan_meier_without_any_capture_never_reaches_one_half():
+    curve = kaplan_meier([10.0, 4.0], [False, False])
+    assert np.all(curve.survival == 1.0) and curve.median().value == math.inf
+
+
+def test_paired_comparison_counts_failures_as_worse_and_ties_as_half():
+    agent = {1: 1.0, 2: 2.0, 3: math.inf, 4: 3.0, 5: math.inf}
+    ref = {1: 2.0, 2: 2.0, 3: 1.0, 4: math.inf, 5: math.inf, 6: 1.0}  # seed 6 unpaired
+    cmp = paired_comparison(agent, ref)
+    assert cmp.pairs == 5
+    # seeds: 1 better, 2 tie, 3 worse, 4 better (ref failed), 5 tie (both failed)
+    assert cmp.prob_improvement.value == pytest.approx((1 + 0.5 + 0 + 1 + 0.5) / 5)
+    assert (cmp.both_captured, cmp.only_agent, cmp.only_reference, cmp.neither) == (2, 1, 1, 1)
+    assert cmp.time_difference.value == pytest.approx(np.median([1.0 - 2.0, 0.0]))
+    assert cmp.prob_improvement.contains_value() and cmp.time_difference.contains_value()
+
+
+def _cells() -> list[EpisodeRecord]:
+    recs = []
+    for seed in range(12):
+        recs.append(record("incremental_ik", seed, 2.0 + 0.1 * seed))
+        fast = None if seed % 4 == 0 else 1.5 + 0.1 * seed
+        recs.append(record("fast", seed, fast, failure="collision", end_time=0.7))
+        recs.append(record("oracle", seed, 1.0))
+        recs.append(record("hold", seed, None))
+    return recs
+
+
+def test_summaries_are_consistent_with_their_records():
+    recs = _cells()
+    summaries = {s.agent: s for s in summarise_all(recs)}
+    fast = summaries["fast"]
+    assert (fast.episodes, fast.captured) == (12, 9)
+    assert fast.failures == {"collision": 3}
+    captured_times = [r.capture_time for r in recs if r.agent == "fast" and r.captured]
+    assert fast.figures["capture_time_median"].value == pytest.approx(np.median(captured_times))
+    assert fast.paired is not None and fast.paired.pairs == 12
+    assert summaries["incremental_ik"].paired is None  # the reference is not compared with itself
+    for s in summaries.values():
+        for est in [s.capture_rate, s.km_median, *s.figures.values()]:
+            assert est.contains_value()
+    assert math.isnan(summaries["hold"].figures["capture_time_median"].value)
+    assert summaries["hold"].km_median.value == math.inf
+
+
+def test_summary_row_has_fixed_columns_and_all_failure_reasons():
+    summaries = summarise_all(_cells())
+    reasons = failure_reasons(summaries)
+    assert reasons[:4] == ["timeout", "collision", "target_lost", "unreachable"]
+    rows = [summary_row(s, reasons) for s in summaries]
+    assert len({tuple(r) for r in rows}) == 1  # same columns in every row
+    hold = next(r for r in rows if r["agent"] == "hold")
+    assert hold["failures_timeout"] == 12 and hold["capture_rate"] == 0.0
+
+
+def test_ranking_follows_its_rule_and_leaves_privileged_agents_unranked():
+    ranking = rank_agents(summarise_all(_cells()))
+    order = [(r.agent, r.rank) for r in ranking]
+    # incremental_ik 12/12 > fast 9/12 > hold 0/12; the oracle is listed last, unranked
+    assert order == [("incremental_ik", 1), ("fast", 2), ("hold", 3), ("oracle", None)]
+
+
+def test_ranking_ties_on_capture_rate_are_broken_by_the_ratio():
+    recs = [record("slow", s, 3.0) for s in range(5)] + [record("quick", s, 1.5) for s in range(5)]
+    ranking = rank_agents(summarise_all(recs, reference_agent="slow"))
+    assert [r.agent for r in ranking] == ["quick", "slow"]
+
+
+def test_summarise_refuses_an_empty_cell():
+    from capture_bench.evaluation.aggregate import summarise
+
+    with pytest.raises(ValueError):
+        summarise([])
+    assert isinstance(summarise([record("a", 0, 1.0)]), Summary)
