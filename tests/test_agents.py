@@ -238,3 +238,122 @@ def test_hold_and_uncapped_agree_with_their_definitions():
     assert not np.any(make_agent("hold", PublicEnv()).predict(obs)[0])
     uncapped = make_agent("incremental_ik_uncapped", PublicEnv())
     assert uncapped.cap is False and np.max(np.abs(uncapped.predict(obs)[0])) == 1.0
+
+
+# --- against the environment ---------------------------------------------------------------------
+
+NOISE_FREE = ("paper", "drift", "circular", "tumbling")
+
+
+def make_env(scenario: str, source: str = "truth"):
+    import gymnasium
+
+    import capture_bench  # noqa: F401  (registers the IDs)
+    from capture_bench.scenarios import load_scenario
+
+    return gymnasium.make(load_scenario(scenario).env_id, observation_source=source)
+
+
+def evaluation_seeds(scenario: str, count: int) -> list[int]:
+    from capture_bench.scenarios import load_scenario
+
+    return load_scenario(scenario).evaluation_seeds[:count]
+
+
+def run(env, agent, seed: int, max_steps: int | None = None) -> dict:
+    """One episode; returns the last info (or the info after ``max_steps``)."""
+    observation, info = env.reset(seed=seed)
+    agent.reset()
+    for _ in range(max_steps or 10**6):
+        action, _ = agent.predict(observation)
+        assert_in_action_space(action, type(agent).__name__)
+        observation, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    return info
+
+
+class GroundTruthTouched(AssertionError):
+    pass
+
+
+class PublicOnly:
+    """An environment handle whose ``unwrapped`` offers the public description and nothing else:
+    touching ``true_target_position``, ``physical_limit``, ``time``, the world... raises."""
+
+    class _Guard:
+        def __init__(self, description: TaskDescription) -> None:
+            object.__setattr__(self, "description", description)
+
+        def __getattr__(self, name: str):
+            raise GroundTruthTouched(f"agent read env.unwrapped.{name}")
+
+    def __init__(self, env) -> None:
+        self._guard = self._Guard(env.unwrapped.description)
+
+    @property
+    def unwrapped(self):
+        return self._guard
+
+    def __getattr__(self, name: str):
+        raise GroundTruthTouched(f"agent read env.{name}")
+
+
+def test_no_agent_but_the_oracle_reads_ground_truth():
+    env = make_env("drift", source="truth")
+    try:
+        seed = evaluation_seeds("drift", 1)[0]
+        for name in AGENTS:
+            agent = make_agent(name, PublicOnly(env))
+            if name == "oracle":  # the positive control: the guard does catch a privileged read
+                with pytest.raises(GroundTruthTouched):
+                    run(env, agent, seed, max_steps=3)
+                continue
+            run(env, agent, seed, max_steps=40)
+    finally:
+        env.close()
+
+
+def test_incremental_ik_captures_paper_episodes_near_the_bound():
+    """The first 50 published seeds (truth source): every episode with a finite bound is captured,
+    the median capture is within 2 control periods of the bound and 85% within 5."""
+    env = make_env("paper", source="truth")
+    agent = make_agent("incremental_ik", env)
+    t_s = env.unwrapped.description.control_period
+    gaps = []
+    try:
+        for seed in evaluation_seeds("paper", 50):
+            info = run(env, agent, seed)
+            limit = info["physical_limit_time"]
+            if not np.isfinite(limit):
+                continue
+            assert info["is_success"], (seed, info["failure"], limit)
+            gaps.append((info["capture_time"] - limit) / t_s)
+    finally:
+        env.close()
+    gaps = np.array(gaps)
+    assert gaps.size >= 45
+    assert np.median(gaps) <= 2.0 and np.mean(gaps <= 5.0) >= 0.85, np.round(gaps, 2)
+
+
+@pytest.mark.parametrize("scenario", NOISE_FREE)
+def test_oracle_attains_the_bound_within_one_period(scenario):
+    env = make_env(scenario, source="truth")
+    agent = make_agent("oracle", env)
+    assert agent.privileged
+    t_s = env.unwrapped.description.control_period
+    checked = 0
+    try:
+        for seed in evaluation_seeds(scenario, 10):
+            info = run(env, agent, seed)
+            limit = info["physical_limit_time"]
+            if not np.isfinite(limit):
+                continue
+            if info["failure"] == "unreachable" and info["time"] < limit:
+                continue  # the episode ended before the bound (target left reach and came back)
+            assert info["is_success"], (scenario, seed, info["failure"], limit)
+            assert abs(info["capture_time"] - limit) <= t_s, (scenario, seed, limit, info)
+            checked += 1
+    finally:
+        env.close()
+    assert checked >= 7
