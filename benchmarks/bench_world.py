@@ -1,0 +1,94 @@
+"""Micro-benchmark of one world step: ``apply_joint_increment``, ``set_target_pose``, ``collision``.
+
+Usage::
+
+    python benchmarks/bench_world.py [--steps 20000] [--repeats 3] [--clock cpu|wall]
+
+Prints microseconds per call (best of ``--repeats``; CPU time of this process by default, which
+other jobs on a shared machine disturb far less than wall time) for each of the three calls and
+for the full world step (all three, as the environment calls them), plus ``reset`` and a 320x240
+``render`` for reference. The arm wanders near home with random increments at the rate limit's
+scale (some clipped) and the target drifts and tumbles, so no call is a degenerate no-op.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from capture_bench.kinematics import HOME, JOINT_RATE_LIMITS
+from capture_bench.rotations import axis_angle_to_matrix
+from capture_bench.world import World
+
+FEATURES = np.array([(0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (0.0, 0.1, 0.0), (0.0, 0.0, 0.05)])
+DT = 0.05  # s, the default control period
+
+
+CLOCKS = {"cpu": time.process_time, "wall": time.perf_counter}
+
+
+def measure(
+    steps: int = 20000, repeats: int = 3, seed: int = 0, clock: str = "cpu"
+) -> dict[str, float]:
+    """Microseconds per call of each world operation (see the module docstring)."""
+    timer = CLOCKS[clock]
+
+    def _best_us(call: Callable[[int], object], steps: int, repeats: int) -> float:
+        """Best-of-``repeats`` mean time of ``call(i)`` over ``steps`` calls, microseconds."""
+        best = float("inf")
+        for _ in range(repeats):
+            start = timer()
+            for i in range(steps):
+                call(i)
+            best = min(best, (timer() - start) / steps * 1e6)
+        return best
+
+    rng = np.random.default_rng(seed)
+    deltas = rng.uniform(-1.2, 1.2, (steps, 3)) * JOINT_RATE_LIMITS * DT
+    deltas -= deltas.mean(axis=0)  # no net drift into a joint limit
+    t = np.arange(steps) * DT
+    positions = np.c_[0.35 + 0.05 * np.sin(0.1 * t), 0.02 * t % 0.2, np.full(steps, 0.3)]
+    rotations = [axis_angle_to_matrix((0.0, 0.6, 0.8), 0.03 * k) for k in t]
+    results: dict[str, float] = {}
+    with World(FEATURES) as world:
+        world.reset(HOME, positions[0], rotations[0])
+        results["apply_joint_increment"] = _best_us(
+            lambda i: world.apply_joint_increment(deltas[i], DT), steps, repeats
+        )
+        results["set_target_pose"] = _best_us(
+            lambda i: world.set_target_pose(positions[i], rotations[i]), steps, repeats
+        )
+        results["collision"] = _best_us(lambda i: world.collision(), steps, repeats)
+
+        def full_step(i: int) -> object:
+            world.apply_joint_increment(deltas[i], DT)
+            world.set_target_pose(positions[i], rotations[i])
+            return world.collision()
+
+        world.reset(HOME, positions[0], rotations[0])
+        results["full_step"] = _best_us(full_step, steps, repeats)
+        results["reset"] = _best_us(
+            lambda i: world.reset(HOME, positions[i], rotations[i]), steps, repeats
+        )
+        results["render_320x240"] = _best_us(lambda i: world.render(320, 240), 5, 1)
+    return results
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=20000, help="calls per timing")
+    parser.add_argument("--repeats", type=int, default=3, help="timings; the best is reported")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random increments")
+    parser.add_argument("--clock", choices=sorted(CLOCKS), default="cpu", help="what to time")
+    args = parser.parse_args(argv)
+    print(f"us per call ({args.clock} time, best of {args.repeats} x {args.steps} calls)")
+    for name, us in measure(args.steps, args.repeats, args.seed, args.clock).items():
+        print(f"{name:>24s}: {us:10.2f} us/call")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,413 @@
+"""The pybullet world: floor, base column, the Table 1 arm and the target with its feature markers.
+
+Frames and units (see ``docs/architecture.md``): global frame at the centre of joint 2, z up,
+metres and radians; the floor is the plane ``z = -L0``. The arm is loaded from
+``assets/arm.urdf`` with a fixed base; its link frames agree with
+:func:`capture_bench.kinematics.forward_kinematics` and
+:func:`capture_bench.kinematics.elbow_position` to pybullet's single-precision geometry (~1e-7 m;
+pybullet 3.2.7 stores link offsets and joint rotations as 32-bit floats, so 1e-9 m is not
+attainable).
+
+The arm is driven **kinematically**, as in the paper: joint angles are set, not simulated. The
+world enforces ``|delta_theta_i| <= theta_dot_max_i * dt`` and the joint limits whatever an agent
+asks. The target has no collision shape: capture is a geometric test done
+elsewhere; the target is only drawn.
+
+``World`` imports nothing from gymnasium. It owns one ``BulletClient``; ``close()`` is safe twice.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NoReturn
+
+import numpy as np
+import pybullet
+from numpy.typing import ArrayLike
+from pybullet_utils.bullet_client import BulletClient
+
+from capture_bench.kinematics import L0, L1, L2, ArmSpec, FloatArray
+
+ARM_URDF = Path(__file__).parent / "assets" / "arm.urdf"
+
+# pybullet link indices of the arm (see assets/arm.urdf); the turret (0) has no collision shape.
+BASE_COLUMN, UPPER_ARM, FOREARM, END_EFFECTOR = -1, 1, 2, 3
+
+RENDER_MODES = (None, "rgb_array", "human")
+SATURATION_FRACTION = 0.999  # a joint "saturates" when it runs at >= this share of its rate limit
+
+_MARKER_RADIUS = 0.012  # m
+_MARKER_COLOURS = ((0.9, 0.1, 0.1, 1), (0.1, 0.75, 0.1, 1), (0.1, 0.3, 0.95, 1), (1, 0.85, 0.1, 1))
+_TRACE_COLOURS = ((220, 40, 40), (40, 90, 230), (30, 160, 60), (230, 150, 20), (150, 50, 200))
+# Third-person camera: looks at the middle of the workspace from the front-right, slightly above.
+_CAMERA = {"target": (0.25, 0.0, 0.1), "distance": 1.9, "yaw": 50.0, "pitch": -22.0, "fov": 45.0}
+
+
+@dataclass(slots=True)  # not frozen: frozen __init__ costs ~1.5 us per step
+class JointStep:
+    """What one :meth:`World.apply_joint_increment` did.
+
+    Attributes:
+        theta_before: joint angles before the step, rad, shape (3,).
+        theta: joint angles after the step, rad, shape (3,).
+        applied: the increment really applied, ``theta - theta_before``, rad, shape (3,).
+        clipped: the world reduced the request (rate limit or joint limit) on some joint.
+        saturated: some joint ran at >= 0.999 of its rate limit ``theta_dot_max_i * dt``.
+        at_joint_limit: some joint ends on its lower or upper limit.
+    """
+
+    theta_before: FloatArray
+    theta: FloatArray
+    applied: FloatArray
+    clipped: bool
+    saturated: bool
+    at_joint_limit: bool
+
+
+class World:
+    """Floor, base column, arm and target in a private pybullet client.
+
+    Args:
+        feature_points: the four feature points in the target frame, metres, shape (4, 3). They
+            are drawn as coloured spheres (red, green, blue, yellow in that order).
+        render_mode: ``None`` or ``"rgb_array"`` (headless ``DIRECT`` client) or ``"human"`` (a
+            ``GUI`` window; needs a display).
+        arm: the arm's published constants; the rate and joint limits are enforced from it. The
+            link lengths must be Table 1's (the URDF models that arm only). Default ``ArmSpec()``.
+
+    Collision model (:meth:`collision`): capsules for the upper arm (radius 0.025 m), the forearm
+    (0.025 m, offset 0.06 m sideways along the joint axes) and the wrist bracket at the tip
+    (0.02 m); a cylinder (radius 0.05 m) for the base column; the plane ``z = -L0`` for the floor.
+    """
+
+    def __init__(
+        self,
+        feature_points: ArrayLike,
+        *,
+        render_mode: str | None = None,
+        arm: ArmSpec | None = None,
+    ) -> None:
+        arm = ArmSpec() if arm is None else arm
+        if render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {RENDER_MODES}, got {render_mode!r}")
+        if not np.allclose(arm.link_lengths, (L0, L1, L2), rtol=0.0, atol=1e-12):
+            raise ValueError(
+                f"arm.link_lengths {arm.link_lengths} differ from Table 1 {(L0, L1, L2)}; "
+                "assets/arm.urdf models the Table 1 arm only"
+            )
+        features = np.array(feature_points, dtype=float)
+        if features.shape != (4, 3) or not np.all(np.isfinite(features)):
+            raise ValueError(f"feature_points must be a finite (4, 3) array, got {features.shape}")
+        self.render_mode = render_mode
+        self.feature_points = features
+        self._rate = tuple(float(v) for v in arm.joint_rate_limits)
+        self._lower = tuple(float(v) for v in arm.joint_lower)
+        self._upper = tuple(float(v) for v in arm.joint_upper)
+        self._q = tuple(float(v) for v in arm.home)
+        self._debug_items: dict[str, int] = {}  # trace name -> GUI debug item id
+
+        mode = pybullet.GUI if render_mode == "human" else pybullet.DIRECT
+        self._bullet: BulletClient | None = BulletClient(connection_mode=mode)
+        bullet = self._bullet
+        if render_mode == "human":
+            bullet.configureDebugVisualizer(bullet.COV_ENABLE_GUI, 0)
+            bullet.resetDebugVisualizerCamera(
+                _CAMERA["distance"], _CAMERA["yaw"], _CAMERA["pitch"], _CAMERA["target"]
+            )
+        self.floor = self._create_floor(bullet)
+        self.arm = bullet.loadURDF(
+            str(ARM_URDF),
+            basePosition=(0.0, 0.0, 0.0),
+            useFixedBase=True,
+            flags=pybullet.URDF_USE_SELF_COLLISION | pybullet.URDF_USE_IMPLICIT_CYLINDER,
+        )
+        # Pairs that touch by construction: the column holds the floor and joint 2; the forearm
+        # capsule's end overlaps the wrist bracket it carries.
+        bullet.setCollisionFilterPair(self.floor, self.arm, -1, BASE_COLUMN, 0)
+        bullet.setCollisionFilterPair(self.arm, self.arm, BASE_COLUMN, UPPER_ARM, 0)
+        bullet.setCollisionFilterPair(self.arm, self.arm, FOREARM, END_EFFECTOR, 0)
+        self.target = self._create_target(bullet, features)
+
+        # Hot-path functions bound to this client once (BulletClient.__getattr__ costs ~1 us).
+        self._reset_joints = bullet.resetJointStatesMultiDof
+        self._reset_base = bullet.resetBasePositionAndOrientation
+        self._detect = bullet.performCollisionDetection
+        self._contacts = bullet.getContactPoints
+        self._set_joints(self._q)
+
+    @staticmethod
+    def _create_floor(bullet: BulletClient) -> int:
+        """Collision plane z = -L0 with a thin box (top face at z = -L0) to draw it."""
+        plane = bullet.createCollisionShape(pybullet.GEOM_PLANE)
+        half = (1.5, 1.5, 0.005)
+        visual = bullet.createVisualShape(
+            pybullet.GEOM_BOX,
+            halfExtents=half,
+            rgbaColor=(0.78, 0.8, 0.76, 1),
+            visualFramePosition=(0.0, 0.0, -half[2]),
+        )
+        return bullet.createMultiBody(0.0, plane, visual, basePosition=(0.0, 0.0, -L0))
+
+    @staticmethod
+    def _create_target(bullet: BulletClient, features: FloatArray) -> int:
+        """Target body (frame origin = capture point): a block over the features, 4 markers."""
+        lo, hi = features.min(axis=0), features.max(axis=0)
+        half = np.maximum((hi - lo) / 2.0 - 0.5 * _MARKER_RADIUS, 0.005)
+        shapes = [pybullet.GEOM_BOX, pybullet.GEOM_SPHERE] + [pybullet.GEOM_SPHERE] * 4
+        visual = bullet.createVisualShapeArray(
+            shapeTypes=shapes,
+            radii=[0.0, 0.008] + [_MARKER_RADIUS] * 4,
+            halfExtents=[half.tolist()] + [[0.0, 0.0, 0.0]] * 5,
+            visualFramePositions=[((lo + hi) / 2.0).tolist(), [0.0, 0.0, 0.0]] + features.tolist(),
+        )
+        # No collision shape, and an empty collision group/mask: the target never collides.
+        target = bullet.createMultiBody(0.0, -1, visual, basePosition=(0.0, 0.0, 0.0))
+        bullet.setCollisionFilterGroupMask(target, -1, 0, 0)
+        colours = [(0.55, 0.55, 0.6, 1), (0.05, 0.05, 0.05, 1), *_MARKER_COLOURS]
+        for index, colour in enumerate(colours):
+            bullet.changeVisualShape(target, -1, shapeIndex=index, rgbaColor=colour)
+        return target
+
+    @property
+    def theta(self) -> FloatArray:
+        """Current joint angles, rad, shape (3,) (a copy; the world's own record, not a query)."""
+        return np.array(self._q)
+
+    def _set_joints(self, q: tuple[float, float, float]) -> None:
+        # targetValues must be a list: a tuple there crashes pybullet 3.2.7 (segfault).
+        self._reset_joints(self.arm, [0, 1, 2], [[q[0]], [q[1]], [q[2]]])
+        self._q = q
+
+    def reset(
+        self, theta: ArrayLike, target_position: ArrayLike, target_rotation: ArrayLike
+    ) -> None:
+        """Set the joints and the target pose instantly.
+
+        Args:
+            theta: joint angles, rad, shape (3,). Not clipped to the joint limits (tests use
+                poses outside them); :meth:`apply_joint_increment` never moves a joint further out.
+            target_position: capture point in the global frame, metres, shape (3,).
+            target_rotation: R_gt, target axes as columns in global coordinates, shape (3, 3).
+        """
+        q = np.asarray(theta, dtype=float)
+        if q.shape != (3,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"theta must be a finite (3,) array, got {q!r}")
+        self._set_joints((float(q[0]), float(q[1]), float(q[2])))
+        self.set_target_pose(target_position, target_rotation)
+
+    def set_target_pose(self, position: ArrayLike, rotation: ArrayLike) -> None:
+        """Place the target: capture point at ``position`` (global, metres, (3,)), orientation
+        ``rotation`` (R_gt, orthonormal, (3, 3); not checked, for speed)."""
+        p = position.tolist() if isinstance(position, np.ndarray) else list(position)
+        r = rotation.tolist() if isinstance(rotation, np.ndarray) else rotation
+        if len(p) != 3 or len(r) != 3:
+            raise ValueError("position must have shape (3,) and rotation (3, 3)")
+        self._reset_base(self.target, p, _quaternion_xyzw(r))
+
+    def apply_joint_increment(self, delta_theta: ArrayLike, dt: float) -> JointStep:
+        """Move the joints by ``delta_theta`` within the rate and joint limits (kinematic control).
+
+        Each ``|delta_i|`` is clipped to ``theta_dot_max_i * dt``, then the result to the joint
+        limits (a joint already outside them, set by :meth:`reset`, may not move further out).
+
+        Args:
+            delta_theta: requested joint increments, rad, shape (3,).
+            dt: the real duration of this control step, s, > 0.
+
+        Returns:
+            The :class:`JointStep` that happened.
+        """
+        d = delta_theta.tolist() if isinstance(delta_theta, np.ndarray) else list(delta_theta)
+        if len(d) != 3 or not (math.isfinite(d[0]) and math.isfinite(d[1]) and math.isfinite(d[2])):
+            raise ValueError(f"delta_theta must be a finite (3,) array, got {delta_theta!r}")
+        if not (dt > 0.0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
+        before = self._q
+        new = []
+        clipped = saturated = at_limit = False
+        for d_i, q_i, rate, lower, upper in zip(d, before, self._rate, self._lower, self._upper):
+            step_max = rate * dt
+            step = step_max if d_i > step_max else (-step_max if d_i < -step_max else d_i)
+            unclipped = q_i + step
+            q = min(max(unclipped, min(lower, q_i)), max(upper, q_i))
+            clipped = clipped or step != d_i or q != unclipped
+            saturated = saturated or abs(q - q_i) >= SATURATION_FRACTION * step_max
+            at_limit = at_limit or q <= lower or q >= upper
+            new.append(q)
+        self._set_joints((new[0], new[1], new[2]))
+        rows = np.array((before, new))
+        return JointStep(
+            theta_before=rows[0],
+            theta=rows[1],
+            applied=rows[1] - rows[0],
+            clipped=clipped,
+            saturated=saturated,
+            at_joint_limit=at_limit,
+        )
+
+    def collision(self) -> str | None:
+        """Which collision the arm is in now: ``"floor"``, ``"base"``, ``"self"`` or ``None``.
+
+        * ``"floor"``: upper arm, forearm or wrist touches the floor plane.
+        * ``"base"``: forearm or wrist touches the base column. The upper arm meets the column at
+          joint 2 by construction, so that pair is off (the upper arm cannot reach the column
+          otherwise; with theta2 in [20, 100] deg it points upwards).
+        * ``"self"``: the wrist bracket touches the upper arm (the forearm tube is offset sideways
+          and never can). Only possible when the arm folds to theta3 < ~-84 deg, outside limits.
+
+        Touching (penetration depth >= 0) counts. With several, the first in that order is
+        returned. Uses one ``performCollisionDetection`` and one ``getContactPoints``.
+        """
+        self._detect()
+        found: set[str] = set()
+        for contact in self._contacts(self.arm):
+            if contact[8] > 0.0:  # contactDistance: manifold points inside the margin only
+                continue
+            body_a, body_b, link_a, link_b = contact[1], contact[2], contact[3], contact[4]
+            if self.floor in (body_a, body_b):
+                return "floor"
+            if body_a == body_b == self.arm:
+                found.add("base" if BASE_COLUMN in (link_a, link_b) else "self")
+        for name in ("base", "self"):
+            if name in found:
+                return name
+        return None
+
+    def end_effector_position_pybullet(self) -> FloatArray:
+        """End-effector (forearm tip) frame origin from pybullet, global, metres, shape (3,)."""
+        state = self._client().getLinkState(self.arm, END_EFFECTOR, computeForwardKinematics=True)
+        return np.array(state[4])  # worldLinkFramePosition
+
+    def elbow_position_pybullet(self) -> FloatArray:
+        """Elbow (joint 3) frame origin from pybullet, global, metres, shape (3,)."""
+        state = self._client().getLinkState(self.arm, FOREARM, computeForwardKinematics=True)
+        return np.array(state[4])  # worldLinkFramePosition
+
+    def target_pose_pybullet(self) -> tuple[FloatArray, FloatArray]:
+        """Target pose from pybullet: capture point (global, metres, (3,)) and R_gt (3, 3)."""
+        bullet = self._client()
+        position, quaternion = bullet.getBasePositionAndOrientation(self.target)
+        rotation = np.reshape(bullet.getMatrixFromQuaternion(quaternion), (3, 3))
+        return np.array(position), rotation
+
+    def _client(self) -> BulletClient:
+        if self._bullet is None:
+            raise RuntimeError("the World is closed")
+        return self._bullet
+
+    def render(
+        self,
+        width: int = 640,
+        height: int = 480,
+        traces: dict[str, ArrayLike] | None = None,
+    ) -> np.ndarray:
+        """Third-person image of the world, with traces drawn over it.
+
+        Args:
+            width, height: image size, pixels.
+            traces: named polylines in the global frame, metres, each shape (N, 3) (e.g. the
+                target's and the end-effector's past positions). Colours follow insertion order:
+                red, blue, green, orange, purple. In ``"human"`` mode they are also shown in the
+                GUI window as debug points.
+
+        Returns:
+            RGB image, shape (height, width, 3), uint8 (TinyRenderer; works headless).
+        """
+        bullet = self._client()
+        view = bullet.computeViewMatrixFromYawPitchRoll(
+            _CAMERA["target"], _CAMERA["distance"], _CAMERA["yaw"], _CAMERA["pitch"], 0.0, 2
+        )
+        proj = bullet.computeProjectionMatrixFOV(_CAMERA["fov"], width / height, 0.05, 20.0)
+        _, _, rgba, _, _ = bullet.getCameraImage(
+            width, height, view, proj, renderer=pybullet.ER_TINY_RENDERER
+        )
+        image = np.array(np.reshape(rgba, (height, width, 4))[..., :3], dtype=np.uint8)
+        transform = np.reshape(proj, (4, 4)).T @ np.reshape(view, (4, 4)).T  # column-major in
+        for index, (name, points) in enumerate((traces or {}).items()):
+            colour = _TRACE_COLOURS[index % len(_TRACE_COLOURS)]
+            pts = np.asarray(points, dtype=float).reshape(-1, 3)
+            _draw_polyline(image, _project(pts, transform, width, height), colour)
+            if self.render_mode == "human":
+                self._draw_debug_trace(bullet, name, pts, colour)
+        return image
+
+    def _draw_debug_trace(
+        self, bullet: BulletClient, name: str, points: FloatArray, colour: tuple[int, ...]
+    ) -> None:
+        """``"human"`` mode: show a trace in the GUI window as debug points (replacing the last)."""
+        bullet.removeUserDebugItem(self._debug_items.pop(name, -1))
+        if len(points) == 0:  # pybullet fails on an empty point list
+            return
+        rgb = [[c / 255.0 for c in colour]] * len(points)
+        self._debug_items[name] = bullet.addUserDebugPoints(points.tolist(), rgb, 3.0)
+
+    def close(self) -> None:
+        """Disconnect the client. Safe to call more than once."""
+        if self._bullet is not None:
+            bullet, self._bullet = self._bullet, None
+            bullet.disconnect()  # BulletClient marks itself disconnected, so __del__ won't retry
+            # The cached calls carry the client id, which pybullet reuses for the next connection:
+            # make them fail rather than reach another World's simulation.
+            self._reset_joints = self._reset_base = self._detect = self._contacts = _closed
+
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def _closed(*args: object, **kwargs: object) -> NoReturn:
+    raise RuntimeError("the World is closed")
+
+
+def _quaternion_xyzw(r: list[list[float]]) -> tuple[float, float, float, float]:
+    """Unit quaternion (x, y, z, w) of a rotation matrix given as nested lists (Shepperd)."""
+    m00, m01, m02 = r[0]
+    m10, m11, m12 = r[1]
+    m20, m21, m22 = r[2]
+    trace = m00 + m11 + m22
+    if trace > 0.0:
+        s = 2.0 * math.sqrt(trace + 1.0)
+        return ((m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s)
+    if m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        return (0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s)
+    if m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        return ((m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s)
+    s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+    return ((m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s)
+
+
+def _project(points: FloatArray, transform: FloatArray, width: int, height: int) -> FloatArray:
+    """Pixel coordinates (u right, v down), shape (N, 2); NaN for points behind the camera."""
+    clip = np.c_[points, np.ones(len(points))] @ transform.T
+    w = clip[:, 3:4]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ndc = np.where(w > 1e-9, clip[:, :2] / w, np.nan)
+    return np.c_[(ndc[:, 0] + 1.0) * 0.5 * width, (1.0 - ndc[:, 1]) * 0.5 * height]
+
+
+def _draw_polyline(image: np.ndarray, pixels: FloatArray, colour: tuple[int, ...]) -> None:
+    """Draw a 2-pixel-wide polyline through ``pixels`` (N, 2) into ``image`` in place."""
+    height, width = image.shape[:2]
+    pixels = np.clip(pixels, -1e6, 1e6)  # NaN stays NaN
+    if len(pixels) == 1:
+        pixels = np.repeat(pixels, 2, axis=0)
+    a, b = pixels[:-1], pixels[1:]
+    ok = np.all(np.isfinite(a) & np.isfinite(b), axis=1)
+    a, b = a[ok], b[ok]
+    if len(a) == 0:
+        return
+    limit = 4 * (width + height)  # far off-screen segments: sample coarsely, never huge arrays
+    n = np.minimum(np.ceil(np.abs(b - a).max(axis=1)).astype(int), limit) + 1
+    segment = np.repeat(np.arange(len(n)), n)
+    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(np.maximum(n - 1, 1), n)
+    samples = np.rint(a[segment] + (b - a)[segment] * t[:, None]).astype(int)
+    for du, dv in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        u, v = samples[:, 0] + du, samples[:, 1] + dv
+        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        image[v[inside], u[inside]] = colour
