@@ -98,15 +98,22 @@ def encode_observation(
     control_period: float,
 ) -> NDArray[np.float32]:
     """Build the scaled observation vector; the relative vector uses eq. 13 with t_s."""
-    predicted = np.asarray(target_position) + np.asarray(target_velocity) * control_period
-    obs = np.empty(OBSERVATION_SIZE, dtype=np.float64)
-    obs[0:3] = np.asarray(target_position) / POSITION_SCALE
-    obs[3:6] = np.asarray(target_velocity) / VELOCITY_SCALE
-    obs[6:9] = np.asarray(ee_position) / POSITION_SCALE
-    obs[9:12] = np.asarray(joint_angles) / ANGLE_SCALE
-    obs[12:15] = (predicted - np.asarray(ee_position)) / RELATIVE_SCALE
-    obs[15] = last_period / control_period
-    np.clip(obs, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=obs)
+    position = np.asarray(target_position, dtype=float)
+    velocity = np.asarray(target_velocity, dtype=float)
+    ee = np.asarray(ee_position, dtype=float)
+    relative = position + velocity * control_period - ee  # eq. 13, relative to X_E
+    obs = np.concatenate(
+        (
+            position * (1.0 / POSITION_SCALE),
+            velocity * (1.0 / VELOCITY_SCALE),
+            ee * (1.0 / POSITION_SCALE),
+            np.asarray(joint_angles, dtype=float) * (1.0 / ANGLE_SCALE),
+            relative * (1.0 / RELATIVE_SCALE),
+            (last_period / control_period,),
+        )
+    )
+    if np.abs(obs).max() > OBSERVATION_BOUND:
+        np.clip(obs, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=obs)
     return obs.astype(np.float32)
 
 

@@ -18,6 +18,8 @@ Translations:
 
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,6 +45,10 @@ class LinearDrift:
         tt = np.asarray(t, dtype=float)[..., None]
         return np.broadcast_to(self.velocity, tt.shape[:-1] + (3,)).copy()
 
+    def at(self, t: float) -> tuple[FloatArray, FloatArray]:
+        """(c(t), cdot(t)) for one time, s -> (3,), (3,); the fast path used every env step."""
+        return self.start + self.velocity * t, self.velocity
+
 
 @dataclass(frozen=True)
 class CircularPath:
@@ -63,6 +69,13 @@ class CircularPath:
         a = self.phase + self.angular_speed * np.asarray(t, dtype=float)[..., None]
         return self.radius * self.angular_speed * (-np.sin(a) * self.u + np.cos(a) * self.v)
 
+    def at(self, t: float) -> tuple[FloatArray, FloatArray]:
+        """(c(t), cdot(t)) for one time, s -> (3,), (3,)."""
+        a = self.phase + self.angular_speed * t
+        c, s = math.cos(a), math.sin(a)
+        w = self.radius * self.angular_speed
+        return self.centre + self.radius * (c * self.u + s * self.v), w * (c * self.v - s * self.u)
+
 
 @dataclass(frozen=True)
 class Evasive:
@@ -74,6 +87,7 @@ class Evasive:
     switch_times: FloatArray  # (K,)
     accelerations: FloatArray  # (K, 3)
     _knots: tuple[FloatArray, FloatArray] = field(init=False, repr=False, compare=False)
+    _times: list[float] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         # Position and velocity at every switch time, so evaluation is a lookup + one segment.
@@ -84,6 +98,7 @@ class Evasive:
             p.append(p[-1] + v[-1] * h + 0.5 * a * h * h)
             v.append(v[-1] + a * h)
         object.__setattr__(self, "_knots", (np.array(p), np.array(v)))
+        object.__setattr__(self, "_times", [float(x) for x in self.switch_times])
 
     def _segment(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
         tt = np.asarray(t, dtype=float)
@@ -98,6 +113,14 @@ class Evasive:
     def velocity_at(self, t: ArrayLike) -> FloatArray:
         k, h = self._segment(t)
         return self._knots[1][k] + self.accelerations[k] * h
+
+    def at(self, t: float) -> tuple[FloatArray, FloatArray]:
+        """(c(t), cdot(t)) for one time, s -> (3,), (3,)."""
+        k = max(bisect.bisect_right(self._times, t) - 1, 0)
+        h = t - self._times[k]
+        p, v = self._knots
+        a = self.accelerations[k]
+        return p[k] + v[k] * h + (0.5 * h * h) * a, v[k] + a * h
 
 
 Translation = LinearDrift | CircularPath | Evasive
@@ -120,6 +143,37 @@ class TargetTrajectory:
     spin_axis: FloatArray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     spin_rate: float = 0.0
     capture_offset: FloatArray = field(default_factory=lambda: np.zeros(3))
+    _kx: FloatArray = field(init=False, repr=False, compare=False)
+    _kx2: FloatArray = field(init=False, repr=False, compare=False)
+    _r0: FloatArray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # Constants of the per-step fast path (:meth:`state`): Rodrigues' K and K^2, R0 r.
+        k = np.asarray(self.spin_axis, dtype=float)
+        k = k / np.linalg.norm(k)
+        kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        object.__setattr__(self, "_kx", kx)
+        object.__setattr__(self, "_kx2", kx @ kx)
+        object.__setattr__(self, "_r0", self.initial_rotation @ self.capture_offset)
+
+    def state(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Everything the env needs at one time t (s): X_T (3,), Xdot_T (3,), R(t) (3, 3).
+
+        The same quantities as :meth:`position`, :meth:`velocity` and :meth:`rotation` (tests
+        check they agree), computed together for speed.
+        """
+        c, c_dot = self.translation.at(t)
+        if self.spin_rate == 0.0:
+            return c + self._r0, c_dot, self.initial_rotation
+        a = self.spin_rate * t
+        spin = np.eye(3) + math.sin(a) * self._kx + (1.0 - math.cos(a)) * self._kx2
+        offset = spin @ self._r0
+        # omega x offset with omega = rate * axis:  rate * (K @ offset)
+        return (
+            c + offset,
+            c_dot + self.spin_rate * (self._kx @ offset),
+            spin @ self.initial_rotation,
+        )
 
     @property
     def angular_velocity(self) -> FloatArray:

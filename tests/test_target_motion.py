@@ -51,3 +51,13 @@ def test_same_seed_same_trajectory_and_initial_offset_in_range(name):
     np.testing.assert_array_equal(a.position(np.arange(5.0)), b.position(np.arange(5.0)))
     lo, hi = cfg.initial_offset
     assert lo - 1e-12 <= np.linalg.norm(a.position(0.0) - ANCHOR) <= hi + 1e-12
+
+
+@pytest.mark.parametrize("name", ["paper", "circular", "tumbling", "evasive"])
+def test_fast_state_agrees_with_the_vectorised_methods(name):
+    traj = sample_trajectory(load_scenario(name).target, np.random.default_rng(4), ANCHOR, 10.0)
+    for t in (0.0, 0.73, 4.2, 9.99):
+        position, velocity, rotation = traj.state(t)
+        np.testing.assert_allclose(position, traj.position(t), atol=1e-14)
+        np.testing.assert_allclose(velocity, traj.velocity(t), atol=1e-14)
+        np.testing.assert_allclose(rotation, traj.rotation(t), atol=1e-14)

@@ -1,0 +1,375 @@
+"""``CaptureEnv``: the gymnasium environment. The only module that knows every stage."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from capture_bench import kinematics
+from capture_bench.camera import Camera, CameraModel
+from capture_bench.capture import first_entry_fraction, segment_length
+from capture_bench.estimator import TargetEstimate, TargetEstimator
+from capture_bench.observation import TaskDescription, encode_observation, observation_space
+from capture_bench.physical_limit import PhysicalLimit, physical_limit
+from capture_bench.rewards import REWARD_MODES, reward_terms
+from capture_bench.scenarios import Scenario, load_scenario
+from capture_bench.target_motion import FEATURE_POINTS, TargetTrajectory, sample_trajectory
+from capture_bench.world import World
+
+FAILURES = ("timeout", "collision", "target_lost", "unreachable")
+MAX_PLACEMENT_TRIES = 1000
+
+
+class CaptureEnv(gym.Env):
+    """Capture a drifting or tumbling target with the 3-joint arm of Dong & Zhu (2016).
+
+    ## Description
+    The arm (paper Table 1) starts at home, Θ = (0, 90°, 0). A non-cooperative target moves along
+    a trajectory drawn from the scenario (drift, circular, tumbling, evasive). The agent never
+    sees the target: a fixed camera (eq. 2) images four feature points, and photogrammetry
+    initialises an extended Kalman filter (eqs. 3–7) whose estimate, in the global frame
+    (eqs. 11–12), is observed. Capture is eq. 20 on the *true* target position, tested over the
+    whole step.
+
+    ## Action Space
+    ``Box(-1, 1, (3,), float32)``: ``ΔΘ_i = a_i · θ̇_max,i · t_s`` rad, θ̇_max = (10.304, 0.412,
+    0.412) rad/s. The world clips every increment to ``θ̇_max,i · dt`` of the real period and to the
+    joint limits, whatever the agent asks. Actions outside [-1, 1] are clipped; a NaN, infinite or
+    wrongly shaped action raises ``ValueError``.
+
+    ## Observation Space
+    ``Box(-10, 10, (16,), float32)``, each entry scaled to order one
+    (``capture_bench.observation.decode_observation`` undoes it):
+
+    | index | quantity (global frame)                       | unit | scale   |
+    |-------|-----------------------------------------------|------|---------|
+    | 0–2   | estimated capture point X̂_T                   | m    | 1 m     |
+    | 3–5   | estimated target velocity                     | m/s  | 0.1 m/s |
+    | 6–8   | end-effector position X_E                     | m    | 1 m     |
+    | 9–11  | joint angles Θ                                | rad  | π       |
+    | 12–14 | predicted relative vector X̂_T + Ẋ̂_T t_s − X_E | m    | 0.5 m   |
+    | 15    | last real control period dt                   | s    | t_s     |
+
+    While the estimator has no estimate yet (e.g. during camera latency), the target entries
+    repeat the end-effector position with zero velocity.
+
+    ## Rewards
+    ``reward="dense"`` (default): ``reward_progress = 10 (d_prev − d)`` (d: true distance, m),
+    ``reward_time = −0.01`` per step, ``reward_capture = +5`` on capture, ``reward_failure = −5`` on
+    collision, target_lost or unreachable. ``reward="sparse"``: 1 on capture, else 0. Each term is
+    in ``info``.
+
+    ## Starting State
+    Home pose. The capture point starts ``target.initial_offset`` m from the home end-effector in a
+    uniformly drawn direction, redrawn until it is inside the joint-limited workspace, its four
+    markers are in view and it is above the floor. Orientation, velocity, tumble and path are drawn
+    from the scenario's ranges with ``self.np_random``.
+
+    ## Episode End
+    Terminates on capture (``info["is_success"]``) or a failure: ``collision`` (arm with floor,
+    base or itself), ``target_lost`` (no usable frame for ``lost_after`` s: out of view, behind the
+    lens, dropped, or the estimator diverged; never with the ``truth`` source), ``unreachable``
+    (the capture point outside the arm's joint-limited reach for ``lost_after`` s). Truncates at
+    ``control.episode_limit`` s of *simulated* time with failure ``timeout``. The env truncates
+    itself, not a ``TimeLimit`` wrapper, because the limit is in seconds and the control period
+    varies in some scenarios.
+
+    ## Info
+    Every step: ``is_success``, ``failure`` (None or one of ``FAILURES``), ``capture_time`` (s),
+    ``capture_time_estimated`` (s: first time eq. 20 held on the *estimated* position, as the
+    paper's hardware could only judge), ``time``, ``dt``, ``distance``, ``relative_speed``,
+    ``estimate_position_error``, ``estimate_velocity_error``, ``estimate_nees``, ``saturated``,
+    ``clipped``, ``path_length``, ``target_visible``, ``estimator_status``, ``reward_*``. At the end:
+    ``physical_limit_time`` (s; ``inf`` when the target cannot be reached before the limit).
+
+    ## Arguments
+    ``scenario``: a shipped name (``capture_bench.scenarios.list_scenarios()``), a YAML path or a
+    ``Scenario``. ``observation_source``: ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
+    (default: the scenario's). ``reward``: ``"dense"`` or ``"sparse"``. ``render_mode``:
+    ``"rgb_array"`` or ``"human"``.
+
+    ## Version History
+    * v0: initial release.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 20}
+
+    def __init__(
+        self,
+        scenario: str | Path | Scenario = "paper",
+        *,
+        observation_source: str | None = None,
+        reward: str = "dense",
+        render_mode: str | None = None,
+    ) -> None:
+        self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        if observation_source is not None:
+            self.scenario = self.scenario.replace(estimator={"source": observation_source})
+        if reward not in REWARD_MODES:
+            raise ValueError(f"reward must be one of {REWARD_MODES}, got {reward!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                f"got {render_mode!r}"
+            )
+        self.reward_mode = reward
+        self.render_mode = render_mode
+        sc = self.scenario
+        self.description = TaskDescription(
+            arm=kinematics.ArmSpec(),
+            control_period=sc.control.period,
+            capture_tolerance=np.full(3, sc.capture_tolerance),
+        )
+        self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self.observation_space = observation_space()
+        self._features = FEATURE_POINTS[sc.target.feature_points]
+        cam = sc.camera
+        self.camera_model = CameraModel.looking_at(
+            cam.position,
+            cam.look_at,
+            focal_length=cam.focal_length,
+            pixel_pitch=cam.pixel_pitch,
+            resolution=cam.resolution,
+        )
+        self._camera = Camera(self.camera_model, cam.noise_px, cam.dropout, cam.latency_frames)
+        self._estimator = TargetEstimator(
+            self.camera_model,
+            self._features,
+            source=sc.estimator.source,
+            noise_px=cam.noise_px,
+            sigma_acceleration=sc.estimator.sigma_acceleration,
+            sigma_angular_acceleration=sc.estimator.sigma_angular_acceleration,
+        )
+        self._world: World | None = None
+        self._trajectory: TargetTrajectory | None = None
+        self._limit: PhysicalLimit | None = None
+        self._episode_over = True
+
+    # -- privileged API (oracle and tests only) ------------------------------------------------
+    def physical_limit(self) -> PhysicalLimit:
+        """The episode's lower bound on capture time (computed once per episode, lazily)."""
+        if self._trajectory is None:
+            raise RuntimeError("call reset() before physical_limit()")
+        if self._limit is None:
+            arm = self.description.arm
+            self._limit = physical_limit(
+                self._trajectory.position,
+                arm.home,
+                arm.joint_rate_limits,
+                arm.joint_lower,
+                arm.joint_upper,
+                self.description.capture_tolerance,
+                horizon=self.scenario.control.episode_limit,
+                period=self.scenario.control.period,
+            )
+        return self._limit
+
+    def true_target_position(self, t: float | NDArray) -> NDArray[np.float64]:
+        """X_T(t), global, m (privileged)."""
+        if self._trajectory is None:
+            raise RuntimeError("call reset() before true_target_position()")
+        return self._trajectory.position(t)
+
+    @property
+    def time(self) -> float:
+        """Simulated time since reset, s."""
+        return self._time
+
+    @property
+    def joint_angles(self) -> NDArray[np.float64]:
+        """Current joint angles, rad, (3,)."""
+        return self._theta.copy()
+
+    # -- gymnasium API --------------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+        super().reset(seed=seed)
+        sc = self.scenario
+        if self._world is None:
+            self._world = World(self._features, render_mode=self.render_mode)
+        self._trajectory = self._place_target()
+        self._limit = None
+        self._theta = self.description.arm.home.copy()
+        self._time = 0.0
+        self._x_t, self._v_t, rotation = self._trajectory.state(0.0)
+        self._x_e = kinematics.forward_kinematics_point(self._theta)
+        self._world.reset(self._theta, self._x_t, rotation)
+        self._camera.reset()
+        self._estimator.reset()
+        self._estimate = self._sense(sc.control.period, rotation)
+        self._since_frame = 0.0
+        self._unreachable_for = 0.0
+        self._path_length = 0.0
+        self._capture_time_estimated: float | None = None
+        self._traces: dict[str, list[NDArray]] = {
+            "target": [self._x_t],
+            "end_effector": [self._x_e],
+        }
+        self._episode_over = False
+        obs = self._observation(sc.control.period)
+        info = {"time": 0.0, "distance": segment_length(self._x_e, self._x_t)}
+        return obs, info
+
+    def step(
+        self, action: NDArray
+    ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        if self._world is None or self._trajectory is None:
+            raise RuntimeError("CaptureEnv.step() called before reset(); call env.reset() first")
+        if self._episode_over:
+            raise RuntimeError("the episode has ended; call env.reset() before step()")
+        a = np.asarray(action, dtype=float)
+        if a.shape != (3,) or not np.all(np.isfinite(a)):
+            raise ValueError(
+                f"action must be a finite array of shape (3,) in [-1, 1]; got {action!r}"
+            )
+        sc, desc = self.scenario, self.description
+        dt = sc.control.period
+        if sc.control.period_jitter > 0.0:
+            dt *= 1.0 + sc.control.period_jitter * self.np_random.uniform(-1.0, 1.0)
+
+        x_e0, x_t0, est0 = self._x_e, self._x_t, self._estimate
+        d_prev = segment_length(x_e0, x_t0)
+        joint_step = self._world.apply_joint_increment(
+            desc.action_to_increment(np.clip(a, -1.0, 1.0)), dt
+        )
+        self._theta = joint_step.theta
+        self._time += dt
+        self._x_t, self._v_t, rotation = self._trajectory.state(self._time)
+        v_t = self._v_t
+        self._world.set_target_pose(self._x_t, rotation)
+        self._x_e = kinematics.forward_kinematics_point(self._theta)
+        self._path_length += segment_length(x_e0, self._x_e)
+
+        s = first_entry_fraction(x_e0 - x_t0, self._x_e - self._x_t, desc.capture_tolerance)
+        captured = s is not None
+        capture_time = self._time - dt + s * dt if s is not None else None
+
+        self._estimate = est = self._sense(dt, rotation)
+        if self._capture_time_estimated is None and est0.valid and est.valid:
+            s_est = first_entry_fraction(
+                x_e0 - est0.position, self._x_e - est.position, desc.capture_tolerance
+            )
+            if s_est is not None:
+                self._capture_time_estimated = self._time - dt + s_est * dt
+
+        failure = None if captured else self._failure(dt)
+        terminated = captured or failure is not None
+        truncated = False
+        if not terminated and self._time >= sc.control.episode_limit - 1e-9:
+            truncated, failure = True, "timeout"
+        self._episode_over = terminated or truncated
+
+        distance = segment_length(self._x_e, self._x_t)
+        terms = reward_terms(self.reward_mode, d_prev, distance, captured, failure)
+        info = self._info(dt, distance, v_t, x_e0, joint_step, captured, capture_time, failure)
+        info.update(terms)
+        if self._episode_over:
+            info["physical_limit_time"] = self.physical_limit().time
+        if self.render_mode is not None:
+            self._traces["target"].append(self._x_t)
+            self._traces["end_effector"].append(self._x_e)
+        return self._observation(dt), float(sum(terms.values())), terminated, truncated, info
+
+    def render(self) -> NDArray[np.uint8] | None:
+        if self.render_mode is None or self._world is None:
+            return None
+        traces = {k: np.array(v) for k, v in self._traces.items()}
+        image = self._world.render(traces=traces)
+        return image if self.render_mode == "rgb_array" else None
+
+    def close(self) -> None:
+        if self._world is not None:
+            self._world.close()
+            self._world = None
+
+    # -- stages ---------------------------------------------------------------------------------
+    def _place_target(self) -> TargetTrajectory:
+        """Draw trajectories until the start is reachable, in view and above the floor."""
+        sc = self.scenario
+        anchor = kinematics.forward_kinematics(self.description.arm.home)
+        floor = -kinematics.L0
+        for _ in range(MAX_PLACEMENT_TRIES):
+            traj = sample_trajectory(sc.target, self.np_random, anchor, sc.control.episode_limit)
+            x0 = traj.position(0.0)
+            points = self.camera_model.to_camera(traj.feature_points(0.0, self._features))
+            in_view = bool(np.all(self.camera_model.visible(points)))
+            if in_view and x0[2] > floor + 0.05 and kinematics.reachable(x0):
+                return traj
+        raise RuntimeError(
+            f"scenario {sc.name!r}: no target start in view and in reach after "
+            f"{MAX_PLACEMENT_TRIES} draws; check target.initial_offset and the camera pose"
+        )
+
+    def _sense(self, dt: float, rotation: NDArray[np.float64]) -> TargetEstimate:
+        """Camera frame (unless the source is truth) -> estimator -> estimate (global frame).
+
+        ``rotation`` is the target's true R_gt now; the feature points are X_T + R_gt p_i.
+        """
+        if self.scenario.estimator.source == "truth":
+            frame = None
+        else:
+            points = self._x_t + self._features @ rotation.T
+            frame = self._camera.capture(points, self.np_random)
+        return self._estimator.update(frame, dt, self._x_t, self._v_t)
+
+    def _failure(self, dt: float) -> str | None:
+        """The one failure reason of this step, if any (collision, unreachable, target_lost)."""
+        assert self._world is not None
+        if self._world.collision() is not None:
+            return "collision"
+        reach = kinematics.reachable(self._x_t)
+        self._unreachable_for = 0.0 if reach else self._unreachable_for + dt
+        if self._unreachable_for > self.scenario.lost_after:
+            return "unreachable"
+        if self.scenario.estimator.source != "truth":
+            usable = self._estimate.status == "ok"
+            self._since_frame = 0.0 if usable else self._since_frame + dt
+            if self._since_frame > self.scenario.lost_after:
+                return "target_lost"
+        return None
+
+    def _observation(self, dt: float) -> NDArray[np.float32]:
+        est = self._estimate
+        if est.valid:
+            position, velocity = est.position, est.velocity
+        else:
+            position, velocity = self._x_e, np.zeros(3)
+        return encode_observation(
+            position, velocity, self._x_e, self._theta, dt, self.scenario.control.period
+        )
+
+    def _info(self, dt, distance, v_t, x_e0, joint_step, captured, capture_time, failure):
+        est = self._estimate
+        pos_err = vel_err = nees = math.nan
+        if est.valid:
+            e = np.concatenate([est.position - self._x_t, est.velocity - v_t])
+            pos_err = segment_length(est.position, self._x_t)
+            vel_err = segment_length(est.velocity, v_t)
+            if est.covariance is not None:
+                nees = float(e @ np.linalg.solve(est.covariance, e))
+        v_e = (self._x_e - x_e0) / dt
+        return {
+            "is_success": captured,
+            "failure": failure,
+            "capture_time": capture_time,
+            "capture_time_estimated": self._capture_time_estimated,
+            "time": self._time,
+            "dt": dt,
+            "distance": distance,
+            "relative_speed": segment_length(v_e, v_t),
+            "estimate_position_error": pos_err,
+            "estimate_velocity_error": vel_err,
+            "estimate_nees": nees,
+            "saturated": joint_step.saturated,
+            "clipped": joint_step.clipped,
+            "path_length": self._path_length,
+            "target_visible": bool(self._camera.last_visible),
+            "estimator_status": est.status,
+        }

@@ -1,0 +1,204 @@
+"""CaptureEnv: API conformance, determinism, episode ends, bad input, the physical-limit bound."""
+
+import inspect
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+
+import capture_bench
+from capture_bench import kinematics as k
+from capture_bench.env import FAILURES, CaptureEnv
+from capture_bench.scenarios import ConfigError
+
+ALWAYS = {
+    "is_success",
+    "failure",
+    "capture_time",
+    "capture_time_estimated",
+    "time",
+    "dt",
+    "distance",
+    "relative_speed",
+    "estimate_position_error",
+    "estimate_velocity_error",
+    "estimate_nees",
+    "saturated",
+    "clipped",
+    "path_length",
+    "target_visible",
+    "estimator_status",
+}
+
+
+@pytest.mark.parametrize("env_id", capture_bench.env_ids())
+def test_gymnasium_and_sb3_checkers_pass(env_id, make_env):
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = make_env(env_id)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped, warn=True)
+
+
+def test_required_ids_are_registered():
+    for name in ("Paper", "Drift", "Circular", "Tumbling", "Jitter", "Noisy"):
+        assert f"CaptureBench/{name}-v0" in gym.registry
+
+
+def rollout(env, seed, steps=60):
+    obs, _ = env.reset(seed=seed)
+    trace = [obs]
+    rng = np.random.default_rng(0)
+    for _ in range(steps):
+        obs, reward, terminated, truncated, info = env.step(
+            rng.uniform(-1, 1, 3).astype(np.float32)
+        )
+        trace.append(
+            np.concatenate([obs, [reward, info["distance"], info["estimate_position_error"]]])
+        )
+        if terminated or truncated:
+            break
+    return np.concatenate(trace)
+
+
+@pytest.mark.parametrize(
+    "env_id", ["CaptureBench/Paper-v0", "CaptureBench/Noisy-v0", "CaptureBench/Jitter-v0"]
+)
+def test_same_seed_gives_the_identical_rollout(env_id, make_env):
+    a, b = make_env(env_id), make_env(env_id)
+    np.testing.assert_array_equal(rollout(a, 7), rollout(b, 7))
+    assert not np.array_equal(rollout(a, 7), rollout(a, 8))
+
+
+def test_info_keys_every_step_and_exactly_one_failure_reason(make_env):
+    env = make_env("CaptureBench/Drift-v0")
+    env.reset(seed=3)
+    while True:
+        _, _, terminated, truncated, info = env.step(
+            np.zeros(3, np.float32)
+        )  # hold: never captures
+        assert ALWAYS <= info.keys()
+        assert {k for k in info if k.startswith("reward_")}
+        if terminated or truncated:
+            break
+    assert not info["is_success"] and info["failure"] in FAILURES
+    assert "physical_limit_time" in info
+    assert truncated == (info["failure"] == "timeout")
+
+
+def test_world_enforces_the_joint_rate_limit_under_a_varying_period(make_env):
+    env = make_env("CaptureBench/Jitter-v0")
+    env.reset(seed=1)
+    base = env.unwrapped
+    periods = []
+    for _ in range(30):
+        before = base.joint_angles
+        _, _, term, trunc, info = env.step(np.ones(3, np.float32))
+        moved = np.abs(base.joint_angles - before)
+        assert np.all(moved <= k.JOINT_RATE_LIMITS * info["dt"] + 1e-12)
+        periods.append(info["dt"])
+        if term or trunc:
+            break
+    assert np.ptp(periods) > 0.01
+
+
+def knowing_policy(env):
+    """A joint-space policy that knows the trajectory (test reference, not an agent)."""
+    base = env.unwrapped
+    rates = k.JOINT_RATE_LIMITS * base.description.control_period
+    theta_star = base.physical_limit().theta
+    theta = base.joint_angles
+    nxt = base.true_target_position(base.time + base.description.control_period)
+    for q in k.inverse_kinematics(nxt):
+        if k.within_limits(q) and np.all(np.abs(q - theta) <= rates):
+            return np.clip((q - theta) / rates, -1, 1).astype(np.float32)
+    return np.clip((theta_star - theta) / rates, -1, 1).astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    "env_id", ["CaptureBench/Paper-v0", "CaptureBench/Circular-v0", "CaptureBench/Tumbling-v0"]
+)
+def test_bound_never_exceeds_the_capture_time_of_a_policy_that_knows_the_trajectory(
+    env_id, make_env
+):
+    env = make_env(env_id, observation_source="truth")
+    captured = 0
+    for seed in range(6):
+        env.reset(seed=seed)
+        bound = env.unwrapped.physical_limit().time
+        while True:
+            _, _, term, trunc, info = env.step(knowing_policy(env))
+            if term or trunc:
+                break
+        if info["is_success"]:
+            captured += 1
+            assert info["physical_limit_time"] == bound
+            assert bound <= info["capture_time"] + 1e-9
+            assert info["capture_time"] <= bound + env.unwrapped.description.control_period + 1e-9
+        else:
+            assert info["failure"] in FAILURES
+    assert captured >= 4
+
+
+def test_close_twice_is_safe(make_env):
+    env = make_env()
+    env.reset(seed=0)
+    env.close()
+    env.close()
+
+
+@pytest.mark.parametrize(
+    "action", [np.array([np.nan, 0, 0]), np.array([0, np.inf, 0]), np.zeros(2), np.zeros((3, 1))]
+)
+def test_bad_actions_raise_a_value_error_that_shows_the_action(action, make_env):
+    env = make_env()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"finite array of shape \(3,\)"):
+        env.unwrapped.step(action)
+
+
+def test_step_before_reset_is_an_error():
+    env = CaptureEnv("paper")
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.step(np.zeros(3))
+    env.close()
+
+
+def test_unknown_scenario_and_bad_options_name_what_is_valid():
+    with pytest.raises(ConfigError, match="unknown scenario 'moon'; valid: .*tumbling"):
+        CaptureEnv("moon")
+    with pytest.raises(ConfigError, match="choose one of ekf, photogrammetry, truth"):
+        CaptureEnv("paper", observation_source="lidar")
+    with pytest.raises(ValueError, match="reward must be one of"):
+        CaptureEnv("paper", reward="shaped")
+
+
+def test_rgb_array_render_shows_something(make_env):
+    env = make_env(render_mode="rgb_array")
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(np.ones(3, np.float32))
+    image = env.render()
+    assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
+    assert image.std() > 5
+
+
+def test_docstring_documents_every_argument_and_failure():
+    doc = CaptureEnv.__doc__
+    for name in inspect.signature(CaptureEnv.__init__).parameters:
+        if name != "self":
+            assert f"``{name}``" in doc, name
+    for reason in FAILURES:
+        assert reason in doc
+    for section in (
+        "Description",
+        "Action Space",
+        "Observation Space",
+        "Rewards",
+        "Starting State",
+        "Episode End",
+        "Arguments",
+        "Version History",
+    ):
+        assert f"## {section}" in doc
