@@ -176,3 +176,83 @@ def test_summarise_refuses_an_empty_cell():
     with pytest.raises(ValueError):
         summarise([])
     assert isinstance(summarise([record("a", 0, 1.0)]), Summary)
+
+
+def _report_data(suite: str = "synthetic"):
+    from capture_bench.evaluation.report import ReportData
+
+    recs = _cells() + [record("fast", s, 1.2, scenario="drift") for s in range(3)]
+    recs += [record("incremental_ik", s, None, scenario="drift") for s in range(3)]
+    summaries = summarise_all(recs)
+    return ReportData(
+        suite=suite,
+        description="synthetic records",
+        command="python evaluate.py --suite synthetic",
+        reference="incremental_ik",
+        records=recs,
+        summaries=summaries,
+        ranking=rank_agents(summaries),
+        provenance={"seeds": {"paper": list(range(12))}, "timing": {"wall_clock_s": math.inf}},
+    )
+
+
+def test_report_files_from_records(tmp_path):
+    import csv
+    import json
+    from html.parser import HTMLParser
+
+    from capture_bench.evaluation.report import write_report
+
+    target = write_report(_report_data(), tmp_path)
+    assert target == tmp_path / "synthetic"
+    names = {p.name for p in target.iterdir()}
+    assert {
+        "leaderboard.md",
+        "leaderboard.html",
+        "results.csv",
+        "episodes.csv",
+        "results.json",
+        "survival_paper.png",
+        "survival_drift.png",
+        "failures_by_reason.png",
+        "ratio_to_limit.png",
+    } <= names
+    assert [p.name for p in tmp_path.iterdir()] == ["synthetic"]  # no staging directory left
+    md = (target / "leaderboard.md").read_text()
+    assert "python evaluate.py --suite synthetic" in md.splitlines()[:8]
+    rows = list(csv.DictReader(open(target / "results.csv")))
+    assert len(rows) == 6 and len(list(csv.DictReader(open(target / "episodes.csv")))) == 54
+    payload = json.loads((target / "results.json").read_text())  # strict JSON: no NaN
+    assert payload["provenance"]["timing"]["wall_clock_s"] == "inf"
+
+    class Images(HTMLParser):
+        sources: list[str] = []
+
+        def handle_starttag(self, tag, attrs):
+            if tag == "img":
+                self.sources.append(dict(attrs)["src"])
+
+    parser = Images()
+    parser.feed((target / "leaderboard.html").read_text())
+    assert len(parser.sources) == 4
+    assert all(s.startswith("data:image/png;base64,iVBOR") for s in parser.sources)
+
+
+def test_a_failed_report_leaves_the_previous_one_and_no_staging_directory(tmp_path, monkeypatch):
+    from capture_bench.evaluation import plots
+    from capture_bench.evaluation.report import write_report
+
+    write_report(_report_data(), tmp_path)
+    before = (tmp_path / "synthetic" / "results.csv").read_bytes()
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(plots, "ratio_figure", broken)
+    with pytest.raises(RuntimeError):
+        write_report(_report_data(), tmp_path)
+    assert [p.name for p in tmp_path.iterdir()] == ["synthetic"]
+    assert (tmp_path / "synthetic" / "results.csv").read_bytes() == before
+    with pytest.raises(RuntimeError):
+        write_report(_report_data("fresh"), tmp_path)
+    assert not (tmp_path / "fresh").exists()

@@ -159,8 +159,9 @@ def kaplan_meier(end_times: Sequence[float], captured: Sequence[bool]) -> Surviv
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         band = sf.confidence_interval(CONFIDENCE, method="log-log")
-    low = np.nan_to_num(band.low.probabilities, nan=0.0)
-    high = np.nan_to_num(band.high.probabilities, nan=1.0)
+    # the log-log band is undefined where S is 0 or 1; it collapses onto S there
+    low = np.where(np.isnan(band.low.probabilities), sf.probabilities, band.low.probabilities)
+    high = np.where(np.isnan(band.high.probabilities), sf.probabilities, band.high.probabilities)
     return SurvivalCurve(
         time=np.concatenate([[0.0], sf.quantiles]),
         survival=np.concatenate([[1.0], sf.probabilities]),

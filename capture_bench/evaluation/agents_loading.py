@@ -1,0 +1,188 @@
+"""Agent specs: what ``--agents`` and suite files may name, resolved to agents.
+
+A spec is one of:
+
+* a built-in name (a key of :data:`agents.AGENTS`, e.g. ``incremental_ik``);
+* a trained model: a directory (a training run, or ``models/<name>``; ``<name>`` alone also finds
+  ``models/<name>``) holding an SB3 ``.zip`` and ``metadata.json``/``metadata.yaml`` naming the
+  algorithm (see :mod:`agents.sb3_policy`); ``models/*`` expands to every model shipped;
+* ``module:Class`` (or ``module:factory``): a user's agent following :class:`agents.Agent`. It is
+  called with the environment's public :class:`TaskDescription` if it takes one argument, with no
+  argument if it takes none.
+
+Specs are plain strings so they travel to worker processes and Ray tasks; each process resolves
+them again and caches loaded SB3 models. Agents are rebuilt for every episode (construction is
+cheap; loaded models are cached), and stochastic built-ins are seeded with the episode's seed, so
+an episode's result does not depend on which process ran it or what it ran before.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from capture_bench.evaluation.errors import AgentSpecError
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+MODELS_DIR = REPO_ROOT / "models"
+MODELS_GLOB = "models/*"
+#: Built-in agents whose constructor takes ``seed``; they get the episode's seed.
+SEEDED_BUILTINS = frozenset({"random"})
+
+_MODEL_CACHE: dict[str, Any] = {}
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """A resolved agent spec.
+
+    Attributes:
+        spec: the string as given.
+        label: the agent's name in reports.
+        kind: ``builtin``, ``model`` or ``python``.
+        target: the built-in name, the model directory (absolute) or ``module:attr``.
+        privileged: the agent reads ground truth (the oracle): reported, not ranked.
+    """
+
+    spec: str
+    label: str
+    kind: str
+    target: str
+    privileged: bool = False
+
+
+def builtin_names() -> list[str]:
+    """Names of the built-in agents."""
+    from agents import AGENTS
+
+    return sorted(AGENTS)
+
+
+def shipped_models(models_dir: Path = MODELS_DIR) -> list[str]:
+    """Every model directory under ``models_dir`` (those holding a ``.zip``), sorted."""
+    if not models_dir.is_dir():
+        return []
+    return sorted(str(p) for p in models_dir.iterdir() if p.is_dir() and any(p.glob("*.zip")))
+
+
+def expand_specs(specs: list[str], models_dir: Path = MODELS_DIR) -> list[str]:
+    """Replace ``models/*`` by every shipped model directory; drop duplicates, keep order."""
+    out: list[str] = []
+    for spec in specs:
+        for item in shipped_models(models_dir) if spec == MODELS_GLOB else [spec]:
+            if item not in out:
+                out.append(item)
+    return out
+
+
+def _valid_specs() -> str:
+    return (
+        f"valid: a built-in agent ({', '.join(builtin_names())}), a trained-model directory "
+        "(models/<name> or a run directory with an SB3 .zip and metadata.json), or module:Class"
+    )
+
+
+def resolve_agent(spec: str, models_dir: Path = MODELS_DIR) -> AgentSpec:
+    """Resolve one spec (see module docstring); raises :class:`AgentSpecError` if it names
+    nothing. Models are not loaded here (see :func:`check_agent`)."""
+    from agents import PRIVILEGED_AGENTS
+
+    if spec in builtin_names():
+        return AgentSpec(spec, spec, "builtin", spec, spec in PRIVILEGED_AGENTS)
+    for candidate in (Path(spec), models_dir / spec):
+        if candidate.is_dir():
+            label = candidate.resolve().name
+            if label in builtin_names():
+                label = f"model:{label}"
+            return AgentSpec(spec, label, "model", str(candidate.resolve()))
+        if candidate.suffix == ".zip" and candidate.is_file():
+            raise AgentSpecError(
+                f"agent {spec!r}: name the model's directory ({candidate.parent}), which must "
+                "also hold metadata.json naming the algorithm"
+            )
+    if ":" in spec:
+        module_name, _, attr = spec.partition(":")
+        try:
+            module = importlib.import_module(module_name)
+        except Exception as exc:
+            raise AgentSpecError(f"agent {spec!r}: cannot import {module_name!r} ({exc})") from None
+        factory = getattr(module, attr, None)
+        if not callable(factory):
+            raise AgentSpecError(f"agent {spec!r}: module {module_name!r} has no class {attr!r}")
+        return AgentSpec(spec, spec, "python", spec, bool(getattr(factory, "privileged", False)))
+    raise AgentSpecError(f"unknown agent {spec!r}; {_valid_specs()}")
+
+
+def _python_factory(target: str) -> Any:
+    module_name, _, attr = target.partition(":")
+    return getattr(importlib.import_module(module_name), attr)
+
+
+def _call_user_factory(spec: AgentSpec, description: Any) -> Any:
+    factory = _python_factory(spec.target)
+    try:
+        params = list(inspect.signature(factory).parameters.values())
+    except (TypeError, ValueError):  # no signature (some builtins): call it with no argument
+        params = []
+    required = [
+        p
+        for p in params
+        if p.default is inspect.Parameter.empty
+        and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)
+    ]
+    if len(required) > 1:
+        raise AgentSpecError(
+            f"agent {spec.spec!r}: its constructor must take no argument or one (the "
+            f"environment's TaskDescription); it requires {len(required)}"
+        )
+    return factory(description) if required else factory()
+
+
+def _model(spec: AgentSpec) -> Any:
+    from agents.sb3_policy import load_model, read_metadata
+
+    if spec.target not in _MODEL_CACHE:
+        _MODEL_CACHE[spec.target] = load_model(read_metadata(spec.target))
+    return _MODEL_CACHE[spec.target]
+
+
+def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
+    """A fresh agent for one episode on ``env`` (seeded with ``seed`` if stochastic)."""
+    if spec.kind == "builtin":
+        from agents import make_agent
+
+        extra = {"seed": seed} if spec.target in SEEDED_BUILTINS else {}
+        return make_agent(spec.target, env, **extra)
+    if spec.kind == "model":
+        from agents.sb3_policy import SB3Policy
+
+        return SB3Policy(_model(spec), spec.label)
+    return _call_user_factory(spec, env.unwrapped.description)
+
+
+def check_agent(spec: AgentSpec, env: Any, scenario: str) -> None:
+    """Check at the edge that the agent can run on ``env`` (loads and checks a model's spaces;
+    builds a user's agent and checks it follows the protocol)."""
+    from agents.protocol import Agent
+
+    if spec.kind == "model":
+        from agents.sb3_policy import check_spaces
+
+        check_spaces(
+            _model(spec), env.observation_space, env.action_space, f"{spec.spec} on {scenario}"
+        )
+    elif spec.kind == "python":
+        try:
+            agent = _call_user_factory(spec, env.unwrapped.description)
+        except AgentSpecError:
+            raise
+        except Exception as exc:
+            raise AgentSpecError(f"agent {spec.spec!r}: construction failed ({exc})") from None
+        if not isinstance(agent, Agent):
+            raise AgentSpecError(
+                f"agent {spec.spec!r}: needs predict(observation, state, episode_start, "
+                "deterministic) and reset() (see agents/protocol.py)"
+            )

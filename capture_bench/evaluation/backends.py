@@ -1,0 +1,224 @@
+"""Where episodes run: in this process, in a local process pool, or on a Ray cluster.
+
+Work is a list of :class:`EpisodeTask` (agent spec, scenario, seed: plain, picklable values). It is
+cut into chunks of one agent on one scenario, each chunk runs in one worker, and the records come
+back in the order of the tasks, whatever the backend and whatever order chunks finish in. Each
+worker builds its own environments (one per scenario, cached for the worker's life) and a fresh
+agent per episode, and every episode starts from ``env.reset(seed=seed)``, so every backend gives
+the same records (apart from the wall-clock column).
+
+Ray is imported only by the ``ray`` backend (``pip install capture-bench[ray]``). If Ray is
+already initialised in this process it is used as it is (its workers must be able to import
+capture-bench: installed, or started from the checkout). Otherwise ``ray.init(address=...)``
+starts a local instance (no address) or joins a cluster, shipping this checkout as the job's
+``working_dir`` (code, ``configs/``, ``models/``; not ``.git``, ``reports/``, ``runs/``); the nodes
+need the dependencies installed. Model specs travel as written: name them ``models/<name>``.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Any
+
+from capture_bench.evaluation.agents_loading import (
+    REPO_ROOT,
+    AgentSpec,
+    build_agent,
+    resolve_agent,
+)
+from capture_bench.evaluation.errors import EvaluationError
+from capture_bench.evaluation.rollout import EpisodeRecord, EpisodeTrace, run_episode
+
+BACKENDS = ("serial", "process", "ray")
+#: Episodes per chunk: small enough to balance load and move the progress bar, large enough that
+#: dispatch costs little next to the episodes.
+CHUNK_SIZE = 10
+
+#: Modules the forkserver imports once, so that each worker starts with them loaded.
+PRELOAD = ("capture_bench.evaluation.backends", "capture_bench.env", "agents")
+
+#: Not shipped to Ray workers with the checkout.
+RAY_EXCLUDES = [".git", "reports", "runs", "**/__pycache__", "*.egg-info", ".venv", "*.png"]
+
+Progress = Callable[[int], None]
+
+
+@dataclass(frozen=True)
+class EpisodeTask:
+    """One episode to run: agent spec (string, see agents_loading), scenario name, seed."""
+
+    agent: str
+    scenario: str
+    seed: int
+
+
+_ENVS: dict[str, Any] = {}
+_SPECS: dict[str, AgentSpec] = {}
+
+
+def make_env(scenario: str) -> Any:
+    """The gymnasium environment of a shipped scenario (``CaptureBench/<Name>-v0``)."""
+    import gymnasium
+
+    import capture_bench  # noqa: F401  (registers the environment IDs)
+    from capture_bench.scenarios import load_scenario
+
+    return gymnasium.make(load_scenario(scenario).env_id)
+
+
+def _env(scenario: str) -> Any:
+    if scenario not in _ENVS:
+        _ENVS[scenario] = make_env(scenario)
+    return _ENVS[scenario]
+
+
+def close_envs() -> None:
+    """Close and forget this process's cached environments."""
+    while _ENVS:
+        _ENVS.popitem()[1].close()
+
+
+def run_task(task: EpisodeTask, trace: bool = False) -> tuple[EpisodeRecord, EpisodeTrace | None]:
+    """Run one task in this process (environment cached per scenario, agent built afresh)."""
+    if task.agent not in _SPECS:
+        _SPECS[task.agent] = resolve_agent(task.agent)
+    spec = _SPECS[task.agent]
+    env = _env(task.scenario)
+    agent = build_agent(spec, env, task.seed)
+    return run_episode(
+        env, agent, agent_name=spec.label, scenario=task.scenario, seed=task.seed, trace=trace
+    )
+
+
+def run_chunk(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
+    """Run tasks one after the other in this process; the unit of work of every backend."""
+    return [run_task(task)[0] for task in tasks]
+
+
+def make_chunks(tasks: Sequence[EpisodeTask], size: int = CHUNK_SIZE) -> list[list[EpisodeTask]]:
+    """Consecutive runs of the same agent and scenario, at most ``size`` tasks each."""
+    chunks: list[list[EpisodeTask]] = []
+    for task in tasks:
+        last = chunks[-1] if chunks else None
+        if (
+            last is not None
+            and len(last) < size
+            and (last[0].agent, last[0].scenario) == (task.agent, task.scenario)
+        ):
+            last.append(task)
+        else:
+            chunks.append([task])
+    return chunks
+
+
+def _init_worker() -> None:
+    """One thread per worker for the numerical libraries: the workers are the parallelism."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = "1"
+
+
+def _run_serial(chunks: list[list[EpisodeTask]], progress: Progress) -> list[list[EpisodeRecord]]:
+    results = []
+    try:
+        for chunk in chunks:
+            records = []
+            for task in chunk:
+                records.append(run_task(task)[0])
+                progress(1)
+            results.append(records)
+    finally:
+        close_envs()
+    return results
+
+
+def _run_process(
+    chunks: list[list[EpisodeTask]], workers: int, progress: Progress
+) -> list[list[EpisodeRecord]]:
+    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    context = multiprocessing.get_context(method)
+    if method == "forkserver":  # workers fork from a server that has already imported these
+        context.set_forkserver_preload(list(PRELOAD))
+    results: list[list[EpisodeRecord] | None] = [None] * len(chunks)
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
+        pending = {pool.submit(run_chunk, chunk): i for i, chunk in enumerate(chunks)}
+        try:
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in done:
+                    index = pending.pop(future)
+                    results[index] = future.result()
+                    progress(len(chunks[index]))
+        except BaseException:
+            for future in pending:
+                future.cancel()
+            raise
+    return [r for r in results if r is not None]
+
+
+def _run_ray(
+    chunks: list[list[EpisodeTask]], address: str | None, progress: Progress
+) -> list[list[EpisodeRecord]]:
+    try:
+        import ray
+    except ImportError:
+        raise EvaluationError("--backend ray needs Ray: pip install 'capture-bench[ray]'") from None
+    started = not ray.is_initialized()
+    if started:
+        # ship this checkout (code, configs, models) so the workers run what this process runs
+        runtime_env = {"working_dir": str(REPO_ROOT), "excludes": RAY_EXCLUDES}
+        ray.init(
+            address=address,
+            include_dashboard=False,
+            log_to_driver=False,
+            runtime_env=runtime_env,
+        )
+    try:
+        remote = ray.remote(num_cpus=1)(run_chunk)
+        refs = {remote.remote(chunk): i for i, chunk in enumerate(chunks)}
+        results: list[list[EpisodeRecord] | None] = [None] * len(chunks)
+        pending = list(refs)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                index = refs[ref]
+                results[index] = ray.get(ref)
+                progress(len(chunks[index]))
+    finally:
+        if started:
+            ray.shutdown()
+    return [r for r in results if r is not None]
+
+
+def run_tasks(
+    tasks: Sequence[EpisodeTask],
+    backend: str = "serial",
+    workers: int = 1,
+    ray_address: str | None = None,
+    progress: Progress | None = None,
+) -> list[EpisodeRecord]:
+    """Run every task and return the records in task order.
+
+    Args:
+        tasks: the episodes to run.
+        backend: ``serial``, ``process`` (``workers`` local processes) or ``ray``.
+        workers: process count of the ``process`` backend (>= 1).
+        ray_address: Ray cluster address for the ``ray`` backend (None: local or already running).
+        progress: called with the number of episodes just finished.
+    """
+    if backend not in BACKENDS:
+        raise EvaluationError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
+    if workers < 1:
+        raise EvaluationError(f"--workers {workers}: expected a whole number >= 1")
+    report = progress or (lambda _n: None)
+    chunks = make_chunks(tasks)
+    if backend == "serial" or (backend == "process" and workers == 1):
+        nested = _run_serial(chunks, report)
+    elif backend == "process":
+        nested = _run_process(chunks, workers, report)
+    else:
+        nested = _run_ray(chunks, ray_address, report)
+    return [record for chunk in nested for record in chunk]

@@ -1,0 +1,224 @@
+"""Plan an evaluation (validate every input at the edge), run it, write the report.
+
+:func:`plan_evaluation` resolves the suite, scenarios, seeds and agents and raises one of
+:data:`INPUT_ERRORS` on bad input before any episode runs or any file is written;
+:func:`run_evaluation` runs the episodes on the chosen backend and writes ``<out>/<suite>/``.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from agents.sb3_policy import PolicyLoadError, read_metadata
+from capture_bench.evaluation.agents_loading import (
+    AgentSpec,
+    check_agent,
+    expand_specs,
+    resolve_agent,
+)
+from capture_bench.evaluation.aggregate import rank_agents, summarise_all
+from capture_bench.evaluation.backends import (
+    BACKENDS,
+    EpisodeTask,
+    close_envs,
+    make_env,
+    run_task,
+    run_tasks,
+)
+from capture_bench.evaluation.errors import AgentSpecError, EvaluationError
+from capture_bench.evaluation.provenance import file_sha256, git_state, package_versions
+from capture_bench.evaluation.report import ReportData, write_report
+from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
+from capture_bench.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
+
+#: Exceptions that mean "bad input": the CLI prints their message and exits with code 2.
+INPUT_ERRORS: tuple[type[Exception], ...] = (EvaluationError, ConfigError, PolicyLoadError)
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """What to evaluate and where (the CLI's options, typed).
+
+    Attributes:
+        suite: suite name (``configs/suites/<name>.yaml``) or path to a suite YAML.
+        agents: agent specs replacing the suite's (None: the suite's).
+        scenarios: scenario names replacing the suite's (None: the suite's).
+        episodes: episodes per agent x scenario replacing the suite's (first N published seeds).
+        backend: ``serial``, ``process`` or ``ray``.
+        workers: local worker processes (``process`` backend; > 1 with ``serial`` means process).
+        ray_address: Ray cluster address (``ray`` backend); None for a local instance.
+        out: reports are written to ``<out>/<suite>/``.
+        episode_plots: if set, per-episode figures of the first seed of every agent x scenario.
+    """
+
+    suite: str = "default"
+    agents: list[str] | None = None
+    scenarios: list[str] | None = None
+    episodes: int | None = None
+    backend: str = "serial"
+    workers: int = 1
+    ray_address: str | None = None
+    out: Path = Path("reports")
+    episode_plots: Path | None = None
+
+    def resolved_backend(self) -> str:
+        """The backend that will run: ``--workers N`` alone selects the process pool."""
+        if self.backend not in BACKENDS:
+            raise EvaluationError(f"unknown backend {self.backend!r}; valid: {', '.join(BACKENDS)}")
+        if self.workers < 1:
+            raise EvaluationError(f"--workers {self.workers}: expected a whole number >= 1")
+        return "process" if self.backend == "serial" and self.workers > 1 else self.backend
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A validated evaluation: the suite as narrowed, agents, scenarios, seeds, tasks."""
+
+    suite: Suite
+    agents: list[AgentSpec]
+    scenarios: list[str]
+    seeds: dict[str, list[int]]
+    tasks: list[EpisodeTask] = field(repr=False)
+    config_hashes: dict[str, Any] = field(repr=False)
+
+
+def _scenario_names(suite: Suite) -> list[str]:
+    if suite.scenarios == (ALL,):
+        return list_scenarios()
+    known = list_scenarios()
+    for name in suite.scenarios:
+        if name not in known:
+            raise EvaluationError(f"unknown scenario {name!r}; valid: {', '.join(known)}")
+    return list(suite.scenarios)
+
+
+def _model_hashes(spec: AgentSpec) -> dict[str, str]:
+    meta = read_metadata(spec.target)
+    return {p.name: file_sha256(p) for p in (meta.model_file, meta.metadata_file)}
+
+
+def plan_evaluation(config: EvaluationConfig) -> Plan:
+    """Validate the whole request; raises one of :data:`INPUT_ERRORS` naming what is wrong."""
+    config.resolved_backend()
+    suite = narrow(load_suite(config.suite), config.agents, config.scenarios, config.episodes)
+    scenarios = _scenario_names(suite)
+    seeds: dict[str, list[int]] = {}
+    for name in scenarios:
+        published = load_scenario(name).evaluation_seeds
+        if suite.episodes > len(published):
+            raise EvaluationError(
+                f"{suite.episodes} episodes requested but scenario {name!r} publishes "
+                f"{len(published)} evaluation seeds; use --episodes <= {len(published)}"
+            )
+        seeds[name] = published[: suite.episodes]
+    specs = [resolve_agent(s) for s in expand_specs(list(suite.agents))]
+    if not specs:
+        raise AgentSpecError("no agent to evaluate (models/* matched no model directory)")
+    labels = [s.label for s in specs]
+    duplicate = next((x for x in labels if labels.count(x) > 1), None)
+    if duplicate:
+        raise AgentSpecError(f"two agent specs are both named {duplicate!r} in the report")
+    to_check = [s for s in specs if s.kind != "builtin"]
+    if to_check:
+        for name in scenarios:
+            env = make_env(name)
+            try:
+                for spec in to_check:
+                    check_agent(spec, env, name)
+            finally:
+                env.close()
+    tasks = [
+        EpisodeTask(spec.spec, name, seed)
+        for spec in specs
+        for name in scenarios
+        for seed in seeds[name]
+    ]
+    hashes: dict[str, Any] = {
+        "suite": {"file": str(suite.path), "sha256": suite.sha256},
+        "scenarios": {n: file_sha256(SCENARIO_DIR / f"{n}.yaml") for n in scenarios},
+        "models": {s.label: _model_hashes(s) for s in specs if s.kind == "model"},
+    }
+    return Plan(suite, specs, scenarios, seeds, tasks, hashes)
+
+
+def _provenance(plan: Plan, config: EvaluationConfig, command: str, seconds: float) -> dict:
+    return {
+        "command": command,
+        "git": git_state(),
+        "packages": package_versions(),
+        "config_hashes": plan.config_hashes,
+        "seeds": plan.seeds,
+        "agents": [
+            {"label": s.label, "spec": s.spec, "kind": s.kind, "privileged": s.privileged}
+            for s in plan.agents
+        ],
+        "backend": {"name": config.resolved_backend(), "workers": config.workers},
+        "timing": {"wall_clock_s": seconds, "episodes": len(plan.tasks)},
+    }
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def write_episode_plots(plan: Plan, directory: Path) -> list[Path]:
+    """Per-episode figures of the first seed of every agent x scenario (run again, in process)."""
+    from capture_bench.evaluation.plots import episode_figure
+
+    directory.mkdir(parents=True, exist_ok=True)
+    written = []
+    try:
+        for spec in plan.agents:
+            for name in plan.scenarios:
+                seed = plan.seeds[name][0]
+                record, trace = run_task(EpisodeTask(spec.spec, name, seed), trace=True)
+                assert trace is not None
+                path = directory / f"{_safe(spec.label)}_{name}_seed{seed}.png"
+                path.write_bytes(episode_figure(record, trace))
+                written.append(path)
+    finally:
+        close_envs()
+    return written
+
+
+def run_evaluation(
+    plan: Plan,
+    config: EvaluationConfig,
+    command: str,
+    progress: Callable[[int], None] | None = None,
+) -> tuple[ReportData, Path]:
+    """Run the plan's episodes, aggregate them and write the report.
+
+    Returns:
+        ``(report data, report directory)``.
+    """
+    start = time.perf_counter()
+    records: list[EpisodeRecord] = run_tasks(
+        plan.tasks, config.resolved_backend(), config.workers, config.ray_address, progress
+    )
+    summaries = summarise_all(records, plan.suite.reference)
+    privileged = {s.label for s in plan.agents if s.privileged}
+    data = ReportData(
+        suite=plan.suite.name,
+        description=plan.suite.description,
+        command=command,
+        reference=plan.suite.reference,
+        records=records,
+        summaries=summaries,
+        ranking=rank_agents(summaries, privileged),
+        provenance={},
+    )
+    seconds = time.perf_counter() - start
+    data = ReportData(
+        **{**data.__dict__, "provenance": _provenance(plan, config, command, seconds)}
+    )
+    target = write_report(data, config.out)
+    if config.episode_plots is not None:
+        write_episode_plots(plan, config.episode_plots)
+    return data, target

@@ -1,0 +1,349 @@
+"""Write the leaderboard report of one suite into ``<out>/<suite>/``.
+
+Files: ``leaderboard.md`` (headed by the command that regenerates it), ``leaderboard.html`` (one
+self-contained file, figures embedded as base64 PNG), ``results.csv`` (one row per agent x
+scenario), ``episodes.csv`` (one row per episode), ``results.json`` (rows, ranking, provenance) and
+the PNG figures. Everything is written into a temporary directory next to the target and renamed
+into place at the end, so a failed run never leaves a half-written report.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from capture_bench.evaluation import plots
+from capture_bench.evaluation.aggregate import (
+    RANKING_RULE,
+    RankingRow,
+    Summary,
+    failure_reasons,
+    summary_row,
+)
+from capture_bench.evaluation.metrics import Estimate
+from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
+
+CSV_FILES = ("results.csv", "episodes.csv")
+
+
+@dataclass(frozen=True)
+class ReportData:
+    """Everything a report shows.
+
+    Attributes:
+        suite: suite name (the report directory's name).
+        description: the suite's description.
+        command: the exact command line that regenerates the report.
+        reference: agent of the paired comparison.
+        records: every episode, in a deterministic order.
+        summaries: one per agent x scenario.
+        ranking: the overall ranking.
+        provenance: JSON-ready provenance (git, hashes, versions, seeds, timing).
+    """
+
+    suite: str
+    description: str
+    command: str
+    reference: str
+    records: Sequence[EpisodeRecord]
+    summaries: Sequence[Summary]
+    ranking: Sequence[RankingRow]
+    provenance: dict[str, Any]
+
+
+def csv_value(value: Any) -> Any:
+    """CSV cell: NaN -> empty, floats at full precision (repr), others as they are."""
+    if isinstance(value, float):
+        return "" if math.isnan(value) else repr(value)
+    return value
+
+
+def json_value(value: Any) -> Any:
+    """JSON-safe value: NaN -> null, +-inf -> "inf"/"-inf"."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
+def _fmt(value: float, digits: int = 2) -> str:
+    if math.isnan(value):
+        return "—"
+    return "∞" if math.isinf(value) else f"{value:.{digits}f}"
+
+
+def fmt_estimate(est: Estimate, digits: int = 2) -> str:
+    """``value [low, high]``; dashes where undefined."""
+    if math.isnan(est.value):
+        return "—"
+    if math.isnan(est.low):
+        return _fmt(est.value, digits)
+    return f"{_fmt(est.value, digits)} [{_fmt(est.low, digits)}, {_fmt(est.high, digits)}]"
+
+
+MAIN_HEADER = (
+    "agent",
+    "capture rate",
+    "median time, s",
+    "IQM time, s",
+    "KM median time, s",
+    "median ratio to limit",
+    "P(better than ref)",
+    "paired Δt, s",
+    "failures",
+)
+DETAIL_HEADER = (
+    "agent",
+    "distance at capture, mm",
+    "rel. speed at capture, mm/s",
+    "position RMSE, mm",
+    "velocity RMSE, mm/s",
+    "NEES",
+    "path length, m",
+    "saturated steps",
+)
+
+
+def main_cells(s: Summary, reference: str) -> list[str]:
+    """One row of the main per-scenario table."""
+    f = s.figures
+    failures = ", ".join(f"{k} {v}" for k, v in sorted(s.failures.items())) or "none"
+    paired = s.paired
+    return [
+        s.agent + (" (reference)" if s.agent == reference else ""),
+        f"{s.captured}/{s.episodes} = {fmt_estimate(s.capture_rate)}",
+        fmt_estimate(f["capture_time_median"]),
+        fmt_estimate(f["capture_time_iqm"]),
+        fmt_estimate(s.km_median),
+        fmt_estimate(f["ratio_median"]),
+        fmt_estimate(paired.prob_improvement) if paired else "—",
+        fmt_estimate(paired.time_difference) if paired else "—",
+        failures,
+    ]
+
+
+def _scaled(est: Estimate, scale: float) -> Estimate:
+    return Estimate(est.value * scale, est.low * scale, est.high * scale)
+
+
+def detail_cells(s: Summary) -> list[str]:
+    """One row of the per-scenario detail table (units in the header)."""
+    f = s.figures
+    return [
+        s.agent,
+        fmt_estimate(_scaled(f["distance_at_capture_median"], 1e3)),
+        fmt_estimate(_scaled(f["relative_speed_at_capture_median"], 1e3)),
+        fmt_estimate(_scaled(f["position_rmse_mean"], 1e3)),
+        fmt_estimate(_scaled(f["velocity_rmse_mean"], 1e3)),
+        fmt_estimate(f["nees_mean"]),
+        fmt_estimate(f["path_length_mean"]),
+        fmt_estimate(f["saturated_share_mean"]),
+    ]
+
+
+def ranking_cells(r: RankingRow) -> list[str]:
+    """One row of the overall ranking."""
+    name = r.agent + (" (privileged)" if r.privileged else "")
+    return [
+        "—" if r.rank is None else str(r.rank),
+        name,
+        f"{r.mean_capture_rate:.3f}",
+        _fmt(r.mean_ratio_median),
+        str(r.scenarios),
+    ]
+
+
+RANKING_HEADER = ("rank", "agent", "mean capture rate", "mean median ratio", "scenarios")
+NOTES = (
+    "Intervals are 95%: Wilson for the capture rate, percentile bootstrap (scipy.stats.bootstrap, "
+    "fixed seed) otherwise. Times and ratios are over captured episodes; the KM median treats "
+    "failures as censored at their end time. P(better than ref) and paired Δt compare with the "
+    "reference agent seed by seed: a failure is worse than any capture, ties count 1/2, and Δt "
+    "uses only seeds both captured (negative = faster)."
+)
+
+
+def _md_table(header: Sequence[str], rows: list[list[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(c.replace("|", "\\|") for c in row) + " |" for row in rows]
+
+
+def _scenarios(data: ReportData) -> list[str]:
+    return list(dict.fromkeys(s.scenario for s in data.summaries))
+
+
+def markdown(data: ReportData) -> str:
+    """The leaderboard in Markdown, headed by the command that regenerates it."""
+    lines = [
+        f"# capture-bench leaderboard: `{data.suite}` suite",
+        "",
+        "Regenerate with:",
+        "",
+        "```",
+        data.command,
+        "```",
+        "",
+        data.description,
+        "",
+        "## Overall ranking",
+        "",
+        RANKING_RULE,
+        "",
+        *_md_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
+        "",
+        NOTES,
+    ]
+    for scenario in _scenarios(data):
+        cells = [s for s in data.summaries if s.scenario == scenario]
+        lines += ["", f"## {scenario}", ""]
+        lines += _md_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells])
+        lines += ["", *_md_table(DETAIL_HEADER, [detail_cells(s) for s in cells])]
+    lines += ["", f"Figures: {', '.join(figure_names(data))} (in this directory).", ""]
+    return "\n".join(lines)
+
+
+def figure_names(data: ReportData) -> list[str]:
+    """File names of the figures, in display order."""
+    survival = [f"survival_{scenario}.png" for scenario in _scenarios(data)]
+    return [*survival, "failures_by_reason.png", "ratio_to_limit.png"]
+
+
+def figures(data: ReportData) -> dict[str, bytes]:
+    """Render every figure: file name -> PNG bytes."""
+    out = {
+        f"survival_{scenario}.png": plots.survival_figure(
+            scenario, [s for s in data.summaries if s.scenario == scenario]
+        )
+        for scenario in _scenarios(data)
+    }
+    out["failures_by_reason.png"] = plots.failures_figure(
+        data.summaries, failure_reasons(data.summaries)
+    )
+    out["ratio_to_limit.png"] = plots.ratio_figure(data.records)
+    return out
+
+
+def _html_table(header: Sequence[str], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows
+    )
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+STYLE = (
+    "body{font-family:system-ui,sans-serif;margin:2em;max-width:80em}"
+    "table{border-collapse:collapse;margin:1em 0;font-size:0.9em}"
+    "th,td{border:1px solid #ccc;padding:0.3em 0.6em;text-align:left}"
+    "th{background:#f3f3f3}img{max-width:100%}code,pre{background:#f6f6f6;padding:0.2em}"
+)
+
+
+def html_page(data: ReportData, images: dict[str, bytes]) -> str:
+    """The leaderboard as one self-contained HTML page (images inlined as base64)."""
+    esc = html.escape
+    parts = [
+        "<!DOCTYPE html>",
+        f'<html lang="en"><head><meta charset="utf-8"><title>capture-bench: {esc(data.suite)}'
+        f"</title><style>{STYLE}</style></head><body>",
+        f"<h1>capture-bench leaderboard: {esc(data.suite)} suite</h1>",
+        f"<p>Regenerate with:</p><pre><code>{esc(data.command)}</code></pre>",
+        f"<p>{esc(data.description)}</p>",
+        f"<h2>Overall ranking</h2><p>{esc(RANKING_RULE)}</p>",
+        _html_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
+        f"<p>{esc(NOTES)}</p>",
+    ]
+    for scenario in _scenarios(data):
+        cells = [s for s in data.summaries if s.scenario == scenario]
+        parts.append(f"<h2>{esc(scenario)}</h2>")
+        parts.append(_html_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells]))
+        parts.append(_html_table(DETAIL_HEADER, [detail_cells(s) for s in cells]))
+    parts.append("<h2>Figures</h2>")
+    for name in figure_names(data):
+        encoded = base64.b64encode(images[name]).decode("ascii")
+        parts.append(
+            f'<figure><img alt="{esc(name)}" src="data:image/png;base64,{encoded}">'
+            f"<figcaption>{esc(name)}</figcaption></figure>"
+        )
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def _write_csv(path: Path, columns: Sequence[str], rows: list[dict[str, Any]]) -> None:
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(columns), lineterminator="\n")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: csv_value(v) for k, v in row.items()})
+
+
+def result_rows(data: ReportData) -> list[dict[str, Any]]:
+    """The rows of ``results.csv``."""
+    reasons = failure_reasons(data.summaries)
+    return [summary_row(s, reasons) for s in data.summaries]
+
+
+def _write_all(data: ReportData, directory: Path) -> None:
+    rows = result_rows(data)
+    _write_csv(directory / "results.csv", list(rows[0]), rows)
+    _write_csv(directory / "episodes.csv", EPISODE_COLUMNS, [r.as_row() for r in data.records])
+    images = figures(data)
+    for name, png in images.items():
+        (directory / name).write_bytes(png)
+    (directory / "leaderboard.md").write_text(markdown(data))
+    (directory / "leaderboard.html").write_text(html_page(data, images))
+    payload = {
+        "suite": data.suite,
+        "command": data.command,
+        "reference": data.reference,
+        "ranking_rule": RANKING_RULE,
+        "ranking": [r.__dict__ for r in data.ranking],
+        "results": rows,
+        "provenance": data.provenance,
+    }
+    text = json.dumps(_sanitise(payload), indent=2, default=str, allow_nan=False)
+    (directory / "results.json").write_text(text + "\n")
+
+
+def _sanitise(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {k: _sanitise(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_sanitise(v) for v in o]
+    return json_value(o)
+
+
+def write_report(data: ReportData, out_dir: Path) -> Path:
+    """Write the report into ``out_dir/<suite>/`` atomically; returns that directory.
+
+    The files are written into a temporary sibling directory that replaces the target only once
+    complete; on any error the temporary directory is removed and the old report (if any) stays.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / data.suite
+    staging = Path(tempfile.mkdtemp(prefix=f".{data.suite}.tmp-", dir=out_dir))
+    try:
+        _write_all(data, staging)
+        os.chmod(staging, 0o755)
+        old = None
+        if target.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{data.suite}.old-", dir=out_dir))
+            os.rmdir(old)
+            os.replace(target, old)
+        os.replace(staging, target)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return target

@@ -1,0 +1,179 @@
+"""Evaluate agents on a leaderboard suite and write the report: capture-bench's main job.
+
+    python evaluate.py                       # default suite: every scenario, 100 seeds, all agents
+    python evaluate.py --suite quick         # smoke run
+    python evaluate.py --agents incremental_ik models/ppo_paper --scenarios paper --episodes 20
+    python evaluate.py --workers 2           # local process pool
+    python evaluate.py --backend ray --ray-address auto
+
+Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures).
+Bad input (unknown agent, scenario or suite, missing or corrupt model, mismatched spaces) prints
+one line to stderr and exits with code 2, before any episode runs or any file is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+from typing import NoReturn
+
+from capture_bench.evaluation.backends import BACKENDS
+from capture_bench.evaluation.pipeline import (
+    INPUT_ERRORS,
+    EvaluationConfig,
+    Plan,
+    plan_evaluation,
+    run_evaluation,
+)
+from capture_bench.evaluation.report import ReportData
+
+PROG = "evaluate.py"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a bad option in one line (and exit code 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{PROG}: error: {message} (see --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line options (each maps to a field of ``EvaluationConfig``)."""
+    parser = _Parser(prog=PROG, description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--suite",
+        default="default",
+        help="suite name in configs/suites/ or a suite YAML path (default: default)",
+    )
+    parser.add_argument(
+        "--agents",
+        nargs="+",
+        metavar="AGENT",
+        help="agents replacing the suite's: built-in names, model directories "
+        "(models/<name>, run dirs), module:Class; comma or space separated",
+    )
+    parser.add_argument(
+        "--scenarios",
+        nargs="+",
+        metavar="SCENARIO",
+        help="scenarios replacing the suite's (comma or space separated)",
+    )
+    parser.add_argument(
+        "--episodes", type=int, help="episodes per agent x scenario: the first N published seeds"
+    )
+    parser.add_argument(
+        "--workers", type=int, default=1, help="local worker processes (default 1 = serial)"
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="serial",
+        help="where episodes run (default serial; --workers N > 1 means process)",
+    )
+    parser.add_argument("--ray-address", help="Ray cluster address for --backend ray")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("reports"),
+        help="report root; the report goes to OUT/<suite>/ (default reports/)",
+    )
+    parser.add_argument(
+        "--episode-plots",
+        type=Path,
+        metavar="DIR",
+        help="also plot the first episode of every agent x scenario into DIR",
+    )
+    return parser
+
+
+def _split(values: list[str] | None) -> list[str] | None:
+    if values is None:
+        return None
+    return [item for value in values for item in value.split(",") if item]
+
+
+def parse_config(argv: list[str]) -> EvaluationConfig:
+    """Parse the command line into a typed config."""
+    args = build_parser().parse_args(argv)
+    return EvaluationConfig(
+        suite=args.suite,
+        agents=_split(args.agents),
+        scenarios=_split(args.scenarios),
+        episodes=args.episodes,
+        backend=args.backend,
+        workers=args.workers,
+        ray_address=args.ray_address,
+        out=args.out,
+        episode_plots=args.episode_plots,
+    )
+
+
+def _summary_table(data: ReportData, target: Path) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    scenarios = list(dict.fromkeys(s.scenario for s in data.summaries))
+    rate = {(s.agent, s.scenario): s.capture_rate.value for s in data.summaries}
+    table = Table(title=f"capture-bench · {data.suite} suite · capture rate per scenario")
+    for column in ("rank", "agent", "mean", *scenarios, "median ratio"):
+        table.add_column(column, justify="left" if column == "agent" else "right")
+    for row in data.ranking:
+        table.add_row(
+            "—" if row.rank is None else str(row.rank),
+            row.agent + (" (privileged)" if row.privileged else ""),
+            f"{row.mean_capture_rate:.2f}",
+            *(f"{rate.get((row.agent, s), float('nan')):.2f}" for s in scenarios),
+            f"{row.mean_ratio_median:.2f}",
+        )
+    console = Console()
+    console.print(table)
+    console.print(f"report: {target}")
+
+
+def _run(plan: Plan, config: EvaluationConfig, command: str) -> tuple[ReportData, Path]:
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
+        task = bar.add_task(f"{plan.suite.name}: episodes", total=len(plan.tasks))
+        return run_evaluation(plan, config, command, lambda n: bar.advance(task, n))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (0 done, 2 bad input)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        config = parse_config(argv)
+    except SystemExit as exc:  # --help, or a malformed option (already reported in one line)
+        return int(exc.code or 0)
+    command = " ".join(["python", PROG, *(shlex.quote(a) for a in argv)])
+    try:
+        plan = plan_evaluation(config)
+    except INPUT_ERRORS as exc:
+        message = " ".join(str(exc).split())
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+        return 2
+    data, target = _run(plan, config, command)
+    _summary_table(data, target)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,223 @@
+"""``evaluate.py`` end to end on the real environment: the quick suite, reproducibility across runs
+and backends (serial, process pool, Ray), trained and user agents, and every kind of bad input."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import statistics
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capture_bench.evaluation.aggregate import RESULT_TIMING_COLUMNS
+from capture_bench.evaluation.rollout import TIMING_COLUMNS
+from capture_bench.evaluation.suites import load_suite
+from capture_bench.scenarios import load_scenario
+from evaluate import main
+
+REPORT_FILES = {
+    "leaderboard.md",
+    "leaderboard.html",
+    "results.csv",
+    "episodes.csv",
+    "results.json",
+    "survival_paper.png",
+    "survival_tumbling.png",
+    "failures_by_reason.png",
+    "ratio_to_limit.png",
+}
+
+
+class StillAgent:
+    """A user's agent (``module:Class``): never moves."""
+
+    def __init__(self, description) -> None:
+        self.description = description
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        return np.zeros(3, dtype=np.float32), state
+
+    def reset(self) -> None:
+        pass
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def _without(rows: list[dict[str, str]], columns: frozenset[str]) -> list[dict[str, str]]:
+    return [{k: v for k, v in row.items() if k not in columns} for row in rows]
+
+
+def _num(text: str) -> float:
+    return math.nan if text == "" else float(text)
+
+
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory) -> Path:
+    """The quick suite, serial, written once for the module."""
+    out = tmp_path_factory.mktemp("serial")
+    assert main(["--suite", "quick", "--out", str(out)]) == 0
+    return out / "quick"
+
+
+def test_quick_suite_writes_every_file_with_consistent_aggregates(quick_report):
+    assert REPORT_FILES <= {p.name for p in quick_report.iterdir()}
+    assert [p.name for p in quick_report.parent.iterdir()] == ["quick"]  # no staging left
+    episodes = _rows(quick_report / "episodes.csv")
+    results = _rows(quick_report / "results.csv")
+    suite = load_suite("quick")
+    cells = len(suite.agents) * len(suite.scenarios)
+    assert len(results) == cells and len(episodes) == cells * suite.episodes
+    for row in results:
+        cell = [
+            e for e in episodes if (e["agent"], e["scenario"]) == (row["agent"], row["scenario"])
+        ]
+        captured = [e for e in cell if e["outcome"] == "captured"]
+        assert int(row["episodes"]) == len(cell) and int(row["captured"]) == len(captured)
+        assert float(row["capture_rate"]) == pytest.approx(len(captured) / len(cell))
+        if captured:
+            median = statistics.median(float(e["capture_time"]) for e in captured)
+            assert float(row["capture_time_median"]) == pytest.approx(median)
+        for reason in {e["failure"] for e in cell if e["outcome"] == "failed"}:
+            count = sum(e["failure"] == reason for e in cell)
+            assert int(row[f"failures_{reason}"]) == count
+        for column in row:
+            if f"{column}_low" in row:
+                value, low, high = (
+                    _num(row[c]) for c in (column, f"{column}_low", f"{column}_high")
+                )
+                if not any(math.isnan(v) for v in (value, low, high)):
+                    assert low - 1e-12 <= value <= high + 1e-12, column
+    payload = json.loads((quick_report / "results.json").read_text())
+    published = payload["provenance"]["seeds"]
+    for scenario in suite.scenarios:  # every agent ran the first published seeds
+        for agent in suite.agents:
+            seeds = [
+                int(e["seed"]) for e in episodes if (e["agent"], e["scenario"]) == (agent, scenario)
+            ]
+            assert seeds == published[scenario] == load_scenario(scenario).evaluation_seeds[:3]
+    provenance = payload["provenance"]
+    assert {"git", "packages", "config_hashes", "seeds", "command"} <= set(provenance)
+    assert set(provenance["config_hashes"]["scenarios"]) == {"paper", "tumbling"}
+    md = (quick_report / "leaderboard.md").read_text()
+    assert "python evaluate.py --suite quick --out" in "\n".join(md.splitlines()[:8])
+
+    class Images(HTMLParser):
+        def __init__(self) -> None:
+            super().__init__()
+            self.sources: list[str] = []
+
+        def handle_starttag(self, tag, attrs):
+            if tag == "img":
+                self.sources.append(dict(attrs)["src"])
+
+    parser = Images()
+    parser.feed((quick_report / "leaderboard.html").read_text())
+    parser.close()
+    assert len(parser.sources) == 4
+    assert all(s.startswith("data:image/png;base64,") for s in parser.sources)
+
+
+def _same_results(a: Path, b: Path) -> None:
+    assert _without(_rows(a / "results.csv"), RESULT_TIMING_COLUMNS) == _without(
+        _rows(b / "results.csv"), RESULT_TIMING_COLUMNS
+    )
+    assert _without(_rows(a / "episodes.csv"), TIMING_COLUMNS) == _without(
+        _rows(b / "episodes.csv"), TIMING_COLUMNS
+    )
+
+
+def test_the_same_command_twice_gives_the_same_results(quick_report, tmp_path):
+    assert main(["--suite", "quick", "--out", str(tmp_path)]) == 0
+    _same_results(quick_report, tmp_path / "quick")
+
+
+def test_two_worker_processes_give_the_serial_results(quick_report, tmp_path):
+    assert main(["--suite", "quick", "--workers", "2", "--out", str(tmp_path)]) == 0
+    _same_results(quick_report, tmp_path / "quick")
+
+
+def test_ray_gives_the_serial_results(quick_report, tmp_path):
+    import ray  # the CI installs the 'ray' extra: a missing Ray is a failure, not a skip
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        assert main(["--suite", "quick", "--backend", "ray", "--out", str(tmp_path)]) == 0
+    finally:
+        ray.shutdown()
+    _same_results(quick_report, tmp_path / "quick")
+
+
+def _save_model(directory: Path, observation_shape: tuple[int, ...] = (16,)) -> Path:
+    """An untrained PPO whose spaces are the env's (or not), with its metadata."""
+    import gymnasium
+    from stable_baselines3 import PPO
+
+    class Shaped(gymnasium.Env):
+        observation_space = gymnasium.spaces.Box(-10, 10, observation_shape, np.float32)
+        action_space = gymnasium.spaces.Box(-1, 1, (3,), np.float32)
+
+    model = PPO("MlpPolicy", Shaped(), n_steps=64, batch_size=64, policy_kwargs={"net_arch": [16]})
+    directory.mkdir(parents=True)
+    model.save(directory / "model.zip")
+    (directory / "metadata.json").write_text(json.dumps({"algorithm": "PPO", "scenario": "paper"}))
+    return directory
+
+
+def test_trained_model_and_user_agent_run_next_to_the_baseline(tmp_path):
+    model = _save_model(tmp_path / "models" / "ppo_tiny")
+    argv = ["--agents", f"incremental_ik,{model},test_evaluate_cli:StillAgent"]
+    argv += ["--suite", "quick", "--scenarios", "paper", "--episodes", "2"]
+    argv += ["--out", str(tmp_path / "reports")]
+    argv += ["--episode-plots", str(tmp_path / "episodes")]
+    assert main(argv) == 0
+    rows = _rows(tmp_path / "reports" / "quick" / "results.csv")
+    assert [r["agent"] for r in rows] == [
+        "incremental_ik",
+        "ppo_tiny",
+        "test_evaluate_cli:StillAgent",
+    ]
+    assert len(list((tmp_path / "episodes").glob("*.png"))) == 3
+
+
+def _bad_model(kind: str, root: Path) -> str:
+    directory = root / "models" / "broken"
+    if kind == "mismatched":
+        return str(_save_model(directory, observation_shape=(5,)))
+    directory.mkdir(parents=True)
+    meta = {"algorithm": "PPO", "model": "model.zip"}
+    (directory / "metadata.json").write_text(json.dumps(meta))
+    if kind == "corrupt":
+        (directory / "model.zip").write_bytes(b"this is not a zip file")
+    return str(directory)
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--agents", "no_such_agent"], "unknown agent 'no_such_agent'"),
+        (["--agents", "test_evaluate_cli:NoSuchClass"], "has no class 'NoSuchClass'"),
+        (["--scenarios", "mars"], "unknown scenario 'mars'"),
+        (["--suite", "no_such_suite"], "unknown suite 'no_such_suite'"),
+        (["--episodes", "100000"], "publishes"),
+        (["--backend", "dask"], "invalid choice"),
+        (["missing"], "model file is missing"),
+        (["corrupt"], "not a loadable PPO model"),
+        (["mismatched"], "does not match"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_no_report(argv, expected, tmp_path, capsys):
+    if argv[0] in ("missing", "corrupt", "mismatched"):
+        argv = ["--agents", _bad_model(argv[0], tmp_path)]
+    out = tmp_path / "reports"
+    assert main(["--suite", "quick", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert expected in err and "Traceback" not in err
+    assert not out.exists()
