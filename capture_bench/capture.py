@@ -30,10 +30,7 @@ def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> 
         is entered where all intervals overlap.
     """
     lo, hi = 0.0, 1.0
-    eps = np.broadcast_to(np.asarray(tolerance, dtype=float), (3,))
-    for a, b, e in zip(
-        np.asarray(d0, float).tolist(), np.asarray(d1, float).tolist(), eps.tolist()
-    ):
+    for a, b, e in zip(_floats(d0), _floats(d1), _tolerances(tolerance)):
         slope = b - a
         if slope == 0.0:
             if abs(a) >= e:
@@ -50,10 +47,20 @@ def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> 
 
 def within_tolerance(d: ArrayLike, tolerance: ArrayLike) -> bool:
     """Eq. 20 at one instant: ``|d| < epsilon`` in every component."""
-    eps = np.broadcast_to(np.asarray(tolerance, dtype=float), (3,))
-    return all(abs(c) < e for c, e in zip(np.asarray(d, float).tolist(), eps.tolist()))
+    return all(abs(c) < e for c, e in zip(_floats(d), _tolerances(tolerance)))
 
 
 def segment_length(a: ArrayLike, b: ArrayLike) -> float:
     """Euclidean distance between two points, m."""
-    return math.dist(np.asarray(a, float).tolist(), np.asarray(b, float).tolist())
+    return math.dist(_floats(a), _floats(b))
+
+
+def _floats(v: ArrayLike) -> list[float]:
+    return v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in v]  # type: ignore[union-attr]
+
+
+def _tolerances(tolerance: ArrayLike) -> list[float]:
+    """epsilon as three floats (a scalar applies to every component)."""
+    if isinstance(tolerance, (int, float)):
+        return [float(tolerance)] * 3
+    return _floats(tolerance)

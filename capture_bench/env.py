@@ -85,7 +85,8 @@ class CaptureEnv(gym.Env):
     ``capture_time_estimated`` (s: first time eq. 20 held on the *estimated* position, as the
     paper's hardware could only judge), ``time``, ``dt``, ``distance``, ``relative_speed``,
     ``estimate_position_error``, ``estimate_velocity_error``, ``estimate_nees``, ``saturated``,
-    ``clipped``, ``path_length``, ``target_visible``, ``estimator_status``, ``reward_*``. At the end:
+    ``clipped``, ``path_length``, ``target_visible``, ``estimator_status``, ``reward_*``. At the
+    end:
     ``physical_limit_time`` (s; ``inf`` when the target cannot be reached before the limit).
 
     ## Arguments
@@ -237,7 +238,7 @@ class CaptureEnv(gym.Env):
         x_e0, x_t0, est0 = self._x_e, self._x_t, self._estimate
         d_prev = segment_length(x_e0, x_t0)
         joint_step = self._world.apply_joint_increment(
-            desc.action_to_increment(np.clip(a, -1.0, 1.0)), dt
+            desc.action_to_increment(np.minimum(np.maximum(a, -1.0), 1.0)), dt
         )
         self._theta = joint_step.theta
         self._time += dt

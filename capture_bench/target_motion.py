@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from capture_bench.rotations import axis_angle_to_matrix
 
 FloatArray = NDArray[np.float64]
+_EYE3 = np.eye(3)
 
 
 @dataclass(frozen=True)
@@ -166,7 +167,7 @@ class TargetTrajectory:
         if self.spin_rate == 0.0:
             return c + self._r0, c_dot, self.initial_rotation
         a = self.spin_rate * t
-        spin = np.eye(3) + math.sin(a) * self._kx + (1.0 - math.cos(a)) * self._kx2
+        spin = _EYE3 + math.sin(a) * self._kx + (1.0 - math.cos(a)) * self._kx2
         offset = spin @ self._r0
         # omega x offset with omega = rate * axis:  rate * (K @ offset)
         return (
