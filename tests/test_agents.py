@@ -245,7 +245,7 @@ def test_hold_and_uncapped_agree_with_their_definitions():
 NOISE_FREE = ("paper", "drift", "circular", "tumbling")
 
 
-def make_env(scenario: str, source: str = "truth"):
+def open_env(scenario: str, source: str = "truth"):
     import gymnasium
 
     import capture_bench  # noqa: F401  (registers the IDs)
@@ -300,7 +300,7 @@ class PublicOnly:
 
 
 def test_no_agent_but_the_oracle_reads_ground_truth():
-    env = make_env("drift", source="truth")
+    env = open_env("drift", source="truth")
     try:
         seed = evaluation_seeds("drift", 1)[0]
         for name in AGENTS:
@@ -317,7 +317,7 @@ def test_no_agent_but_the_oracle_reads_ground_truth():
 def test_incremental_ik_captures_paper_episodes_near_the_bound():
     """The first 50 published seeds (truth source): every episode with a finite bound is captured,
     the median capture is within 2 control periods of the bound and 85% within 5."""
-    env = make_env("paper", source="truth")
+    env = open_env("paper", source="truth")
     agent = make_agent("incremental_ik", env)
     t_s = env.unwrapped.description.control_period
     gaps = []
@@ -338,7 +338,7 @@ def test_incremental_ik_captures_paper_episodes_near_the_bound():
 
 @pytest.mark.parametrize("scenario", NOISE_FREE)
 def test_oracle_attains_the_bound_within_one_period(scenario):
-    env = make_env(scenario, source="truth")
+    env = open_env(scenario, source="truth")
     agent = make_agent("oracle", env)
     assert agent.privileged
     t_s = env.unwrapped.description.control_period
@@ -357,3 +357,21 @@ def test_oracle_attains_the_bound_within_one_period(scenario):
     finally:
         env.close()
     assert checked >= 7
+
+
+def test_reproduce_paper_script_writes_the_figures(tmp_path, monkeypatch):
+    import importlib.util
+    import json
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "scripts" / "reproduce_paper.py"
+    spec = importlib.util.spec_from_file_location("reproduce_paper", path)
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "reproduce_paper", module)  # dataclasses need it there
+    spec.loader.exec_module(module)
+    assert module.main(["--out", str(tmp_path), "--source", "truth"]) == 0
+    for name in ("fig2_target_estimate", "fig3_joint_velocities", "fig4_positions"):
+        assert (tmp_path / f"{name}.png").stat().st_size > 10_000
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["is_success"] and summary["capture_time"] >= 0.0
