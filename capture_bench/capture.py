@@ -2,18 +2,26 @@
 
 Eq. 20 declares a capture when ``|X_E - X_T| < epsilon`` component-wise. Testing only at the ends
 of a step would let a fast pass through the tolerance box go unseen, so the test is applied to
-the whole step: the end-effector and the target are taken to move linearly between the two ends
-of the step (the step is short: at most 0.0206 rad on the pitch joints, whose arc sags from its
-chord by < 0.05 mm), and the relative vector ``d(s) = d0 + s (d1 - d0)``, ``s in [0, 1]``, is
-tested exactly.
+the whole step. Within a step the joints move linearly, ``theta(s) = theta0 + s dtheta`` for
+``s in [0, 1]``, so the end-effector follows the arc ``f(theta(s))``. On a straight segment, the
+relative vector ``d(s) = d0 + s (d1 - d0)`` is tested exactly (:func:`first_entry_fraction`). The
+arc sags from its chord by at most ``(l1 + l2) (sum |dtheta_i|)^2 / 8`` (every second derivative
+of f is bounded by l1 + l2); where that exceeds ``ARC_RESOLUTION``, the step is cut into enough
+pieces that each piece's chord is within ``ARC_RESOLUTION`` of the arc
+(:func:`first_entry_along_arc`). Joint 1 turns up to 0.5 rad per step, so this matters.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
+
+from capture_bench.kinematics import L1, L2, forward_kinematics
+
+ARC_RESOLUTION = 1e-5  # m: largest allowed gap between the end-effector's arc and a test chord
 
 
 def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> float | None:
@@ -43,6 +51,54 @@ def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> 
             # The intervals are open, so touching ends (lo == hi) is not an entry.
             return None
     return lo
+
+
+def arc_sag_bound(delta_theta: ArrayLike) -> float:
+    """Upper bound on the distance between the end-effector's arc and its chord in one step, m.
+
+    Args:
+        delta_theta: the joint increment of the step, rad, shape (3,).
+    """
+    total = sum(abs(x) for x in _floats(delta_theta))
+    return (L1 + L2) * total * total / 8.0
+
+
+def first_entry_along_arc(
+    theta0: ArrayLike,
+    delta_theta: ArrayLike,
+    target_at: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    tolerance: ArrayLike,
+) -> float | None:
+    """Earliest fraction s of the step at which eq. 20 holds along the end-effector's true arc.
+
+    Args:
+        theta0: joint angles at the start of the step, rad, (3,).
+        delta_theta: joint increment of the step, rad, (3,).
+        target_at: X_T at fractions s of the step, (K,) -> (K, 3), global, m.
+        tolerance: epsilon, m, (3,) or scalar.
+
+    Returns:
+        s in [0, 1] or None, exact to ``ARC_RESOLUTION`` along the arc.
+    """
+    sag = arc_sag_bound(delta_theta)
+    pieces = max(1, math.ceil(math.sqrt(sag / ARC_RESOLUTION)))
+    s = np.linspace(0.0, 1.0, pieces + 1)
+    ee = forward_kinematics(np.asarray(theta0, float) + s[:, None] * np.asarray(delta_theta, float))
+    relative = ee - target_at(s)
+    for k in range(pieces):
+        entry = first_entry_fraction(relative[k], relative[k + 1], tolerance)
+        if entry is not None:
+            return (k + entry) / pieces
+    return None
+
+
+def closest_approach(d0: ArrayLike, d1: ArrayLike) -> float:
+    """Smallest ``|d0 + s (d1 - d0)|`` over ``s in [0, 1]``, m (Euclidean)."""
+    a, b = _floats(d0), _floats(d1)
+    slope = [y - x for x, y in zip(a, b)]
+    denom = sum(c * c for c in slope)
+    s = 0.0 if denom == 0.0 else min(1.0, max(0.0, -sum(x * c for x, c in zip(a, slope)) / denom))
+    return math.sqrt(sum((x + s * c) ** 2 for x, c in zip(a, slope)))
 
 
 def within_tolerance(d: ArrayLike, tolerance: ArrayLike) -> bool:

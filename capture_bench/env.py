@@ -13,7 +13,14 @@ from numpy.typing import NDArray
 
 from capture_bench import kinematics
 from capture_bench.camera import Camera, CameraModel
-from capture_bench.capture import first_entry_fraction, segment_length
+from capture_bench.capture import (
+    ARC_RESOLUTION,
+    arc_sag_bound,
+    closest_approach,
+    first_entry_along_arc,
+    first_entry_fraction,
+    segment_length,
+)
 from capture_bench.estimator import TargetEstimate, TargetEstimator
 from capture_bench.observation import TaskDescription, encode_observation, observation_space
 from capture_bench.physical_limit import PhysicalLimit, physical_limit
@@ -24,6 +31,8 @@ from capture_bench.world import World
 
 FAILURES = ("timeout", "collision", "target_lost", "unreachable")
 MAX_PLACEMENT_TRIES = 1000
+PLACEMENT_MARGIN = 0.1  # markers start inside the central 90% of the sensor's width and height
+VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)  # s: ... and stay there on the true path at these times
 
 
 class CaptureEnv(gym.Env):
@@ -67,9 +76,10 @@ class CaptureEnv(gym.Env):
 
     ## Starting State
     Home pose. The capture point starts ``target.initial_offset`` m from the home end-effector in a
-    uniformly drawn direction, redrawn until it is inside the joint-limited workspace, its four
-    markers are in view and it is above the floor. Orientation, velocity, tumble and path are drawn
-    from the scenario's ranges with ``self.np_random``.
+    uniformly drawn direction, redrawn until it is inside the joint-limited workspace and above the
+    floor, and its four markers are inside the central 90% of the image at t = 0, 1, 2 and 3 s.
+    Orientation, velocity, tumble and path are drawn from the scenario's ranges with
+    ``self.np_random``.
 
     ## Episode End
     Terminates on capture (``info["is_success"]``) or a failure: ``collision`` (arm with floor,
@@ -87,7 +97,8 @@ class CaptureEnv(gym.Env):
     ``estimate_position_error``, ``estimate_velocity_error``, ``estimate_nees``, ``saturated``,
     ``clipped``, ``path_length``, ``target_visible``, ``estimator_status``, ``reward_*``. At the
     end:
-    ``physical_limit_time`` (s; ``inf`` when the target cannot be reached before the limit).
+    ``physical_limit_time`` (s; ``inf`` when the target cannot be reached before the time limit,
+    or leaves the arm's reach for longer than ``lost_after`` before it can be).
 
     ## Arguments
     ``scenario``: a shipped name (``capture_bench.scenarios.list_scenarios()``), a YAML path or a
@@ -127,6 +138,7 @@ class CaptureEnv(gym.Env):
             control_period=sc.control.period,
             capture_tolerance=np.full(3, sc.capture_tolerance),
         )
+        self._tolerance_radius = float(np.linalg.norm(self.description.capture_tolerance))
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self.observation_space = observation_space()
         self._features = FEATURE_POINTS[sc.target.feature_points]
@@ -169,7 +181,24 @@ class CaptureEnv(gym.Env):
                 horizon=self.scenario.control.episode_limit,
                 period=self.scenario.control.period,
             )
+            if self._leaves_reach_before(self._limit.time):
+                self._limit = PhysicalLimit(math.inf, None)
         return self._limit
+
+    def _leaves_reach_before(self, t_end: float) -> bool:
+        """Whether the target is out of reach for longer than ``lost_after`` before ``t_end``
+        (the episode then ends ``unreachable`` before any capture is possible)."""
+        if not math.isfinite(t_end):
+            return False
+        period = self.scenario.control.period
+        times = np.arange(0.0, t_end, period)
+        solutions = kinematics.inverse_kinematics_batch(self.true_target_position(times))
+        out = ~np.any(kinematics.within_limits(solutions), axis=1)
+        run = longest = 0
+        for flag in out:
+            run = run + 1 if flag else 0
+            longest = max(longest, run)
+        return longest * period > self.scenario.lost_after
 
     def true_target_position(self, t: float | NDArray) -> NDArray[np.float64]:
         """X_T(t), global, m (privileged)."""
@@ -248,7 +277,7 @@ class CaptureEnv(gym.Env):
         self._x_e = kinematics.forward_kinematics_point(self._theta)
         self._path_length += segment_length(x_e0, self._x_e)
 
-        s = first_entry_fraction(x_e0 - x_t0, self._x_e - self._x_t, desc.capture_tolerance)
+        s = self._capture_fraction(joint_step, x_e0, x_t0, dt)
         captured = s is not None
         capture_time = self._time - dt + s * dt if s is not None else None
 
@@ -292,21 +321,31 @@ class CaptureEnv(gym.Env):
 
     # -- stages ---------------------------------------------------------------------------------
     def _place_target(self) -> TargetTrajectory:
-        """Draw trajectories until the start is reachable, in view and above the floor."""
+        """Draw trajectories until the start is reachable and above the floor, and the markers
+        are well inside the image (``PLACEMENT_MARGIN``) at every ``VIEW_CHECK_TIMES``."""
         sc = self.scenario
         anchor = kinematics.forward_kinematics(self.description.arm.home)
         floor = -kinematics.L0
         for _ in range(MAX_PLACEMENT_TRIES):
             traj = sample_trajectory(sc.target, self.np_random, anchor, sc.control.episode_limit)
             x0 = traj.position(0.0)
-            points = self.camera_model.to_camera(traj.feature_points(0.0, self._features))
-            in_view = bool(np.all(self.camera_model.visible(points)))
-            if in_view and x0[2] > floor + 0.05 and kinematics.reachable(x0):
+            if x0[2] > floor + 0.05 and kinematics.reachable(x0) and self._stays_in_view(traj):
                 return traj
         raise RuntimeError(
             f"scenario {sc.name!r}: no target start in view and in reach after "
             f"{MAX_PLACEMENT_TRIES} draws; check target.initial_offset and the camera pose"
         )
+
+    def _stays_in_view(self, traj: TargetTrajectory) -> bool:
+        model = self.camera_model
+        limit = (1.0 - PLACEMENT_MARGIN) * model.half_extent
+        for t in VIEW_CHECK_TIMES:
+            points = model.to_camera(traj.feature_points(t, self._features))
+            if not np.all(model.in_front(points)):
+                return False
+            if np.any(np.abs(model.project(points)) > limit):
+                return False
+        return True
 
     def _sense(self, dt: float, rotation: NDArray[np.float64]) -> TargetEstimate:
         """Camera frame (unless the source is truth) -> estimator -> estimate (global frame).
@@ -319,6 +358,24 @@ class CaptureEnv(gym.Env):
             points = self._x_t + self._features @ rotation.T
             frame = self._camera.capture(points, self.np_random)
         return self._estimator.update(frame, dt, self._x_t, self._v_t)
+
+    def _capture_fraction(self, joint_step, x_e0, x_t0, dt: float) -> float | None:
+        """Fraction of this step at which eq. 20 first held on the true target, or None."""
+        d0, d1 = x_e0 - x_t0, self._x_e - self._x_t
+        tolerance = self.description.capture_tolerance
+        sag = arc_sag_bound(joint_step.applied)
+        if sag <= ARC_RESOLUTION:
+            return first_entry_fraction(d0, d1, tolerance)
+        if closest_approach(d0, d1) > self._tolerance_radius + sag:
+            return None  # the arc stays within `sag` of the chord: no capture possible
+        t0, traj = self._time - dt, self._trajectory
+        assert traj is not None
+        return first_entry_along_arc(
+            joint_step.theta_before,
+            joint_step.applied,
+            lambda s: traj.position(t0 + s * dt),
+            tolerance,
+        )
 
     def _failure(self, dt: float) -> str | None:
         """The one failure reason of this step, if any (collision, unreachable, target_lost)."""

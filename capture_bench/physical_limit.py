@@ -10,11 +10,13 @@ How it is computed:
 
 1. On the grid ``t_k = k * period`` up to the horizon, every closed-form IK solution of X_T(t_k)
    is tested against the box (exact). Where none lies inside but one lies within
-   ``NEAR_BOX`` rad of it, the tolerance is used: the solution is clipped to the box and refined
-   by a few projected Newton steps ``theta <- clip(theta + J^-1 (X_T - f(theta)))``; the point is
-   feasible if ``|f(theta) - X_T| < epsilon`` component-wise. (Inside the joint limits the
-   end-effector moves at least ~0.07 m per rad of any joint, so a solution further than
-   ``NEAR_BOX`` = 0.1 rad outside the box is > 1.7 mm from anything the box reaches near it.)
+   ``NEAR_BOX`` rad of it, the tolerance is used: from the solution clipped to the box,
+   :func:`nearest_in_box` (active-set projected Gauss-Newton) finds the box's joint vector whose
+   end-effector is nearest X_T, and the point counts as feasible when that distance is below
+   ``|epsilon|`` (the radius of the sphere around eq. 20's tolerance cube). Using the sphere, not
+   the cube, keeps the bound a *lower* bound: anything eq. 20 accepts is inside the sphere. (Inside
+   the joint limits the end-effector moves at least ~0.07 m per rad of any joint, so a solution
+   further than ``NEAR_BOX`` = 0.1 rad outside the box is > 1.7 mm from anything near it.)
 2. Between the last infeasible and the first feasible grid time, the interval is searched twice
    with ``REFINE`` evenly spaced times, which finds the onset to ``period / REFINE**2``. The
    bound is exact to well below the control period, assuming feasibility does not switch on and
@@ -32,7 +34,7 @@ from numpy.typing import NDArray
 from capture_bench.kinematics import forward_kinematics, inverse_kinematics_batch, jacobian
 
 FloatArray = NDArray[np.float64]
-NEWTON_STEPS = 4
+NEWTON_STEPS = 10
 NEAR_BOX = 0.1  # rad
 REFINE = 64
 CHUNK = 32
@@ -44,7 +46,8 @@ class PhysicalLimit:
 
     Attributes:
         time: earliest feasible capture time, s; ``inf`` if the target is never reachable in time.
-        theta: a joint vector, rad, (3,), that reaches the capture point at ``time`` (None if inf).
+        theta: a joint vector, rad, (3,), whose end-effector is within ``|epsilon|`` of the capture
+            point at ``time`` (None if inf).
     """
 
     time: float
@@ -86,15 +89,40 @@ def feasible_solutions(
     near = ~feasible[:, None] & (excess < NEAR_BOX)  # (N, 4); False where NaN
     if np.any(near):
         rows, cols = np.nonzero(near)
-        lo, hi, goal = box_lo[rows], box_hi[rows], targets[rows]
-        q = np.clip(solutions[rows, cols], lo, hi)
-        for _ in range(NEWTON_STEPS):
-            err = goal - forward_kinematics(q)
-            q = np.clip(q + np.linalg.solve(jacobian(q), err[..., None])[..., 0], lo, hi)
-        close = np.all(np.abs(forward_kinematics(q) - goal) < tolerance, axis=1)
+        goal = targets[rows]
+        q = nearest_in_box(solutions[rows, cols], goal, box_lo[rows], box_hi[rows])
+        close = np.linalg.norm(forward_kinematics(q) - goal, axis=1) < np.linalg.norm(tolerance)
         feasible[rows[close]] = True
         theta[rows[close]] = q[close]
     return feasible, theta
+
+
+def nearest_in_box(
+    start: FloatArray,
+    goal: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+    iterations: int = NEWTON_STEPS,
+) -> FloatArray:
+    """Joint vectors in the box [lo, hi] whose end-effector is nearest ``goal`` (local search).
+
+    Active-set projected Gauss-Newton on ``||f(theta) - goal||^2``: a joint on a bound whose
+    gradient points out of the box is held there, the others take the least-squares step.
+
+    Args:
+        start: initial joint vectors, rad, (M, 3).
+        goal: target points, global, m, (M, 3).
+        lo, hi: box bounds, rad, (M, 3).
+    """
+    q = np.clip(start, lo, hi)
+    for _ in range(iterations):
+        residual = goal - forward_kinematics(q)  # (M, 3)
+        jac = jacobian(q)  # (M, 3, 3)
+        ascent = np.einsum("mij,mi->mj", jac, residual)  # J^T r: where moving theta helps
+        held = ((q <= lo) & (ascent < 0.0)) | ((q >= hi) & (ascent > 0.0))
+        step = np.linalg.pinv(jac * ~held[:, None, :]) @ residual[..., None]
+        q = np.clip(q + step[..., 0], lo, hi)
+    return q
 
 
 def physical_limit(
