@@ -1,0 +1,218 @@
+"""The 12-state extended Kalman filter of the paper (section 2, eqs. 3-7) on filterpy.
+
+State, in the camera frame, in the paper's order::
+
+    X = (x, x_dot, y, y_dot, z, z_dot, theta_x, theta_x_dot, theta_y, theta_y_dot,
+         theta_z, theta_z_dot)
+
+where (x, y, z) is the origin of the target frame (the capture point), metres, and the Euler angles
+give ``R_ct = Rz Ry Rx``, radians. Constant-velocity model per coordinate (eqs. 3-5) driven by
+white acceleration noise ``omega`` with covariance ``Q = diag(sigma_a^2 x3, sigma_alpha^2 x3)``;
+filterpy's process noise is ``B Q B^T``. Measurement (eq. 6): the image points of the four feature
+points by eq. 2, flattened as (x_m1, z_m1, ..., x_m4, z_m4), with noise ``R = sigma_m^2 I_8``;
+``H`` is the analytic Jacobian (:func:`capture_bench.photogrammetry.pose_projection`). The filter
+equations (eq. 7) are filterpy's ``ExtendedKalmanFilter.predict`` and ``update``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+from numpy.typing import ArrayLike, NDArray
+
+from capture_bench.photogrammetry import pose_projection
+
+FloatArray = NDArray[np.float64]
+
+POSE_INDEX = np.array([0, 2, 4, 6, 8, 10])  # (x, y, z, theta_x, theta_y, theta_z) in X
+POSITION_VELOCITY_INDEX = np.array([0, 2, 4, 1, 3, 5])  # (x, y, z, x_dot, y_dot, z_dot) in X
+_PV_BLOCK = np.ix_(POSITION_VELOCITY_INDEX, POSITION_VELOCITY_INDEX)
+
+
+def transition_matrices(dt: float) -> tuple[FloatArray, FloatArray]:
+    """``A`` (12, 12) and ``B`` (12, 6) of eqs. 4-5 for a sampling interval ``dt`` (s)."""
+    a = np.eye(12)
+    a[POSE_INDEX, POSE_INDEX + 1] = dt  # eq. 4: [[1, t_s], [0, 1]] blocks
+    b = np.zeros((12, 6))
+    b[POSE_INDEX, np.arange(6)] = 0.5 * dt * dt  # eq. 5: [t_s^2 / 2, t_s] blocks
+    b[POSE_INDEX + 1, np.arange(6)] = dt
+    return a, b
+
+
+def default_initial_covariance() -> FloatArray:
+    """Prior covariance (12, 12) around a photogrammetry pose, velocities unknown (zero mean).
+
+    Standard deviations: position 0.05 m, angles 0.2 rad, linear velocity 0.5 m/s, angular
+    velocity 1 rad/s.
+    """
+    sd = np.empty(12)
+    sd[POSE_INDEX[:3]] = 0.05
+    sd[POSE_INDEX[3:]] = 0.2
+    sd[POSE_INDEX[:3] + 1] = 0.5
+    sd[POSE_INDEX[3:] + 1] = 1.0
+    return np.diag(sd**2)
+
+
+class TargetEKF:
+    """The paper's EKF for the target's pose and rates in the camera frame.
+
+    Args:
+        feature_points: feature points in the target frame, metres, shape (4, 3).
+        focal_length: f, metres.
+        pixel_pitch: metres per pixel.
+        noise_px: image noise standard deviation assumed by R, pixels.
+        sigma_acceleration: sigma_a of the white linear acceleration noise, m/s^2.
+        sigma_angular_acceleration: sigma_alpha of the white angular acceleration noise, rad/s^2.
+        noise_floor_px: R uses ``max(noise_px, noise_floor_px)`` so a noise-free camera still gives
+            a well-conditioned filter.
+    """
+
+    def __init__(
+        self,
+        feature_points: ArrayLike,
+        focal_length: float = 0.008,
+        pixel_pitch: float = 3.75e-6,
+        noise_px: float = 1.0,
+        sigma_acceleration: float = 0.01,
+        sigma_angular_acceleration: float = 0.01,
+        noise_floor_px: float = 0.25,
+    ) -> None:
+        self.feature_points = np.array(feature_points, dtype=float).reshape(-1, 3)
+        self.focal_length = float(focal_length)
+        n_z = 2 * self.feature_points.shape[0]
+        sigma_m = max(noise_px, noise_floor_px) * pixel_pitch
+        self._q = np.diag([sigma_acceleration**2] * 3 + [sigma_angular_acceleration**2] * 3)
+        self._kf = ExtendedKalmanFilter(dim_x=12, dim_z=n_z)
+        self._kf.R = np.eye(n_z) * sigma_m**2
+        self._dt: float | None = None
+        self._H = np.zeros((n_z, 12))
+        self._hx_for: FloatArray | None = None  # state whose h(X) is cached in _hx
+        self._hx = np.zeros(n_z)
+        self.nis = float("nan")
+        self.prior_in_front = True  # every feature point was beyond the lens at the last update
+        self.initialised = False
+
+    # -- set-up -------------------------------------------------------------------------------
+    def initialise(self, pose: ArrayLike, covariance: ArrayLike | None = None) -> None:
+        """Start from a pose (6,) in the camera frame, rates zero.
+
+        Args:
+            pose: (x, y, z, theta_x, theta_y, theta_z), metres and radians (e.g. photogrammetry).
+            covariance: prior P0 (12, 12) in state order; default
+                :func:`default_initial_covariance` (large velocity variance).
+        """
+        x = np.zeros(12)
+        x[POSE_INDEX] = np.asarray(pose, dtype=float)
+        self._kf.x = x
+        p0 = default_initial_covariance() if covariance is None else covariance
+        self._kf.P = np.array(p0, dtype=float).reshape(12, 12)
+        self.nis = float("nan")
+        self.initialised = True
+
+    # -- filter steps -------------------------------------------------------------------------
+    def predict(self, dt: float) -> None:
+        """Propagate by ``dt`` seconds with eq. 3 (A and B are rebuilt only when dt changes)."""
+        if dt < 0:
+            raise ValueError(f"dt must be >= 0, got {dt}")
+        if dt != self._dt:
+            a, b = transition_matrices(dt)
+            self._kf.F = a
+            self._kf.Q = b @ self._q @ b.T
+            self._dt = dt
+        self._kf.predict()
+
+    def update(self, image_points: ArrayLike | None) -> None:
+        """Correct with one image (eq. 7); None (lost frame) leaves the prediction as it is.
+
+        Args:
+            image_points: measured ``[x_m, z_m]`` of the feature points, metres, shape (4, 2).
+        """
+        if image_points is None:
+            self._kf.update(None, self._jacobian, self._measure)
+            self.nis = float("nan")
+            return
+        z = np.asarray(image_points, dtype=float).reshape(-1)
+        self._kf.update(z, self._jacobian, self._measure)
+        y = self._kf.y
+        self.nis = float(y @ self._kf.SI @ y)
+        x = self._kf.x
+        for i in (6, 8, 10):  # keep the Euler angles in [-pi, pi); h is 2 pi-periodic in them
+            if not -math.pi <= x[i] < math.pi:
+                x[i] = (x[i] + math.pi) % (2.0 * math.pi) - math.pi
+
+    def _jacobian(self, x: FloatArray) -> FloatArray:
+        """H = dh/dX (8, 12); also caches h(X) for :meth:`_measure` at the same state object."""
+        h, jac, depth = pose_projection(x[0::2], self.feature_points, self.focal_length)
+        self.prior_in_front = bool(depth.min() > 0.0)
+        self._H[:, 0::2] = jac  # the rates (odd indices) do not enter eq. 2
+        self._hx, self._hx_for = h, x
+        return self._H
+
+    def _measure(self, x: FloatArray) -> FloatArray:
+        """h(X) of eq. 6: image points (8,) of the feature points, metres."""
+        if x is self._hx_for:
+            return self._hx
+        return measurement(x, self.feature_points, self.focal_length)
+
+    # -- read-out -----------------------------------------------------------------------------
+    @property
+    def x(self) -> FloatArray:
+        """X (12,), the filter's own array (read only; use :meth:`initialise` to set it)."""
+        return self._kf.x
+
+    @property
+    def P(self) -> FloatArray:
+        """P (12, 12), the filter's own array (read only)."""
+        return self._kf.P
+
+    @property
+    def state(self) -> FloatArray:
+        """X (12,), a copy, in the paper's order."""
+        return np.array(self._kf.x, dtype=float).reshape(12)
+
+    @property
+    def covariance(self) -> FloatArray:
+        """P (12, 12), a copy."""
+        return np.array(self._kf.P, dtype=float)
+
+    @property
+    def pose(self) -> FloatArray:
+        """(x, y, z, theta_x, theta_y, theta_z) in the camera frame, metres and radians, (6,)."""
+        return self._kf.x[0::2].copy()
+
+    @property
+    def position(self) -> FloatArray:
+        """Target origin in the camera frame, metres, (3,)."""
+        return self._kf.x[0:6:2].copy()
+
+    @property
+    def velocity(self) -> FloatArray:
+        """Target origin velocity in the camera frame, m/s, (3,)."""
+        return self._kf.x[1:6:2].copy()
+
+    @property
+    def position_velocity_covariance(self) -> FloatArray:
+        """Covariance (6, 6) of (position, velocity) in the camera frame, m and m/s."""
+        return self._kf.P[_PV_BLOCK]
+
+    @property
+    def is_finite(self) -> bool:
+        """Whether the state and covariance are finite."""
+        return math.isfinite(self._kf.x.sum() + self._kf.P.sum())  # a NaN or inf anywhere shows
+
+
+def measurement(x: FloatArray, feature_points: FloatArray, focal_length: float) -> FloatArray:
+    """h(X) of eq. 6 for a state X (12,): image points flattened (2N,), metres."""
+    return pose_projection(np.asarray(x)[POSE_INDEX], feature_points, focal_length)[0]
+
+
+def measurement_jacobian(
+    x: FloatArray, feature_points: FloatArray, focal_length: float
+) -> FloatArray:
+    """H = dh/dX (2N, 12), analytic (the rate columns are zero)."""
+    jac = pose_projection(np.asarray(x)[POSE_INDEX], feature_points, focal_length)[1]
+    out = np.zeros((jac.shape[0], 12))
+    out[:, POSE_INDEX] = jac
+    return out

@@ -1,0 +1,253 @@
+"""Target state estimation: photogrammetry -> EKF, output in the global frame (paper section 2).
+
+Three sources, chosen by name:
+
+* ``"ekf"`` (the paper): the first frame whose photogrammetry solution is accepted initialises the
+  :class:`~capture_bench.ekf.TargetEKF` (that step reports the photogrammetry position, zero
+  velocity and the prior covariance); afterwards each step is ``predict(dt)`` then ``update`` with
+  the frame (a missing frame is a predict-only step).
+* ``"photogrammetry"`` (raw-measurement ablation): the per-frame pose, warm-started from the
+  previous solution; velocity by finite difference of consecutive solutions over the time between
+  them (zero after the first solution); no covariance. Without a frame the last solution is held.
+* ``"truth"`` (privileged ablation): the true position and velocity passed in.
+
+The estimate is moved to the global frame by eqs. 11-12 with the camera fixed (T-dot = 0):
+``X_T = c + R_gc p_C``, ``X_T-dot = R_gc v_C``, covariance rotated blockwise.
+
+Acceptance of a photogrammetry solution: converged, and its image residual RMS at most
+``ACCEPT_RESIDUAL_SIGMAS`` times the assumed pixel noise (floored like the EKF's R).
+
+Divergence rule (``"ekf"``): the filter is declared diverged when its state or covariance becomes
+non-finite (or filterpy cannot invert the innovation covariance), when a feature point of the
+predicted state lies behind the lens at an update, or when the NIS of
+``DIVERGENCE_FRAMES`` consecutive updates exceeds ``NIS_LIMIT`` (chi-square with 8 degrees of
+freedom exceeds 100 with probability below 1e-17). On the step it is detected, and on every later
+step with a frame, the estimator tries to re-initialise from photogrammetry of that frame; every
+step on which it cannot reports status ``"diverged"`` with ``valid = False``.
+
+Invalid estimates (``"initialising"``, ``"diverged"``) carry NaN position and velocity: the caller
+must check ``valid``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from capture_bench.camera import CameraModel, Frame
+from capture_bench.ekf import POSITION_VELOCITY_INDEX, TargetEKF
+from capture_bench.photogrammetry import PoseSolution, solve_pose
+
+FloatArray = NDArray[np.float64]
+
+SOURCES = ("ekf", "photogrammetry", "truth")
+STATUSES = ("ok", "predicting", "initialising", "diverged")
+NIS_LIMIT = 100.0
+DIVERGENCE_FRAMES = 5
+ACCEPT_RESIDUAL_SIGMAS = 5.0
+NOISE_FLOOR_PX = 0.25
+
+
+@dataclass
+class TargetEstimate:
+    """The estimator's output for one step, global frame.
+
+    Attributes:
+        position: capture point, metres, shape (3,) (NaN when not valid).
+        velocity: capture point velocity, m/s, shape (3,) (NaN when not valid).
+        covariance: (6, 6) covariance of (position, velocity), m and m/s, or None where the source
+            has none (photogrammetry, truth, invalid).
+        valid: whether position and velocity hold an estimate.
+        status: "ok" (a frame was used this step), "predicting" (no frame this step; the estimate
+            is a prediction or the held last solution), "initialising" (no accepted photogrammetry
+            yet), or "diverged" (see the module docstring).
+    """
+
+    position: FloatArray
+    velocity: FloatArray
+    covariance: FloatArray | None
+    valid: bool
+    status: str
+
+
+def _invalid(status: str) -> TargetEstimate:
+    nan = np.full(3, np.nan)
+    return TargetEstimate(nan, nan.copy(), None, False, status)
+
+
+class TargetEstimator:
+    """Turns camera frames into a global-frame estimate of the capture point.
+
+    Args:
+        camera_model: the (fixed) camera's geometry.
+        feature_points: feature points in the target frame, metres, shape (4, 3).
+        source: "ekf", "photogrammetry" or "truth".
+        noise_px: image noise the estimator assumes, pixels (sets the EKF's R and acceptance).
+        sigma_acceleration: EKF process noise sigma_a, m/s^2.
+        sigma_angular_acceleration: EKF process noise sigma_alpha, rad/s^2.
+    """
+
+    def __init__(
+        self,
+        camera_model: CameraModel,
+        feature_points: ArrayLike,
+        source: str = "ekf",
+        noise_px: float = 1.0,
+        sigma_acceleration: float = 0.01,
+        sigma_angular_acceleration: float = 0.01,
+    ) -> None:
+        if source not in SOURCES:
+            raise ValueError(f"unknown estimator source {source!r}; valid sources: {SOURCES}")
+        self.camera_model = camera_model
+        self.feature_points = np.array(feature_points, dtype=float).reshape(-1, 3)
+        self.source = source
+        self.noise_px = float(noise_px)
+        sigma_m = max(self.noise_px, NOISE_FLOOR_PX) * camera_model.pixel_pitch
+        self.max_residual = ACCEPT_RESIDUAL_SIGMAS * sigma_m  # metres on the image plane
+        self.ekf = TargetEKF(
+            self.feature_points,
+            focal_length=camera_model.focal_length,
+            pixel_pitch=camera_model.pixel_pitch,
+            noise_px=self.noise_px,
+            sigma_acceleration=sigma_acceleration,
+            sigma_angular_acceleration=sigma_angular_acceleration,
+            noise_floor_px=NOISE_FLOOR_PX,
+        )
+        # EKF state X (12,) -> R_gc-rotated (position, velocity) (6,): blockdiag(R_gc, R_gc) @ S,
+        # with S selecting (x, y, z, x_dot, y_dot, z_dot) from X (eqs. 11-12, T-dot = 0).
+        select = np.zeros((6, 12))
+        select[np.arange(6), POSITION_VELOCITY_INDEX] = 1.0
+        rot6 = np.zeros((6, 6))
+        rot6[:3, :3] = rot6[3:, 3:] = camera_model.rotation
+        self._state_to_global = rot6 @ select
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything: the next accepted frame initialises again."""
+        self.ekf.initialised = False
+        self.diverged = False
+        self.reinitialisations = 0  # times the EKF restarted after a divergence
+        self._high_nis = 0
+        self.last_solution: PoseSolution | None = None
+        self._pg_velocity = np.zeros(3)  # camera frame, m/s
+        self._pg_elapsed = 0.0  # s since the last accepted photogrammetry solution
+
+    # -- public step --------------------------------------------------------------------------
+    def update(
+        self,
+        frame: Frame | None,
+        dt: float,
+        true_position: ArrayLike,
+        true_velocity: ArrayLike,
+    ) -> TargetEstimate:
+        """One estimator step.
+
+        Args:
+            frame: the frame delivered this step, or None (lost, dropped, out of view, latency).
+            dt: time since the previous step, s (the actual, possibly varying, control period).
+            true_position: true capture point, global, m, (3,); read only by the "truth" source.
+            true_velocity: true capture point velocity, global, m/s, (3,); "truth" source only.
+
+        Returns:
+            The :class:`TargetEstimate` in the global frame.
+        """
+        if dt < 0:
+            raise ValueError(f"dt must be >= 0, got {dt}")
+        if self.source == "truth":
+            return TargetEstimate(
+                np.array(true_position, dtype=float).reshape(3),
+                np.array(true_velocity, dtype=float).reshape(3),
+                None,
+                True,
+                "ok",
+            )
+        image = None
+        if frame is not None:
+            image = np.asarray(frame.image_points, dtype=float)
+            if image.shape != (self.feature_points.shape[0], 2) or not np.isfinite(image).all():
+                image = None
+        if self.source == "photogrammetry":
+            return self._update_photogrammetry(image, dt)
+        return self._update_ekf(image, dt)
+
+    # -- sources ------------------------------------------------------------------------------
+    def _solve(self, image: FloatArray, guess: FloatArray | None) -> PoseSolution | None:
+        """Photogrammetry of one image; None unless converged with a plausible residual.
+
+        A warm start that is rejected is retried cold (it may sit in a wrong local minimum).
+        """
+        f = self.camera_model.focal_length
+        sol = solve_pose(image, self.feature_points, f, guess)
+        if guess is not None and not (sol.converged and sol.residual_rms <= self.max_residual):
+            sol = solve_pose(image, self.feature_points, f, None)
+        if sol.converged and sol.residual_rms <= self.max_residual:
+            return sol
+        return None
+
+    def _update_ekf(self, image: FloatArray | None, dt: float) -> TargetEstimate:
+        ekf = self.ekf
+        if not ekf.initialised or self.diverged:
+            return self._try_initialise(image, "diverged" if self.diverged else "initialising")
+        ekf.predict(dt)
+        if image is None:
+            if not ekf.is_finite:
+                return self._declare_diverged(None)
+            return self._ekf_estimate("predicting")
+        try:
+            ekf.update(image)
+        except (ValueError, np.linalg.LinAlgError):  # non-finite or singular innovation covariance
+            return self._declare_diverged(image)
+        self._high_nis = self._high_nis + 1 if ekf.nis > NIS_LIMIT else 0
+        if self._high_nis >= DIVERGENCE_FRAMES or not ekf.prior_in_front or not ekf.is_finite:
+            return self._declare_diverged(image)
+        return self._ekf_estimate("ok")
+
+    def _declare_diverged(self, image: FloatArray | None) -> TargetEstimate:
+        self.diverged = True
+        return self._try_initialise(image, "diverged")
+
+    def _try_initialise(self, image: FloatArray | None, failed_status: str) -> TargetEstimate:
+        """Initialise the EKF from photogrammetry of ``image`` (paper: photogrammetry first)."""
+        sol = None if image is None else self._solve(image, None)
+        if sol is None:
+            return _invalid(failed_status)
+        self.last_solution = sol
+        self.ekf.initialise(sol.pose)
+        self.reinitialisations += self.diverged
+        self.diverged = False
+        self._high_nis = 0
+        return self._ekf_estimate("ok")
+
+    def _ekf_estimate(self, status: str) -> TargetEstimate:
+        """The EKF's position, velocity and their covariance in the global frame (eqs. 11-12)."""
+        m = self._state_to_global
+        pv = m @ self.ekf.x
+        cov = m @ self.ekf.P @ m.T
+        return TargetEstimate(pv[:3] + self.camera_model.position, pv[3:], cov, True, status)
+
+    def _update_photogrammetry(self, image: FloatArray | None, dt: float) -> TargetEstimate:
+        self._pg_elapsed += dt
+        previous = self.last_solution
+        sol = None
+        if image is not None:
+            sol = self._solve(image, None if previous is None else previous.pose)
+        if sol is None:
+            if previous is None:
+                return _invalid("initialising")
+            return self._global(previous.pose[:3], self._pg_velocity, None, "predicting")
+        if previous is not None and self._pg_elapsed > 0:
+            self._pg_velocity = (sol.pose[:3] - previous.pose[:3]) / self._pg_elapsed
+        self.last_solution = sol
+        self._pg_elapsed = 0.0
+        return self._global(sol.pose[:3], self._pg_velocity, None, "ok")
+
+    def _global(
+        self, p_cam: FloatArray, v_cam: FloatArray, cov: FloatArray | None, status: str
+    ) -> TargetEstimate:
+        """Eqs. 11-12 with T-dot = 0: camera-frame position/velocity -> global frame."""
+        rot = self.camera_model.rotation
+        position = rot @ p_cam + self.camera_model.position  # eq. 11
+        velocity = rot @ v_cam  # eq. 12, T-dot = 0
+        return TargetEstimate(position, velocity, cov, True, status)

@@ -1,0 +1,208 @@
+"""EKF (eqs. 3-7) and the estimator pipeline (photogrammetry -> EKF -> global frame, eqs. 11-12)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capture_bench.camera import Camera, CameraModel, Frame
+from capture_bench.ekf import (
+    TargetEKF,
+    measurement,
+    measurement_jacobian,
+    transition_matrices,
+)
+from capture_bench.estimator import DIVERGENCE_FRAMES, TargetEstimator
+from capture_bench.photogrammetry import pose_projection, solve_pose
+from capture_bench.rotations import euler_to_matrix
+
+F = 0.008
+PITCH = 3.75e-6
+DT = 0.05
+FEATURES = np.array([(0, 0, 0), (0.1, 0, 0), (0, 0.1, 0), (0, 0, 0.05)], dtype=float)
+R_GT = euler_to_matrix([0.2, 0.1, -0.3])  # constant target attitude in the global frame
+
+
+def camera_model() -> CameraModel:
+    """The default placement: about 1.2 m from the workspace, looking at it."""
+    return CameraModel.looking_at((0.45, -1.2, 0.45), (0.45, 0.0, 0.4))
+
+
+def markers(position: np.ndarray) -> np.ndarray:
+    """Feature points in the global frame for a target at ``position`` (global, m)."""
+    return position + FEATURES @ R_GT.T
+
+
+def test_transition_matrices_are_eqs_4_5():
+    a, b = transition_matrices(0.1)
+    x = np.arange(12.0)
+    ax = a @ x
+    np.testing.assert_allclose(ax[0::2], x[0::2] + 0.1 * x[1::2])  # position += t_s * rate
+    np.testing.assert_allclose(ax[1::2], x[1::2])
+    np.testing.assert_allclose(b[0::2], 0.005 * np.eye(6))  # t_s^2 / 2
+    np.testing.assert_allclose(b[1::2], 0.1 * np.eye(6))
+
+
+def test_measurement_jacobian_matches_finite_differences():
+    x = np.array([0.05, 0.01, 1.2, -0.02, -0.03, 0.0, 0.3, 0.1, -0.4, 0.0, 1.1, -0.2])
+    h_mat = measurement_jacobian(x, FEATURES, F)
+    assert h_mat.shape == (8, 12)
+    fd = np.empty((8, 12))
+    for k in range(12):
+        e = np.zeros(12)
+        e[k] = 1e-7
+        fd[:, k] = (measurement(x + e, FEATURES, F) - measurement(x - e, FEATURES, F)) / 2e-7
+    np.testing.assert_allclose(h_mat, fd, rtol=1e-6, atol=1e-12)
+    assert np.all(h_mat[:, 1::2] == 0.0)  # the rates do not enter eq. 2
+
+
+def test_ekf_converges_on_drifting_tumbling_target():
+    """Constant velocity and Euler rates in the camera frame (the model exactly), 1 px noise."""
+    p0, v = np.array([0.02, 1.2, -0.01]), np.array([0.02, -0.01, 0.005])
+    a0, w = np.array([0.4, -0.3, 0.6]), np.array([0.05, -0.03, 0.04])
+    early, late, vel_late, inside = [], [], [], []
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        ekf = TargetEKF(FEATURES, focal_length=F, pixel_pitch=PITCH, noise_px=1.0)
+        errs = []
+        for k in range(300):
+            pose = np.concatenate([p0 + v * k * DT, a0 + w * k * DT])
+            z = pose_projection(pose, FEATURES, F)[0].reshape(4, 2)
+            z = z + rng.normal(scale=PITCH, size=(4, 2))
+            if k == 0:
+                ekf.initialise(solve_pose(z, FEATURES, F).pose)
+            else:
+                ekf.predict(DT)
+                ekf.update(z)
+            err = ekf.position - pose[:3]
+            sd = np.sqrt(np.diag(ekf.position_velocity_covariance)[:3])
+            errs.append(np.linalg.norm(err))
+            if k >= 150:
+                inside.append(np.all(np.abs(err) < 3 * sd))
+                vel_late.append(np.linalg.norm(ekf.velocity - v))
+        early += errs[:10]
+        late += errs[-50:]
+    assert np.mean(late) < 0.5 * np.mean(early)
+    assert np.mean(vel_late) < 0.005  # m/s, against a 0.023 m/s drift
+    assert np.mean(inside) >= 0.9
+
+
+def test_estimator_tracks_circular_target_in_global_frame():
+    """Camera ~1.2 m away, 1 px noise, target on a 5 cm circle at 0.3 rad/s."""
+    cam = camera_model()
+    centre, radius, omega = np.array([0.45, 0.0, 0.4]), 0.05, 0.3
+    early, late, inside, vel_late = [], [], [], []
+    for seed in range(3):
+        rng = np.random.default_rng(100 + seed)
+        sensor = Camera(cam, noise_px=1.0)
+        est = TargetEstimator(cam, FEATURES, source="ekf", noise_px=1.0)
+        errs = []
+        for k in range(300):
+            t = k * DT
+            pos = centre + radius * np.array([np.cos(omega * t), 0.0, np.sin(omega * t)])
+            vel = radius * omega * np.array([-np.sin(omega * t), 0.0, np.cos(omega * t)])
+            out = est.update(sensor.capture(markers(pos), rng), DT, pos, vel)
+            assert out.valid and out.status == "ok"
+            err = out.position - pos
+            errs.append(np.linalg.norm(err))
+            if k >= 150:
+                sd = np.sqrt(np.diag(out.covariance)[:3])
+                inside.append(np.all(np.abs(err) < 3 * sd))
+                vel_late.append(np.linalg.norm(out.velocity - vel))
+        early += errs[:10]
+        late += errs[-50:]
+    assert np.mean(late) < 0.5 * np.mean(early)
+    assert np.mean(vel_late) < 0.005
+    assert np.mean(inside) >= 0.9
+
+
+def test_truth_source_returns_truth():
+    est = TargetEstimator(camera_model(), FEATURES, source="truth")
+    p, v = np.array([0.4, 0.1, 0.3]), np.array([0.01, -0.02, 0.0])
+    out = est.update(None, DT, p, v)
+    np.testing.assert_array_equal(out.position, p)
+    np.testing.assert_array_equal(out.velocity, v)
+    assert out.valid and out.status == "ok" and out.covariance is None
+
+
+def test_bad_source_names_the_valid_ones():
+    with pytest.raises(ValueError, match="'ekf', 'photogrammetry', 'truth'"):
+        TargetEstimator(camera_model(), FEATURES, source="kalman")
+
+
+def _noiseless_run(source: str, latency: int = 0, lose: tuple[int, ...] = ()):
+    """A target drifting at (0.02, 0.01, -0.01) m/s seen by a noise-free camera."""
+    cam = camera_model()
+    sensor = Camera(cam, noise_px=0.0, latency_frames=latency)
+    est = TargetEstimator(cam, FEATURES, source=source, noise_px=0.0)
+    rng = np.random.default_rng(0)
+    p0, v = np.array([0.45, 0.0, 0.4]), np.array([0.02, 0.01, -0.01])
+    outs, truth = [], []
+    for k in range(12):
+        pos = p0 + v * k * DT
+        frame = sensor.capture(markers(pos), rng)
+        outs.append(est.update(None if k in lose else frame, DT, pos, v))
+        truth.append(pos)
+    return outs, np.array(truth), v
+
+
+def test_lost_frames_keep_predicting():
+    outs, truth, v = _noiseless_run("ekf", lose=(6, 7, 8))
+    assert [o.status for o in outs[5:10]] == ["ok", "predicting", "predicting", "predicting", "ok"]
+    assert all(o.valid for o in outs)
+    # Predict-only steps move the estimate by its velocity and grow its covariance.
+    np.testing.assert_allclose(outs[7].position, outs[6].position + DT * outs[6].velocity)
+    assert (
+        np.trace(outs[8].covariance) > np.trace(outs[6].covariance) > np.trace(outs[5].covariance)
+    )
+    assert np.linalg.norm(outs[-1].position - truth[-1]) < 1e-3
+
+
+def test_latency_delivers_frames_late():
+    outs, truth, _ = _noiseless_run("photogrammetry", latency=3)
+    assert [o.status for o in outs[:4]] == ["initialising"] * 3 + ["ok"]
+    assert not outs[0].valid and np.all(np.isnan(outs[0].position))
+    for k in range(3, 12):  # the estimate is the target as it was three steps before
+        np.testing.assert_allclose(outs[k].position, truth[k - 3], atol=1e-9)
+    outs, _, _ = _noiseless_run("ekf", latency=3)
+    assert [o.status for o in outs[:4]] == ["initialising"] * 3 + ["ok"]
+
+
+def test_photogrammetry_velocity_by_finite_difference():
+    outs, truth, v = _noiseless_run("photogrammetry", lose=(5,))
+    np.testing.assert_allclose(outs[0].velocity, 0.0)
+    np.testing.assert_allclose(outs[3].velocity, v, atol=1e-7)
+    assert outs[5].status == "predicting"
+    np.testing.assert_allclose(outs[5].position, outs[4].position)
+    np.testing.assert_allclose(outs[6].velocity, v, atol=1e-7)  # elapsed time 2 dt
+    assert outs[6].covariance is None
+
+
+def test_divergence_reinitialises_from_photogrammetry():
+    cam = camera_model()
+    sensor = Camera(cam, noise_px=1.0)
+    est = TargetEstimator(cam, FEATURES, source="ekf", noise_px=1.0)
+    rng = np.random.default_rng(4)
+    pos, jump = np.array([0.45, 0.0, 0.4]), np.array([0.0, -0.3, 0.05])
+    for _ in range(20):
+        est.update(sensor.capture(markers(pos), rng), DT, pos, np.zeros(3))
+    # The target jumps 30 cm: the filter, confident in a still target, rejects the frames until
+    # the NIS rule trips, then photogrammetry restarts it near the new position.
+    outs = [est.update(sensor.capture(markers(pos + jump), rng), DT, pos, np.zeros(3))]
+    for _ in range(DIVERGENCE_FRAMES + 1):
+        outs.append(est.update(sensor.capture(markers(pos + jump), rng), DT, pos, np.zeros(3)))
+    assert est.reinitialisations == 1
+    assert est.ekf.nis < 100.0
+    assert np.linalg.norm(outs[-1].position - (pos + jump)) < 0.01
+    # A non-finite filter is diverged; without a frame it cannot restart and says so.
+    est.ekf._kf.P[0, 0] = np.nan
+    out = est.update(None, DT, pos, np.zeros(3))
+    assert out.status == "diverged" and not out.valid
+    out = est.update(Frame(cam.project(cam.to_camera(markers(pos)))), DT, pos, np.zeros(3))
+    assert out.status == "ok" and np.linalg.norm(out.position - pos) < 0.01
+    assert est.reinitialisations == 2
+    # A prediction that puts the target behind the lens (absurd velocity toward the camera).
+    est.ekf._kf.x[3] = -40.0  # y_dot in the camera frame, m/s
+    out = est.update(Frame(cam.project(cam.to_camera(markers(pos)))), DT, pos, np.zeros(3))
+    assert out.status == "ok" and est.reinitialisations == 3
+    assert np.linalg.norm(out.position - pos) < 0.01
