@@ -3,7 +3,7 @@
     python evaluate.py                       # default suite: every scenario, 100 seeds, all agents
     python evaluate.py --suite quick         # smoke run
     python evaluate.py --agents incremental_ik models/ppo_paper --scenarios paper --episodes 20
-    python evaluate.py --workers 2           # local process pool
+    python evaluate.py --workers 1           # serially, in this process (default: every CPU)
     python evaluate.py --backend ray --ray-address auto
 
 Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures).
@@ -64,13 +64,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--episodes", type=int, help="episodes per agent x scenario: the first N published seeds"
     )
     parser.add_argument(
-        "--workers", type=int, default=1, help="local worker processes (default 1 = serial)"
+        "--workers",
+        type=int,
+        help="local worker processes (default: every usable CPU; 1 runs serially in this process)",
     )
     parser.add_argument(
         "--backend",
         choices=BACKENDS,
-        default="serial",
-        help="where episodes run (default serial; --workers N > 1 means process)",
+        help="where episodes run (default: process if more than one worker, else serial)",
     )
     parser.add_argument("--ray-address", help="Ray cluster address for --backend ray")
     parser.add_argument(
@@ -116,15 +117,20 @@ def _summary_table(data: ReportData, target: Path) -> None:
 
     scenarios = list(dict.fromkeys(s.scenario for s in data.summaries))
     rate = {(s.agent, s.scenario): s.capture_rate.value for s in data.summaries}
-    table = Table(title=f"capture-bench · {data.suite} suite · capture rate per scenario")
-    for column in ("rank", "agent", "mean", *scenarios, "median ratio"):
-        table.add_column(column, justify="left" if column == "agent" else "right")
+    table = Table(
+        title=f"capture-bench · {data.suite} suite · capture rate, % of episodes",
+        caption="ratio: mean over scenarios of the median capture time / physical limit",
+    )
+    table.add_column("rank", justify="right")
+    table.add_column("agent", no_wrap=True)
+    for column in ("mean", *scenarios, "ratio"):
+        table.add_column(column, justify="right")
     for row in data.ranking:
         table.add_row(
             "—" if row.rank is None else str(row.rank),
             row.agent + (" (privileged)" if row.privileged else ""),
-            f"{row.mean_capture_rate:.2f}",
-            *(f"{rate.get((row.agent, s), float('nan')):.2f}" for s in scenarios),
+            f"{100 * row.mean_capture_rate:.0f}",
+            *(f"{100 * rate.get((row.agent, s), float('nan')):.0f}" for s in scenarios),
             f"{row.mean_ratio_median:.2f}",
         )
     console = Console()

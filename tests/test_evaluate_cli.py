@@ -62,7 +62,7 @@ def _num(text: str) -> float:
 def quick_report(tmp_path_factory) -> Path:
     """The quick suite, serial, written once for the module."""
     out = tmp_path_factory.mktemp("serial")
-    assert main(["--suite", "quick", "--out", str(out)]) == 0
+    assert main(["--suite", "quick", "--workers", "1", "--out", str(out)]) == 0
     return out / "quick"
 
 
@@ -106,7 +106,7 @@ def test_quick_suite_writes_every_file_with_consistent_aggregates(quick_report):
     assert {"git", "packages", "config_hashes", "seeds", "command"} <= set(provenance)
     assert set(provenance["config_hashes"]["scenarios"]) == {"paper", "tumbling"}
     md = (quick_report / "leaderboard.md").read_text()
-    assert "python evaluate.py --suite quick --out" in "\n".join(md.splitlines()[:8])
+    assert "python evaluate.py --suite quick --workers 1 --out" in "\n".join(md.splitlines()[:8])
 
     class Images(HTMLParser):
         def __init__(self) -> None:
@@ -134,7 +134,7 @@ def _same_results(a: Path, b: Path) -> None:
 
 
 def test_the_same_command_twice_gives_the_same_results(quick_report, tmp_path):
-    assert main(["--suite", "quick", "--out", str(tmp_path)]) == 0
+    assert main(["--suite", "quick", "--workers", "1", "--out", str(tmp_path)]) == 0
     _same_results(quick_report, tmp_path / "quick")
 
 
@@ -173,7 +173,7 @@ def _save_model(directory: Path, observation_shape: tuple[int, ...] = (16,)) -> 
 def test_trained_model_and_user_agent_run_next_to_the_baseline(tmp_path):
     model = _save_model(tmp_path / "models" / "ppo_tiny")
     argv = ["--agents", f"incremental_ik,{model},test_evaluate_cli:StillAgent"]
-    argv += ["--suite", "quick", "--scenarios", "paper", "--episodes", "2"]
+    argv += ["--suite", "quick", "--scenarios", "paper", "--episodes", "2", "--workers", "1"]
     argv += ["--out", str(tmp_path / "reports")]
     argv += ["--episode-plots", str(tmp_path / "episodes")]
     assert main(argv) == 0

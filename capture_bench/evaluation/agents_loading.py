@@ -103,6 +103,8 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR) -> AgentSpec:
                 f"agent {spec!r}: name the model's directory ({candidate.parent}), which must "
                 "also hold metadata.json naming the algorithm"
             )
+    if "/" in spec or spec.endswith(".zip"):
+        raise AgentSpecError(f"agent {spec!r}: no such model directory; {_valid_specs()}")
     if ":" in spec:
         module_name, _, attr = spec.partition(":")
         try:

@@ -143,6 +143,7 @@ def _run_process(
     if method == "forkserver":  # workers fork from a server that has already imported these
         context.set_forkserver_preload(list(PRELOAD))
     results: list[list[EpisodeRecord] | None] = [None] * len(chunks)
+    workers = min(workers, len(chunks))
     with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
         pending = {pool.submit(run_chunk, chunk): i for i, chunk in enumerate(chunks)}
         try:

@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import time
 from collections.abc import Callable
@@ -50,8 +51,9 @@ class EvaluationConfig:
         agents: agent specs replacing the suite's (None: the suite's).
         scenarios: scenario names replacing the suite's (None: the suite's).
         episodes: episodes per agent x scenario replacing the suite's (first N published seeds).
-        backend: ``serial``, ``process`` or ``ray``.
-        workers: local worker processes (``process`` backend; > 1 with ``serial`` means process).
+        backend: ``serial``, ``process`` or ``ray``; None: ``process`` if more than one worker,
+            else ``serial``.
+        workers: local worker processes of the ``process`` backend; None: every usable CPU.
         ray_address: Ray cluster address (``ray`` backend); None for a local instance.
         out: reports are written to ``<out>/<suite>/``.
         episode_plots: if set, per-episode figures of the first seed of every agent x scenario.
@@ -61,19 +63,35 @@ class EvaluationConfig:
     agents: list[str] | None = None
     scenarios: list[str] | None = None
     episodes: int | None = None
-    backend: str = "serial"
-    workers: int = 1
+    backend: str | None = None
+    workers: int | None = None
     ray_address: str | None = None
     out: Path = Path("reports")
     episode_plots: Path | None = None
 
-    def resolved_backend(self) -> str:
-        """The backend that will run: ``--workers N`` alone selects the process pool."""
-        if self.backend not in BACKENDS:
-            raise EvaluationError(f"unknown backend {self.backend!r}; valid: {', '.join(BACKENDS)}")
+    def resolved_workers(self) -> int:
+        """Worker processes: as given, or every CPU this process may use."""
+        if self.workers is None:
+            return usable_cpus()
         if self.workers < 1:
             raise EvaluationError(f"--workers {self.workers}: expected a whole number >= 1")
-        return "process" if self.backend == "serial" and self.workers > 1 else self.backend
+        return self.workers
+
+    def resolved_backend(self) -> str:
+        """The backend that will run: as given, else ``process`` if more than one worker."""
+        if self.backend is None:
+            return "process" if self.resolved_workers() > 1 else "serial"
+        if self.backend not in BACKENDS:
+            raise EvaluationError(f"unknown backend {self.backend!r}; valid: {', '.join(BACKENDS)}")
+        self.resolved_workers()
+        return self.backend
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the OS has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return max(1, os.cpu_count() or 1)
 
 
 @dataclass(frozen=True)
@@ -158,7 +176,7 @@ def _provenance(plan: Plan, config: EvaluationConfig, command: str, seconds: flo
             {"label": s.label, "spec": s.spec, "kind": s.kind, "privileged": s.privileged}
             for s in plan.agents
         ],
-        "backend": {"name": config.resolved_backend(), "workers": config.workers},
+        "backend": {"name": config.resolved_backend(), "workers": config.resolved_workers()},
         "timing": {"wall_clock_s": seconds, "episodes": len(plan.tasks)},
     }
 
@@ -200,7 +218,11 @@ def run_evaluation(
     """
     start = time.perf_counter()
     records: list[EpisodeRecord] = run_tasks(
-        plan.tasks, config.resolved_backend(), config.workers, config.ray_address, progress
+        plan.tasks,
+        config.resolved_backend(),
+        config.resolved_workers(),
+        config.ray_address,
+        progress,
     )
     summaries = summarise_all(records, plan.suite.reference)
     privileged = {s.label for s in plan.agents if s.privileged}

@@ -126,7 +126,7 @@ def main_cells(s: Summary, reference: str) -> list[str]:
         fmt_estimate(s.km_median),
         fmt_estimate(f["ratio_median"]),
         fmt_estimate(paired.prob_improvement) if paired else "—",
-        fmt_estimate(paired.time_difference) if paired else "—",
+        fmt_estimate(paired.time_difference, 3) if paired else "—",
         failures,
     ]
 
