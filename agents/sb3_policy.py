@@ -6,6 +6,11 @@ holding the SB3 ``.zip`` and a metadata file, ``metadata.json`` or ``metadata.ya
     algorithm: PPO            # one of PPO, SAC, TD3, A2C, DDPG (required)
     scenario: paper           # the scenario it was trained on (informational)
     model: model.zip          # the SB3 file in the directory (optional if there is exactly one)
+    vecnormalize: vecnormalize.pkl   # VecNormalize statistics, if training normalised observations
+    observation_source: ekf   # what it was trained on (informational; evaluation uses the env's)
+
+``train.py`` writes this format. Observations are normalised with the saved VecNormalize
+statistics (frozen, as in SB3's evaluation) before the policy sees them.
 
 Loading checks the model's observation and action spaces against the environment's and raises
 :class:`PolicyLoadError` (a ``ValueError``) with a one-line message on any problem: no metadata,
@@ -41,6 +46,8 @@ class ModelMetadata:
         model_file: the SB3 ``.zip``.
         scenario: scenario it was trained on ('' if not given).
         metadata_file: the metadata file read.
+        vecnormalize_file: saved VecNormalize statistics, or None.
+        observation_source: observation source used in training ('' if not given).
     """
 
     directory: Path
@@ -48,6 +55,8 @@ class ModelMetadata:
     model_file: Path
     scenario: str
     metadata_file: Path
+    vecnormalize_file: Path | None = None
+    observation_source: str = ""
 
 
 def find_metadata_file(directory: Path) -> Path | None:
@@ -95,12 +104,18 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
         model_file = zips[0]
     if not model_file.is_file():
         raise PolicyLoadError(f"{model_file}: model file is missing")
+    vecnormalize = data.get("vecnormalize")
+    vecnormalize_file = directory / str(vecnormalize) if vecnormalize else None
+    if vecnormalize_file is not None and not vecnormalize_file.is_file():
+        raise PolicyLoadError(f"{vecnormalize_file}: VecNormalize statistics file is missing")
     return ModelMetadata(
         directory=directory,
         algorithm=algorithm,
         model_file=model_file,
         scenario=str(data.get("scenario", "")),
         metadata_file=meta_file,
+        vecnormalize_file=vecnormalize_file,
+        observation_source=str(data.get("observation_source") or ""),
     )
 
 
@@ -116,6 +131,29 @@ def load_model(metadata: ModelMetadata) -> Any:
         raise PolicyLoadError(
             f"{metadata.model_file}: not a loadable {metadata.algorithm} model ({reason})"
         ) from None
+
+
+def load_normalizer(metadata: ModelMetadata) -> Any:
+    """The frozen VecNormalize statistics of the model (None if it has none).
+
+    Only ``normalize_obs`` is used, which needs no vectorised environment attached.
+    """
+    if metadata.vecnormalize_file is None:
+        return None
+    import pickle
+
+    try:
+        with open(metadata.vecnormalize_file, "rb") as handle:
+            normalizer = pickle.load(handle)
+        normalizer.training = False
+        normalizer.norm_reward = False
+        normalizer.normalize_obs(np.zeros(normalizer.observation_space.shape, np.float32))
+    except Exception as exc:  # a bad pickle can raise almost anything
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise PolicyLoadError(
+            f"{metadata.vecnormalize_file}: not loadable VecNormalize statistics ({reason})"
+        ) from None
+    return normalizer
 
 
 def _describe(space: Any) -> str:
@@ -156,13 +194,15 @@ class SB3Policy:
     Args:
         model: the SB3 model (its ``predict`` does the work).
         name: label for reports.
+        normalizer: frozen VecNormalize statistics applied to observations first, or None.
     """
 
     privileged = False
 
-    def __init__(self, model: Any, name: str = "sb3") -> None:
+    def __init__(self, model: Any, name: str = "sb3", normalizer: Any = None) -> None:
         self.model = model
         self.name = name
+        self.normalizer = normalizer
 
     def predict(
         self,
@@ -172,6 +212,8 @@ class SB3Policy:
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
         """SB3's ``predict``: observation (16,) -> ``(action (3,), state)``."""
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(observation)
         action, state = self.model.predict(
             observation, state=state, episode_start=episode_start, deterministic=deterministic
         )
@@ -191,4 +233,4 @@ def load_sb3_policy(directory: str | Path, env: Any, name: str | None = None) ->
     model = load_model(metadata)
     label = name or metadata.directory.name
     check_spaces(model, env.observation_space, env.action_space, f"{metadata.model_file}")
-    return SB3Policy(model, label)
+    return SB3Policy(model, label, load_normalizer(metadata))

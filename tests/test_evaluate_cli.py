@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
 from capture_bench.evaluation.aggregate import RESULT_TIMING_COLUMNS
 from capture_bench.evaluation.rollout import TIMING_COLUMNS
 from capture_bench.evaluation.suites import load_suite
@@ -155,18 +156,24 @@ def test_ray_gives_the_serial_results(quick_report, tmp_path):
 
 
 def _save_model(directory: Path, observation_shape: tuple[int, ...] = (16,)) -> Path:
-    """An untrained PPO whose spaces are the env's (or not), with its metadata."""
+    """An untrained PPO whose spaces are the env's (or not), with VecNormalize statistics and
+    metadata as train.py writes them."""
     import gymnasium
     from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     class Shaped(gymnasium.Env):
         observation_space = gymnasium.spaces.Box(-10, 10, observation_shape, np.float32)
         action_space = gymnasium.spaces.Box(-1, 1, (3,), np.float32)
 
-    model = PPO("MlpPolicy", Shaped(), n_steps=64, batch_size=64, policy_kwargs={"net_arch": [16]})
+    venv = VecNormalize(DummyVecEnv([Shaped]))
+    model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, policy_kwargs={"net_arch": [16]})
     directory.mkdir(parents=True)
     model.save(directory / "model.zip")
-    (directory / "metadata.json").write_text(json.dumps({"algorithm": "PPO", "scenario": "paper"}))
+    venv.save(directory / "vecnormalize.pkl")
+    meta = {"algorithm": "PPO", "scenario": "paper", "model": "model.zip"}
+    meta |= {"vecnormalize": "vecnormalize.pkl", "observation_source": "ekf"}
+    (directory / "metadata.json").write_text(json.dumps(meta))
     return directory
 
 
@@ -184,6 +191,15 @@ def test_trained_model_and_user_agent_run_next_to_the_baseline(tmp_path):
         "test_evaluate_cli:StillAgent",
     ]
     assert len(list((tmp_path / "episodes").glob("*.png"))) == 3
+    policy = build_agent(resolve_agent(str(model)), env=None, seed=0)
+    assert policy.normalizer is not None and not policy.normalizer.training
+    payload = json.loads((tmp_path / "reports" / "quick" / "results.json").read_text())
+    model = payload["provenance"]["config_hashes"]["models"]["ppo_tiny"]
+    assert model["algorithm"] == "PPO" and set(model["sha256"]) == {
+        "model.zip",
+        "metadata.json",
+        "vecnormalize.pkl",
+    }
 
 
 def _bad_model(kind: str, root: Path) -> str:

@@ -143,11 +143,13 @@ def _call_user_factory(spec: AgentSpec, description: Any) -> Any:
     return factory(description) if required else factory()
 
 
-def _model(spec: AgentSpec) -> Any:
-    from agents.sb3_policy import load_model, read_metadata
+def _model(spec: AgentSpec) -> tuple[Any, Any]:
+    """The loaded SB3 model and its VecNormalize statistics (or None), cached per process."""
+    from agents.sb3_policy import load_model, load_normalizer, read_metadata
 
     if spec.target not in _MODEL_CACHE:
-        _MODEL_CACHE[spec.target] = load_model(read_metadata(spec.target))
+        metadata = read_metadata(spec.target)
+        _MODEL_CACHE[spec.target] = (load_model(metadata), load_normalizer(metadata))
     return _MODEL_CACHE[spec.target]
 
 
@@ -161,7 +163,8 @@ def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
     if spec.kind == "model":
         from agents.sb3_policy import SB3Policy
 
-        return SB3Policy(_model(spec), spec.label)
+        model, normalizer = _model(spec)
+        return SB3Policy(model, spec.label, normalizer)
     return _call_user_factory(spec, env.unwrapped.description)
 
 
@@ -173,9 +176,8 @@ def check_agent(spec: AgentSpec, env: Any, scenario: str) -> None:
     if spec.kind == "model":
         from agents.sb3_policy import check_spaces
 
-        check_spaces(
-            _model(spec), env.observation_space, env.action_space, f"{spec.spec} on {scenario}"
-        )
+        model, _normalizer = _model(spec)
+        check_spaces(model, env.observation_space, env.action_space, f"{spec.spec} on {scenario}")
     elif spec.kind == "python":
         try:
             agent = _call_user_factory(spec, env.unwrapped.description)

@@ -116,9 +116,16 @@ def _scenario_names(suite: Suite) -> list[str]:
     return list(suite.scenarios)
 
 
-def _model_hashes(spec: AgentSpec) -> dict[str, str]:
+def _model_provenance(spec: AgentSpec) -> dict[str, Any]:
     meta = read_metadata(spec.target)
-    return {p.name: file_sha256(p) for p in (meta.model_file, meta.metadata_file)}
+    files = [meta.model_file, meta.metadata_file, meta.vecnormalize_file]
+    return {
+        "directory": str(meta.directory),
+        "algorithm": meta.algorithm,
+        "trained_on": meta.scenario,
+        "trained_observation_source": meta.observation_source,
+        "sha256": {p.name: file_sha256(p) for p in files if p is not None},
+    }
 
 
 def plan_evaluation(config: EvaluationConfig) -> Plan:
@@ -160,7 +167,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     hashes: dict[str, Any] = {
         "suite": {"file": str(suite.path), "sha256": suite.sha256},
         "scenarios": {n: file_sha256(SCENARIO_DIR / f"{n}.yaml") for n in scenarios},
-        "models": {s.label: _model_hashes(s) for s in specs if s.kind == "model"},
+        "models": {s.label: _model_provenance(s) for s in specs if s.kind == "model"},
     }
     return Plan(suite, specs, scenarios, seeds, tasks, hashes)
 
