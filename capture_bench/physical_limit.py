@@ -17,8 +17,9 @@ How it is computed:
    the cube, keeps the bound a *lower* bound: anything eq. 20 accepts is inside the sphere. (Inside
    the joint limits the end-effector moves at least ~0.07 m per rad of any joint, so a solution
    further than ``NEAR_BOX`` = 0.1 rad outside the box is > 1.7 mm from anything near it.)
-2. Between the last infeasible and the first feasible grid time, the interval is searched twice
-   with ``REFINE`` evenly spaced times, which finds the onset to ``period / REFINE**2``. The
+2. Between the last infeasible and the first feasible grid time, the interval is searched
+   ``REFINE_PASSES`` times with ``REFINE`` evenly spaced times, which finds the onset to
+   ``period / REFINE**REFINE_PASSES`` (12 microseconds at t_s = 0.05 s). The
    bound is exact to well below the control period, assuming feasibility does not switch on and
    off again inside one period (the box grows monotonically; the target moves mm per period).
 """
@@ -37,6 +38,7 @@ FloatArray = NDArray[np.float64]
 NEWTON_STEPS = 10
 NEAR_BOX = 0.1  # rad
 REFINE = 64
+REFINE_PASSES = 2
 CHUNK = 32
 
 
@@ -120,8 +122,15 @@ def nearest_in_box(
         jac = jacobian(q)  # (M, 3, 3)
         ascent = np.einsum("mij,mi->mj", jac, residual)  # J^T r: where moving theta helps
         held = ((q <= lo) & (ascent < 0.0)) | ((q >= hi) & (ascent > 0.0))
-        step = np.linalg.pinv(jac * ~held[:, None, :]) @ residual[..., None]
-        q = np.clip(q + step[..., 0], lo, hi)
+        # Least squares over the free joints: (Jf^T Jf + diag(held)) step = Jf^T r, where Jf is
+        # J with the held joints' columns zeroed (their step is then exactly 0).
+        free_jac = jac * ~held[:, None, :]
+        normal = np.einsum("mki,mkj->mij", free_jac, free_jac) + held[:, :, None] * np.eye(3)
+        rhs = np.einsum("mij,mi->mj", free_jac, residual)
+        step = np.linalg.solve(normal, rhs[..., None])[..., 0]
+        q = np.clip(q + step, lo, hi)
+        if np.max(np.abs(step)) < 1e-10:
+            break
     return q
 
 
@@ -167,7 +176,7 @@ def physical_limit(
         if start + k == 0:
             return PhysicalLimit(0.0, theta[0])
         t_lo, t_hi, best = times[k] - period, times[k], theta[k]
-        for _ in range(2):
+        for _ in range(REFINE_PASSES):
             fine = np.linspace(t_lo, t_hi, REFINE + 1)[1:]
             ok_fine, theta_fine = check(fine)
             j = int(np.argmax(ok_fine))  # the last entry (t_hi) is known to be feasible
