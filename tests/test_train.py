@@ -1,0 +1,182 @@
+"""train.py: a 64-step PPO run that loads back as an agent, resume, and one-line user errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import train
+from capture_bench.scenarios import ConfigError, load_scenario
+from capture_bench.training import TrainingSeeds, load_hyperparameters, validate_hyperparameters
+
+TINY = """\
+n_envs: 1
+total_timesteps: 64
+policy_kwargs: {net_arch: [16]}
+n_steps: 32
+batch_size: 32
+n_epochs: 1
+checkpoint_freq: 32
+"""
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A 64-step PPO run on paper (module scope: one training for the tests that read it)."""
+    root = tmp_path_factory.mktemp("train")
+    config = root / "tiny.yaml"
+    config.write_text(TINY)
+    run_dir = root / "run"
+    argv = ["--algo", "ppo", "--scenario", "paper", "--config", str(config)]
+    assert train.main([*argv, "--run-dir", str(run_dir), "--seed", "3"]) == 0
+    return run_dir, config
+
+
+def test_run_writes_model_metadata_checkpoints_and_tensorboard(trained):
+    run_dir, _ = trained
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    assert meta["algorithm"] == "PPO" and meta["scenario"] == "paper"
+    assert meta["env_id"] == "CaptureBench/Paper-v0" and meta["model"] == "model.zip"
+    assert meta["observation_source"] == "ekf" and meta["seed"] == 3
+    assert meta["total_timesteps"] == 64
+    assert meta["hyperparameters"]["policy_kwargs"] == {"net_arch": [16]}
+    assert "stable-baselines3" in meta["packages"]
+    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == [
+        "model_32_steps.zip",
+        "model_64_steps.zip",
+    ]
+    assert list((run_dir / "tb").rglob("events.out.tfevents.*"))
+    assert not list(run_dir.rglob(".tmp-*"))  # every save was renamed into place
+
+
+def test_trained_model_loads_as_an_agent_acting_in_the_action_space(trained):
+    from agents.sb3_policy import load_sb3_policy
+    from capture_bench.env import CaptureEnv
+
+    env = CaptureEnv("paper")
+    try:
+        agent = load_sb3_policy(trained[0], env)
+        obs, _ = env.reset(seed=load_scenario("paper").evaluation_seeds[0])
+        for _ in range(3):
+            action, _ = agent.predict(obs, deterministic=True)
+            assert action.shape == (3,) and env.action_space.contains(action)
+            obs, *_ = env.step(action)
+    finally:
+        env.close()
+
+
+def test_resume_continues_the_step_count(trained, tmp_path):
+    import shutil
+
+    run_dir = tmp_path / "run"
+    shutil.copytree(trained[0], run_dir)
+    assert train.main(["--resume", str(run_dir), "--total-timesteps", "128"]) == 0
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    assert meta["total_timesteps"] == 128 and meta["seed"] == 3
+    assert (run_dir / "checkpoints" / "model_128_steps.zip").is_file()
+
+
+def test_sac_resume_restores_replay_buffer_and_vecnormalize(tmp_path):
+    from stable_baselines3.common.save_util import load_from_pkl
+
+    config = tmp_path / "sac.yaml"
+    config.write_text(
+        "n_envs: 1\ntotal_timesteps: 48\npolicy_kwargs: {net_arch: [16]}\nlearning_starts: 16\n"
+        "batch_size: 16\nbuffer_size: 1000\ncheckpoint_freq: 48\nnormalize: true\n"
+    )
+    run_dir = tmp_path / "run"
+    assert train.main(["--algo", "sac", "--config", str(config), "--run-dir", str(run_dir)]) == 0
+    assert train.main(["--resume", str(run_dir), "--total-timesteps", "64"]) == 0
+    buffer = load_from_pkl(run_dir / "checkpoints" / "replay_buffer_64_steps.pkl")
+    assert buffer.size() == 64  # the 48 transitions of the first session were kept
+    assert (run_dir / "checkpoints" / "vecnormalize_64_steps.pkl").is_file()
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    assert meta["algorithm"] == "SAC" and meta["vecnormalize"] == "vecnormalize.pkl"
+
+
+def one_line_error(capsys, argv: list[str], *expected: str) -> None:
+    assert train.main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err
+    for text in expected:
+        assert text in err, err
+
+
+def test_an_evaluation_seed_is_refused(capsys, tmp_path):
+    seed = load_scenario("paper").evaluation_seeds[0]
+    one_line_error(capsys, ["--seed", str(seed), "--run-dir", str(tmp_path / "r")], "evaluation")
+    assert not (tmp_path / "r").exists()
+
+
+def test_bad_algo_unknown_key_and_bad_value_are_one_line_exit_2(capsys, tmp_path):
+    one_line_error(capsys, ["--algo", "dqn"], "dqn", "ppo, sac, td3")
+    unknown = tmp_path / "unknown.yaml"
+    unknown.write_text(TINY + "learning_rat: 0.001\n")
+    one_line_error(
+        capsys, ["--config", str(unknown)], str(unknown), "learning_rat", "learning_rate"
+    )
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(TINY + "gamma: 1.5\n")
+    one_line_error(capsys, ["--config", str(bad)], str(bad), "gamma", "1.5", "[0, 1]")
+    one_line_error(capsys, ["--vec-env", "ray"], "dummy", "subproc")
+
+
+def test_shipped_algo_files_are_valid():
+    for algo in ("ppo", "sac", "td3"):
+        hp, _ = load_hyperparameters(algo)
+        assert hp["n_envs"] >= 1 and hp["total_timesteps"] >= 1
+
+
+@pytest.mark.parametrize(
+    ("data", "expected"),
+    [
+        ({"n_envs": 1, "total_timesteps": 8, "learning_rate": "lin_3e-4"}, "lin_3e-4"),
+        (
+            {"n_envs": 1, "total_timesteps": 8, "learning_rate": "3e-4"},
+            3e-4,
+        ),  # YAML's 3e-4 is a str
+    ],
+)
+def test_learning_rate_forms(data, expected):
+    assert validate_hyperparameters(data, "ppo", "x.yaml")["learning_rate"] == expected
+
+
+def test_bad_values_name_what_is_valid():
+    base = {"n_envs": 1, "total_timesteps": 8}
+    with pytest.raises(ConfigError, match="'n_steps'.*whole number"):
+        validate_hyperparameters({**base, "n_steps": 2.5}, "ppo", "x.yaml")
+    with pytest.raises(ConfigError, match="policy_kwargs.net_arch"):
+        validate_hyperparameters({**base, "policy_kwargs": {"net_arch": [0]}}, "ppo", "x.yaml")
+    with pytest.raises(ConfigError, match="missing key 'total_timesteps'"):
+        validate_hyperparameters({"n_envs": 1}, "ppo", "x.yaml")
+
+
+class _SeedRecorder(gym.Env):
+    """Records the seed of every reset."""
+
+    observation_space = gym.spaces.Box(-1, 1, (1,))
+    action_space = gym.spaces.Box(-1, 1, (1,))
+
+    def __init__(self):
+        self.seeds = []
+
+    def reset(self, *, seed=None, options=None):
+        self.seeds.append(seed)
+        return np.zeros(1, np.float32), {}
+
+
+def test_training_episodes_use_training_seeds_only():
+    # training seeds 999990-1000009 overlap the evaluation seeds 1000000-1000099 on purpose
+    scenario = load_scenario("paper").replace(
+        seeds={"training_start": 999_990, "training_count": 20}
+    )
+    inner = _SeedRecorder()
+    wrapper = TrainingSeeds(inner, scenario, seed=0)
+    for i in range(100):
+        wrapper.reset(seed=1_000_000 if i == 0 else None)  # a given seed only re-seeds the draw
+    assert set(inner.seeds) == set(range(999_990, 1_000_000))
