@@ -61,6 +61,7 @@ class CameraModel:
     focal_length: float = 0.008
     pixel_pitch: float = 3.75e-6
     resolution: tuple[int, int] = field(default=(1280, 960))
+    _half_extent: FloatArray = field(init=False, repr=False)  # cache of half_extent
 
     def __post_init__(self) -> None:
         position = np.asarray(self.position, dtype=float).reshape(3)
@@ -75,6 +76,8 @@ class CameraModel:
         object.__setattr__(self, "position", position)
         object.__setattr__(self, "rotation", rotation)
         object.__setattr__(self, "resolution", (int(self.resolution[0]), int(self.resolution[1])))
+        half = 0.5 * self.pixel_pitch * np.array(self.resolution, dtype=float)
+        object.__setattr__(self, "_half_extent", half)  # read by on_sensor on every capture
 
     @classmethod
     def looking_at(cls, position: ArrayLike, target: ArrayLike, **kwargs: object) -> CameraModel:
@@ -92,7 +95,7 @@ class CameraModel:
     @property
     def half_extent(self) -> FloatArray:
         """Half width and half height of the sensor on the image plane, metres, shape (2,)."""
-        return 0.5 * self.pixel_pitch * np.array(self.resolution, dtype=float)
+        return self._half_extent.copy()
 
     @property
     def half_fov(self) -> tuple[float, float]:
@@ -124,7 +127,7 @@ class CameraModel:
     def on_sensor(self, image_points: ArrayLike) -> NDArray[np.bool_]:
         """(N,) True where image points (N, 2, metres) fall on the sensor (edges included)."""
         m = np.abs(np.asarray(image_points, dtype=float))
-        return np.all(m <= self.half_extent, axis=1)
+        return np.all(m <= self._half_extent, axis=1)
 
     def visible(self, points_cam: ArrayLike) -> NDArray[np.bool_]:
         """(N,) True where a camera-frame point is in front of the lens and lands on the sensor."""
@@ -217,14 +220,20 @@ class Camera:
             The frame captured ``latency_frames`` calls ago (None while the pipeline fills), or
             None when that frame was dropped or not every point was visible.
         """
-        p_cam = self.model.to_camera(np.atleast_2d(points_global))
+        model = self.model
+        p_cam = model.to_camera(np.atleast_2d(points_global))
         lost = rng.random() < self.dropout
         noise = rng.standard_normal((p_cam.shape[0], 2)) * self.noise_std
-        self.last_visible = bool(np.all(self.model.visible(p_cam)))
-        self.last_dropped = bool(lost)
+        # model.visible(p_cam).all(), without the work for a single point behind the lens.
+        visible = bool((p_cam[:, 1] > model.focal_length + LENS_MARGIN).all())
         frame = None
-        if self.last_visible and not lost:
-            frame = Frame(self.model.project(p_cam) + noise, True, self._count)
+        if visible:
+            image = model.project(p_cam)
+            visible = bool((np.abs(image) <= model._half_extent).all())  # on_sensor
+            if visible and not lost:
+                frame = Frame(image + noise, True, self._count)
+        self.last_visible = visible
+        self.last_dropped = bool(lost)
         self._count += 1
         self._pipeline.append(frame)
         if len(self._pipeline) > self.latency_frames:

@@ -10,8 +10,10 @@ give ``R_ct = Rz Ry Rx``, radians. Constant-velocity model per coordinate (eqs. 
 white acceleration noise ``omega`` with covariance ``Q = diag(sigma_a^2 x3, sigma_alpha^2 x3)``;
 filterpy's process noise is ``B Q B^T``. Measurement (eq. 6): the image points of the four feature
 points by eq. 2, flattened as (x_m1, z_m1, ..., x_m4, z_m4), with noise ``R = sigma_m^2 I_8``;
-``H`` is the analytic Jacobian (:func:`capture_bench.photogrammetry.pose_projection`). The filter
-equations (eq. 7) are filterpy's ``ExtendedKalmanFilter.predict`` and ``update``.
+``H`` is the analytic Jacobian (:func:`capture_bench.photogrammetry.project_pose`, on the feature
+points' projection table, computed once); h and H come from one evaluation per update and are
+written into arrays the filter owns. The filter equations (eq. 7) are filterpy's
+``ExtendedKalmanFilter.predict`` and ``update``.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.photogrammetry import pose_projection
+from capture_bench.photogrammetry import pose_projection, project_pose, projection_table
 
 FloatArray = NDArray[np.float64]
 
@@ -87,9 +89,13 @@ class TargetEKF:
         self._kf = ExtendedKalmanFilter(dim_x=12, dim_z=n_z)
         self._kf.R = np.eye(n_z) * sigma_m**2
         self._dt: float | None = None
-        self._H = np.zeros((n_z, 12))
+        self._table = projection_table(self.feature_points, self.focal_length)
+        n = self.feature_points.shape[0]
+        self._H = np.zeros((n_z, 12))  # the rate columns (odd) stay zero: they do not enter eq. 2
+        self._H_pose = self._H.reshape(n, 2, 6, 2)[:, :, :, 0]  # view: [point, (x_m, z_m), pose]
         self._hx_for: FloatArray | None = None  # state whose h(X) is cached in _hx
         self._hx = np.zeros(n_z)
+        self._hx_points = self._hx.reshape(n, 2)  # view: [point, (x_m, z_m)]
         self.nis = float("nan")
         self.prior_in_front = True  # every feature point was beyond the lens at the last update
         self.initialised = False
@@ -144,10 +150,11 @@ class TargetEKF:
 
     def _jacobian(self, x: FloatArray) -> FloatArray:
         """H = dh/dX (8, 12); also caches h(X) for :meth:`_measure` at the same state object."""
-        h, jac, depth = pose_projection(x[0::2], self.feature_points, self.focal_length)
+        h, jt, depth = project_pose(x.tolist()[0::2], self._table)
         self.prior_in_front = bool(depth.min() > 0.0)
-        self._H[:, 0::2] = jac  # the rates (odd indices) do not enter eq. 2
-        self._hx, self._hx_for = h, x
+        self._H_pose[...] = jt.T  # (6, 2, N) -> (N, 2, 6)
+        self._hx_points[...] = h.T
+        self._hx_for = x
         return self._H
 
     def _measure(self, x: FloatArray) -> FloatArray:

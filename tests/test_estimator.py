@@ -56,6 +56,26 @@ def test_measurement_jacobian_matches_finite_differences():
     assert np.all(h_mat[:, 1::2] == 0.0)  # the rates do not enter eq. 2
 
 
+def test_filter_h_and_H_are_eq_2_and_its_jacobian():
+    """The arrays the EKF hands to filterpy: eq. 2 by hand and central differences of it."""
+    x = np.array([0.05, 0.01, 1.2, -0.02, -0.03, 0.0, 0.3, 0.1, -0.4, 0.0, 1.1, -0.2])
+    ekf = TargetEKF(FEATURES, focal_length=F, pixel_pitch=PITCH)
+
+    def by_hand(state: np.ndarray) -> np.ndarray:
+        p_c = FEATURES @ euler_to_matrix(state[6::2]).T + state[0:6:2]
+        return (-F * p_c[:, [0, 2]] / (p_c[:, 1:2] - F)).reshape(8)
+
+    h_mat = ekf._jacobian(x).copy()
+    np.testing.assert_allclose(ekf._measure(x), by_hand(x), rtol=1e-13)
+    fd = np.empty((8, 12))
+    for k in range(12):
+        e = np.zeros(12)
+        e[k] = 1e-7
+        fd[:, k] = (by_hand(x + e) - by_hand(x - e)) / 2e-7
+    np.testing.assert_allclose(h_mat, fd, rtol=1e-6, atol=1e-12)
+    assert ekf.prior_in_front
+
+
 def test_ekf_converges_on_drifting_tumbling_target():
     """Constant velocity and Euler rates in the camera frame (the model exactly), 1 px noise."""
     p0, v = np.array([0.02, 1.2, -0.01]), np.array([0.02, -0.01, 0.005])

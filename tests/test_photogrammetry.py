@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capture_bench.photogrammetry import pose_projection, rotation_and_derivatives, solve_pose
+from capture_bench.photogrammetry import (
+    _levenberg_marquardt,
+    pose_features,
+    pose_projection,
+    project_poses,
+    projection_table,
+    solve_pose,
+)
 from capture_bench.rotations import euler_to_matrix, matrix_to_euler
 
 F = 0.008
@@ -41,16 +48,24 @@ def image_of(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     return -F * p_c[:, [0, 2]] / (p_c[:, 1:2] - F)
 
 
-def test_rotation_derivatives_match_finite_differences():
+def test_projection_table_rows_are_rotation_and_finite_difference_derivatives():
+    """With the unit vectors as feature points and t = 0, the table exposes R and dR/dtheta."""
     angles = np.array([0.3, -1.1, 2.0])
-    m = rotation_and_derivatives(angles)
-    np.testing.assert_allclose(m[:, :3], euler_to_matrix(angles).T, atol=1e-15)
-    d = m[:, 3:].reshape(3, 3, 3)  # d[b, a, k] = dR_k[a, b]
+    table = projection_table(np.eye(3), F)
+    g = (table @ pose_features(np.concatenate([np.zeros(3), angles])[None])[0]).reshape(7, 3, 3)
+    # Coordinates in table order: -f x_C, -f z_C, y_C - f; column j is the image of e_j.
+
+    def unpack(rows: np.ndarray, shift: float) -> np.ndarray:
+        return np.array([rows[0] / -F, rows[2] + shift, rows[1] / -F])
+
+    np.testing.assert_allclose(unpack(g[0], F), euler_to_matrix(angles), atol=1e-15)
+    for b in range(3):  # d p_C / d t_b = e_b for every point
+        np.testing.assert_array_equal(unpack(g[1 + b], 0.0), np.outer(np.eye(3)[b], np.ones(3)))
     for k in range(3):
         e = np.zeros(3)
         e[k] = 1e-6
         fd = (euler_to_matrix(angles + e) - euler_to_matrix(angles - e)) / 2e-6
-        np.testing.assert_allclose(d[:, :, k].T, fd, atol=1e-9)
+        np.testing.assert_allclose(unpack(g[4 + k], 0.0), fd, atol=1e-9)
 
 
 def test_projection_and_jacobian():
@@ -110,3 +125,32 @@ def test_noisy_image_gives_close_pose_and_plausible_residual():
 def test_shape_mismatch_raises():
     with pytest.raises(ValueError, match="image_points"):
         solve_pose(np.zeros((3, 2)), NON_COPLANAR, F)
+
+
+def test_batched_projection_matches_single_pose():
+    rng = np.random.default_rng(11)
+    poses = np.array([random_pose(rng)[0] for _ in range(5)])
+    table = projection_table(NON_COPLANAR, F)
+    rj, depth = project_poses(poses, table, image_of(poses[0], NON_COPLANAR).T)
+    for k, pose in enumerate(poses):
+        h, jac, d = pose_projection(pose, NON_COPLANAR, F)
+        residual = h - image_of(poses[0], NON_COPLANAR).reshape(8)
+        np.testing.assert_allclose(rj[k, 0].T.reshape(8), residual, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(rj[k, 1:].transpose(2, 1, 0).reshape(8, 6), jac, rtol=1e-12)
+        np.testing.assert_allclose(depth[k], d, rtol=1e-14)
+
+
+@pytest.mark.parametrize("points", [NON_COPLANAR, SQUARE], ids=["non_coplanar", "square"])
+def test_starts_run_together_as_they_would_alone(points):
+    """The vectorised Levenberg-Marquardt: each start ends where it ends when run by itself."""
+    rng = np.random.default_rng(3)
+    pose, _ = random_pose(rng)
+    z = image_of(pose, points) + rng.normal(scale=PITCH, size=(4, 2))
+    table = projection_table(points, F)
+    starts = np.array([pose + rng.normal(scale=0.3, size=6) for _ in range(8)])
+    together = _levenberg_marquardt(z.T, table, starts, 50, 1e-10)
+    for k in range(len(starts)):
+        alone = _levenberg_marquardt(z.T, table, starts[k : k + 1], 50, 1e-10)
+        np.testing.assert_array_equal(together[1][k], alone[1][0])  # converged
+        np.testing.assert_allclose(together[0][k], alone[0][0], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(together[3][k], alone[3][0], rtol=1e-9)
