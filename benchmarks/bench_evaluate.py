@@ -63,7 +63,12 @@ def _per_cell(path: Path) -> None:
                 f"{steps / len(group):9.1f} {1e3 * seconds / steps:8.2f}"
             )
     total = sum(float(r["wall_clock_s"]) for r in rows)
-    print(f"\nall episodes: {len(rows)}, {total:.1f} s of episode time (sum over workers)")
+    print(f"\nall episodes: {len(rows)}, {total:.1f} s of episode wall-clock (sum over workers)")
+    if rows and "cpu_s" in rows[0]:
+        cpu = sum(float(r["cpu_s"]) for r in rows)
+        print(
+            f"episode CPU time {cpu:.1f} s: on 2 dedicated cores about {cpu / 2:.0f} s of episodes"
+        )
 
 
 class _Timer:

@@ -148,6 +148,11 @@ def _model(spec: AgentSpec) -> tuple[Any, Any]:
     from agents.sb3_policy import load_model, load_normalizer, read_metadata
 
     if spec.target not in _MODEL_CACHE:
+        import torch
+
+        # one observation at a time: intra-op threads only add overhead (3.4 vs 0.5 ms/predict
+        # for a 128x128 MLP on 2 cores), and parallelism comes from the worker processes
+        torch.set_num_threads(1)
         metadata = read_metadata(spec.target)
         _MODEL_CACHE[spec.target] = (load_model(metadata), load_normalizer(metadata))
     return _MODEL_CACHE[spec.target]

@@ -51,6 +51,8 @@ class EpisodeRecord:
         saturated_share: share of steps in which some joint ran at its rate limit, in [0, 1].
         steps: number of control steps taken.
         wall_clock_s: wall-clock duration of the episode, s (a timing column: not reproducible).
+        cpu_s: CPU time of the episode in its process, s (timing column; unlike the wall clock it
+            does not grow when other processes compete for the cores).
     """
 
     agent: str
@@ -72,6 +74,7 @@ class EpisodeRecord:
     saturated_share: float
     steps: int
     wall_clock_s: float = field(compare=False)
+    cpu_s: float = field(default=math.nan, compare=False)
 
     @property
     def captured(self) -> bool:
@@ -84,7 +87,7 @@ class EpisodeRecord:
 
 
 EPISODE_COLUMNS: tuple[str, ...] = tuple(f.name for f in fields(EpisodeRecord))
-TIMING_COLUMNS: frozenset[str] = frozenset({"wall_clock_s"})
+TIMING_COLUMNS: frozenset[str] = frozenset({"wall_clock_s", "cpu_s"})
 
 
 @dataclass(frozen=True)
@@ -149,7 +152,7 @@ def run_episode(
     Returns:
         ``(record, trace or None)``.
     """
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     _seed_agent(agent, env, seed)
     agent.reset()
     obs, info = env.reset(seed=seed)
@@ -210,6 +213,7 @@ def run_episode(
         saturated_share=saturated / steps if steps else math.nan,
         steps=steps,
         wall_clock_s=time.perf_counter() - start,
+        cpu_s=time.process_time() - cpu_start,
     )
     episode_trace = None
     if trace:
