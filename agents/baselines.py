@@ -54,6 +54,9 @@ class PurePursuit(AnalyticController):
         return safe_action(self.description.increment_to_action(step.increment))
 
 
+REFINE_POINTS = 64
+
+
 def interception_time(
     theta: NDArray,
     target_position: NDArray,
@@ -61,7 +64,7 @@ def interception_time(
     description: TaskDescription,
     horizon: float = 10.0,
     samples: int = 400,
-    refinements: int = 20,
+    refinements: int = 2,
 ) -> float | None:
     """Earliest tau > 0 at which the end-effector, moving straight at its top speed, meets the
     target's predicted straight-line path.
@@ -70,7 +73,8 @@ def interception_time(
     ``n(tau) = (P(tau) - X_E)/||P(tau) - X_E||`` the end-effector's top speed at the current pose
     is ``lambda_max(n)`` (eq. 18 with u = J^-1 n, the Jacobian frozen at the current Theta).
     Interception is the smallest tau with ``lambda_max(n(tau)) tau >= ||P(tau) - X_E||``: found on
-    a uniform grid over (0, horizon] and refined by bisection.
+    a uniform grid over (0, horizon], then the bracketing interval is searched again on a finer
+    grid ``refinements`` times (64-fold each: 6 microseconds at the defaults).
 
     Args:
         theta: joint angles, rad, shape (3,).
@@ -79,7 +83,7 @@ def interception_time(
         description: public description (rate limits).
         horizon: longest look-ahead, s.
         samples: grid points over (0, horizon].
-        refinements: bisection steps after the grid.
+        refinements: finer-grid passes after the first grid.
 
     Returns:
         tau in seconds, or ``None`` when the path is not met within the horizon.
@@ -103,12 +107,10 @@ def interception_time(
         return None
     k = int(np.argmax(feasible))
     lo, hi = (0.0 if k == 0 else float(taus[k - 1])), float(taus[k])
-    for _ in range(refinements):
-        mid = 0.5 * (lo + hi)
-        if slack(np.array([mid]))[0] >= 0.0:
-            hi = mid
-        else:
-            lo = mid
+    for _ in range(refinements):  # each pass narrows the bracket REFINE_POINTS-fold
+        fine = np.linspace(lo, hi, REFINE_POINTS + 1)[1:]  # the last point is hi: feasible
+        j = int(np.argmax(slack(fine) >= 0.0))
+        lo, hi = (lo if j == 0 else float(fine[j - 1])), float(fine[j])
     return hi
 
 
