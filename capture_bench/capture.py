@@ -14,7 +14,8 @@ pieces that each piece's chord is within ``ARC_RESOLUTION`` of the arc
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -112,7 +113,10 @@ def segment_length(a: ArrayLike, b: ArrayLike) -> float:
 
 
 def _floats(v: ArrayLike) -> list[float]:
-    return v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in v]  # type: ignore[union-attr]
+    # ArrayLike also admits scalars; every caller passes a vector.
+    return (
+        v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in cast("Iterable[float]", v)]
+    )
 
 
 def _tolerances(tolerance: ArrayLike) -> list[float]:

@@ -20,7 +20,9 @@ Angles are radians, lengths metres.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -87,7 +89,7 @@ def forward_kinematics_point(theta: ArrayLike) -> FloatArray:
     Returns:
         End-effector position in the global frame, metres, shape (3,).
     """
-    t1, t2, t3 = (float(v) for v in theta)
+    t1, t2, t3 = (float(v) for v in cast("Iterable[float]", theta))
     r = L1 * math.cos(t2) + L2 * math.sin(t2 + t3)
     return np.array(
         (r * math.cos(t1), r * math.sin(t1), L1 * math.sin(t2) - L2 * math.cos(t2 + t3))
@@ -227,7 +229,7 @@ def reachable(
     always (see module docstring); for other limits (``lower``/``upper`` given) the batch IK
     gives the full answer.
     """
-    x, y, z = (float(c) for c in position)
+    x, y, z = (float(c) for c in cast("Iterable[float]", position))
     if lower is not None or upper is not None:
         lower = JOINT_LOWER if lower is None else lower
         upper = JOINT_UPPER if upper is None else upper

@@ -168,7 +168,7 @@ def physical_limit(
 
     n_grid = int(np.floor(horizon / period + 1e-9)) + 1
     for start in range(0, n_grid, CHUNK):
-        times = np.arange(start, min(start + CHUNK, n_grid)) * period
+        times = np.arange(start, min(start + CHUNK, n_grid), dtype=np.float64) * period
         ok, theta = check(times)
         if not ok.any():
             continue

@@ -1,8 +1,8 @@
 """Rotation helpers shared by the target motion, the camera and the estimator.
 
-Euler convention (the EKF's and photogrammetry's angles): ``R = Rz(theta_z) @ Ry(theta_y) @ Rx(theta_x)``,
-angles in radians. All matrices map frame-local coordinates to the parent frame (columns are the
-local axes expressed in the parent).
+Euler convention (the EKF's and photogrammetry's angles):
+``R = Rz(theta_z) @ Ry(theta_y) @ Rx(theta_x)``, angles in radians. All matrices map frame-local
+coordinates to the parent frame (columns are the local axes expressed in the parent).
 """
 
 from __future__ import annotations
@@ -25,7 +25,10 @@ def euler_to_matrix(angles: ArrayLike) -> NDArray[np.float64]:
 
 
 def matrix_to_euler(rotation: ArrayLike) -> NDArray[np.float64]:
-    """Inverse of :func:`euler_to_matrix`: (theta_x, theta_y, theta_z), rad, theta_y in [-pi/2, pi/2]."""
+    """Inverse of :func:`euler_to_matrix`: (theta_x, theta_y, theta_z), rad.
+
+    theta_y is in [-pi/2, pi/2].
+    """
     r = np.asarray(rotation, dtype=float)
     theta_y = np.arcsin(np.clip(-r[2, 0], -1.0, 1.0))
     theta_x = np.arctan2(r[2, 1], r[2, 2])
@@ -41,7 +44,9 @@ def axis_angle_to_matrix(axis: ArrayLike, angle: float) -> NDArray[np.float64]:
     return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
 
 
-def look_at(position: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) -> NDArray[np.float64]:
+def look_at(
+    position: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)
+) -> NDArray[np.float64]:
     """Camera rotation R_gc whose y-axis points from ``position`` toward ``target`` (global, m).
 
     The camera z-axis is as close to ``up`` as possible; x completes a right-handed frame.

@@ -192,7 +192,7 @@ def _build(cls: type, data: dict[str, Any], source: str, prefix: str) -> Any:
     values = {}
     for name, value in data.items():
         key, kind, meta = prefix + name, hints[name], fields[name].metadata
-        if dataclasses.is_dataclass(kind):
+        if isinstance(kind, type) and dataclasses.is_dataclass(kind):
             if not isinstance(value, dict):
                 raise ConfigError(f"{source}: key {key!r} must be a mapping, got {value!r}")
             values[name] = _build(kind, value, source, key + ".")

@@ -101,7 +101,7 @@ class Evasive:
         object.__setattr__(self, "_knots", (np.array(p), np.array(v)))
         object.__setattr__(self, "_times", [float(x) for x in self.switch_times])
 
-    def _segment(self, t: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    def _segment(self, t: ArrayLike) -> tuple[NDArray[np.intp], FloatArray]:
         tt = np.asarray(t, dtype=float)
         k = np.clip(np.searchsorted(self.switch_times, tt, side="right") - 1, 0, None)
         return k, (tt - self.switch_times[k])[..., None]

@@ -19,9 +19,10 @@ elsewhere; the target is only drawn.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
+from typing import NoReturn, cast
 
 import numpy as np
 import pybullet
@@ -105,7 +106,7 @@ class World:
         self._rate = tuple(float(v) for v in arm.joint_rate_limits)
         self._lower = tuple(float(v) for v in arm.joint_lower)
         self._upper = tuple(float(v) for v in arm.joint_upper)
-        self._q = tuple(float(v) for v in arm.home)
+        self._q = cast("tuple[float, float, float]", tuple(float(v) for v in arm.home))
         self._debug_items: dict[str, int] = {}  # trace name -> GUI debug item id
 
         mode = pybullet.GUI if render_mode == "human" else pybullet.DIRECT
@@ -200,8 +201,16 @@ class World:
     def set_target_pose(self, position: ArrayLike, rotation: ArrayLike) -> None:
         """Place the target: capture point at ``position`` (global, metres, (3,)), orientation
         ``rotation`` (R_gt, orthonormal, (3, 3); not checked, for speed)."""
-        p = position.tolist() if isinstance(position, np.ndarray) else list(position)
-        r = rotation.tolist() if isinstance(rotation, np.ndarray) else rotation
+        p = (
+            position.tolist()
+            if isinstance(position, np.ndarray)
+            else list(cast("Iterable[float]", position))
+        )
+        r = (
+            rotation.tolist()
+            if isinstance(rotation, np.ndarray)
+            else cast("Sequence[Sequence[float]]", rotation)
+        )
         if len(p) != 3 or len(r) != 3:
             raise ValueError("position must have shape (3,) and rotation (3, 3)")
         self._reset_base(self.target, p, _quaternion_xyzw(r))
@@ -219,7 +228,11 @@ class World:
         Returns:
             The :class:`JointStep` that happened.
         """
-        d = delta_theta.tolist() if isinstance(delta_theta, np.ndarray) else list(delta_theta)
+        d = (
+            delta_theta.tolist()
+            if isinstance(delta_theta, np.ndarray)
+            else list(cast("Iterable[float]", delta_theta))
+        )
         if len(d) != 3 or not (math.isfinite(d[0]) and math.isfinite(d[1]) and math.isfinite(d[2])):
             raise ValueError(f"delta_theta must be a finite (3,) array, got {delta_theta!r}")
         if not (dt > 0.0 and math.isfinite(dt)):
@@ -301,7 +314,7 @@ class World:
         self,
         width: int = 640,
         height: int = 480,
-        traces: dict[str, ArrayLike] | None = None,
+        traces: Mapping[str, ArrayLike] | None = None,
     ) -> np.ndarray:
         """Third-person image of the world, with traces drawn over it.
 
@@ -363,7 +376,7 @@ def _closed(*args: object, **kwargs: object) -> NoReturn:
     raise RuntimeError("the World is closed")
 
 
-def _quaternion_xyzw(r: list[list[float]]) -> tuple[float, float, float, float]:
+def _quaternion_xyzw(r: Sequence[Sequence[float]]) -> tuple[float, float, float, float]:
     """Unit quaternion (x, y, z, w) of a rotation matrix given as nested lists (Shepperd)."""
     m00, m01, m02 = r[0]
     m10, m11, m12 = r[1]
