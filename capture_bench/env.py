@@ -32,7 +32,10 @@ from capture_bench.world import World
 FAILURES = ("timeout", "collision", "target_lost", "unreachable")
 MAX_PLACEMENT_TRIES = 1000
 PLACEMENT_MARGIN = 0.1  # markers start inside the central 90% of the sensor's width and height
-VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)  # s: ... and stay there on the true path at these times
+VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)
+# Sums of control periods carry rounding (10 x 0.05 > 0.5); "longer than lost_after" means longer
+# by more than this, so the env and the physical-limit check count the same steps.
+TIME_SLACK = 1e-9  # s  # s: ... and stay there on the true path at these times
 
 
 class CaptureEnv(gym.Env):
@@ -198,7 +201,7 @@ class CaptureEnv(gym.Env):
         for flag in out:
             run = run + 1 if flag else 0
             longest = max(longest, run)
-        return longest * period > self.scenario.lost_after
+        return longest * period > self.scenario.lost_after + TIME_SLACK
 
     def true_target_position(self, t: float | NDArray) -> NDArray[np.float64]:
         """X_T(t), global, m (privileged)."""
@@ -384,12 +387,12 @@ class CaptureEnv(gym.Env):
             return "collision"
         reach = kinematics.reachable(self._x_t)
         self._unreachable_for = 0.0 if reach else self._unreachable_for + dt
-        if self._unreachable_for > self.scenario.lost_after:
+        if self._unreachable_for > self.scenario.lost_after + TIME_SLACK:
             return "unreachable"
         if self.scenario.estimator.source != "truth":
             usable = self._estimate.status == "ok"
             self._since_frame = 0.0 if usable else self._since_frame + dt
-            if self._since_frame > self.scenario.lost_after:
+            if self._since_frame > self.scenario.lost_after + TIME_SLACK:
                 return "target_lost"
         return None
 

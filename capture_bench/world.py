@@ -25,9 +25,13 @@ from pathlib import Path
 from typing import NoReturn, cast
 
 import numpy as np
-import pybullet
 from numpy.typing import ArrayLike
-from pybullet_utils.bullet_client import BulletClient
+
+from capture_bench._quiet import quiet_c_output
+
+with quiet_c_output():  # pybullet prints its build time on import
+    import pybullet
+    from pybullet_utils.bullet_client import BulletClient
 
 from capture_bench.kinematics import L0, L1, L2, ArmSpec, FloatArray
 
@@ -110,7 +114,8 @@ class World:
         self._debug_items: dict[str, int] = {}  # trace name -> GUI debug item id
 
         mode = pybullet.GUI if render_mode == "human" else pybullet.DIRECT
-        self._bullet: BulletClient | None = BulletClient(connection_mode=mode)
+        with quiet_c_output():  # pybullet's C side prints "argv[0]=" on connect
+            self._bullet: BulletClient | None = BulletClient(connection_mode=mode)
         bullet = self._bullet
         if render_mode == "human":
             bullet.configureDebugVisualizer(bullet.COV_ENABLE_GUI, 0)

@@ -202,3 +202,16 @@ def test_docstring_documents_every_argument_and_failure():
         "Version History",
     ):
         assert f"## {section}" in doc
+
+
+def test_making_and_resetting_an_env_prints_nothing():
+    """pybullet's C-level banner and "argv[0]=" lines are kept off the user's terminal."""
+    import subprocess
+    import sys
+
+    code = (
+        "import gymnasium as gym, capture_bench\n"
+        "env = gym.make('CaptureBench/Paper-v0'); env.reset(seed=0); env.close()\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout == "" and done.stderr == ""
