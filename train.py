@@ -16,7 +16,6 @@ saves a checkpoint and exits with status 130. A user's mistake is one line on st
 from __future__ import annotations
 
 import json
-import os
 import re
 import sys
 import time
@@ -29,6 +28,7 @@ from capture_bench.training import (
     RESUMABLE_OPTIONS,
     TrainConfig,
     TrainingSeeds,
+    atomic_write,
     check_training_seed,
     load_hyperparameters,
     parse_args,
@@ -122,16 +122,6 @@ def latest_checkpoint(run_dir: Path, replay_buffer: bool, normalize: bool) -> Pa
         if all((path.parent / name).is_file() for name in needs):
             found.append((int(steps), path))
     return max(found)[1] if found else None
-
-
-def atomic_write(path: Path, data: bytes | None = None, writer: Any = None) -> None:
-    """Write ``data`` (or call ``writer(tmp_path)``) to a temporary file, then rename it."""
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    if writer is None:
-        tmp.write_bytes(data or b"")
-    else:
-        writer(str(tmp))
-    os.replace(tmp, path)
 
 
 def make_env(config: TrainConfig, reward: str, rank: int, subprocess: bool) -> Any:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -393,3 +394,14 @@ class TrainingSeeds(gym.Wrapper):
                 break
         self.episode_seed = episode_seed
         return self.env.reset(seed=episode_seed, options=options)
+
+
+def atomic_write(path: Path, data: bytes | None = None, writer: Any = None) -> None:
+    """Write ``data`` (or call ``writer(tmp_path)``) to a temporary file, then rename it onto
+    ``path``: a reader never sees a half-written file."""
+    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
+    if writer is None:
+        tmp.write_bytes(data or b"")
+    else:
+        writer(str(tmp))
+    os.replace(tmp, path)

@@ -5,7 +5,6 @@ Imports Stable-Baselines3 at module level: import this module only where SB3 is 
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -14,13 +13,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from capture_bench.scenarios import load_scenario
-
-
-def _replace_from_tmp(path: Path, write: Any) -> None:
-    """``write(tmp_path)`` then rename onto ``path``: a reader never sees a half-written file."""
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    write(str(tmp))
-    os.replace(tmp, path)
+from capture_bench.training import atomic_write
 
 
 class Checkpointer(BaseCallback):
@@ -61,13 +54,13 @@ class Checkpointer(BaseCallback):
         steps = int(model.num_timesteps)
         stats = model.get_vec_normalize_env()
         if stats is not None:
-            _replace_from_tmp(self.directory / f"vecnormalize_{steps}_steps.pkl", stats.save)
+            atomic_write(self.directory / f"vecnormalize_{steps}_steps.pkl", writer=stats.save)
         if self.replay_buffer:
             buffer_file = self.directory / f"replay_buffer_{steps}_steps.pkl"
-            _replace_from_tmp(buffer_file, lambda p: _save_buffer(model, p))
+            atomic_write(buffer_file, writer=lambda p: _save_buffer(model, p))
             self._prune()
         path = self.directory / f"model_{steps}_steps.zip"
-        _replace_from_tmp(path, model.save)
+        atomic_write(path, writer=model.save)
         return path
 
     def _prune(self) -> None:
