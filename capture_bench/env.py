@@ -32,10 +32,10 @@ from capture_bench.world import World
 FAILURES = ("timeout", "collision", "target_lost", "unreachable")
 MAX_PLACEMENT_TRIES = 1000
 PLACEMENT_MARGIN = 0.1  # markers start inside the central 90% of the sensor's width and height
-VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)
+VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)  # s: ... and stay there on the true path at these times
 # Sums of control periods carry rounding (10 x 0.05 > 0.5); "longer than lost_after" means longer
 # by more than this, so the env and the physical-limit check count the same steps.
-TIME_SLACK = 1e-9  # s  # s: ... and stay there on the true path at these times
+TIME_SLACK = 1e-9  # s
 
 
 class CaptureEnv(gym.Env):
@@ -247,7 +247,8 @@ class CaptureEnv(gym.Env):
         }
         self._episode_over = False
         obs = self._observation(sc.control.period)
-        info = {"time": 0.0, "distance": segment_length(self._x_e, self._x_t)}
+        self._distance = segment_length(self._x_e, self._x_t)
+        info = {"time": 0.0, "distance": self._distance}
         return obs, info
 
     def step(
@@ -267,8 +268,7 @@ class CaptureEnv(gym.Env):
         if sc.control.period_jitter > 0.0:
             dt *= 1.0 + sc.control.period_jitter * self.np_random.uniform(-1.0, 1.0)
 
-        x_e0, x_t0, est0 = self._x_e, self._x_t, self._estimate
-        d_prev = segment_length(x_e0, x_t0)
+        x_e0, x_t0, est0, d_prev = self._x_e, self._x_t, self._estimate, self._distance
         joint_step = self._world.apply_joint_increment(
             desc.action_to_increment(np.minimum(np.maximum(a, -1.0), 1.0)), dt
         )
@@ -299,7 +299,7 @@ class CaptureEnv(gym.Env):
             truncated, failure = True, "timeout"
         self._episode_over = terminated or truncated
 
-        distance = segment_length(self._x_e, self._x_t)
+        self._distance = distance = segment_length(self._x_e, self._x_t)
         terms = reward_terms(self.reward_mode, d_prev, distance, captured, failure)
         info = self._info(dt, distance, v_t, x_e0, joint_step, captured, capture_time, failure)
         info.update(terms)
@@ -410,10 +410,10 @@ class CaptureEnv(gym.Env):
         est = self._estimate
         pos_err = vel_err = nees = math.nan
         if est.valid:
-            e = np.concatenate([est.position - self._x_t, est.velocity - v_t])
             pos_err = segment_length(est.position, self._x_t)
             vel_err = segment_length(est.velocity, v_t)
             if est.covariance is not None:
+                e = np.concatenate([est.position - self._x_t, est.velocity - v_t])
                 nees = float(e @ np.linalg.solve(est.covariance, e))
         v_e = (self._x_e - x_e0) / dt
         return {
