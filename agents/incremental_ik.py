@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench.kinematics import forward_kinematics, jacobian
+from capture_bench.kinematics import forward_kinematics, jacobian, jacobian_determinant
 from capture_bench.observation import Observation, TaskDescription, decode_observation
 
 FloatArray = NDArray[np.float64]
@@ -100,7 +100,7 @@ def resolve_direction(
     """
     jac = jacobian(theta)
     n = np.asarray(direction, dtype=float)
-    singular = bool(abs(np.linalg.det(jac)) < det_threshold)
+    singular = bool(abs(jacobian_determinant(theta)) < det_threshold)
     if singular:
         # J^T (J J^T + mu^2 I)^-1 n: always defined, bounded by 1/(2 mu) per unit n.
         lhs = jac @ jac.T + damping**2 * np.eye(3)

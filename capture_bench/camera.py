@@ -124,17 +124,19 @@ class CameraModel:
         p = np.asarray(points_cam, dtype=float)
         return p[:, 1] > self.focal_length + LENS_MARGIN
 
-    def on_sensor(self, image_points: ArrayLike) -> NDArray[np.bool_]:
-        """(N,) True where image points (N, 2, metres) fall on the sensor (edges included)."""
+    def on_sensor(self, image_points: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
+        """(N,) True where image points (N, 2, metres) fall on the sensor (edges included), or,
+        with ``margin`` > 0, inside its central ``1 - margin`` fraction of width and height."""
         m = np.abs(np.asarray(image_points, dtype=float))
-        return np.all(m <= self._half_extent, axis=1)
+        return np.all(m <= (1.0 - margin) * self._half_extent, axis=1)
 
-    def visible(self, points_cam: ArrayLike) -> NDArray[np.bool_]:
-        """(N,) True where a camera-frame point is in front of the lens and lands on the sensor."""
+    def visible(self, points_cam: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
+        """(N,) True where a camera-frame point is in front of the lens and lands on the sensor
+        (within ``margin``, see :meth:`on_sensor`)."""
         p = np.asarray(points_cam, dtype=float)
         front = self.in_front(p)
         with np.errstate(divide="ignore", invalid="ignore"):
-            on = self.on_sensor(np.where(front[:, None], self.project(p), np.inf))
+            on = self.on_sensor(np.where(front[:, None], self.project(p), np.inf), margin)
         return front & on
 
 

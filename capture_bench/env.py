@@ -195,8 +195,7 @@ class CaptureEnv(gym.Env):
             return False
         period = self.scenario.control.period
         times = np.arange(0.0, t_end, period)
-        solutions = kinematics.inverse_kinematics_batch(self.true_target_position(times))
-        out = ~np.any(kinematics.within_limits(solutions), axis=1)
+        out = ~kinematics.reachable_batch(self.true_target_position(times))
         run = longest = 0
         for flag in out:
             run = run + 1 if flag else 0
@@ -341,14 +340,14 @@ class CaptureEnv(gym.Env):
 
     def _stays_in_view(self, traj: TargetTrajectory) -> bool:
         model = self.camera_model
-        limit = (1.0 - PLACEMENT_MARGIN) * model.half_extent
-        for t in VIEW_CHECK_TIMES:
-            points = model.to_camera(traj.feature_points(t, self._features))
-            if not np.all(model.in_front(points)):
-                return False
-            if np.any(np.abs(model.project(points)) > limit):
-                return False
-        return True
+        return all(
+            np.all(
+                model.visible(
+                    model.to_camera(traj.feature_points(t, self._features)), margin=PLACEMENT_MARGIN
+                )
+            )
+            for t in VIEW_CHECK_TIMES
+        )
 
     def _sense(self, dt: float, rotation: NDArray[np.float64]) -> TargetEstimate:
         """Camera frame (unless the source is truth) -> estimator -> estimate (global frame).

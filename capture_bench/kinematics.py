@@ -231,10 +231,7 @@ def reachable(
     """
     x, y, z = (float(c) for c in cast("Iterable[float]", position))
     if lower is not None or upper is not None:
-        lower = JOINT_LOWER if lower is None else lower
-        upper = JOINT_UPPER if upper is None else upper
-        solutions = inverse_kinematics_batch(np.array([[x, y, z]]))[0]
-        return bool(np.any(within_limits(solutions, lower, upper)))
+        return bool(reachable_batch(np.array([[x, y, z]]), lower, upper)[0])
     lo, hi = _LOWER_TUPLE, _UPPER_TUPLE
     t1 = math.atan2(y, x)
     if not lo[0] <= t1 <= hi[0]:
@@ -251,6 +248,16 @@ def reachable(
         if lo[1] <= t2 <= hi[1] and lo[2] <= t3 <= hi[2]:
             return True
     return False
+
+
+def reachable_batch(
+    positions: ArrayLike, lower: ArrayLike | None = None, upper: ArrayLike | None = None
+) -> NDArray[np.bool_]:
+    """:func:`reachable` for a batch of points (N, 3), global, m -> (N,) bool; any joint limits
+    (default: the published ones)."""
+    lower = JOINT_LOWER if lower is None else lower
+    upper = JOINT_UPPER if upper is None else upper
+    return np.any(within_limits(inverse_kinematics_batch(positions), lower, upper), axis=1)
 
 
 def _wrap_array(angles: FloatArray) -> FloatArray:
