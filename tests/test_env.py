@@ -141,6 +141,29 @@ def test_bound_never_exceeds_the_capture_time_of_a_policy_that_knows_the_traject
     assert captured >= 4
 
 
+def test_bound_cached_per_scenario_and_seed_equals_a_fresh_computation(make_env):
+    """The per-process bound cache: reset(seed=s) in another env reuses the bound computed for
+    (scenario, s); it equals the bound computed afresh; an unseeded reset does not reuse it."""
+    from capture_bench import env as env_module
+
+    first, second = make_env(observation_source="truth"), make_env(observation_source="truth")
+    first.reset(seed=5)
+    bound = first.unwrapped.physical_limit()
+    second.reset(seed=5)
+    assert second.unwrapped.physical_limit() is bound  # served from the cache
+    env_module._LIMIT_CACHE.clear()
+    second.reset(seed=5)
+    fresh = second.unwrapped.physical_limit()
+    assert fresh is not bound and fresh.time == bound.time
+    np.testing.assert_array_equal(fresh.theta, bound.theta)
+    second.reset()  # no seed: a new trajectory, so its own bound
+    assert second.unwrapped._limit_key is None
+    assert second.unwrapped.physical_limit() is not fresh
+    other = make_env("CaptureBench/Drift-v0", observation_source="truth")
+    other.reset(seed=5)  # same seed, another scenario: another trajectory and bound
+    assert other.unwrapped.physical_limit().time != fresh.time
+
+
 def test_close_twice_is_safe(make_env):
     env = make_env()
     env.reset(seed=0)
@@ -215,3 +238,15 @@ def test_making_and_resetting_an_env_prints_nothing():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout == "" and done.stderr == ""
+
+
+def test_nees_is_the_quadratic_form_by_solve_and_nan_without_positive_definite_covariance():
+    from capture_bench.env import normalised_error_squared
+
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        a = rng.normal(size=(6, 6))
+        cov, e = a @ a.T + 0.1 * np.eye(6), rng.normal(size=6)
+        expected = e @ np.linalg.solve(cov, e)
+        assert normalised_error_squared(e, cov) == pytest.approx(expected, rel=1e-9)
+    assert np.isnan(normalised_error_squared(np.ones(6), -np.eye(6)))

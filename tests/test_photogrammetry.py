@@ -122,6 +122,31 @@ def test_noisy_image_gives_close_pose_and_plausible_residual():
     assert np.median(errors) < 0.01
 
 
+def test_cold_solutions_are_memoised_by_exact_image():
+    """The cold multi-start is solved once per exact image: a repeat returns an equal, unshared
+    solution; a different image (one bit) is solved afresh; a cleared cache gives the same."""
+    from capture_bench import photogrammetry
+
+    rng = np.random.default_rng(21)
+    pose, _ = random_pose(rng)
+    z = image_of(pose, NON_COPLANAR) + rng.normal(scale=PITCH, size=(4, 2))
+    first = solve_pose(z, NON_COPLANAR, F)
+    first.pose[:] = 0.0  # a caller's edit must not reach the cache
+    again = solve_pose(z, NON_COPLANAR, F)
+    assert again.converged and np.linalg.norm(again.pose[:3] - pose[:3]) < 0.05  # not the zeros
+    photogrammetry._COLD_SOLUTIONS.clear()
+    fresh = solve_pose(z, NON_COPLANAR, F)
+    np.testing.assert_array_equal(fresh.pose, again.pose)
+    assert (fresh.converged, fresh.iterations, fresh.residual_rms) == (
+        again.converged,
+        again.iterations,
+        again.residual_rms,
+    )
+    nudged = z.copy()
+    nudged[0, 0] = np.nextafter(nudged[0, 0], 1.0)
+    assert not np.array_equal(solve_pose(nudged, NON_COPLANAR, F).pose, fresh.pose)
+
+
 def test_shape_mismatch_raises():
     with pytest.raises(ValueError, match="image_points"):
         solve_pose(np.zeros((3, 2)), NON_COPLANAR, F)
