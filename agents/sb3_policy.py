@@ -214,10 +214,41 @@ class SB3Policy:
         """SB3's ``predict``: observation (16,) -> ``(action (3,), state)``."""
         if self.normalizer is not None:
             observation = self.normalizer.normalize_obs(observation)
+        obs = np.asarray(observation)
+        if deterministic and state is None and obs.shape == self.model.observation_space.shape:
+            return self._deterministic_action(obs), None
         action, state = self.model.predict(
             observation, state=state, episode_start=episode_start, deterministic=deterministic
         )
         return np.asarray(action, dtype=np.float32), state
+
+    def _deterministic_action(self, obs: np.ndarray) -> np.ndarray:
+        """``model.predict(obs, deterministic=True)`` for one Box observation, without its
+        per-call checks and, for actor-critic policies, without building the action distribution
+        only to take its mode: the mean of a diagonal Gaussian is the action net's output.
+        The same torch operations on the same numbers, so the same action (tested).
+        """
+        import torch
+        from stable_baselines3.common.distributions import DiagGaussianDistribution
+        from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+
+        policy = self.model.policy
+        with torch.no_grad():
+            tensor = torch.as_tensor(obs, dtype=torch.float32).unsqueeze(0)
+            if isinstance(policy, ActorCriticPolicy) and type(policy.action_dist) is (
+                DiagGaussianDistribution
+            ):
+                # the actor's features, shared extractor or not (BasePolicy's method)
+                features = BasePolicy.extract_features(policy, tensor, policy.pi_features_extractor)
+                actions = policy.action_net(policy.mlp_extractor.forward_actor(features))
+            else:
+                actions = policy._predict(tensor, deterministic=True)
+        action = actions.numpy().reshape(self.model.action_space.shape)
+        if policy.squash_output:  # as BasePolicy.predict does for a Box action space
+            action = policy.unscale_action(action)
+        else:
+            action = np.clip(action, self.model.action_space.low, self.model.action_space.high)
+        return np.asarray(action, dtype=np.float32)
 
     def reset(self) -> None:
         """Nothing to forget: recurrent state, if any, is passed through ``predict``."""

@@ -180,3 +180,35 @@ def test_training_episodes_use_training_seeds_only():
     for i in range(100):
         wrapper.reset(seed=1_000_000 if i == 0 else None)  # a given seed only re-seeds the draw
     assert set(inner.seeds) == set(range(999_990, 1_000_000))
+
+
+@pytest.mark.parametrize("algorithm", ["shipped PPO", "PPO", "PPO unshared", "SAC", "TD3", "A2C"])
+def test_deterministic_predict_shortcut_equals_sb3_predict(algorithm):
+    """SB3Policy's shortcut for deterministic actions gives exactly model.predict's action."""
+    import stable_baselines3
+
+    from agents.sb3_policy import SB3Policy, load_model, read_metadata
+    from capture_bench.env import CaptureEnv
+
+    env = CaptureEnv("paper")
+    try:
+        if algorithm == "shipped PPO":
+            model = load_model(read_metadata(Path(__file__).parents[1] / "models" / "ppo-paper"))
+        else:
+            name, _, variant = algorithm.partition(" ")
+            policy_kwargs: dict = {"net_arch": [32, 32]}
+            if variant == "unshared":  # separate actor and critic feature extractors
+                policy_kwargs["share_features_extractor"] = False
+            kwargs = {"policy_kwargs": policy_kwargs, "seed": 0, "device": "cpu"}
+            model = getattr(stable_baselines3, name)("MlpPolicy", env, **kwargs)
+        agent = SB3Policy(model, algorithm)
+        rng = np.random.default_rng(0)
+        for scale in (0.1, 1.0, 10.0):  # 10: actions far outside [-1, 1] before clipping
+            for _ in range(20):
+                obs = rng.uniform(-scale, scale, 16).astype(np.float32)
+                expected, _ = model.predict(obs, deterministic=True)
+                action, state = agent.predict(obs, deterministic=True)
+                assert state is None and action.dtype == np.float32
+                np.testing.assert_array_equal(action, expected)
+    finally:
+        env.close()
