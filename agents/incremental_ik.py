@@ -27,6 +27,7 @@ X_E and J come from the same Theta.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -34,7 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench.kinematics import forward_kinematics, jacobian, jacobian_determinant
+from capture_bench.kinematics import forward_kinematics_point, jacobian, jacobian_determinant
 from capture_bench.observation import Observation, TaskDescription, decode_observation
 
 FloatArray = NDArray[np.float64]
@@ -75,6 +76,12 @@ def lambda_max_of(joint_direction: NDArray, joint_rate_limits: NDArray) -> Float
         lambda_max, m/s per unit n, shape () or (N,); 0 where u is all zeros.
     """
     u = np.abs(np.asarray(joint_direction, dtype=float))
+    if u.shape == (3,):  # one direction, every control step: Python floats, same arithmetic
+        limits = [
+            r / a for r, a in zip(np.asarray(joint_rate_limits).tolist(), u.tolist()) if a > 0
+        ]
+        lam_one = min(limits, default=0.0)
+        return np.asarray(lam_one if math.isfinite(lam_one) else 0.0)
     rates = np.broadcast_to(np.asarray(joint_rate_limits, dtype=float), u.shape)
     per_joint = np.divide(rates, u, out=np.full(u.shape, np.inf), where=u > 0.0)
     lam = np.min(per_joint, axis=-1)
@@ -136,7 +143,7 @@ def incremental_step(
     t_s = description.control_period
     rates = description.arm.joint_rate_limits
     theta = np.asarray(theta, dtype=float)
-    x_e = forward_kinematics(theta)  # eq. 8
+    x_e = forward_kinematics_point(theta)  # eq. 8 (the scalar twin: same numbers, faster)
     predicted = np.asarray(target_position) + np.asarray(target_velocity) * t_s  # eq. 13
     offset = predicted - x_e
     distance = float(np.linalg.norm(offset))
@@ -163,8 +170,9 @@ def predict_each(
 
 def safe_action(action: NDArray) -> NDArray[np.float32]:
     """Clip to [-1, 1]^3 as float32; any non-finite entry becomes 0 (hold that joint)."""
-    a = np.nan_to_num(np.asarray(action, dtype=float), nan=0.0, posinf=0.0, neginf=0.0)
-    return np.clip(a, -1.0, 1.0).astype(np.float32)
+    a = np.asarray(action, dtype=float)
+    a = np.where(np.isfinite(a), a, 0.0)
+    return np.minimum(np.maximum(a, -1.0), 1.0).astype(np.float32)
 
 
 class AnalyticController:

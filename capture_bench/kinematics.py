@@ -107,6 +107,8 @@ def elbow_position(theta: ArrayLike) -> FloatArray:
 def jacobian(theta: ArrayLike) -> FloatArray:
     """Analytic Jacobian J = df/dTheta (eq. 9), shape (3, 3) or (N, 3, 3), metres per radian."""
     q = np.asarray(theta, dtype=float)
+    if q.shape == (3,):
+        return _jacobian_point(*q.tolist())
     t1, t2, t3 = q[..., 0], q[..., 1], q[..., 2]
     c1, s1 = np.cos(t1), np.sin(t1)
     r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
@@ -121,6 +123,18 @@ def jacobian(theta: ArrayLike) -> FloatArray:
         np.stack([zero, dz2, dz3], axis=-1),
     ]
     return np.stack(rows, axis=-2)
+
+
+def _jacobian_point(t1: float, t2: float, t3: float) -> FloatArray:
+    """:func:`jacobian` for one joint vector with ``math`` (controllers call it every step)."""
+    c1, s1 = math.cos(t1), math.sin(t1)
+    c23, s23 = math.cos(t2 + t3), math.sin(t2 + t3)
+    r = L1 * math.cos(t2) + L2 * s23
+    dr2 = -L1 * math.sin(t2) + L2 * c23
+    dr3 = L2 * c23
+    return np.array(
+        ((-r * s1, dr2 * c1, dr3 * c1), (r * c1, dr2 * s1, dr3 * s1), (0.0, r, L2 * s23))
+    )
 
 
 def jacobian_determinant(theta: ArrayLike) -> FloatArray:

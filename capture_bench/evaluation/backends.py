@@ -17,9 +17,10 @@ need the dependencies installed. Model specs travel as written: name them ``mode
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any
@@ -115,10 +116,23 @@ def make_chunks(tasks: Sequence[EpisodeTask], size: int = CHUNK_SIZE) -> list[li
     return chunks
 
 
-def _init_worker() -> None:
-    """One thread per worker for the numerical libraries: the workers are the parallelism."""
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-        os.environ[var] = "1"
+#: One thread per worker for the numerical libraries: the workers are the parallelism. OpenBLAS
+#: reads these when numpy is imported, so they must be in the environment the forkserver (or a
+#: spawned worker) starts with, not set inside the worker. (Torch's threads are set where a model
+#: is loaded: ``agents_loading._model``.)
+SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+
+
+@contextlib.contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """Set :data:`SINGLE_THREAD_ENV` (where the user has not) while worker processes start."""
+    added = {k: v for k, v in SINGLE_THREAD_ENV.items() if k not in os.environ}
+    os.environ.update(added)
+    try:
+        yield
+    finally:
+        for key in added:
+            os.environ.pop(key, None)
 
 
 def _run_serial(chunks: list[list[EpisodeTask]], progress: Progress) -> list[list[EpisodeRecord]]:
@@ -144,7 +158,10 @@ def _run_process(
         context.set_forkserver_preload(list(PRELOAD))
     results: list[list[EpisodeRecord] | None] = [None] * len(chunks)
     workers = min(workers, len(chunks))
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker) as pool:
+    with (
+        _single_threaded_children(),
+        ProcessPoolExecutor(workers, mp_context=context) as pool,
+    ):
         pending = {pool.submit(run_chunk, chunk): i for i, chunk in enumerate(chunks)}
         try:
             while pending:
