@@ -200,9 +200,17 @@ class SB3Policy:
     privileged = False
 
     def __init__(self, model: Any, name: str = "sb3", normalizer: Any = None) -> None:
+        from stable_baselines3.common.distributions import DiagGaussianDistribution
+        from stable_baselines3.common.policies import ActorCriticPolicy
+
         self.model = model
         self.name = name
         self.normalizer = normalizer
+        # Whether the deterministic action is the action net's output (the Gaussian's mean).
+        policy = model.policy
+        self._mean_is_action = isinstance(policy, ActorCriticPolicy) and (
+            type(policy.action_dist) is DiagGaussianDistribution
+        )
 
     def predict(
         self,
@@ -229,15 +237,12 @@ class SB3Policy:
         The same torch operations on the same numbers, so the same action (tested).
         """
         import torch
-        from stable_baselines3.common.distributions import DiagGaussianDistribution
-        from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+        from stable_baselines3.common.policies import BasePolicy
 
         policy = self.model.policy
         with torch.no_grad():
             tensor = torch.as_tensor(obs, dtype=torch.float32).unsqueeze(0)
-            if isinstance(policy, ActorCriticPolicy) and type(policy.action_dist) is (
-                DiagGaussianDistribution
-            ):
+            if self._mean_is_action:
                 # the actor's features, shared extractor or not (BasePolicy's method)
                 features = BasePolicy.extract_features(policy, tensor, policy.pi_features_extractor)
                 actions = policy.action_net(policy.mlp_extractor.forward_actor(features))

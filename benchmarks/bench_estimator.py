@@ -122,7 +122,7 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
 
     def photogrammetry_cold() -> int:
         for z in images[:cold]:
-            photogrammetry._COLD_SOLUTIONS.clear()  # time the solve, not the memo of its result
+            photogrammetry._solve_cold.cache_clear()  # time the solve, not the memo of its result
             solve_pose(z, FEATURES, f)
         return cold
 

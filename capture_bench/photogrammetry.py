@@ -452,34 +452,23 @@ def solve_pose(
         rms = math.sqrt(cost[0] / n_eq)
         if conv[0] and math.isfinite(rms):
             return PoseSolution(_canonical(pose[0]), True, int(its[0]), rms)
-    key = (uv.tobytes(), pts.tobytes(), float(focal_length), max_iterations, tol)
-    cached = _COLD_SOLUTIONS.get(key)
-    if cached is None:
-        cached = _solve_cold(uv, z, pts, table, focal_length, max_iterations, tol)
-        if len(_COLD_SOLUTIONS) >= COLD_CACHE_SIZE:
-            _COLD_SOLUTIONS.pop(next(iter(_COLD_SOLUTIONS)))  # the oldest entry
-        _COLD_SOLUTIONS[key] = cached
-    return dataclasses.replace(cached, pose=cached.pose.copy())
+    cold = _solve_cold(
+        uv.tobytes(), pts.tobytes(), pts.shape[0], float(focal_length), max_iterations, tol
+    )
+    return dataclasses.replace(cold, pose=cold.pose.copy())  # the cached one stays untouched
 
 
-# Cold solutions by their exact inputs. The multi-start costs ~5 ms and is a pure function of the
-# image: an evaluation that runs several agents on one seed images the same first frame each time
-# (reset draws it before any agent acts), so it is solved once per process.
-COLD_CACHE_SIZE = 4096
-_COLD_SOLUTIONS: dict[tuple, PoseSolution] = {}
-
-
+# The multi-start costs ~5 ms and is a pure function of the image: an evaluation that runs several
+# agents on one seed images the same first frame each time (reset draws it before any agent
+# acts), so it is solved once per process. Keyed by the exact bytes, like the projection table.
+@functools.lru_cache(maxsize=4096)
 def _solve_cold(
-    uv: FloatArray,
-    z: FloatArray,
-    pts: FloatArray,
-    table: FloatArray,
-    focal_length: float,
-    max_iterations: int,
-    tol: float,
+    image: bytes, points: bytes, n: int, focal_length: float, max_iterations: int, tol: float
 ) -> PoseSolution:
-    """The multi-start of :func:`solve_pose` (no initial guess)."""
-    n_eq = uv.size
+    """The multi-start of :func:`solve_pose` (no initial guess), on its inputs as bytes."""
+    uv = np.frombuffer(image, dtype=float).reshape(n, 2)
+    pts = np.frombuffer(points, dtype=float).reshape(n, 3)
+    z, table, n_eq = uv.T, projection_table(pts, focal_length), uv.size
     rotated = np.einsum("kij,nj->kni", _CUBE_MATRICES, pts)  # R_k p_i, (24, N, 3)
     t = translations_for_rotations(uv, rotated, focal_length)
     starts = np.concatenate([t, _CUBE_ANGLES], axis=1)

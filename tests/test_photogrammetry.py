@@ -134,7 +134,7 @@ def test_cold_solutions_are_memoised_by_exact_image():
     first.pose[:] = 0.0  # a caller's edit must not reach the cache
     again = solve_pose(z, NON_COPLANAR, F)
     assert again.converged and np.linalg.norm(again.pose[:3] - pose[:3]) < 0.05  # not the zeros
-    photogrammetry._COLD_SOLUTIONS.clear()
+    photogrammetry._solve_cold.cache_clear()
     fresh = solve_pose(z, NON_COPLANAR, F)
     np.testing.assert_array_equal(fresh.pose, again.pose)
     assert (fresh.converged, fresh.iterations, fresh.residual_rms) == (
