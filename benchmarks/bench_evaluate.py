@@ -6,10 +6,12 @@
     python benchmarks/bench_evaluate.py -- --suite quick # options after -- go to evaluate.py
 
 The timed run is the default command with its report written to a temporary directory (so
-``reports/default`` is not replaced). After it, the episode wall-clock recorded by the workers is
-summed per agent and per scenario. ``--breakdown N`` instead runs N episodes of every agent x
-scenario in this process and splits each episode's time into environment reset, environment
-step, the end-of-episode physical-limit bound, and the agent's ``predict``.
+``reports/default`` is not replaced). After it, the episode wall-clock recorded by the workers
+(steps only: reset and the bound are not counted) is summed per agent and per scenario.
+``--breakdown N`` instead runs N episodes of every agent x scenario in this process as the
+workers do (every agent on the same seeds, envs made with ``reuse_target_side``, so the first
+agent's reset records each seed's target side) and splits each episode's time into environment
+reset, environment step, the physical-limit bound, and the agent's ``predict``.
 """
 
 from __future__ import annotations
@@ -102,7 +104,7 @@ def breakdown(episodes: int, suite: str) -> None:
     print(header + f" {'bound':>7s} {'predict':>7s} {'steps':>6s}   (ms per episode)")
     totals: dict[str, float] = defaultdict(float)
     for name in scenarios:
-        env = make_env(name)
+        env = make_env(name, reuse_target_side=True)  # as the evaluation's workers make them
         base = env.unwrapped
         for spec in specs:
             timer = _Timer()

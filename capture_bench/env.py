@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -42,6 +43,38 @@ TIME_SLACK = 1e-9  # s
 # every agent evaluated on the same seed has the same bound (it costs ~8 ms per episode).
 _LIMIT_CACHE: dict[tuple[Scenario, int], PhysicalLimit] = {}
 _LIMIT_CACHE_SIZE = 65_536
+
+
+class TargetStep(NamedTuple):
+    """The target's side of one control step: its true state, what the camera and estimator made
+    of it, and what the env derives from those alone.
+
+    Nothing here depends on the agent's actions: after ``reset(seed=s)`` the sequence of these is
+    a function of the scenario, s and the step index (the control period, the trajectory, the
+    camera's noise and drop-outs all come from the seeded generator, in an order no action
+    changes). ``CaptureEnv(reuse_target_side=True)`` relies on this.
+    """
+
+    time: float  # s since reset
+    dt: float  # the control period that ended here, s
+    position: NDArray[np.float64]  # X_T, global, m
+    velocity: NDArray[np.float64]  # X_T-dot, global, m/s
+    rotation: NDArray[np.float64]  # R_gt
+    estimate: TargetEstimate
+    visible: bool  # every marker in view at this capture
+    reachable: bool  # X_T inside the arm's joint-limited reach
+    position_error: float  # |X_T-hat - X_T|, m (NaN without a valid estimate)
+    velocity_error: float  # m/s
+    nees: float  # NEES of (position, velocity) (NaN without a covariance)
+
+
+# Target sides of whole episodes already recorded in this process (``reuse_target_side=True``), by
+# (scenario, seed), least recently used first. An evaluation runs every agent on a few seeds at a
+# time in one worker, so a few entries suffice; each holds one episode's steps (~200).
+_EPISODE_CACHE: OrderedDict[tuple[Scenario, int], tuple[TargetTrajectory, list[TargetStep]]] = (
+    OrderedDict()
+)
+_EPISODE_CACHE_SIZE = 64
 
 
 def normalised_error_squared(error: NDArray[np.float64], covariance: NDArray[np.float64]) -> float:
@@ -125,7 +158,15 @@ class CaptureEnv(gym.Env):
     ``scenario``: a shipped name (``capture_bench.scenarios.list_scenarios()``), a YAML path or a
     ``Scenario``. ``observation_source``: ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
     (default: the scenario's). ``reward``: ``"dense"`` or ``"sparse"``. ``render_mode``:
-    ``"rgb_array"`` or ``"human"``.
+    ``"rgb_array"`` or ``"human"``. ``reuse_target_side``: when True, ``reset(seed=s)`` records
+    the target's side of the whole episode up to the time limit at once (trajectory, control
+    periods, camera frames, estimates: see :class:`TargetStep`, none of which depends on the
+    actions) and keeps it in this process by (scenario, s); a later ``reset(seed=s)`` replays it
+    instead of computing it again. Every observation, reward and ``info`` is identical to a run
+    without it; an evaluation that runs many agents on the same seeds saves the camera and
+    estimator work of all but the first (``np_random`` is then not advanced by the steps).
+    Unseeded resets are never recorded. Default False: the first use of a seed pays for the whole
+    horizon.
 
     ## Version History
     * v0: initial release.
@@ -140,6 +181,7 @@ class CaptureEnv(gym.Env):
         observation_source: str | None = None,
         reward: str = "dense",
         render_mode: str | None = None,
+        reuse_target_side: bool = False,
     ) -> None:
         self.scenario = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
         if observation_source is not None:
@@ -153,6 +195,7 @@ class CaptureEnv(gym.Env):
             )
         self.reward_mode = reward
         self.render_mode = render_mode
+        self.reuse_target_side = bool(reuse_target_side)
         sc = self.scenario
         self.description = TaskDescription(
             arm=kinematics.ArmSpec(),
@@ -184,6 +227,7 @@ class CaptureEnv(gym.Env):
         self._trajectory: TargetTrajectory | None = None
         self._limit: PhysicalLimit | None = None
         self._limit_key: tuple[Scenario, int] | None = None
+        self._script: list[TargetStep] | None = None  # the recorded target side being replayed
         self._episode_over = True
 
     # -- privileged API (oracle and tests only) ------------------------------------------------
@@ -253,17 +297,25 @@ class CaptureEnv(gym.Env):
         sc = self.scenario
         if self._world is None:
             self._world = World(self._features, render_mode=self.render_mode)
-        self._trajectory = self._place_target()
+        key = None if seed is None else (self.scenario, int(seed))
+        self._script = None
+        if self.reuse_target_side and key is not None:
+            self._trajectory, self._script = self._recorded_target_side(key)
+        else:
+            self._start_target_side()
+        self._steps = 0
         self._limit = None
-        self._limit_key = None if seed is None else (self.scenario, int(seed))
+        self._limit_key = key
         self._theta = self.description.arm.home.copy()
         self._time = 0.0
-        self._x_t, self._v_t, rotation = self._trajectory.state(0.0)
+        if self._script is None:
+            target = self._advance_target(0.0, sc.control.period)
+        else:
+            target = self._script[0]
+        self._target = target
+        self._x_t, self._estimate = target.position, target.estimate
         self._x_e = kinematics.forward_kinematics_point(self._theta)
-        self._world.reset(self._theta, self._x_t, rotation)
-        self._camera.reset()
-        self._estimator.reset()
-        self._estimate = self._sense(sc.control.period, rotation)
+        self._world.reset(self._theta, self._x_t, target.rotation)
         self._since_frame = 0.0
         self._unreachable_for = 0.0
         self._path_length = 0.0
@@ -291,19 +343,23 @@ class CaptureEnv(gym.Env):
                 f"action must be a finite array of shape (3,) in [-1, 1]; got {action!r}"
             )
         sc, desc = self.scenario, self.description
-        dt = sc.control.period
-        if sc.control.period_jitter > 0.0:
-            dt *= 1.0 + sc.control.period_jitter * self.np_random.uniform(-1.0, 1.0)
+        self._steps += 1
+        if self._script is None:  # the target's side of the step (it draws from np_random)
+            dt = self._control_period()
+            target = self._advance_target(self._time + dt, dt)
+        else:
+            target = self._script[self._steps]
+            dt = target.dt
 
         x_e0, x_t0, est0, d_prev = self._x_e, self._x_t, self._estimate, self._distance
         joint_step = self._world.apply_joint_increment(
             desc.action_to_increment(np.minimum(np.maximum(a, -1.0), 1.0)), dt
         )
         self._theta = joint_step.theta
-        self._time += dt
-        self._x_t, self._v_t, rotation = self._trajectory.state(self._time)
-        v_t = self._v_t
-        self._world.set_target_pose(self._x_t, rotation)
+        self._target = target
+        self._time = target.time
+        self._x_t = target.position
+        self._world.set_target_pose(self._x_t, target.rotation)
         self._x_e = kinematics.forward_kinematics_point(self._theta)
         self._path_length += segment_length(x_e0, self._x_e)
 
@@ -311,7 +367,7 @@ class CaptureEnv(gym.Env):
         captured = s is not None
         capture_time = self._time - dt + s * dt if s is not None else None
 
-        self._estimate = est = self._sense(dt, rotation)
+        self._estimate = est = target.estimate
         if self._capture_time_estimated is None and est0.valid and est.valid:
             s_est = first_entry_fraction(
                 x_e0 - est0.position, self._x_e - est.position, desc.capture_tolerance
@@ -328,7 +384,7 @@ class CaptureEnv(gym.Env):
 
         self._distance = distance = segment_length(self._x_e, self._x_t)
         terms = reward_terms(self.reward_mode, d_prev, distance, captured, failure)
-        info = self._info(dt, distance, v_t, x_e0, joint_step, captured, capture_time, failure)
+        info = self._info(dt, distance, x_e0, joint_step, captured, capture_time, failure)
         info.update(terms)
         if self._episode_over:
             info["physical_limit_time"] = self.physical_limit().time
@@ -377,17 +433,73 @@ class CaptureEnv(gym.Env):
             for t in VIEW_CHECK_TIMES
         )
 
-    def _sense(self, dt: float, rotation: NDArray[np.float64]) -> TargetEstimate:
-        """Camera frame (unless the source is truth) -> estimator -> estimate (global frame).
+    def _control_period(self) -> float:
+        """The real period of the next step, s: t_s, varied in ``period_jitter`` scenarios."""
+        control = self.scenario.control
+        if control.period_jitter > 0.0:
+            return control.period * (
+                1.0 + control.period_jitter * self.np_random.uniform(-1.0, 1.0)
+            )
+        return control.period
 
-        ``rotation`` is the target's true R_gt now; the feature points are X_T + R_gt p_i.
-        """
+    def _advance_target(self, time: float, dt: float) -> TargetStep:
+        """The target's side of the step ending at ``time``: true state, camera frame (unless the
+        source is truth) -> estimator -> estimate (global frame), and its errors."""
+        assert self._trajectory is not None
+        x_t, v_t, rotation = self._trajectory.state(time)
         if self.scenario.estimator.source == "truth":
             frame = None
         else:
-            points = self._x_t + self._features @ rotation.T
-            frame = self._camera.capture(points, self.np_random)
-        return self._estimator.update(frame, dt, self._x_t, self._v_t)
+            frame = self._camera.capture(x_t + self._features @ rotation.T, self.np_random)
+        est = self._estimator.update(frame, dt, x_t, v_t)
+        pos_err = vel_err = nees = math.nan
+        if est.valid:
+            pos_err = segment_length(est.position, x_t)
+            vel_err = segment_length(est.velocity, v_t)
+            if est.covariance is not None:
+                e = np.concatenate([est.position - x_t, est.velocity - v_t])
+                nees = normalised_error_squared(e, est.covariance)
+        return TargetStep(
+            time,
+            dt,
+            x_t,
+            v_t,
+            rotation,
+            est,
+            bool(self._camera.last_visible),
+            kinematics.reachable(x_t),
+            pos_err,
+            vel_err,
+            nees,
+        )
+
+    def _start_target_side(self) -> None:
+        """A new trajectory from ``np_random``, and a camera and estimator that know nothing."""
+        self._trajectory = self._place_target()
+        self._camera.reset()
+        self._estimator.reset()
+
+    def _recorded_target_side(
+        self, key: tuple[Scenario, int]
+    ) -> tuple[TargetTrajectory, list[TargetStep]]:
+        """This seed's trajectory and the target's side of every step from reset to the time limit
+        (``step`` truncates there), recorded now unless this process already has them. They are
+        computed as live steps would compute them, in the same order of random draws."""
+        recorded = _EPISODE_CACHE.get(key)
+        if recorded is not None:
+            _EPISODE_CACHE.move_to_end(key)
+            return recorded
+        self._start_target_side()
+        limit = self.scenario.control.episode_limit - 1e-9
+        steps = [self._advance_target(0.0, self.scenario.control.period)]
+        while steps[-1].time < limit:
+            dt = self._control_period()
+            steps.append(self._advance_target(steps[-1].time + dt, dt))
+        assert self._trajectory is not None
+        _EPISODE_CACHE[key] = recorded = (self._trajectory, steps)
+        if len(_EPISODE_CACHE) > _EPISODE_CACHE_SIZE:
+            _EPISODE_CACHE.popitem(last=False)
+        return recorded
 
     def _capture_fraction(self, joint_step, x_e0, x_t0, dt: float) -> float | None:
         """Fraction of this step at which eq. 20 first held on the true target, or None."""
@@ -412,7 +524,7 @@ class CaptureEnv(gym.Env):
         assert self._world is not None
         if self._world.collision() is not None:
             return "collision"
-        reach = kinematics.reachable(self._x_t)
+        reach = self._target.reachable
         self._unreachable_for = 0.0 if reach else self._unreachable_for + dt
         if self._unreachable_for > self.scenario.lost_after + TIME_SLACK:
             return "unreachable"
@@ -433,15 +545,8 @@ class CaptureEnv(gym.Env):
             position, velocity, self._x_e, self._theta, dt, self.scenario.control.period
         )
 
-    def _info(self, dt, distance, v_t, x_e0, joint_step, captured, capture_time, failure):
-        est = self._estimate
-        pos_err = vel_err = nees = math.nan
-        if est.valid:
-            pos_err = segment_length(est.position, self._x_t)
-            vel_err = segment_length(est.velocity, v_t)
-            if est.covariance is not None:
-                e = np.concatenate([est.position - self._x_t, est.velocity - v_t])
-                nees = normalised_error_squared(e, est.covariance)
+    def _info(self, dt, distance, x_e0, joint_step, captured, capture_time, failure):
+        target = self._target
         v_e = (self._x_e - x_e0) / dt
         return {
             "is_success": captured,
@@ -451,13 +556,13 @@ class CaptureEnv(gym.Env):
             "time": self._time,
             "dt": dt,
             "distance": distance,
-            "relative_speed": segment_length(v_e, v_t),
-            "estimate_position_error": pos_err,
-            "estimate_velocity_error": vel_err,
-            "estimate_nees": nees,
+            "relative_speed": segment_length(v_e, target.velocity),
+            "estimate_position_error": target.position_error,
+            "estimate_velocity_error": target.velocity_error,
+            "estimate_nees": target.nees,
             "saturated": joint_step.saturated,
             "clipped": joint_step.clipped,
             "path_length": self._path_length,
-            "target_visible": bool(self._camera.last_visible),
-            "estimator_status": est.status,
+            "target_visible": target.visible,
+            "estimator_status": self._estimate.status,
         }

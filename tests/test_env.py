@@ -164,6 +164,56 @@ def test_bound_cached_per_scenario_and_seed_equals_a_fresh_computation(make_env)
     assert other.unwrapped.physical_limit().time != fresh.time
 
 
+def _full_rollout(env, seed, actions):
+    """Every observation, reward, flag and info of an episode driven by ``actions``."""
+    out = [env.reset(seed=seed)]
+    for action in actions:
+        out.append(env.step(action))
+        if out[-1][2] or out[-1][3]:
+            return out
+    raise AssertionError("episode did not end")
+
+
+def _assert_same_rollouts(a, b):
+    assert len(a) == len(b)
+    for step_a, step_b in zip(a, b, strict=True):
+        *values_a, info_a = step_a
+        *values_b, info_b = step_b
+        for x, y in zip(values_a, values_b, strict=True):
+            np.testing.assert_array_equal(x, y)
+        assert info_a.keys() == info_b.keys()
+        for key in info_a:
+            np.testing.assert_array_equal(info_a[key], info_b[key], err_msg=key)
+
+
+@pytest.mark.parametrize(
+    ("env_id", "source"),
+    [
+        ("CaptureBench/Jitter-v0", "ekf"),  # varying period: dt is drawn every step
+        ("CaptureBench/Noisy-v0", "ekf"),  # drop-outs and divergences
+        ("CaptureBench/Tumbling-v0", "photogrammetry"),
+        ("CaptureBench/Circular-v0", "truth"),
+    ],
+)
+def test_reuse_target_side_replays_exactly_what_live_steps_compute(env_id, source, make_env):
+    """``reuse_target_side``: a seed's target side is recorded once and replayed; whatever the
+    actions, every output equals an env that computes each step live."""
+    from capture_bench import env as env_module
+
+    live = make_env(env_id, observation_source=source)
+    reuse = make_env(env_id, observation_source=source, reuse_target_side=True)
+    rng = np.random.default_rng(1)
+    for actions in (rng.uniform(-1, 1, (400, 3)), np.zeros((400, 3)), -rng.uniform(0, 1, (400, 3))):
+        _assert_same_rollouts(_full_rollout(live, 11, actions), _full_rollout(reuse, 11, actions))
+    key = (reuse.unwrapped.scenario, 11)
+    assert key in env_module._EPISODE_CACHE  # recorded once, replayed by the later episodes
+    trajectory, steps = env_module._EPISODE_CACHE[key]
+    assert reuse.unwrapped._trajectory is trajectory and reuse.unwrapped._script is steps
+    size = len(env_module._EPISODE_CACHE)
+    reuse.reset()  # unseeded: computed live, nothing recorded
+    assert reuse.unwrapped._script is None and len(env_module._EPISODE_CACHE) == size
+
+
 def test_close_twice_is_safe(make_env):
     env = make_env()
     env.reset(seed=0)

@@ -155,6 +155,28 @@ def test_ray_gives_the_serial_results(quick_report, tmp_path):
     _same_results(quick_report, tmp_path / "quick")
 
 
+def test_chunks_hold_every_agent_on_a_few_seeds_of_one_scenario():
+    """Chunks are what a worker runs together: every agent on the same seeds, so the env's recorded
+    target side (``reuse_target_side``) serves all but the first agent of each seed."""
+    from capture_bench.evaluation.backends import EpisodeTask, make_chunks
+
+    tasks = [
+        EpisodeTask(agent, scenario, seed)
+        for agent in ("a", "b", "c")
+        for scenario in ("paper", "drift")
+        for seed in range(100, 107)
+    ]
+    chunks = make_chunks(tasks, seeds=5)
+    assert sorted(i for chunk in chunks for i in chunk) == list(range(len(tasks)))
+    assert [len(chunk) for chunk in chunks] == [15, 6, 15, 6]
+    for chunk in chunks:
+        assert chunk == sorted(chunk)  # task order within a chunk
+        members = [tasks[i] for i in chunk]
+        seeds = {t.seed for t in members}
+        assert len({t.scenario for t in members}) == 1 and len(seeds) <= 5
+        assert len(members) == 3 * len(seeds)  # every agent on each of its seeds
+
+
 def _save_model(directory: Path, observation_shape: tuple[int, ...] = (16,)) -> Path:
     """An untrained PPO whose spaces are the env's (or not), with VecNormalize statistics and
     metadata as train.py writes them."""

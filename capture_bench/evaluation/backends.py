@@ -1,11 +1,13 @@
 """Where episodes run: in this process, in a local process pool, or on a Ray cluster.
 
 Work is a list of :class:`EpisodeTask` (agent spec, scenario, seed: plain, picklable values). It is
-cut into chunks of one agent on one scenario, each chunk runs in one worker, and the records come
-back in the order of the tasks, whatever the backend and whatever order chunks finish in. Each
-worker builds its own environments (one per scenario, cached for the worker's life) and a fresh
+cut into chunks of every agent on a few seeds of one scenario, each chunk runs in one worker, and
+the records come back in the order of the tasks, whatever the backend and whatever order chunks
+finish in. Each worker builds its own environments (one per scenario, cached for the worker's
+life, with ``reuse_target_side``: the target's side of an episode, camera and estimator included,
+is computed once per seed and worker and replayed for the other agents of the chunk) and a fresh
 agent per episode, and every episode starts from ``env.reset(seed=seed)``, so every backend gives
-the same records (apart from the wall-clock column).
+the same records (apart from the timing columns).
 
 Ray is imported only by the ``ray`` backend (``pip install capture-bench[ray]``). If Ray is
 already initialised in this process it is used as it is (its workers must be able to import
@@ -35,9 +37,10 @@ from capture_bench.evaluation.errors import EvaluationError
 from capture_bench.evaluation.rollout import EpisodeRecord, EpisodeTrace, run_episode
 
 BACKENDS = ("serial", "process", "ray")
-#: Episodes per chunk: small enough to balance load and move the progress bar, large enough that
-#: dispatch costs little next to the episodes.
-CHUNK_SIZE = 10
+#: Seeds per chunk (each with every agent): small enough to balance load and move the progress
+#: bar, large enough that dispatch costs little next to the episodes, and fewer than the envs keep
+#: recorded (``capture_bench.env._EPISODE_CACHE_SIZE``).
+SEEDS_PER_CHUNK = 5
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded.
 PRELOAD = ("capture_bench.evaluation.backends", "capture_bench.env", "agents")
@@ -61,19 +64,19 @@ _ENVS: dict[str, Any] = {}
 _SPECS: dict[str, AgentSpec] = {}
 
 
-def make_env(scenario: str) -> Any:
+def make_env(scenario: str, **kwargs: Any) -> Any:
     """The gymnasium environment of a shipped scenario (``CaptureBench/<Name>-v0``)."""
     import gymnasium
 
     import capture_bench  # noqa: F401  (registers the environment IDs)
     from capture_bench.scenarios import load_scenario
 
-    return gymnasium.make(load_scenario(scenario).env_id)
+    return gymnasium.make(load_scenario(scenario).env_id, **kwargs)
 
 
 def _env(scenario: str) -> Any:
     if scenario not in _ENVS:
-        _ENVS[scenario] = make_env(scenario)
+        _ENVS[scenario] = make_env(scenario, reuse_target_side=True)
     return _ENVS[scenario]
 
 
@@ -100,19 +103,22 @@ def run_chunk(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
     return [run_task(task)[0] for task in tasks]
 
 
-def make_chunks(tasks: Sequence[EpisodeTask], size: int = CHUNK_SIZE) -> list[list[EpisodeTask]]:
-    """Consecutive runs of the same agent and scenario, at most ``size`` tasks each."""
-    chunks: list[list[EpisodeTask]] = []
-    for task in tasks:
-        last = chunks[-1] if chunks else None
-        if (
-            last is not None
-            and len(last) < size
-            and (last[0].agent, last[0].scenario) == (task.agent, task.scenario)
-        ):
-            last.append(task)
-        else:
-            chunks.append([task])
+def make_chunks(tasks: Sequence[EpisodeTask], seeds: int = SEEDS_PER_CHUNK) -> list[list[int]]:
+    """Indices of ``tasks`` grouped into chunks: every task of one scenario on up to ``seeds`` of
+    its seeds (in the order they first appear), whatever the agent, in task order."""
+    chunks: list[list[int]] = []
+    chunk_of: dict[tuple[str, int], int] = {}  # (scenario, seed) -> chunk
+    filling: dict[str, tuple[int, int]] = {}  # scenario -> (its newest chunk, seeds in it)
+    for index, task in enumerate(tasks):
+        key = (task.scenario, task.seed)
+        if key not in chunk_of:
+            chunk, count = filling.get(task.scenario, (-1, seeds))
+            if count == seeds:
+                chunk, count = len(chunks), 0
+                chunks.append([])
+            filling[task.scenario] = (chunk, count + 1)
+            chunk_of[key] = chunk
+        chunks[chunk_of[key]].append(index)
     return chunks
 
 
@@ -232,11 +238,17 @@ def run_tasks(
     if workers < 1:
         raise EvaluationError(f"--workers {workers}: expected a whole number >= 1")
     report = progress or (lambda _n: None)
-    chunks = make_chunks(tasks)
+    indices = make_chunks(tasks)
+    chunks = [[tasks[i] for i in chunk] for chunk in indices]
     if backend == "serial" or (backend == "process" and workers == 1):
         nested = _run_serial(chunks, report)
     elif backend == "process":
         nested = _run_process(chunks, workers, report)
     else:
         nested = _run_ray(chunks, ray_address, report)
-    return [record for chunk in nested for record in chunk]
+    by_index = {
+        index: record
+        for chunk, chunk_records in zip(indices, nested, strict=True)
+        for index, record in zip(chunk, chunk_records, strict=True)
+    }
+    return [by_index[index] for index in range(len(tasks))]
