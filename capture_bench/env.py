@@ -71,9 +71,8 @@ class TargetStep(NamedTuple):
 # Target sides of whole episodes already recorded in this process (``reuse_target_side=True``), by
 # (scenario, seed), least recently used first. An evaluation runs every agent on a few seeds at a
 # time in one worker, so a few entries suffice; each holds one episode's steps (~200).
-_EPISODE_CACHE: OrderedDict[tuple[Scenario, int], tuple[TargetTrajectory, list[TargetStep]]] = (
-    OrderedDict()
-)
+_Recorded = tuple[TargetTrajectory, NDArray[np.float64], list[TargetStep]]
+_EPISODE_CACHE: OrderedDict[tuple[Scenario, int], _Recorded] = OrderedDict()
 _EPISODE_CACHE_SIZE = 64
 
 
@@ -228,6 +227,7 @@ class CaptureEnv(gym.Env):
         self._limit: PhysicalLimit | None = None
         self._limit_key: tuple[Scenario, int] | None = None
         self._script: list[TargetStep] | None = None  # the recorded target side being replayed
+        self._periods = np.empty(0)  # the episode's real control periods, s (``_draw_periods``)
         self._episode_over = True
 
     # -- privileged API (oracle and tests only) ------------------------------------------------
@@ -260,18 +260,27 @@ class CaptureEnv(gym.Env):
         return self._limit
 
     def _leaves_reach_before(self, t_end: float) -> bool:
-        """Whether the target is out of reach for longer than ``lost_after`` before ``t_end``
-        (the episode then ends ``unreachable`` before any capture is possible)."""
+        """Whether every episode of this seed ends ``unreachable`` on a step that ends before
+        ``t_end``, so that no capture is possible by then.
+
+        The env's own test, step by step, on the episode's real control periods (they are drawn
+        at reset, so every agent's episode has the same ones): a step that ends at or after
+        ``t_end`` may capture first.
+        """
         if not math.isfinite(t_end):
             return False
-        period = self.scenario.control.period
-        times = np.arange(0.0, t_end, period)
-        out = ~kinematics.reachable_batch(self.true_target_position(times))
-        run = longest = 0
-        for flag in out:
-            run = run + 1 if flag else 0
-            longest = max(longest, run)
-        return longest * period > self.scenario.lost_after + TIME_SLACK
+        assert self._trajectory is not None
+        limit = self.scenario.lost_after + TIME_SLACK
+        time = out_for = 0.0
+        for dt in self._periods.tolist():
+            time += dt
+            if time >= t_end:
+                return False
+            reach = kinematics.reachable(self._trajectory.state(time)[0])
+            out_for = 0.0 if reach else out_for + dt
+            if out_for > limit:
+                return True
+        return False
 
     def true_target_position(self, t: float | NDArray) -> NDArray[np.float64]:
         """X_T(t), global, m (privileged)."""
@@ -300,7 +309,7 @@ class CaptureEnv(gym.Env):
         key = None if seed is None else (self.scenario, int(seed))
         self._script = None
         if self.reuse_target_side and key is not None:
-            self._trajectory, self._script = self._recorded_target_side(key)
+            self._trajectory, self._periods, self._script = self._recorded_target_side(key)
         else:
             self._start_target_side()
         self._steps = 0
@@ -345,7 +354,7 @@ class CaptureEnv(gym.Env):
         sc, desc = self.scenario, self.description
         self._steps += 1
         if self._script is None:  # the target's side of the step (it draws from np_random)
-            dt = self._control_period()
+            dt = float(self._periods[self._steps - 1])
             target = self._advance_target(self._time + dt, dt)
         else:
             target = self._script[self._steps]
@@ -433,14 +442,16 @@ class CaptureEnv(gym.Env):
             for t in VIEW_CHECK_TIMES
         )
 
-    def _control_period(self) -> float:
-        """The real period of the next step, s: t_s, varied in ``period_jitter`` scenarios."""
+    def _draw_periods(self) -> NDArray[np.float64]:
+        """The real control period of every step the episode can have, s: t_s, or in
+        ``period_jitter`` scenarios t_s (1 + jitter u) with u uniform in [-1, 1), drawn at reset
+        so that the physical-limit bound sees the periods the steps will have."""
         control = self.scenario.control
-        if control.period_jitter > 0.0:
-            return control.period * (
-                1.0 + control.period_jitter * self.np_random.uniform(-1.0, 1.0)
-            )
-        return control.period
+        shortest = control.period * (1.0 - control.period_jitter)
+        n = math.ceil(control.episode_limit / shortest) + 1
+        if control.period_jitter == 0.0:
+            return np.full(n, control.period)
+        return control.period * (1.0 + control.period_jitter * self.np_random.uniform(-1.0, 1.0, n))
 
     def _advance_target(self, time: float, dt: float) -> TargetStep:
         """The target's side of the step ending at ``time``: true state, camera frame (unless the
@@ -474,17 +485,18 @@ class CaptureEnv(gym.Env):
         )
 
     def _start_target_side(self) -> None:
-        """A new trajectory from ``np_random``, and a camera and estimator that know nothing."""
+        """A new trajectory and control periods from ``np_random``, and a camera and estimator
+        that know nothing."""
         self._trajectory = self._place_target()
+        self._periods = self._draw_periods()
         self._camera.reset()
         self._estimator.reset()
 
-    def _recorded_target_side(
-        self, key: tuple[Scenario, int]
-    ) -> tuple[TargetTrajectory, list[TargetStep]]:
-        """This seed's trajectory and the target's side of every step from reset to the time limit
-        (``step`` truncates there), recorded now unless this process already has them. They are
-        computed as live steps would compute them, in the same order of random draws."""
+    def _recorded_target_side(self, key: tuple[Scenario, int]) -> _Recorded:
+        """This seed's trajectory, control periods and the target's side of every step from reset
+        to the time limit (``step`` truncates there), recorded now unless this process already
+        has them. They are computed as live steps would compute them, in the same order of random
+        draws."""
         recorded = _EPISODE_CACHE.get(key)
         if recorded is not None:
             _EPISODE_CACHE.move_to_end(key)
@@ -493,10 +505,10 @@ class CaptureEnv(gym.Env):
         limit = self.scenario.control.episode_limit - 1e-9
         steps = [self._advance_target(0.0, self.scenario.control.period)]
         while steps[-1].time < limit:
-            dt = self._control_period()
+            dt = float(self._periods[len(steps) - 1])
             steps.append(self._advance_target(steps[-1].time + dt, dt))
         assert self._trajectory is not None
-        _EPISODE_CACHE[key] = recorded = (self._trajectory, steps)
+        _EPISODE_CACHE[key] = recorded = (self._trajectory, self._periods, steps)
         if len(_EPISODE_CACHE) > _EPISODE_CACHE_SIZE:
             _EPISODE_CACHE.popitem(last=False)
         return recorded

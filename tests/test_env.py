@@ -141,6 +141,29 @@ def test_bound_never_exceeds_the_capture_time_of_a_policy_that_knows_the_traject
     assert captured >= 4
 
 
+def test_bound_is_infinite_exactly_when_the_env_ends_unreachable_first_under_jitter(make_env):
+    """The bound's "leaves reach first" rule is the env's own unreachable test on the episode's
+    real (jittered) periods: an arm that holds still, on the truth source, ends ``unreachable`` at
+    t_f, and the rule fires for a bound after t_f and not for one at t_f or before it."""
+    env = make_env("CaptureBench/Jitter-v0", observation_source="truth")
+    base = env.unwrapped
+    checked = 0
+    for seed in range(40):
+        env.reset(seed=seed)
+        terminated = truncated = False
+        while not (terminated or truncated):
+            _, _, terminated, truncated, info = env.step(np.zeros(3))
+        if info["is_success"]:
+            continue  # later steps unknown
+        t_f = info["time"]
+        unreachable = info["failure"] == "unreachable"
+        checked += unreachable
+        for t_end in (t_f - 1e-6, t_f, t_f + 1e-6, 0.5 * t_f, 10.0):
+            expected = unreachable and t_f < t_end
+            assert base._leaves_reach_before(t_end) == expected, (seed, t_end)
+    assert checked >= 3
+
+
 def test_bound_cached_per_scenario_and_seed_equals_a_fresh_computation(make_env):
     """The per-process bound cache: reset(seed=s) in another env reuses the bound computed for
     (scenario, s); it equals the bound computed afresh; an unseeded reset does not reuse it."""
@@ -207,7 +230,7 @@ def test_reuse_target_side_replays_exactly_what_live_steps_compute(env_id, sourc
         _assert_same_rollouts(_full_rollout(live, 11, actions), _full_rollout(reuse, 11, actions))
     key = (reuse.unwrapped.scenario, 11)
     assert key in env_module._EPISODE_CACHE  # recorded once, replayed by the later episodes
-    trajectory, steps = env_module._EPISODE_CACHE[key]
+    trajectory, _periods, steps = env_module._EPISODE_CACHE[key]
     assert reuse.unwrapped._trajectory is trajectory and reuse.unwrapped._script is steps
     size = len(env_module._EPISODE_CACHE)
     reuse.reset()  # unseeded: computed live, nothing recorded
