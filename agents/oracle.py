@@ -2,9 +2,10 @@
 
 **Privileged.** Unlike every other agent it reads the world's ground truth through the
 environment's privileged API (``env.unwrapped.physical_limit()``, ``true_target_position(t)``,
-``time``). It is not a controller anyone could deploy; it exists to show that the per-episode lower
-bound on capture time (``capture_bench/physical_limit.py``) is attainable, so ratios to the bound
-are meaningful. Label it "oracle (privileged)" wherever it appears.
+``time``, ``next_control_period``). It is not a controller anyone could deploy; it exists to show
+that the per-episode lower bound on capture time (``capture_bench/physical_limit.py``) is
+attainable, so ratios to the bound are meaningful. Label it "oracle (privileged)" wherever it
+appears.
 
 Plan, per episode:
 
@@ -14,8 +15,9 @@ Plan, per episode:
    ``theta*`` at up to its full rate, ``a = clip((theta* - theta) / (theta_dot_max t_s), -1, 1)``,
    so every joint is at ``theta*`` by time T.
 2. *Close in one step.* Before each step it checks whether an IK solution (within joint limits) of
-   the true target position at the *end* of the step, ``X_T(t + t_s)``, is reachable in one step;
-   if so it commands exactly that, which captures at ``t + t_s``. Because the bound's onset falls
+   the true target position at the *end* of the step, ``X_T(t + dt)``, is reachable in one step
+   (dt: the step's real period, ``next_control_period``, which varies under ``jitter``); if so it
+   commands exactly that, which captures at ``t + dt``. Because the bound's onset falls
    inside a control period, this is what makes the capture land within one period of T rather
    than the target drifting away from ``theta*`` while the arm waits there.
 3. *Fallback.* If the bound is infinite (the target is never reachable within the horizon), or the
@@ -71,10 +73,13 @@ class Oracle:
     def _true_position(self, t: float) -> NDArray[np.float64]:
         return np.asarray(self.world.true_target_position(float(t)), dtype=float).reshape(3)
 
-    def _one_step_solution(self, theta: NDArray, goal: NDArray) -> NDArray[np.float64] | None:
-        """An IK solution of ``goal`` within joint limits and one step of ``theta``, or None."""
+    def _one_step_solution(
+        self, theta: NDArray, goal: NDArray, dt: float
+    ) -> NDArray[np.float64] | None:
+        """An IK solution of ``goal`` within joint limits and one step of ``dt`` s of ``theta``,
+        or None."""
         arm = self.description.arm
-        reach = arm.joint_rate_limits * self.description.control_period
+        reach = arm.joint_rate_limits * min(dt, self.description.control_period)  # |action| <= 1
         solutions = inverse_kinematics(goal)
         if solutions.shape[0] == 0:
             return None
@@ -95,9 +100,10 @@ class Oracle:
         self._last_time = t
         desc = self.description
         theta = decode_observation(observation, desc.control_period).joint_angles
-        goal = self._true_position(t + desc.control_period)
+        dt = float(self.world.next_control_period)
+        goal = self._true_position(t + dt)
         scale = desc.arm.joint_rate_limits * desc.control_period
-        direct = self._one_step_solution(theta, goal)
+        direct = self._one_step_solution(theta, goal, dt)
         if direct is not None:  # capture at the end of this step
             return safe_action((direct - theta) / scale)
         if self.theta_star is not None and np.any(np.abs(self.theta_star - theta) > 1e-6):

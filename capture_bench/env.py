@@ -132,7 +132,7 @@ class CaptureEnv(gym.Env):
     uniformly drawn direction, redrawn until it is inside the joint-limited workspace and above the
     floor, and its four markers are inside the central 90% of the image at t = 0, 1, 2 and 3 s.
     Orientation, velocity, tumble and path are drawn from the scenario's ranges with
-    ``self.np_random``.
+    ``self.np_random``, then the real control period of every step (``period_jitter``).
 
     ## Episode End
     Terminates on capture (``info["is_success"]``) or a failure: ``collision`` (arm with floor,
@@ -248,6 +248,7 @@ class CaptureEnv(gym.Env):
                 self.description.capture_tolerance,
                 horizon=self.scenario.control.episode_limit,
                 period=self.scenario.control.period,
+                travel_time=self._travel_time if self.scenario.control.period_jitter else None,
             )
             if self._leaves_reach_before(self._limit.time):
                 self._limit = PhysicalLimit(math.inf, None)
@@ -258,6 +259,18 @@ class CaptureEnv(gym.Env):
                     self._limit.theta.flags.writeable = False  # shared between episodes
                 _LIMIT_CACHE[self._limit_key] = self._limit
         return self._limit
+
+    def _travel_time(self, times: NDArray[np.float64]) -> NDArray[np.float64]:
+        """How long the joints can have moved at full rate by each time t, s: a step of real
+        period dt moves a joint at most theta_dot_max min(dt, t_s) (the action's range is
+        theta_dot_max t_s), spread evenly over the step as the capture test assumes."""
+        periods = self._periods
+        moves = np.minimum(periods, self.scenario.control.period)
+        ends = np.cumsum(periods)  # t_j, the same sums as the steps' times
+        step = np.minimum(np.searchsorted(ends, times), periods.size - 1)  # t_{j-1} < t <= t_j
+        start = ends[step] - periods[step]
+        moved_before = np.cumsum(moves) - moves
+        return moved_before[step] + (times - start) / periods[step] * moves[step]
 
     def _leaves_reach_before(self, t_end: float) -> bool:
         """Whether every episode of this seed ends ``unreachable`` on a step that ends before
@@ -292,6 +305,11 @@ class CaptureEnv(gym.Env):
     def time(self) -> float:
         """Simulated time since reset, s."""
         return self._time
+
+    @property
+    def next_control_period(self) -> float:
+        """The real period of the next step, s (privileged: the periods are drawn at reset)."""
+        return float(self._periods[self._steps])
 
     @property
     def joint_angles(self) -> NDArray[np.float64]:

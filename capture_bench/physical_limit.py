@@ -69,7 +69,8 @@ def feasible_solutions(
 
     Args:
         targets: capture point X_T(t), global, m, (N, 3).
-        times: t, s, (N,).
+        times: how long the joints have moved at full rate by each t, s, (N,) (t itself when
+            every step lasts t_s).
         theta0: joint angles at t = 0, rad, (3,).
         joint_rate_limits: theta_dot_max, rad/s, (3,).
         lower, upper: joint limits, rad, (3,).
@@ -143,6 +144,7 @@ def physical_limit(
     tolerance: FloatArray,
     horizon: float,
     period: float,
+    travel_time: Callable[[FloatArray], FloatArray] | None = None,
 ) -> PhysicalLimit:
     """The earliest time the true capture point can be reached (see module docstring).
 
@@ -154,6 +156,9 @@ def physical_limit(
         tolerance: epsilon, m, (3,).
         horizon: episode limit, s; no bound beyond it.
         period: grid spacing (the nominal control period t_s), s.
+        travel_time: for times t (N,), how long each joint can have moved at its full rate by
+            t, s (N,); default t itself. When the real control period varies, a step longer than
+            t_s moves a joint at most theta_dot_max t_s (the action's range), so less than t.
     """
     args = (
         np.asarray(theta0, float),
@@ -164,7 +169,8 @@ def physical_limit(
     )
 
     def check(times: FloatArray) -> tuple[NDArray[np.bool_], FloatArray]:
-        return feasible_solutions(target_position(times), times, *args)
+        travel = times if travel_time is None else travel_time(times)
+        return feasible_solutions(target_position(times), travel, *args)
 
     n_grid = int(np.floor(horizon / period + 1e-9)) + 1
     for start in range(0, n_grid, CHUNK):

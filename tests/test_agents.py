@@ -39,6 +39,7 @@ class StubWorld:
     def __init__(self, limit_time: float, theta: np.ndarray | None, x0: np.ndarray, v: np.ndarray):
         self.description = DESCRIPTION
         self.time = 0.0
+        self.next_control_period = T_S
         self._limit = SimpleNamespace(time=limit_time, theta=theta)
         self._x0, self._v = x0, v
 

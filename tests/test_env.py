@@ -106,23 +106,33 @@ def test_world_enforces_the_joint_rate_limit_under_a_varying_period(make_env):
 def knowing_policy(env):
     """A joint-space policy that knows the trajectory (test reference, not an agent)."""
     base = env.unwrapped
-    rates = k.JOINT_RATE_LIMITS * base.description.control_period
+    t_s, dt = base.description.control_period, base.next_control_period
+    rates = k.JOINT_RATE_LIMITS * t_s  # what an action of 1 asks for
+    reach = k.JOINT_RATE_LIMITS * min(dt, t_s)  # what one step can move
     theta_star = base.physical_limit().theta
     theta = base.joint_angles
-    nxt = base.true_target_position(base.time + base.description.control_period)
+    nxt = base.true_target_position(base.time + dt)
     for q in k.inverse_kinematics(nxt):
-        if k.within_limits(q) and np.all(np.abs(q - theta) <= rates):
+        if k.within_limits(q) and np.all(np.abs(q - theta) <= reach):
             return np.clip((q - theta) / rates, -1, 1).astype(np.float32)
     return np.clip((theta_star - theta) / rates, -1, 1).astype(np.float32)
 
 
 @pytest.mark.parametrize(
-    "env_id", ["CaptureBench/Paper-v0", "CaptureBench/Circular-v0", "CaptureBench/Tumbling-v0"]
+    "env_id",
+    [
+        "CaptureBench/Paper-v0",
+        "CaptureBench/Circular-v0",
+        "CaptureBench/Tumbling-v0",
+        "CaptureBench/Jitter-v0",  # the bound counts what the varying periods let joints move
+    ],
 )
 def test_bound_never_exceeds_the_capture_time_of_a_policy_that_knows_the_trajectory(
     env_id, make_env
 ):
     env = make_env(env_id, observation_source="truth")
+    control = env.unwrapped.scenario.control
+    longest_step = control.period * (1.0 + control.period_jitter)
     captured = 0
     for seed in range(6):
         env.reset(seed=seed)
@@ -135,10 +145,33 @@ def test_bound_never_exceeds_the_capture_time_of_a_policy_that_knows_the_traject
             captured += 1
             assert info["physical_limit_time"] == bound
             assert bound <= info["capture_time"] + 1e-9
-            assert info["capture_time"] <= bound + env.unwrapped.description.control_period + 1e-9
+            assert info["capture_time"] <= bound + longest_step + 1e-9
         else:
             assert info["failure"] in FAILURES
     assert captured >= 4
+
+
+def test_travel_time_under_jitter_is_what_full_rate_steps_move(make_env):
+    """By the end of step j a joint can have moved theta_dot_max sum(min(dt_i, t_s)), i <= j (an
+    action of 1 asks for theta_dot_max t_s); inside a step, in proportion to its elapsed part."""
+    env = make_env("CaptureBench/Jitter-v0", observation_source="truth")
+    env.reset(seed=3)
+    base = env.unwrapped
+    t_s = base.scenario.control.period
+    ends, moved, dts = [], [], []
+    for _ in range(40):
+        before = base.joint_angles[2]
+        env.step(np.array([0.0, 0.0, -1.0], np.float32))  # joint 3 down at full rate, in limits
+        ends.append(base.time)
+        moved.append(before - base.joint_angles[2])
+        dts.append(base._target.dt)
+    k3 = k.JOINT_RATE_LIMITS[2]
+    np.testing.assert_allclose(np.array(moved), k3 * np.minimum(dts, t_s), rtol=1e-9)
+    travel = base._travel_time(np.array(ends))
+    np.testing.assert_allclose(travel, np.cumsum(np.minimum(dts, t_s)), rtol=1e-12)
+    mid = base._travel_time(np.array(ends[:-1]) + 0.25 * np.array(dts[1:]))
+    np.testing.assert_allclose(mid, travel[:-1] + 0.25 * np.minimum(dts[1:], t_s), rtol=1e-12)
+    assert np.ptp(dts) > 0.01 and max(dts) > t_s > min(dts)
 
 
 def test_bound_is_infinite_exactly_when_the_env_ends_unreachable_first_under_jitter(make_env):
