@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -71,9 +72,10 @@ class TargetStep(NamedTuple):
 # Target sides of whole episodes already recorded in this process (``reuse_target_side=True``), by
 # (scenario, seed), least recently used first. An evaluation runs every agent on a few seeds at a
 # time in one worker, so a few entries suffice; each holds one episode's steps (~200).
-_Recorded = tuple[TargetTrajectory, NDArray[np.float64], list[TargetStep]]
+# (trajectory, control periods, target side of every step, np_random's state after recording)
+_Recorded = tuple[TargetTrajectory, NDArray[np.float64], list[TargetStep], Mapping[str, Any]]
 _EPISODE_CACHE: OrderedDict[tuple[Scenario, int], _Recorded] = OrderedDict()
-_EPISODE_CACHE_SIZE = 64
+_EPISODE_CACHE_SIZE = 16  # ~1 MB each
 
 
 def normalised_error_squared(error: NDArray[np.float64], covariance: NDArray[np.float64]) -> float:
@@ -163,9 +165,11 @@ class CaptureEnv(gym.Env):
     actions) and keeps it in this process by (scenario, s); a later ``reset(seed=s)`` replays it
     instead of computing it again. Every observation, reward and ``info`` is identical to a run
     without it; an evaluation that runs many agents on the same seeds saves the camera and
-    estimator work of all but the first (``np_random`` is then not advanced by the steps).
-    Unseeded resets are never recorded. Default False: the first use of a seed pays for the whole
-    horizon.
+    estimator work of all but the first. Unseeded resets are never recorded, and after a seeded
+    one ``np_random`` stands where the recording left it (the time limit), so an unseeded reset
+    that follows gives the same episode whether the seed was recorded now or replayed, though not
+    the one a plain env gives (it advances ``np_random`` by the steps actually taken). Default
+    False: the first use of a seed pays for the whole horizon.
 
     ## Version History
     * v0: initial release.
@@ -227,6 +231,7 @@ class CaptureEnv(gym.Env):
         self._limit: PhysicalLimit | None = None
         self._limit_key: tuple[Scenario, int] | None = None
         self._script: list[TargetStep] | None = None  # the recorded target side being replayed
+        self._steps = 0  # steps since reset
         self._periods = np.empty(0)  # the episode's real control periods, s (``_draw_periods``)
         self._episode_over = True
 
@@ -246,11 +251,13 @@ class CaptureEnv(gym.Env):
                 arm.joint_lower,
                 arm.joint_upper,
                 self.description.capture_tolerance,
-                horizon=self.scenario.control.episode_limit,
+                horizon=self._episode_end(),
                 period=self.scenario.control.period,
                 travel_time=self._travel_time if self.scenario.control.period_jitter else None,
             )
-            if self._leaves_reach_before(self._limit.time):
+            if self._limit.time > self._episode_end() or self._leaves_reach_before(
+                self._limit.time
+            ):
                 self._limit = PhysicalLimit(math.inf, None)
             if self._limit_key is not None:
                 if len(_LIMIT_CACHE) >= _LIMIT_CACHE_SIZE:
@@ -259,6 +266,15 @@ class CaptureEnv(gym.Env):
                     self._limit.theta.flags.writeable = False  # shared between episodes
                 _LIMIT_CACHE[self._limit_key] = self._limit
         return self._limit
+
+    def _episode_end(self) -> float:
+        """When the episode's last possible step ends, s: the time limit, or under
+        ``period_jitter`` the end of the step that crosses it (``step`` truncates there)."""
+        control = self.scenario.control
+        if control.period_jitter == 0.0:
+            return control.episode_limit
+        ends = np.cumsum(self._periods)
+        return float(ends[np.searchsorted(ends, control.episode_limit - 1e-9)])
 
     def _travel_time(self, times: NDArray[np.float64]) -> NDArray[np.float64]:
         """How long the joints can have moved at full rate by each time t, s: a step of real
@@ -309,6 +325,8 @@ class CaptureEnv(gym.Env):
     @property
     def next_control_period(self) -> float:
         """The real period of the next step, s (privileged: the periods are drawn at reset)."""
+        if self._trajectory is None:
+            raise RuntimeError("call reset() before next_control_period")
         return float(self._periods[self._steps])
 
     @property
@@ -327,7 +345,10 @@ class CaptureEnv(gym.Env):
         key = None if seed is None else (self.scenario, int(seed))
         self._script = None
         if self.reuse_target_side and key is not None:
-            self._trajectory, self._periods, self._script = self._recorded_target_side(key)
+            self._trajectory, self._periods, self._script, rng_state = self._recorded_target_side(
+                key
+            )
+            self.np_random.bit_generator.state = rng_state
         else:
             self._start_target_side()
         self._steps = 0
@@ -468,8 +489,13 @@ class CaptureEnv(gym.Env):
         shortest = control.period * (1.0 - control.period_jitter)
         n = math.ceil(control.episode_limit / shortest) + 1
         if control.period_jitter == 0.0:
-            return np.full(n, control.period)
-        return control.period * (1.0 + control.period_jitter * self.np_random.uniform(-1.0, 1.0, n))
+            periods = np.full(n, control.period)
+        else:
+            periods = control.period * (
+                1.0 + control.period_jitter * self.np_random.uniform(-1.0, 1.0, n)
+            )
+        periods.flags.writeable = False  # shared with replays of the episode
+        return periods
 
     def _advance_target(self, time: float, dt: float) -> TargetStep:
         """The target's side of the step ending at ``time``: true state, camera frame (unless the
@@ -526,7 +552,8 @@ class CaptureEnv(gym.Env):
             dt = float(self._periods[len(steps) - 1])
             steps.append(self._advance_target(steps[-1].time + dt, dt))
         assert self._trajectory is not None
-        _EPISODE_CACHE[key] = recorded = (self._trajectory, self._periods, steps)
+        state = self.np_random.bit_generator.state
+        _EPISODE_CACHE[key] = recorded = (self._trajectory, self._periods, steps, state)
         if len(_EPISODE_CACHE) > _EPISODE_CACHE_SIZE:
             _EPISODE_CACHE.popitem(last=False)
         return recorded

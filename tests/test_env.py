@@ -253,21 +253,44 @@ def _assert_same_rollouts(a, b):
 )
 def test_reuse_target_side_replays_exactly_what_live_steps_compute(env_id, source, make_env):
     """``reuse_target_side``: a seed's target side is recorded once and replayed; whatever the
-    actions, every output equals an env that computes each step live."""
+    actions, every output equals an env that computes each step live. Two seeds are recorded one
+    after the other in the same env, so the recording starts from a used camera and estimator."""
     from capture_bench import env as env_module
 
+    env_module._EPISODE_CACHE.clear()
     live = make_env(env_id, observation_source=source)
     reuse = make_env(env_id, observation_source=source, reuse_target_side=True)
     rng = np.random.default_rng(1)
     for actions in (rng.uniform(-1, 1, (400, 3)), np.zeros((400, 3)), -rng.uniform(0, 1, (400, 3))):
-        _assert_same_rollouts(_full_rollout(live, 11, actions), _full_rollout(reuse, 11, actions))
-    key = (reuse.unwrapped.scenario, 11)
-    assert key in env_module._EPISODE_CACHE  # recorded once, replayed by the later episodes
-    trajectory, _periods, steps = env_module._EPISODE_CACHE[key]
+        for seed in (11, 12):
+            _assert_same_rollouts(
+                _full_rollout(live, seed, actions), _full_rollout(reuse, seed, actions)
+            )
+    key = (reuse.unwrapped.scenario, 12)
+    assert set(env_module._EPISODE_CACHE) == {(key[0], 11), key}  # recorded once each
+    trajectory, _periods, steps, _state = env_module._EPISODE_CACHE[key]
     assert reuse.unwrapped._trajectory is trajectory and reuse.unwrapped._script is steps
-    size = len(env_module._EPISODE_CACHE)
     reuse.reset()  # unseeded: computed live, nothing recorded
-    assert reuse.unwrapped._script is None and len(env_module._EPISODE_CACHE) == size
+    assert reuse.unwrapped._script is None and len(env_module._EPISODE_CACHE) == 2
+
+
+def test_reuse_target_side_keeps_the_gymnasium_seeding_contract(make_env):
+    """After ``reset(seed=s)`` the generator stands at the same place whether s was recorded just
+    now or replayed, so the unseeded episode that follows is the same; gymnasium's checker, which
+    tests reset's seeding, passes."""
+    from capture_bench import env as env_module
+
+    env_module._EPISODE_CACHE.clear()
+    reuse = make_env(reuse_target_side=True)
+    follow_ups = []
+    for _ in range(2):  # recorded, then replayed
+        reuse.reset(seed=5)
+        reuse.reset()
+        follow_ups.append(reuse.unwrapped.true_target_position(0.0))
+    np.testing.assert_array_equal(follow_ups[0], follow_ups[1])
+    reuse.reset(seed=5)
+    assert not np.array_equal(reuse.unwrapped.true_target_position(0.0), follow_ups[0])
+    gym_check_env(CaptureEnv("paper", reuse_target_side=True), skip_render_check=True)
 
 
 def test_close_twice_is_safe(make_env):
@@ -291,6 +314,8 @@ def test_step_before_reset_is_an_error():
     env = CaptureEnv("paper")
     with pytest.raises(RuntimeError, match="before reset"):
         env.step(np.zeros(3))
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before next_control_period"):
+        _ = env.next_control_period
     env.close()
 
 

@@ -177,6 +177,22 @@ def test_chunks_hold_every_agent_on_a_few_seeds_of_one_scenario():
         assert len(members) == 3 * len(seeds)  # every agent on each of its seeds
 
 
+def test_records_come_back_in_task_order_whatever_the_chunks(monkeypatch):
+    """run_tasks groups tasks by scenario and seed; the records still follow the task list (here
+    with agents interleaved, a repeated task, and a scenario whose seeds span two chunks)."""
+    from capture_bench.evaluation import backends
+
+    monkeypatch.setattr(backends, "run_task", lambda task, trace=False: (task, None))
+    tasks = [
+        backends.EpisodeTask(agent, scenario, seed)
+        for seed in range(9)
+        for scenario in ("drift", "paper")
+        for agent in ("b", "a")
+    ]
+    tasks.append(tasks[3])
+    assert backends.run_tasks(tasks) == tasks
+
+
 def _save_model(directory: Path, observation_shape: tuple[int, ...] = (16,)) -> Path:
     """An untrained PPO whose spaces are the env's (or not), with VecNormalize statistics and
     metadata as train.py writes them."""

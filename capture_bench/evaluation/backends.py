@@ -239,6 +239,10 @@ def run_tasks(
         raise EvaluationError(f"--workers {workers}: expected a whole number >= 1")
     report = progress or (lambda _n: None)
     indices = make_chunks(tasks)
+    seeds = SEEDS_PER_CHUNK
+    while backend == "process" and len(indices) < workers and seeds > 1:  # keep workers busy
+        seeds -= 1
+        indices = make_chunks(tasks, seeds)
     chunks = [[tasks[i] for i in chunk] for chunk in indices]
     if backend == "serial" or (backend == "process" and workers == 1):
         nested = _run_serial(chunks, report)
