@@ -76,8 +76,11 @@ def forward_kinematics(theta: ArrayLike) -> FloatArray:
     q = np.asarray(theta, dtype=float)
     t1, t2, t3 = q[..., 0], q[..., 1], q[..., 2]
     r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
-    z = L1 * np.sin(t2) - L2 * np.cos(t2 + t3)
-    return np.stack([r * np.cos(t1), r * np.sin(t1), z], axis=-1)
+    out = np.empty(q.shape)
+    out[..., 0] = r * np.cos(t1)
+    out[..., 1] = r * np.sin(t1)
+    out[..., 2] = L1 * np.sin(t2) - L2 * np.cos(t2 + t3)
+    return out
 
 
 def forward_kinematics_point(theta: ArrayLike) -> FloatArray:
@@ -116,13 +119,17 @@ def jacobian(theta: ArrayLike) -> FloatArray:
     dr3 = L2 * np.cos(t2 + t3)
     dz2 = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
     dz3 = L2 * np.sin(t2 + t3)
-    zero = np.zeros_like(t1)
-    rows = [
-        np.stack([-r * s1, dr2 * c1, dr3 * c1], axis=-1),
-        np.stack([r * c1, dr2 * s1, dr3 * s1], axis=-1),
-        np.stack([zero, dz2, dz3], axis=-1),
-    ]
-    return np.stack(rows, axis=-2)
+    out = np.empty(q.shape[:-1] + (3, 3))  # filled entry by entry: no stacking of temporaries
+    out[..., 0, 0] = -r * s1
+    out[..., 0, 1] = dr2 * c1
+    out[..., 0, 2] = dr3 * c1
+    out[..., 1, 0] = r * c1
+    out[..., 1, 1] = dr2 * s1
+    out[..., 1, 2] = dr3 * s1
+    out[..., 2, 0] = 0.0
+    out[..., 2, 1] = dz2
+    out[..., 2, 2] = dz3
+    return out
 
 
 def _jacobian_point(t1: float, t2: float, t3: float) -> FloatArray:
