@@ -37,7 +37,8 @@ MAX_PLACEMENT_TRIES = 1000
 PLACEMENT_MARGIN = 0.1  # markers start inside the central 90% of the sensor's width and height
 VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)  # s: ... and stay there on the true path at these times
 # Sums of control periods carry rounding (10 x 0.05 > 0.5); "longer than lost_after" means longer
-# by more than this, so the env and the physical-limit check count the same steps.
+# by more than this, and the time limit is reached at this much before it, so the env, its
+# recordings and the physical-limit check count the same steps.
 TIME_SLACK = 1e-9  # s
 # Physical-limit bounds already computed in this process, by (scenario, seed): ``reset(seed=s)``
 # draws the target's trajectory from the scenario and s alone, before anything an agent does, so
@@ -243,7 +244,7 @@ class CaptureEnv(gym.Env):
         if self._limit is None and self._limit_key is not None:
             self._limit = _LIMIT_CACHE.get(self._limit_key)
         if self._limit is None:
-            arm = self.description.arm
+            arm, episode_end = self.description.arm, self._episode_end()
             self._limit = physical_limit(
                 self._trajectory.position,
                 arm.home,
@@ -251,13 +252,11 @@ class CaptureEnv(gym.Env):
                 arm.joint_lower,
                 arm.joint_upper,
                 self.description.capture_tolerance,
-                horizon=self._episode_end(),
+                horizon=episode_end,
                 period=self.scenario.control.period,
                 travel_time=self._travel_time if self.scenario.control.period_jitter else None,
             )
-            if self._limit.time > self._episode_end() or self._leaves_reach_before(
-                self._limit.time
-            ):
+            if self._limit.time > episode_end or self._leaves_reach_before(self._limit.time):
                 self._limit = PhysicalLimit(math.inf, None)
             if self._limit_key is not None:
                 if len(_LIMIT_CACHE) >= _LIMIT_CACHE_SIZE:
@@ -274,7 +273,7 @@ class CaptureEnv(gym.Env):
         if control.period_jitter == 0.0:
             return control.episode_limit
         ends = np.cumsum(self._periods)
-        return float(ends[np.searchsorted(ends, control.episode_limit - 1e-9)])
+        return float(ends[np.searchsorted(ends, self._time_limit())])
 
     def _travel_time(self, times: NDArray[np.float64]) -> NDArray[np.float64]:
         """How long the joints can have moved at full rate by each time t, s: a step of real
@@ -390,14 +389,13 @@ class CaptureEnv(gym.Env):
             raise ValueError(
                 f"action must be a finite array of shape (3,) in [-1, 1]; got {action!r}"
             )
-        sc, desc = self.scenario, self.description
+        desc = self.description
         self._steps += 1
         if self._script is None:  # the target's side of the step (it draws from np_random)
-            dt = float(self._periods[self._steps - 1])
-            target = self._advance_target(self._time + dt, dt)
+            target = self._next_target(self._target, self._steps - 1)
         else:
             target = self._script[self._steps]
-            dt = target.dt
+        dt = target.dt
 
         x_e0, x_t0, est0, d_prev = self._x_e, self._x_t, self._estimate, self._distance
         joint_step = self._world.apply_joint_increment(
@@ -426,7 +424,7 @@ class CaptureEnv(gym.Env):
         failure = None if captured else self._failure(dt)
         terminated = captured or failure is not None
         truncated = False
-        if not terminated and self._time >= sc.control.episode_limit - 1e-9:
+        if not terminated and self._time >= self._time_limit():
             truncated, failure = True, "timeout"
         self._episode_over = terminated or truncated
 
@@ -528,6 +526,15 @@ class CaptureEnv(gym.Env):
             nees,
         )
 
+    def _next_target(self, previous: TargetStep, index: int) -> TargetStep:
+        """The target's side of step ``index`` (0-based), the one after ``previous``."""
+        dt = float(self._periods[index])
+        return self._advance_target(previous.time + dt, dt)
+
+    def _time_limit(self) -> float:
+        """The time at which ``step`` truncates, s (the episode limit, less the rounding slack)."""
+        return self.scenario.control.episode_limit - TIME_SLACK
+
     def _start_target_side(self) -> None:
         """A new trajectory and control periods from ``np_random``, and a camera and estimator
         that know nothing."""
@@ -546,11 +553,9 @@ class CaptureEnv(gym.Env):
             _EPISODE_CACHE.move_to_end(key)
             return recorded
         self._start_target_side()
-        limit = self.scenario.control.episode_limit - 1e-9
         steps = [self._advance_target(0.0, self.scenario.control.period)]
-        while steps[-1].time < limit:
-            dt = float(self._periods[len(steps) - 1])
-            steps.append(self._advance_target(steps[-1].time + dt, dt))
+        while steps[-1].time < self._time_limit():
+            steps.append(self._next_target(steps[-1], len(steps) - 1))
         assert self._trajectory is not None
         state = self.np_random.bit_generator.state
         _EPISODE_CACHE[key] = recorded = (self._trajectory, self._periods, steps, state)
