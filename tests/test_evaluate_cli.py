@@ -193,6 +193,34 @@ def test_records_come_back_in_task_order_whatever_the_chunks(monkeypatch):
     assert backends.run_tasks(tasks) == tasks
 
 
+def test_terminal_shows_a_progress_bar_with_eta_and_the_summary_table(tmp_path, capsys):
+    argv = ["--suite", "quick", "--scenarios", "paper", "--episodes", "1", "--workers", "1"]
+    assert main([*argv, "--out", str(tmp_path)]) == 0
+    out, err = capsys.readouterr()
+    assert "quick: episodes" in err and "2/2" in err and "ETA" in err  # the final bar
+    flat = " ".join(out.split())  # the table wraps to the (narrow) captured console
+    assert "capture rate, % of episodes" in flat and "incremental_ik" in flat
+    assert f"report: {tmp_path / 'quick'}" in flat
+
+
+def test_ray_address_reaches_ray_init(monkeypatch, tmp_path):
+    """``--backend ray --ray-address A`` joins the cluster at A (ray.init is stopped there)."""
+    import ray
+
+    class Joined(Exception):
+        pass
+
+    def fake_init(**kwargs):
+        raise Joined(kwargs["address"])
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", fake_init)
+    argv = ["--suite", "quick", "--backend", "ray", "--ray-address", "ray://head:10001"]
+    with pytest.raises(Joined, match="ray://head:10001"):
+        main([*argv, "--out", str(tmp_path)])
+    assert not (tmp_path / "quick").exists()  # nothing half-written
+
+
 def _save_model(directory: Path, observation_shape: tuple[int, ...] = (16,)) -> Path:
     """An untrained PPO whose spaces are the env's (or not), with VecNormalize statistics and
     metadata as train.py writes them."""
