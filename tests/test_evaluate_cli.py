@@ -75,6 +75,11 @@ def test_quick_suite_writes_every_file_with_consistent_aggregates(quick_report):
     suite = load_suite("quick")
     cells = len(suite.agents) * len(suite.scenarios)
     assert len(results) == cells and len(episodes) == cells * suite.episodes
+    assert {  # the per-episode record issue 4 asks for
+        "agent", "scenario", "seed", "outcome", "failure", "capture_time", "physical_limit_time",
+        "ratio", "distance_at_capture", "relative_speed_at_capture", "position_rmse",
+        "velocity_rmse", "mean_nees", "path_length", "saturated_share", "wall_clock_s",
+    } <= set(episodes[0])  # fmt: skip
     for row in results:
         cell = [
             e for e in episodes if (e["agent"], e["scenario"]) == (row["agent"], row["scenario"])
