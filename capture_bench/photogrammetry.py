@@ -107,6 +107,8 @@ def projection_table(feature_points: ArrayLike, focal_length: float) -> FloatArr
     return _cached_table(p.tobytes(), p.shape[0], float(focal_length))
 
 
+_POSE_MINOR_ROWS = 128  # from how many poses the projection works pose-minor
+
 # Pose features as products of three entries of (cos x, sin x, cos y, sin y, cos z, sin z, t, 1):
 # (a_x[i] a_y[j] a_z[l]) for a_k = (cos, sin, 1) of theta_k, then (t_x, t_y, t_z, 1) times 1 * 1.
 _FEATURE_FACTORS = np.array(
@@ -116,37 +118,104 @@ _FEATURE_FACTORS = np.array(
 
 
 def pose_features(poses: FloatArray) -> FloatArray:
-    """The 31 pose features ``(27 angle products, t, 1)`` of poses (K, 6) -> (K, 31)."""
+    """The 31 pose features ``(27 angle products, t, 1)`` of poses (K, 6) -> (K, 31).
+
+    Feature ``9 i + 3 j + l`` is ``(a_x[i] * a_y[j]) * a_z[l]`` (the order of
+    ``_FEATURE_FACTORS``); for many poses computed pose-minor, so that every operation runs over
+    all of them (the same products, the same result).
+    """
+    k = poses.shape[0]
     cos_sin = np.exp(1j * poses[:, 3:]).view(float)  # (cos, sin) of each angle, (K, 6)
-    src = np.concatenate((cos_sin, poses[:, :3], np.ones((poses.shape[0], 1))), axis=1)
-    factors = src[:, _FEATURE_FACTORS]  # (K, 31, 3)
-    return factors[:, :, 0] * factors[:, :, 1] * factors[:, :, 2]
+    if k < _POSE_MINOR_ROWS:  # few poses: fewer numpy calls beat longer inner loops
+        src = np.concatenate((cos_sin, poses[:, :3], np.ones((k, 1))), axis=1)
+        factors = src[:, _FEATURE_FACTORS]  # (K, 31, 3)
+        return factors[:, :, 0] * factors[:, :, 1] * factors[:, :, 2]
+    a = np.ones((3, 3, k))  # a[axis, (cos, sin, 1), pose]
+    a[:, :2] = cos_sin.T.reshape(3, 2, k)
+    out = np.empty((POSE_FEATURES, k))
+    xy = a[0][:, None] * a[1][None]  # (3, 3, K)
+    np.multiply(xy[:, :, None], a[2][None, None], out=out[:27].reshape(3, 3, 3, k))
+    out[27:30] = poses[:, :3].T
+    out[30] = 1.0
+    return np.ascontiguousarray(out.T)
+
+
+def _table_products(
+    features: FloatArray, table: FloatArray, alone: NDArray[np.bool_] | None
+) -> FloatArray:
+    """``features @ table.T`` (K, 7 * 3 * N), a matrix-vector product for the rows ``alone``.
+
+    BLAS rounds a matrix-vector product differently from a matrix-matrix one, and numpy takes
+    the former for a single row; a row of a matrix-matrix product comes out the same whatever
+    the other rows. None: one product for all K rows, as numpy takes it.
+    """
+    k = features.shape[0]
+    if alone is None:
+        return features @ table.T
+    n_alone = int(np.count_nonzero(alone))
+    if n_alone == 0 and k >= 2:
+        return features @ table.T
+    if n_alone == k:
+        return (features[:, None, :] @ table.T)[:, 0]  # a stack of matrix-vector products
+    g = np.empty((k, table.shape[0]))
+    if n_alone:
+        g[alone] = (features[alone, None, :] @ table.T)[:, 0]
+    rest = features[~alone] if n_alone else features
+    if rest.shape[0] == 1:  # a matrix-matrix product needs two rows: the row twice
+        g[~alone] = (np.repeat(rest, 2, axis=0) @ table.T)[:1]
+    else:
+        g[~alone] = rest @ table.T
+    return g
 
 
 def project_poses(
-    poses: FloatArray, table: FloatArray, image: FloatArray | float = 0.0
+    poses: FloatArray,
+    table: FloatArray,
+    image: FloatArray | float = 0.0,
+    alone: NDArray[np.bool_] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Eqs. 1-2, the residual against an image and the analytic Jacobian, for K poses at once.
 
     Args:
         poses: (K, 6) poses (x_To, y_To, z_To, theta_x, theta_y, theta_z), metres and radians.
         table: :func:`projection_table` of the feature points.
-        image: measured image points, ``[0]`` the x_m and ``[1]`` the z_m of each point, metres,
-            (2, N); 0 gives the image points themselves.
+        image: measured image points, ``[..., 0, :]`` the x_m and ``[..., 1, :]`` the z_m of each
+            point, metres: (2, N) for every pose, or (K, 2, N) one per pose; 0 gives the image
+            points themselves.
+        alone: (K,) which poses to evaluate as a call with that pose alone would (a
+            matrix-vector product; the others as rows of a matrix-matrix product, each the same
+            whatever the other rows). None: one product for all K poses, so that a single pose
+            gets the matrix-vector one.
 
     Returns:
-        ``rj`` (K, 7, 2, N): ``rj[k, 0, c, n] = h[k, c, n] - image[c, n]`` with h the image
+        ``rj`` (K, 7, 2, N): ``rj[k, 0, c, n] = h[k, c, n] - image[(k,) c, n]`` with h the image
         points (c = 0: x_m, c = 1: z_m) and ``rj[k, 1 + j] = dh[k] / dpose_j``;
         ``depth`` (K, N): ``y_C - f`` per point, metres.
     """
     k = poses.shape[0]
-    g = (pose_features(poses) @ table.T).reshape(k, N_QUANTITIES, 3, -1)
-    depth = g[:, 0, 2]
-    g = g * (1.0 / depth)[:, None, None, :]  # eq. 2 and its quotient rule share 1 / (y_C - f)
-    h = g[:, 0, :2]
-    rj = g[:, :, :2] - h[:, None] * g[:, :, 2:]  # quotient rule; row 0 comes out as 0
-    rj[:, 0] = h - image
-    return rj, depth
+    g = _table_products(pose_features(poses), table, alone)
+    if k < _POSE_MINOR_ROWS:  # few poses: fewer numpy calls beat longer inner loops
+        g = g.reshape(k, N_QUANTITIES, 3, -1)
+        depth = g[:, 0, 2]
+        g = g * (1.0 / depth)[:, None, None, :]  # eq. 2 and its quotient rule share 1 / (y_C - f)
+        h = g[:, 0, :2]
+        rj = g[:, :, :2] - h[:, None] * g[:, :, 2:]  # quotient rule; row 0 comes out as 0
+        rj[:, 0] = h - image
+        return rj, depth
+    n = g.shape[1] // (N_QUANTITIES * 3)
+    # Pose-minor from here on, so that every operation runs over all K poses at once.
+    gt = np.ascontiguousarray(g.T).reshape(N_QUANTITIES, 3, n, k)
+    depth = gt[0, 2].copy()
+    gt *= 1.0 / depth  # eq. 2 and its quotient rule share 1 / (y_C - f)
+    h = gt[0, :2]
+    rjt = np.empty((N_QUANTITIES, 2, n, k))
+    np.multiply(h, gt[1:, 2:], out=rjt[1:])  # quotient rule
+    np.subtract(gt[1:, :2], rjt[1:], out=rjt[1:])
+    img = np.asarray(image)
+    image_t = img.transpose(1, 2, 0) if img.ndim == 3 else img[..., None]
+    np.subtract(h, image_t, out=rjt[0])
+    rj = np.ascontiguousarray(rjt.reshape(-1, k).T).reshape(k, N_QUANTITIES, 2, n)
+    return rj, depth.T
 
 
 def project_pose(
@@ -290,13 +359,125 @@ def _solve_damped(
         return step, ok
 
 
+def _alone(solves: NDArray[np.int_] | None, levels: NDArray[np.int_]) -> NDArray[np.bool_]:
+    """Per start: is it its solve's only row this round (one start left, trying one lambda)?
+
+    Args:
+        solves: (K,) solve labels, or None for one solve.
+        levels: (K,) lambdas each start tries this round.
+    """
+    if solves is None:
+        return np.full(levels.size, levels.sum() == 1)
+    rows = np.bincount(solves, weights=levels)
+    return rows[solves] == 1
+
+
 MAX_DAMPING = 1e12  # no step at this damping or above is tried: the start sits at a minimum
 MAX_SPECULATIVE_LEVELS = 24
 _POWERS_OF_TEN = 10.0 ** np.arange(MAX_SPECULATIVE_LEVELS)
+# A start in a run of rejections tries its lambdas in these batches, the next batch only if none
+# of the previous was accepted: most runs end within two (ends of the batches, in levels).
+_LEVEL_BATCHES = (2, 8, MAX_SPECULATIVE_LEVELS)
+_BATCHED_ROWS = 256  # from how many rows in a round batches pay
+
+
+def _try_levels(
+    gram: FloatArray,
+    pose: FloatArray,
+    cost: FloatArray,
+    damping: FloatArray,
+    levels: NDArray[np.int_],
+    z: FloatArray,
+    per_start: bool,
+    alone: NDArray[np.bool_],
+    table: FloatArray,
+) -> tuple[NDArray[np.bool_], FloatArray, NDArray[np.floating], FloatArray, FloatArray, FloatArray]:
+    """One round of Levenberg-Marquardt: start i tries ``damping[i] * 10**j`` for j < levels[i].
+
+    The lambdas of a start are tried in order, in batches (``_LEVEL_BATCHES``), until one is
+    accepted: every point beyond the lens and the cost not increased. Every operation is
+    row-wise, so a step comes out the same whichever other rows are tried with it; ``alone``
+    marks the starts whose trial must be evaluated as a matrix-vector product (see
+    :func:`project_poses`).
+
+    Args:
+        gram: (K, 7, 7) ``[[r.r, (J^T r)^T], [J^T r, J^T J]]`` of each start.
+        pose: (K, 6) poses; cost: (K,) their sums of squared residuals.
+        damping: (K,) first lambda of each start; levels: (K,) lambdas it may try, >= 1.
+        z: the measured image points, (2, N) or, with ``per_start``, (K, 2, N).
+        alone: (K,) see above.
+        table: :func:`projection_table` of the feature points.
+
+    Returns:
+        Per start: accepted, and of its first accepted lambda (else its last one) the trial
+        pose, step, ``rj`` (7, 2N) of the trial, its cost and the lambda.
+    """
+    k = levels.size
+    n_eq = 2 * (table.shape[0] // (N_QUANTITIES * 3))
+    if (levels == 1).all():  # the common round: one lambda per start, every row its own start
+        diag = gram.reshape(-1, 49)[:, 8::8]  # the diagonal of J^T J (gram is ours to change)
+        diag += damping[:, None] * (diag + 1e-12)  # J^T J + lambda (diag(J^T J) + 1e-12)
+        step, solvable = _solve_damped(gram[:, 1:, 1:], gram[:, 1:, :1])
+        trial = pose + step
+        rj_t, depth_t = project_poses(trial, table, z, alone)
+        rj_t = rj_t.reshape(-1, 7, n_eq)
+        cost_t = np.einsum("ij,ij->i", rj_t[:, 0], rj_t[:, 0])
+        accept = (depth_t > 0).all(axis=1) & (cost_t <= cost)
+        if solvable is not None:
+            accept &= solvable
+        return accept, trial, step, rj_t, cost_t, damping
+    pending = np.arange(k)
+    low = 0
+    # Few rows: numpy's per-call cost dominates, so all the lambdas at once.
+    batches = _LEVEL_BATCHES if levels.sum() > _BATCHED_ROWS else (MAX_SPECULATIVE_LEVELS,)
+    for high in batches:
+        count = np.minimum(levels[pending], high) - low  # >= 1: pending starts have more levels
+        owner = np.repeat(pending, count)
+        first = np.cumsum(count) - count
+        last = first + count - 1
+        level = low + np.arange(owner.size) - np.repeat(first, count)
+        lam_r = damping[owner] * _POWERS_OF_TEN[level]
+        a = gram[owner]
+        diag = a.reshape(-1, 49)[:, 8::8]
+        diag += lam_r[:, None] * (diag + 1e-12)
+        step_r, solvable = _solve_damped(a[:, 1:, 1:], a[:, 1:, :1])
+        trial_r = pose[owner] + step_r
+        rj_r, depth_r = project_poses(trial_r, table, z[owner] if per_start else z, alone[owner])
+        rj_r = rj_r.reshape(-1, 7, n_eq)
+        cost_r = np.einsum("ij,ij->i", rj_r[:, 0], rj_r[:, 0])
+        ok = (depth_r > 0).all(axis=1) & (cost_r <= cost[owner])
+        if solvable is not None:
+            ok &= solvable
+        # Each start's first accepted row, else its last one.
+        rows = np.where(ok, np.arange(ok.size), ok.size)
+        first_ok = np.minimum.reduceat(rows, first)
+        found = first_ok <= last
+        row = np.where(found, first_ok, last)
+        settled = found | (levels[pending] <= high)
+        if low == 0 and settled.all():  # every start settled in the first batch
+            return found, trial_r[row], step_r[row], rj_r[row], cost_r[row], lam_r[row]
+        if low == 0:
+            accept = np.zeros(k, dtype=bool)
+            trial, step = np.empty((k, 6)), np.empty((k, 6))
+            rj_t, cost_t, lam = np.empty((k, 7, n_eq)), np.empty(k), np.empty(k)
+        idx, row = pending[settled], row[settled]
+        accept[idx] = found[settled]
+        trial[idx], step[idx], rj_t[idx] = trial_r[row], step_r[row], rj_r[row]
+        cost_t[idx], lam[idx] = cost_r[row], lam_r[row]
+        pending = pending[~settled]
+        if pending.size == 0:
+            break
+        low = high
+    return accept, trial, step, rj_t, cost_t, lam
 
 
 def _levenberg_marquardt(
-    z: FloatArray, table: FloatArray, poses0: FloatArray, max_iterations: int, tol: float
+    z: FloatArray,
+    table: FloatArray,
+    poses0: FloatArray,
+    max_iterations: int,
+    tol: float,
+    solves: NDArray[np.int_] | None = None,
 ) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.int_], FloatArray]:
     """Levenberg-Marquardt on the 2N image equations from K starts, all iterating together.
 
@@ -309,14 +490,26 @@ def _levenberg_marquardt(
     converged). A start with a point at or behind the lens is dropped at once (not converged).
 
     Rejections come in runs (near a minimum, up to ~20 in a row while lambda climbs), and J and
-    the residual do not change within a run. So after a rejection a start tries all the next
-    lambdas at once (up to ``MAX_SPECULATIVE_LEVELS``) and keeps the first accepted one: the
-    outcome of trying them one by one, in one round instead of many.
+    the residual do not change within a run. So after a rejection a start tries the next
+    lambdas (up to ``MAX_SPECULATIVE_LEVELS``) in one round, in a few batches
+    (:func:`_try_levels`), and keeps the first accepted one: the outcome of trying them one by
+    one, in one round instead of many.
+
+    Starts may belong to different solves (several images at once): every operation on a start
+    is row-wise, so a start's result is bit for bit what it is in a call with only its own solve.
+    One thing depends on the other starts of its solve: the products with the projection table
+    of a round in which the solve tries one row in all are matrix-vector products (numpy's
+    choice for one row), the others matrix-matrix products (:func:`project_poses`); the rows a
+    solve would try in a round (its starts' lambdas) decide which, whichever rows are tried.
 
     Args:
-        z: measured image points, ``[0]`` the x_m and ``[1]`` the z_m of each point, (2, N).
+        z: measured image points, ``[..., 0, :]`` the x_m and ``[..., 1, :]`` the z_m of each
+            point: (2, N) for every start, or (K, 2, N) one per start.
         table: :func:`projection_table` of the feature points.
         poses0: (K, 6) starting poses.
+        max_iterations: iterations per start.
+        tol: convergence when the largest step component <= tol * (1 + max |pose|).
+        solves: (K,) non-negative labels, equal for the starts of one solve; None: one solve.
 
     Returns:
         Final poses (K, 6), converged (K,), iterations (K,), cost = sum of squared residuals (K,).
@@ -326,44 +519,27 @@ def _levenberg_marquardt(
     converged = np.zeros(k, dtype=bool)
     iterations = np.zeros(k, dtype=int)
     costs = np.full(k, np.inf)
-    rj, depth = project_poses(poses, table, z)
+    per_start = z.ndim == 3
+    rj, depth = project_poses(poses, table, z, _alone(solves, np.ones(k, dtype=int)))
     live = np.flatnonzero((depth > 0).all(axis=1))
     if live.size == 0:
         return poses, converged, iterations, costs
-    n_eq = z.size
+    n_eq = z.shape[-2] * z.shape[-1]
     pose = poses[live]
+    z_live = z[live] if per_start else z
+    solve = None if solves is None else solves[live]
     rj = rj[live].reshape(-1, 7, n_eq)  # rows: the residual (2N), then J^T (6, 2N)
     cost = np.einsum("ij,ij->i", rj[:, 0], rj[:, 0])
     damping = np.full(live.size, 1e-6)
     it = np.ones(live.size, dtype=int)
-    levels = None  # lambdas per start this round when some start is in a run of rejections
+    levels = np.ones(live.size, dtype=int)  # lambdas each start may try this round
     while True:
         gram = rj @ rj.transpose(0, 2, 1)  # [[r.r, (J^T r)^T], [J^T r, J^T J]], (M, 7, 7)
-        lam, base, base_cost = damping, pose, cost
-        if levels is not None:  # one row per lambda tried: start i owns rows [first[i], ...)
-            owner = np.repeat(np.arange(levels.size), levels)
-            first = np.cumsum(levels) - levels
-            lam = damping[owner] * _POWERS_OF_TEN[np.arange(owner.size) - first[owner]]
-            gram, base, base_cost = gram[owner], pose[owner], cost[owner]
-        diag = gram.reshape(-1, 49)[:, 8::8]  # the diagonal of J^T J
-        diag += lam[:, None] * (diag + 1e-12)  # J^T J + lambda (diag(J^T J) + 1e-12)
-        step, solvable = _solve_damped(gram[:, 1:, 1:], gram[:, 1:, :1])
-        trial = base + step
-        rj_t, depth_t = project_poses(trial, table, z)
-        rj_t = rj_t.reshape(-1, 7, n_eq)
-        cost_t = np.einsum("ij,ij->i", rj_t[:, 0], rj_t[:, 0])
-        accept = (depth_t > 0).all(axis=1) & (cost_t <= base_cost)
-        if solvable is not None:
-            accept &= solvable
-        if levels is not None:  # keep each start's first accepted lambda, else its last one
-            rows = np.where(accept, np.arange(accept.size), accept.size)
-            first_ok = np.minimum.reduceat(rows, first)
-            last = first + levels - 1
-            accept = first_ok <= last
-            row = np.where(accept, first_ok, last)
-            trial, step, rj_t, cost_t, lam = trial[row], step[row], rj_t[row], cost_t[row], lam[row]
+        accept, trial, step, rj_t, cost_t, lam = _try_levels(
+            gram, pose, cost, damping, levels, z_live, per_start, _alone(solve, levels), table
+        )
         reject = ~accept
-        if levels is None and not reject.any():  # the common round: every start moves
+        if not reject.any():  # the common round: every start moves
             pose, rj, cost = trial, rj_t, cost_t
         else:
             pose = np.where(accept[:, None], trial, pose)
@@ -376,9 +552,10 @@ def _levenberg_marquardt(
         done_ok = (accept & small) | stalled
         done = done_ok | (accept & (it >= max_iterations))
         it += accept & ~done
-        levels = None
         if reject.any():
             levels = np.where(reject, (damping[:, None] * _POWERS_OF_TEN < MAX_DAMPING).sum(1), 1)
+        else:
+            levels = np.ones(accept.size, dtype=int)
         if done.any():
             idx = live[done]
             poses[idx] = pose[done]
@@ -389,9 +566,11 @@ def _levenberg_marquardt(
             if not keep.any():
                 break
             live, pose, rj, cost = live[keep], pose[keep], rj[keep], cost[keep]
-            damping, it = damping[keep], it[keep]
-            if levels is not None:
-                levels = levels[keep]
+            damping, it, levels = damping[keep], it[keep], levels[keep]
+            if per_start:
+                z_live = z_live[keep]
+            if solve is not None:
+                solve = solve[keep]
     return poses, converged, iterations, costs
 
 
@@ -466,16 +645,84 @@ def _solve_cold(
     image: bytes, points: bytes, n: int, focal_length: float, max_iterations: int, tol: float
 ) -> PoseSolution:
     """The multi-start of :func:`solve_pose` (no initial guess), on its inputs as bytes."""
-    uv = np.frombuffer(image, dtype=float).reshape(n, 2)
+    uv = np.frombuffer(image, dtype=float).reshape(1, n, 2)
     pts = np.frombuffer(points, dtype=float).reshape(n, 3)
-    z, table, n_eq = uv.T, projection_table(pts, focal_length), uv.size
+    poses, conv, its, rms = _multi_start(uv, pts, focal_length, max_iterations, tol)
+    return PoseSolution(poses[0], bool(conv[0]), int(its[0]), float(rms[0]))
+
+
+N_STARTS = len(_CUBE_ANGLES)
+
+
+def _multi_start(
+    uv: FloatArray, pts: FloatArray, focal_length: float, max_iterations: int, tol: float
+) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.int_], FloatArray]:
+    """The 24-start cold solve of M images (M, N, 2) at once: all M * 24 starts run as one
+    Levenberg-Marquardt, each image's starts labelled as one solve, so each image's result is
+    bit for bit its result alone.
+
+    Returns:
+        Per image: pose (M, 6) with canonical angles, converged (M,), iterations (M,) and
+        residual rms (M,) of the converged start of least residual (ties: the first start), or of
+        the least residual when none converged.
+    """
+    m, n_eq = uv.shape[0], uv.shape[1] * uv.shape[2]
+    table = projection_table(pts, focal_length)
     rotated = np.einsum("kij,nj->kni", _CUBE_MATRICES, pts)  # R_k p_i, (24, N, 3)
-    t = translations_for_rotations(uv, rotated, focal_length)
-    starts = np.concatenate([t, _CUBE_ANGLES], axis=1)
-    poses, conv, its, costs = _levenberg_marquardt(z, table, starts, max_iterations, tol)
-    rms_all = np.sqrt(costs / n_eq)
-    conv &= np.isfinite(rms_all)
+    starts = np.empty((m, N_STARTS, 6))
+    for i in range(m):  # the image's own least-squares matrix: one lstsq call per image
+        starts[i, :, :3] = translations_for_rotations(uv[i], rotated, focal_length)
+    starts[:, :, 3:] = _CUBE_ANGLES
+    z = uv.transpose(0, 2, 1)  # (M, 2, N): the x_m row, then the z_m row
+    if m == 1:  # one solve: one image for every start
+        z_arg, solves = z[0], None
+    else:
+        z_arg, solves = np.repeat(z, N_STARTS, axis=0), np.repeat(np.arange(m), N_STARTS)
+    poses, conv, its, costs = _levenberg_marquardt(
+        z_arg, table, starts.reshape(-1, 6), max_iterations, tol, solves
+    )
+    rms_all = np.sqrt(costs / n_eq).reshape(m, N_STARTS)
+    conv = conv.reshape(m, N_STARTS) & np.isfinite(rms_all)
     order = np.where(np.isnan(rms_all), np.inf, rms_all)
-    pool = np.flatnonzero(conv) if conv.any() else np.arange(rms_all.size)
-    i = int(pool[np.argmin(order[pool])])  # converged first, then the least residual; ties: first
-    return PoseSolution(_canonical(poses[i]), bool(conv[i]), int(its[i]), float(rms_all[i]))
+    pool = conv | ~conv.any(axis=1, keepdims=True)  # the converged starts, else every start
+    best = np.argmin(np.where(pool, order, np.inf), axis=1)  # least residual; ties: the first
+    rows = np.arange(m) * N_STARTS + best
+    out = np.array([_canonical(pose) for pose in poses[rows]]).reshape(m, 6)
+    return out, conv.reshape(-1)[rows], its[rows], rms_all.reshape(-1)[rows]
+
+
+def solve_pose_batch(
+    images: ArrayLike,
+    feature_points: ArrayLike,
+    focal_length: float,
+    max_iterations: int = 50,
+    tol: float = 1e-10,
+) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.int_], FloatArray]:
+    """Cold :func:`solve_pose` (no initial guess) of M images at once, bit for bit image by image.
+
+    The 24 starts of every image run as one vectorised Levenberg-Marquardt, which spreads numpy's
+    per-call cost over all the images: ``solve_pose_batch(images, ...)[0][m]`` equals
+    ``solve_pose(images[m], ...).pose`` exactly, and likewise the other fields. Nothing is cached.
+
+    Args:
+        images: measured ``[x_m, z_m]`` of the feature points per image, metres, (M, N, 2).
+        feature_points: the points in the target frame, metres, shape (N, 3), N >= 3.
+        focal_length: f, metres.
+        max_iterations: Gauss-Newton iterations per start.
+        tol: convergence when the largest step component <= tol * (1 + max |pose|).
+
+    Returns:
+        ``poses`` (M, 6) (x_To, y_To, z_To, theta_x, theta_y, theta_z), theta_y in
+        [-pi/2, pi/2]; ``converged`` (M,) bool; ``iterations`` (M,) int; ``residual_rms`` (M,),
+        metres: the fields of each image's :class:`PoseSolution`.
+    """
+    uv = np.asarray(images, dtype=float)
+    pts = np.asarray(feature_points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or uv.ndim != 3 or uv.shape[1:] != (pts.shape[0], 2):
+        raise ValueError(
+            f"need images (M, N, 2) and feature_points (N, 3); got images of shape {uv.shape} "
+            f"for feature points of shape {pts.shape}"
+        )
+    if uv.shape[0] == 0:
+        return np.empty((0, 6)), np.empty(0, dtype=bool), np.empty(0, dtype=int), np.empty(0)
+    return _multi_start(uv, pts, float(focal_length), max_iterations, tol)
