@@ -1,0 +1,115 @@
+"""Micro-benchmark of the physical-limit bound: one episode at a time vs batches of G episodes.
+
+Usage::
+
+    python benchmarks/bench_physical_limit.py [--episodes 192] [--groups 16 64] [--repeats 3]
+        [--clock cpu|wall]
+
+Episodes come from every shipped scenario in turn (``CaptureEnv(name).reset(seed=s)``), with the
+arguments ``CaptureEnv.physical_limit`` passes. Prints milliseconds per episode (best of
+``--repeats``; CPU time of this process by default) for :func:`physical_limit` called episode
+by episode and for :func:`physical_limits` on consecutive groups of G episodes, and checks that
+both give the same times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+from typing import Any
+
+from capture_bench.env import CaptureEnv
+from capture_bench.physical_limit import PhysicalLimit, physical_limit, physical_limits
+from capture_bench.scenarios import list_scenarios
+
+CLOCKS = {"cpu": time.process_time, "wall": time.perf_counter}
+
+
+def episodes(count: int) -> list[dict[str, Any]]:
+    """``count`` episodes' arguments, cycling through the shipped scenarios (seed = index)."""
+    names = list_scenarios()
+    out = []
+    for i in range(count):
+        env = CaptureEnv(names[i % len(names)])  # one env per episode: travel_time is bound to it
+        env.reset(seed=i)
+        arm, control = env.description.arm, env.scenario.control
+        out.append(
+            {
+                "target_position": env.true_target_position,
+                "horizon": env._episode_end(),
+                "travel_time": env._travel_time if control.period_jitter else None,
+                "shared": (
+                    arm.home,
+                    arm.joint_rate_limits,
+                    arm.joint_lower,
+                    arm.joint_upper,
+                    env.description.capture_tolerance,
+                ),
+                "period": control.period,
+            }
+        )
+    assert len({(e["period"], *map(bytes, e["shared"])) for e in out}) == 1  # one arm, one t_s
+    return out
+
+
+def single(eps: list[dict[str, Any]]) -> list[PhysicalLimit]:
+    return [
+        physical_limit(
+            e["target_position"],
+            *e["shared"],
+            horizon=e["horizon"],
+            period=e["period"],
+            travel_time=e["travel_time"],
+        )
+        for e in eps
+    ]
+
+
+def batched(eps: list[dict[str, Any]], group: int) -> list[PhysicalLimit]:
+    out: list[PhysicalLimit] = []
+    for i in range(0, len(eps), group):
+        chunk = eps[i : i + group]
+        out += physical_limits(
+            [e["target_position"] for e in chunk],
+            *chunk[0]["shared"],
+            horizons=[e["horizon"] for e in chunk],
+            period=chunk[0]["period"],
+            travel_times=[e["travel_time"] for e in chunk],
+        )
+    return out
+
+
+def best_ms_per_episode(call: Callable[[], object], count: int, repeats: int, clock: str) -> float:
+    timer, best = CLOCKS[clock], float("inf")
+    for _ in range(repeats):
+        start = timer()
+        call()
+        best = min(best, timer() - start)
+    return 1e3 * best / count
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=192)
+    parser.add_argument("--groups", type=int, nargs="+", default=[16, 64])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--clock", choices=sorted(CLOCKS), default="cpu")
+    args = parser.parse_args()
+    eps = episodes(args.episodes)
+    reference = single(eps)
+    for group in args.groups:
+        got = batched(eps, group)
+        assert [r.time for r in got] == [r.time for r in reference], f"G = {group} differs"
+    print(f"{args.episodes} episodes from {len(list_scenarios())} scenarios, {args.clock} time")
+    ms = best_ms_per_episode(lambda: single(eps), len(eps), args.repeats, args.clock)
+    print(f"single      : {ms:7.3f} ms/episode")
+    for group in args.groups:
+        ms = best_ms_per_episode(
+            lambda g=group: batched(eps, g), len(eps), args.repeats, args.clock
+        )
+        print(f"batch G={group:<4d}: {ms:7.3f} ms/episode")
+
+
+if __name__ == "__main__":
+    main()
