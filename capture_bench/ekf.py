@@ -47,6 +47,16 @@ def transition_matrices(dt: float) -> tuple[FloatArray, FloatArray]:
     return a, b
 
 
+def measurement_sigma(noise_px: float, pixel_pitch: float, noise_floor_px: float) -> float:
+    """sigma_m of R = sigma_m^2 I (eq. 6), metres: ``max(noise_px, noise_floor_px)`` pixels."""
+    return max(noise_px, noise_floor_px) * pixel_pitch
+
+
+def wrap_angle(angle: FloatArray | float) -> FloatArray | float:
+    """Euler angle(s) moved into [-pi, pi) by whole turns (h is 2 pi-periodic in them)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
 def default_initial_covariance() -> FloatArray:
     """Prior covariance (12, 12) around a photogrammetry pose, velocities unknown (zero mean).
 
@@ -161,7 +171,7 @@ class TargetEKF:
         self.feature_points = np.array(feature_points, dtype=float).reshape(-1, 3)
         self.focal_length = float(focal_length)
         n_z = 2 * self.feature_points.shape[0]
-        sigma_m = max(noise_px, noise_floor_px) * pixel_pitch
+        sigma_m = measurement_sigma(noise_px, pixel_pitch, noise_floor_px)
         self._q = np.diag([sigma_acceleration**2] * 3 + [sigma_angular_acceleration**2] * 3)
         self._kf = LeanExtendedKalmanFilter(dim_x=12, dim_z=n_z)
         self._kf.R = np.eye(n_z) * sigma_m**2
@@ -223,7 +233,7 @@ class TargetEKF:
         x = self._kf.x
         for i in (6, 8, 10):  # keep the Euler angles in [-pi, pi); h is 2 pi-periodic in them
             if not -math.pi <= x[i] < math.pi:
-                x[i] = (x[i] + math.pi) % (2.0 * math.pi) - math.pi
+                x[i] = wrap_angle(x[i])
 
     def _jacobian(self, x: FloatArray) -> FloatArray:
         """H = dh/dX (8, 12); also caches h(X) for :meth:`_measure` at the same state object."""

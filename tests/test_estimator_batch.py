@@ -1,0 +1,281 @@
+"""BatchedTargetEstimator: step for step the same as n TargetEstimator(source="ekf")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capture_bench import kinematics
+from capture_bench.camera import Camera, CameraModel, Frame
+from capture_bench.estimator import DIVERGENCE_FRAMES, STATUSES, TargetEstimator
+from capture_bench.estimator_batch import BLOCK_ORDER, BatchedEstimates, BatchedTargetEstimator
+from capture_bench.photogrammetry import pose_projection
+from capture_bench.scenarios import load_scenario
+from capture_bench.target_motion import FEATURE_POINTS, sample_trajectory
+
+RTOL, ATOL = 1e-9, 1e-12
+
+
+class Sequences:
+    """Per-env images (T, n, N, 2) (NaN: no frame) and periods (T, n) from a scenario."""
+
+    def __init__(self, name: str, n: int, steps: int, seed: int, **target: object) -> None:
+        sc = load_scenario(name)
+        if target:
+            sc = sc.replace(target=target)
+        cam = sc.camera
+        self.model = CameraModel.looking_at(
+            cam.position,
+            cam.look_at,
+            focal_length=cam.focal_length,
+            pixel_pitch=cam.pixel_pitch,
+            resolution=cam.resolution,
+        )
+        self.features = FEATURE_POINTS[sc.target.feature_points]
+        self.noise_px = cam.noise_px
+        self.sigmas = (sc.estimator.sigma_acceleration, sc.estimator.sigma_angular_acceleration)
+        anchor = kinematics.forward_kinematics(kinematics.ArmSpec().home)
+        period, jitter = sc.control.period, sc.control.period_jitter
+        self.images = np.full((steps, n, self.features.shape[0], 2), np.nan)
+        self.dts = np.full((steps, n), period)
+        for i in range(n):
+            rng = np.random.default_rng([seed, i])
+            while True:  # a target that stays in view (like the env's placement)
+                traj = sample_trajectory(sc.target, rng, anchor, steps * period)
+                if all(
+                    self.model.visible(
+                        self.model.to_camera(traj.feature_points(t, self.features)), margin=0.1
+                    ).all()
+                    for t in (0.0, 0.5 * steps * period, 1.5 * steps * period)
+                ):
+                    break
+            sensor = Camera(self.model, cam.noise_px, cam.dropout, cam.latency_frames)
+            t = 0.0
+            for k in range(steps):
+                if jitter:
+                    self.dts[k, i] = period * (1.0 + jitter * rng.uniform(-1.0, 1.0))
+                t += self.dts[k, i]
+                frame = sensor.capture(traj.feature_points(t, self.features), rng)
+                if frame is not None:
+                    self.images[k, i] = frame.image_points
+
+    def estimators(self, n: int) -> tuple[BatchedTargetEstimator, list[TargetEstimator]]:
+        kwargs = dict(
+            noise_px=self.noise_px,
+            sigma_acceleration=self.sigmas[0],
+            sigma_angular_acceleration=self.sigmas[1],
+        )
+        batch = BatchedTargetEstimator(n, self.model, self.features, **kwargs)
+        singles = [
+            TargetEstimator(self.model, self.features, source="ekf", **kwargs) for _ in range(n)
+        ]
+        return batch, singles
+
+
+def step_both(
+    batch: BatchedTargetEstimator,
+    singles: list[TargetEstimator],
+    images: np.ndarray,
+    dts: np.ndarray,
+    active: np.ndarray | None = None,
+) -> tuple[BatchedEstimates, list[str | None]]:
+    """One step of the batch and of the active single estimators; checks they agree.
+
+    Returns the batch's estimates and the single estimators' statuses (None where inactive).
+    """
+    out = batch.update(images, dts, active)
+    assert out.position.shape == out.velocity.shape == (len(singles), 3)
+    assert out.covariance.shape == (len(singles), 6, 6) and out.status.dtype == np.int8
+    statuses: list[str | None] = []
+    for i, est in enumerate(singles):
+        if active is not None and not active[i]:
+            statuses.append(None)
+            continue
+        image = images[i]
+        frame = Frame(image.copy()) if np.isfinite(image).all() else None
+        ref = est.update(frame, float(dts[i]), np.zeros(3), np.zeros(3))
+        statuses.append(ref.status)
+        where = f"env {i}"
+        assert STATUSES[out.status[i]] == ref.status, where
+        assert bool(out.valid[i]) == ref.valid, where
+        assert batch.reinitialisations[i] == est.reinitialisations, where
+        if ref.valid:
+            np.testing.assert_allclose(out.position[i], ref.position, RTOL, ATOL, err_msg=where)
+            np.testing.assert_allclose(out.velocity[i], ref.velocity, RTOL, ATOL, err_msg=where)
+            assert ref.covariance is not None
+            np.testing.assert_allclose(out.covariance[i], ref.covariance, RTOL, ATOL, err_msg=where)
+            # The whole filter state, in the paper's order (angles wrapped alike).
+            np.testing.assert_allclose(batch.state[i], est.ekf.x, RTOL, ATOL, err_msg=where)
+            np.testing.assert_allclose(batch.covariance[i], est.ekf.P, RTOL, ATOL, err_msg=where)
+        else:
+            assert np.isnan(out.position[i]).all() and np.isnan(out.velocity[i]).all(), where
+            assert np.isnan(out.covariance[i]).all(), where
+    return out, statuses
+
+
+def run_sequences(seq: Sequences, n: int) -> list[list[str | None]]:
+    batch, singles = seq.estimators(n)
+    return [step_both(batch, singles, z, dt)[1] for z, dt in zip(seq.images, seq.dts)]
+
+
+@pytest.mark.parametrize(
+    "name, target",
+    [
+        ("paper", {}),  # 1 px noise, slow drift, some tumbling
+        ("paper", {"motion": "circular"}),  # 1 px noise on a circular path
+        ("noisy", {}),  # 2 px, 20% drop-outs, one frame of latency
+        ("jitter", {}),  # the period varies +-60% step to step
+    ],
+)
+def test_batch_equals_single_estimators_on_scenarios(name, target):
+    n, steps = 5, 60
+    seq = Sequences(name, n, steps, seed=7, **target)
+    statuses = run_sequences(seq, n)
+    seen = {s for row in statuses for s in row}
+    assert "ok" in seen and "diverged" not in seen
+    if name == "noisy":  # latency: no frame at first; drop-outs: predict-only steps
+        assert statuses[0] == ["initialising"] * n and "predicting" in seen
+    if name == "jitter":
+        assert np.ptp(seq.dts) > 0.03
+
+
+def test_envs_that_start_without_frames_initialise_later():
+    n, steps = 4, 40
+    seq = Sequences("paper", n, steps, seed=3)
+    for i, start in enumerate((0, 3, 11, 25)):
+        seq.images[:start, i] = np.nan
+    seq.images[5, 1, 2, 0] = np.inf  # one non-finite value: no frame
+    statuses = run_sequences(seq, n)
+    for i, start in enumerate((0, 3, 11, 25)):
+        column = [row[i] for row in statuses]
+        assert column[:start] == ["initialising"] * start
+        assert column[start] == "ok"
+    assert statuses[5][1] == "predicting"
+
+
+def test_divergence_and_reinitialisation():
+    """Each divergence rule of the single estimator, in its own env, at the same step."""
+    n, steps = 6, 40
+    seq = Sequences("paper", n, steps, seed=11)
+    batch, singles = seq.estimators(n)
+    for k in range(20):
+        step_both(batch, singles, seq.images[k], seq.dts[k])
+    rng = np.random.default_rng(0)
+    shifted = seq.images[20:].copy()
+    # env 0: the target jumps (image shifted 40 px): NIS > limit until the rule trips, then
+    # photogrammetry restarts the filter from the shifted frames.
+    shifted[:, 0] += 40 * seq.model.pixel_pitch
+    # env 1: garbage points on the sensor: rejected by the NIS rule and by photogrammetry.
+    half = seq.model.half_extent
+    shifted[:, 1] = rng.uniform(-0.5, 0.5, shifted[:, 1].shape) * half
+    statuses = []
+    for k in range(steps - 20):
+        if k == 2:
+            # env 2: a non-finite covariance with a frame; env 3: without a frame.
+            for i in (2, 3):
+                singles[i].ekf._kf.P[0, 0] = np.nan
+                batch.P[i, 0, 0] = np.nan
+            shifted[k, 3] = np.nan
+            # env 4: a prediction behind the lens (y_dot toward the camera).
+            singles[4].ekf._kf.x[3] = -40.0
+            batch.x[4, BLOCK_ORDER.tolist().index(3)] = -40.0
+            # env 5: S not positive definite.
+            singles[5].ekf._kf.P[...] = -np.eye(12)
+            batch.P[5] = -np.eye(12)
+        statuses.append(step_both(batch, singles, shifted[k], seq.dts[20 + k])[1])
+    column = [[row[i] for row in statuses] for i in range(n)]
+    assert column[0][DIVERGENCE_FRAMES - 1] == "ok" and batch.reinitialisations[0] == 1
+    assert "diverged" in column[1] and column[1][-1] == "diverged"
+    assert batch.reinitialisations[1] == 0 and batch.diverged[1]
+    assert column[2][2] == "ok" and batch.reinitialisations[2] == 1
+    assert column[3][2:4] == ["diverged", "ok"] and batch.reinitialisations[3] == 1
+    assert column[4][2] == "ok" and batch.reinitialisations[4] == 1
+    assert column[5][2] == "ok" and batch.reinitialisations[5] == 1
+    # A diverged filter that is reset is initialising again.
+    batch.reset(np.arange(n) == 1)
+    singles[1].reset()
+    statuses = step_both(batch, singles, shifted[-1], seq.dts[-1])[1]
+    assert statuses[1] == "initialising"
+
+
+def test_euler_angles_wrap_like_the_single_filter():
+    """A target whose camera-frame theta_z sits at pi: the estimate crosses it and wraps."""
+    seq = Sequences("paper", 1, 1, seed=0)
+    n, steps = 3, 40
+    batch, singles = seq.estimators(n)
+    rng = np.random.default_rng(6)
+    poses = [(0.0, 1.1, 0.0, 0.3, 0.2, np.pi - 1e-3), (0.05, 1.2, 0.02, -np.pi + 1e-3, 0.1, 0.5)]
+    poses.append((0.0, 1.3, 0.0, 0.1, -0.2, -0.3))
+    f, pitch = seq.model.focal_length, seq.model.pixel_pitch
+    clean = np.array([pose_projection(np.array(p), seq.features, f)[0] for p in poses])
+    signs = set()
+    for _ in range(steps):
+        images = (clean + rng.normal(0.0, pitch, clean.shape)).reshape(n, 4, 2)
+        step_both(batch, singles, images, np.full(n, 0.05))
+        signs.add((np.sign(singles[0].ekf.x[10]), np.sign(singles[1].ekf.x[6])))
+    assert {s[0] for s in signs} == {1.0, -1.0} and {s[1] for s in signs} == {1.0, -1.0}
+    assert np.all(np.abs(batch.state[:, 6::2]) <= np.pi)
+
+
+def test_active_mask_freezes_the_other_envs():
+    n, steps = 6, 50
+    seq = Sequences("noisy", n, steps, seed=5)
+    batch, singles = seq.estimators(n)
+    rng = np.random.default_rng(1)
+    for k in range(steps):
+        active = rng.random(n) < 0.6
+        x_before, p_before = batch.x.copy(), batch.P.copy()
+        flags = (batch.initialised.copy(), batch.diverged.copy(), batch.high_nis.copy())
+        step_both(batch, singles, seq.images[k], seq.dts[k], active)
+        idle = ~active
+        np.testing.assert_array_equal(batch.x[idle], x_before[idle])
+        np.testing.assert_array_equal(batch.P[idle], p_before[idle])
+        for before, after in zip(flags, (batch.initialised, batch.diverged, batch.high_nis)):
+            np.testing.assert_array_equal(after[idle], before[idle])
+    # The inactive envs' rows carry no estimate.
+    out = batch.update(seq.images[0], seq.dts[0], np.zeros(n, dtype=bool))
+    assert not out.valid.any() and np.isnan(out.position).all()
+
+
+def test_reset_forgets_only_the_chosen_envs():
+    n, steps = 4, 30
+    seq = Sequences("paper", n, steps, seed=9)
+    batch, singles = seq.estimators(n)
+    statuses = []
+    for k in range(steps):
+        if k in (10, 20):
+            which = np.array([True, False, k == 20, False])
+            batch.reset(which)
+            for i in np.flatnonzero(which):
+                singles[i].reset()
+            seq.images[k, 0] = np.nan  # env 0 has no frame right after its reset
+        statuses.append(step_both(batch, singles, seq.images[k], seq.dts[k])[1])
+    assert statuses[10] == ["initialising", "ok", "ok", "ok"]
+    assert statuses[11][0] == "ok"
+    batch.reset()
+    out = batch.update(np.full_like(seq.images[0], np.nan), seq.dts[0])
+    assert out.status_names() == ["initialising"] * n
+
+
+def test_cold_solve_uses_the_estimators_acceptance_rule():
+    seq = Sequences("paper", 3, 2, seed=2)
+    batch, singles = seq.estimators(3)
+    images = seq.images[0].copy()
+    images[1] = np.random.default_rng(0).uniform(-1e-3, 1e-3, (4, 2))  # no consistent pose
+    poses, accepted = batch._cold_solve(images)
+    for image, pose, ok in zip(images, poses, accepted):
+        sol = singles[0]._solve(image, None)
+        assert ok == (sol is not None)
+        if sol is not None:
+            np.testing.assert_array_equal(pose, sol.pose)
+    assert accepted.tolist() == [True, False, True]
+
+
+def test_bad_inputs_are_refused():
+    seq = Sequences("paper", 2, 1, seed=1)
+    batch, _ = seq.estimators(2)
+    with pytest.raises(ValueError, match="images"):
+        batch.update(np.zeros((2, 3, 2)), np.full(2, 0.05))
+    with pytest.raises(ValueError, match="dt"):
+        batch.update(seq.images[0], np.array([0.05, -0.01]))
+    batch.update(seq.images[0], np.array([0.05, -0.01]), np.array([True, False]))  # idle: fine
