@@ -1,7 +1,8 @@
 """capture-bench: robotic capture of a moving, non-cooperative target (Dong & Zhu 2016).
 
 Importing the package registers one gymnasium environment per shipped scenario,
-``CaptureBench/<Name>-v0`` (``gymnasium.make("CaptureBench/Paper-v0")``).
+``CaptureBench/<Name>-v0`` (``gymnasium.make("CaptureBench/Paper-v0")``), with a batched vector
+env (``gymnasium.make_vec("CaptureBench/Paper-v0", num_envs=64)``, :mod:`capture_bench.vector_env`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,10 @@ def _register() -> None:
         if env_id not in registry:
             # No TimeLimit: the env truncates itself at the scenario's limit in simulated seconds.
             register(
-                id=env_id, entry_point="capture_bench.env:CaptureEnv", kwargs={"scenario": name}
+                id=env_id,
+                entry_point="capture_bench.env:CaptureEnv",
+                vector_entry_point="capture_bench.vector_env:CaptureVectorEnv",
+                kwargs={"scenario": name},
             )
 
 

@@ -241,3 +241,45 @@ class Camera:
         if len(self._pipeline) > self.latency_frames:
             return self._pipeline.popleft()
         return None
+
+    def capture_sequence(
+        self, points_global: FloatArray, rng: np.random.Generator
+    ) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """:meth:`capture` called once for each of T instants, from a camera just reset: the
+        same random draws in the same order, the geometry vectorised over the instants.
+
+        Args:
+            points_global: feature points at each instant, global, metres, shape (T, N, 3).
+            rng: the generator for drop-out and noise.
+
+        Returns:
+            ``images`` (T, N, 2): the frame delivered at each call, metres, NaN where
+            :meth:`capture` returns None; ``visible`` (T,): :attr:`last_visible` after each call.
+        """
+        if self._count or self._pipeline:
+            raise RuntimeError("capture_sequence needs a camera just reset (call reset() first)")
+        model = self.model
+        p = np.asarray(points_global, dtype=float)
+        n_t, n_points = p.shape[0], p.shape[1]
+        lost = np.empty(n_t, dtype=bool)
+        noise = np.empty((n_t, n_points, 2))
+        random, normal = rng.random, rng.standard_normal
+        for k in range(n_t):  # capture()'s draws: one uniform, then N x 2 standard normals
+            lost[k] = random() < self.dropout
+            normal(out=noise[k])
+        noise *= self.noise_std
+        p_cam = model.to_camera(p.reshape(-1, 3)).reshape(n_t, n_points, 3)
+        front = (p_cam[:, :, 1] > model.focal_length + LENS_MARGIN).all(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            image = model.project(p_cam.reshape(-1, 3)).reshape(n_t, n_points, 2)
+            on_sensor = (np.abs(image) <= model._half_extent).all(axis=(1, 2))
+            visible: NDArray[np.bool_] = np.asarray(front & on_sensor, dtype=bool)
+        images = np.where((visible & ~lost)[:, None, None], image + noise, np.nan)
+        latency = self.latency_frames
+        if latency:  # the frame taken at call k is delivered by call k + latency
+            images = np.concatenate([np.full((min(latency, n_t), n_points, 2), np.nan), images])
+            images = images[:n_t]
+        self._count = n_t
+        self.last_visible = bool(visible[-1]) if n_t else True
+        self.last_dropped = bool(lost[-1]) if n_t else False
+        return images, visible

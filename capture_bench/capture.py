@@ -124,3 +124,32 @@ def _tolerances(tolerance: ArrayLike) -> list[float]:
     if isinstance(tolerance, (int, float)):
         return [float(tolerance)] * 3
     return _floats(tolerance)
+
+
+def first_entry_fractions(d0: NDArray, d1: NDArray, tolerance: ArrayLike) -> NDArray[np.float64]:
+    """:func:`first_entry_fraction` for M steps at once: (M, 3), (M, 3) -> (M,), NaN for None."""
+    e = np.broadcast_to(np.asarray(tolerance, dtype=float), (3,))
+    slope = d1 - d0
+    flat = slope == 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_a, s_b = (-e - d0) / slope, (e - d0) / slope
+    lo = np.maximum(np.where(flat, -np.inf, np.minimum(s_a, s_b)).max(axis=1), 0.0)
+    hi = np.minimum(np.where(flat, np.inf, np.maximum(s_a, s_b)).min(axis=1), 1.0)
+    never = (flat & (np.abs(d0) >= e)).any(axis=1) | (lo >= hi)  # open intervals: lo == hi misses
+    return np.where(never, np.nan, lo)
+
+
+def arc_sag_bounds(delta_theta: NDArray) -> NDArray[np.float64]:
+    """:func:`arc_sag_bound` for M steps, (M, 3) -> (M,), m."""
+    total = np.abs(delta_theta).sum(axis=1)
+    return (L1 + L2) * total * total / 8.0
+
+
+def closest_approaches(d0: NDArray, d1: NDArray) -> NDArray[np.float64]:
+    """:func:`closest_approach` for M segments, (M, 3), (M, 3) -> (M,), m."""
+    slope = d1 - d0
+    denom = np.einsum("ij,ij->i", slope, slope)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.clip(-np.einsum("ij,ij->i", d0, slope) / denom, 0.0, 1.0)
+    s[denom == 0.0] = 0.0
+    return np.linalg.norm(d0 + s[:, None] * slope, axis=1)

@@ -12,7 +12,6 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
-from scipy.linalg import lapack
 
 from capture_bench import kinematics
 from capture_bench.camera import Camera, CameraModel
@@ -24,22 +23,16 @@ from capture_bench.capture import (
     first_entry_fraction,
     segment_length,
 )
-from capture_bench.estimator import TargetEstimate, TargetEstimator
+from capture_bench.episode import TIME_SLACK, EpisodePlan, episode_bounds, time_limit
+from capture_bench.estimator import TargetEstimate, TargetEstimator, normalised_error_squared
 from capture_bench.observation import TaskDescription, encode_observation, observation_space
-from capture_bench.physical_limit import PhysicalLimit, physical_limit
+from capture_bench.physical_limit import PhysicalLimit
 from capture_bench.rewards import REWARD_MODES, reward_terms
 from capture_bench.scenarios import Scenario, load_scenario
-from capture_bench.target_motion import FEATURE_POINTS, TargetTrajectory, sample_trajectory
+from capture_bench.target_motion import FEATURE_POINTS, TargetTrajectory
 from capture_bench.world import World
 
 FAILURES = ("timeout", "collision", "target_lost", "unreachable")
-MAX_PLACEMENT_TRIES = 1000
-PLACEMENT_MARGIN = 0.1  # markers start inside the central 90% of the sensor's width and height
-VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)  # s: ... and stay there on the true path at these times
-# Sums of control periods carry rounding (10 x 0.05 > 0.5); "longer than lost_after" means longer
-# by more than this, and the time limit is reached at this much before it, so the env, its
-# recordings and the physical-limit check count the same steps.
-TIME_SLACK = 1e-9  # s
 # Physical-limit bounds already computed in this process, by (scenario, seed): ``reset(seed=s)``
 # draws the target's trajectory from the scenario and s alone, before anything an agent does, so
 # every agent evaluated on the same seed has the same bound (it costs ~8 ms per episode).
@@ -77,18 +70,6 @@ class TargetStep(NamedTuple):
 _Recorded = tuple[TargetTrajectory, NDArray[np.float64], list[TargetStep], Mapping[str, Any]]
 _EPISODE_CACHE: OrderedDict[tuple[Scenario, int], _Recorded] = OrderedDict()
 _EPISODE_CACHE_SIZE = 16  # ~1 MB each
-
-
-def normalised_error_squared(error: NDArray[np.float64], covariance: NDArray[np.float64]) -> float:
-    """NEES ``e^T P^-1 e`` by a Cholesky solve (P symmetric positive definite); NaN if P is not.
-
-    LAPACK directly: ``np.linalg.solve`` costs ~13 us per call here, this ~3 us, every EKF step.
-    """
-    chol, info = lapack.dpotrf(covariance)
-    if info != 0:
-        return math.nan
-    w, _ = lapack.dpotrs(chol, error)
-    return float(error @ w)
 
 
 class CaptureEnv(gym.Env):
@@ -166,11 +147,12 @@ class CaptureEnv(gym.Env):
     actions) and keeps it in this process by (scenario, s); a later ``reset(seed=s)`` replays it
     instead of computing it again. Every observation, reward and ``info`` is identical to a run
     without it; an evaluation that runs many agents on the same seeds saves the camera and
-    estimator work of all but the first. Unseeded resets are never recorded, and after a seeded
-    one ``np_random`` stands where the recording left it (the time limit), so an unseeded reset
-    that follows gives the same episode whether the seed was recorded now or replayed, though not
-    the one a plain env gives (it advances ``np_random`` by the steps actually taken). Default
-    False: the first use of a seed pays for the whole horizon.
+    estimator work of all but the first. An unseeded reset is recorded the same way but not kept.
+    After any reset ``np_random`` stands where the recording left it (the time limit), so the
+    episodes that follow a seeded reset are the same whatever the actions, though after the
+    first they are not the ones a plain env gives (it advances ``np_random`` by the steps actually
+    taken); :class:`~capture_bench.vector_env.CaptureVectorEnv` gives exactly these episodes.
+    Default False: each reset pays for the whole horizon.
 
     ## Version History
     * v0: initial release.
@@ -233,7 +215,7 @@ class CaptureEnv(gym.Env):
         self._limit_key: tuple[Scenario, int] | None = None
         self._script: list[TargetStep] | None = None  # the recorded target side being replayed
         self._steps = 0  # steps since reset
-        self._periods = np.empty(0)  # the episode's real control periods, s (``_draw_periods``)
+        self._periods = np.empty(0)  # real control period of every step, s (drawn at reset)
         self._episode_over = True
 
     # -- privileged API (oracle and tests only) ------------------------------------------------
@@ -244,20 +226,7 @@ class CaptureEnv(gym.Env):
         if self._limit is None and self._limit_key is not None:
             self._limit = _LIMIT_CACHE.get(self._limit_key)
         if self._limit is None:
-            arm, episode_end = self.description.arm, self._episode_end()
-            self._limit = physical_limit(
-                self._trajectory.position,
-                arm.home,
-                arm.joint_rate_limits,
-                arm.joint_lower,
-                arm.joint_upper,
-                self.description.capture_tolerance,
-                horizon=episode_end,
-                period=self.scenario.control.period,
-                travel_time=self._travel_time if self.scenario.control.period_jitter else None,
-            )
-            if self._limit.time > episode_end or self._leaves_reach_before(self._limit.time):
-                self._limit = PhysicalLimit(math.inf, None)
+            (self._limit,) = episode_bounds([self._plan()], self.description)
             if self._limit_key is not None:
                 if len(_LIMIT_CACHE) >= _LIMIT_CACHE_SIZE:
                     _LIMIT_CACHE.clear()
@@ -266,49 +235,22 @@ class CaptureEnv(gym.Env):
                 _LIMIT_CACHE[self._limit_key] = self._limit
         return self._limit
 
+    def _plan(self) -> EpisodePlan:
+        """This episode's trajectory and control periods, as reset drew them."""
+        assert self._trajectory is not None
+        return EpisodePlan(self.scenario, self._trajectory, self._periods)
+
     def _episode_end(self) -> float:
-        """When the episode's last possible step ends, s: the time limit, or under
-        ``period_jitter`` the end of the step that crosses it (``step`` truncates there)."""
-        control = self.scenario.control
-        if control.period_jitter == 0.0:
-            return control.episode_limit
-        ends = np.cumsum(self._periods)
-        return float(ends[np.searchsorted(ends, self._time_limit())])
+        """When the episode's last possible step ends, s (:meth:`EpisodePlan.end`)."""
+        return self._plan().end()
 
     def _travel_time(self, times: NDArray[np.float64]) -> NDArray[np.float64]:
-        """How long the joints can have moved at full rate by each time t, s: a step of real
-        period dt moves a joint at most theta_dot_max min(dt, t_s) (the action's range is
-        theta_dot_max t_s), spread evenly over the step as the capture test assumes."""
-        periods = self._periods
-        moves = np.minimum(periods, self.scenario.control.period)
-        ends = np.cumsum(periods)  # t_j, the same sums as the steps' times
-        step = np.minimum(np.searchsorted(ends, times), periods.size - 1)  # t_{j-1} < t <= t_j
-        start = ends[step] - periods[step]
-        moved_before = np.cumsum(moves) - moves
-        return moved_before[step] + (times - start) / periods[step] * moves[step]
+        """:meth:`EpisodePlan.travel_time` of this episode."""
+        return self._plan().travel_time(times)
 
     def _leaves_reach_before(self, t_end: float) -> bool:
-        """Whether every episode of this seed ends ``unreachable`` on a step that ends before
-        ``t_end``, so that no capture is possible by then.
-
-        The env's own test, step by step, on the episode's real control periods (they are drawn
-        at reset, so every agent's episode has the same ones): a step that ends at or after
-        ``t_end`` may capture first.
-        """
-        if not math.isfinite(t_end):
-            return False
-        assert self._trajectory is not None
-        limit = self.scenario.lost_after + TIME_SLACK
-        time = out_for = 0.0
-        for dt in self._periods.tolist():
-            time += dt
-            if time >= t_end:
-                return False
-            reach = kinematics.reachable(self._trajectory.state(time)[0])
-            out_for = 0.0 if reach else out_for + dt
-            if out_for > limit:
-                return True
-        return False
+        """:meth:`EpisodePlan.leaves_reach_before` of this episode."""
+        return self._plan().leaves_reach_before(t_end)
 
     def true_target_position(self, t: float | NDArray) -> NDArray[np.float64]:
         """X_T(t), global, m (privileged)."""
@@ -343,7 +285,7 @@ class CaptureEnv(gym.Env):
             self._world = World(self._features, render_mode=self.render_mode)
         key = None if seed is None else (self.scenario, int(seed))
         self._script = None
-        if self.reuse_target_side and key is not None:
+        if self.reuse_target_side:
             self._trajectory, self._periods, self._script, rng_state = self._recorded_target_side(
                 key
             )
@@ -452,49 +394,6 @@ class CaptureEnv(gym.Env):
             self._world = None
 
     # -- stages ---------------------------------------------------------------------------------
-    def _place_target(self) -> TargetTrajectory:
-        """Draw trajectories until the start is reachable and above the floor, and the markers
-        are well inside the image (``PLACEMENT_MARGIN``) at every ``VIEW_CHECK_TIMES``."""
-        sc = self.scenario
-        anchor = kinematics.forward_kinematics(self.description.arm.home)
-        floor = -kinematics.L0
-        for _ in range(MAX_PLACEMENT_TRIES):
-            traj = sample_trajectory(sc.target, self.np_random, anchor, sc.control.episode_limit)
-            x0 = traj.position(0.0)
-            if x0[2] > floor + 0.05 and kinematics.reachable(x0) and self._stays_in_view(traj):
-                return traj
-        raise RuntimeError(
-            f"scenario {sc.name!r}: no target start in view and in reach after "
-            f"{MAX_PLACEMENT_TRIES} draws; check target.initial_offset and the camera pose"
-        )
-
-    def _stays_in_view(self, traj: TargetTrajectory) -> bool:
-        model = self.camera_model
-        return all(
-            np.all(
-                model.visible(
-                    model.to_camera(traj.feature_points(t, self._features)), margin=PLACEMENT_MARGIN
-                )
-            )
-            for t in VIEW_CHECK_TIMES
-        )
-
-    def _draw_periods(self) -> NDArray[np.float64]:
-        """The real control period of every step the episode can have, s: t_s, or in
-        ``period_jitter`` scenarios t_s (1 + jitter u) with u uniform in [-1, 1), drawn at reset
-        so that the physical-limit bound sees the periods the steps will have."""
-        control = self.scenario.control
-        shortest = control.period * (1.0 - control.period_jitter)
-        n = math.ceil(control.episode_limit / shortest) + 1
-        if control.period_jitter == 0.0:
-            periods = np.full(n, control.period)
-        else:
-            periods = control.period * (
-                1.0 + control.period_jitter * self.np_random.uniform(-1.0, 1.0, n)
-            )
-        periods.flags.writeable = False  # shared with replays of the episode
-        return periods
-
     def _advance_target(self, time: float, dt: float) -> TargetStep:
         """The target's side of the step ending at ``time``: true state, camera frame (unless the
         source is truth) -> estimator -> estimate (global frame), and its errors."""
@@ -533,23 +432,23 @@ class CaptureEnv(gym.Env):
 
     def _time_limit(self) -> float:
         """The time at which ``step`` truncates, s (the episode limit, less the rounding slack)."""
-        return self.scenario.control.episode_limit - TIME_SLACK
+        return time_limit(self.scenario.control)
 
     def _start_target_side(self) -> None:
         """A new trajectory and control periods from ``np_random``, and a camera and estimator
         that know nothing."""
-        self._trajectory = self._place_target()
-        self._periods = self._draw_periods()
+        plan = EpisodePlan.draw(self.scenario, self.camera_model, self._features, self.np_random)
+        self._trajectory, self._periods = plan.trajectory, plan.periods
         self._camera.reset()
         self._estimator.reset()
 
-    def _recorded_target_side(self, key: tuple[Scenario, int]) -> _Recorded:
+    def _recorded_target_side(self, key: tuple[Scenario, int] | None) -> _Recorded:
         """This seed's trajectory, control periods and the target's side of every step from reset
         to the time limit (``step`` truncates there), recorded now unless this process already
-        has them. They are computed as live steps would compute them, in the same order of random
-        draws."""
-        recorded = _EPISODE_CACHE.get(key)
-        if recorded is not None:
+        has them (an unseeded reset, ``key`` None, is recorded and not kept). They are computed
+        as live steps would compute them, in the same order of random draws."""
+        recorded = None if key is None else _EPISODE_CACHE.get(key)
+        if key is not None and recorded is not None:
             _EPISODE_CACHE.move_to_end(key)
             return recorded
         self._start_target_side()
@@ -558,7 +457,10 @@ class CaptureEnv(gym.Env):
             steps.append(self._next_target(steps[-1], len(steps) - 1))
         assert self._trajectory is not None
         state = self.np_random.bit_generator.state
-        _EPISODE_CACHE[key] = recorded = (self._trajectory, self._periods, steps, state)
+        recorded = (self._trajectory, self._periods, steps, state)
+        if key is None:
+            return recorded
+        _EPISODE_CACHE[key] = recorded
         if len(_EPISODE_CACHE) > _EPISODE_CACHE_SIZE:
             _EPISODE_CACHE.popitem(last=False)
         return recorded

@@ -281,6 +281,25 @@ def reachable_batch(
     return np.any(within_limits(inverse_kinematics_batch(positions), lower, upper), axis=1)
 
 
+def reachable_points(positions: FloatArray) -> NDArray[np.bool_]:
+    """:func:`reachable` with the published joint limits for M points (M, 3) -> (M,), the same
+    formulas vectorised (joint 1 facing the point, both elbow solutions)."""
+    lo, hi = JOINT_LOWER, JOINT_UPPER
+    x, y, z = positions[:, 0], positions[:, 1], positions[:, 2]
+    t1 = np.arctan2(y, x)
+    r = np.hypot(x, y)
+    s3 = (r * r + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
+    inside = np.abs(s3) <= 1.0
+    c3_abs = np.sqrt(np.where(inside, 1.0 - s3 * s3, 0.0))
+    ok = np.zeros(positions.shape[0], dtype=bool)
+    for c3 in (c3_abs, -c3_abs):
+        a, b = L1 + L2 * s3, L2 * c3
+        t2 = np.arctan2(a * z + b * r, a * r - b * z)
+        t3 = np.arctan2(s3, c3)
+        ok |= (lo[1] <= t2) & (t2 <= hi[1]) & (lo[2] <= t3) & (t3 <= hi[2])
+    return ok & inside & (lo[0] <= t1) & (t1 <= hi[0])
+
+
 def _wrap_array(angles: FloatArray) -> FloatArray:
     """Wrap angles to [-pi, pi)."""
     return (angles + np.pi) % (2.0 * np.pi) - np.pi

@@ -130,3 +130,29 @@ def decode_observation(obs: NDArray, control_period: float) -> Observation:
         relative_position=o[12:15] * RELATIVE_SCALE,
         last_period=float(o[15] * control_period),
     )
+
+
+def encode_observations(
+    target_position: NDArray,
+    target_velocity: NDArray,
+    ee_position: NDArray,
+    joint_angles: NDArray,
+    last_period: NDArray,
+    control_period: float,
+) -> NDArray[np.float32]:
+    """:func:`encode_observation` for M observations at once: (M, 3) arrays and last periods
+    (M,) -> (M, 16), with the same arithmetic."""
+    relative = target_position + target_velocity * control_period - ee_position  # eq. 13
+    obs = np.concatenate(
+        (
+            target_position * (1.0 / POSITION_SCALE),
+            target_velocity * (1.0 / VELOCITY_SCALE),
+            ee_position * (1.0 / POSITION_SCALE),
+            joint_angles * (1.0 / ANGLE_SCALE),
+            relative * (1.0 / RELATIVE_SCALE),
+            (last_period / control_period)[:, None],
+        ),
+        axis=1,
+    )
+    np.clip(obs, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=obs)
+    return obs.astype(np.float32)

@@ -176,6 +176,15 @@ class TargetTrajectory:
             spin @ self.initial_rotation,
         )
 
+    def rotations(self, t: FloatArray) -> FloatArray:
+        """R(t) for times (N,) -> (N, 3, 3): :meth:`state`'s rotation, vectorised over t."""
+        tt = np.asarray(t, dtype=float)
+        if self.spin_rate == 0.0:
+            return np.broadcast_to(self.initial_rotation, (*tt.shape, 3, 3)).copy()
+        a = (self.spin_rate * tt)[..., None, None]
+        spin = _EYE3 + np.sin(a) * self._kx + (1.0 - np.cos(a)) * self._kx2
+        return spin @ self.initial_rotation
+
     @property
     def angular_velocity(self) -> FloatArray:
         """omega, rad/s, global frame, (3,)."""

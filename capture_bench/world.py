@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import NoReturn, cast
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from capture_bench._quiet import quiet_c_output
 
@@ -203,6 +203,11 @@ class World:
         self._set_joints((float(q[0]), float(q[1]), float(q[2])))
         self.set_target_pose(target_position, target_rotation)
 
+    def set_joint_positions(self, theta: Sequence[float]) -> None:
+        """Set the three joints to angles computed elsewhere, rad, as they are: the caller has
+        applied the rate and joint limits (:func:`limit_joint_increments`)."""
+        self._set_joints((float(theta[0]), float(theta[1]), float(theta[2])))
+
     def set_target_pose(self, position: ArrayLike, rotation: ArrayLike) -> None:
         """Place the target: capture point at ``position`` (global, metres, (3,)), orientation
         ``rotation`` (R_gt, orthonormal, (3, 3); not checked, for speed)."""
@@ -375,6 +380,68 @@ class World:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+def limit_joint_increments(
+    theta: FloatArray,
+    delta_theta: FloatArray,
+    dt: FloatArray,
+    arm: ArmSpec,
+) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
+    """:meth:`World.apply_joint_increment`'s limits for M arms at once, with the same arithmetic.
+
+    Args:
+        theta: joint angles before the step, rad, (M, 3).
+        delta_theta: requested increments, rad, (M, 3), finite.
+        dt: the real duration of each arm's step, s, (M,), > 0.
+        arm: the rate and joint limits.
+
+    Returns:
+        ``(theta_after (M, 3), clipped (M,), saturated (M,))`` as in :class:`JointStep`.
+    """
+    step_max = arm.joint_rate_limits * dt[:, None]
+    step = np.where(
+        delta_theta > step_max, step_max, np.where(delta_theta < -step_max, -step_max, delta_theta)
+    )
+    unclipped = theta + step
+    lowest, highest = np.minimum(arm.joint_lower, theta), np.maximum(arm.joint_upper, theta)
+    after = np.minimum(np.maximum(unclipped, lowest), highest)
+    clipped = np.any((step != delta_theta) | (after != unclipped), axis=1)
+    saturated = np.any(np.abs(after - theta) >= SATURATION_FRACTION * step_max, axis=1)
+    return np.asarray(after, dtype=float), clipped, saturated
+
+
+# Bounds of the collision model (see World): everything on the forearm and wrist lies within
+# FOREARM_REACH of the segment elbow -> end-effector (tube offset 0.06 m + radius 0.025 m; the
+# bracket ends 0.06 m + 0.02 m from the tip), the upper arm within 0.025 m of joint 2 -> elbow.
+FOREARM_REACH = 0.085  # m
+UPPER_ARM_RADIUS = 0.025  # m
+COLUMN_RADIUS = 0.05  # m; the column spans z in [-L0, 0]
+SELF_CONTACT_THETA3 = math.radians(-80.0)  # the wrist meets the upper arm only below ~-84 deg
+CLEARANCE = 0.01  # m: what "clearly" means in clear_of_collisions
+
+
+def clear_of_collisions(theta: FloatArray) -> NDArray[np.bool_]:
+    """For M joint vectors (M, 3), rad: True where the arm is certainly in no collision of
+    :meth:`World.collision`, by bounds on its collision shapes with ``CLEARANCE`` to spare.
+
+    False means "ask pybullet": a batched env queries its worlds only there.
+    """
+    t2, t3 = theta[:, 1], theta[:, 2]
+    # Joint 2 at the origin, the elbow and the tip in the arm's vertical plane: (r, z), where r is
+    # the horizontal distance along the arm's heading (the tube's sideways offset only adds to
+    # the horizontal distance from the column's axis, so |r| bounds it from below).
+    elbow_r, elbow_z = L1 * np.cos(t2), L1 * np.sin(t2)
+    tip_r, tip_z = elbow_r + L2 * np.sin(t2 + t3), elbow_z - L2 * np.cos(t2 + t3)
+    forearm_low = np.minimum(elbow_z, tip_z) - FOREARM_REACH
+    upper_arm_low = np.minimum(elbow_z, 0.0) - UPPER_ARM_RADIUS
+    above_floor = np.minimum(forearm_low, upper_arm_low) > -L0 + CLEARANCE
+    crosses_axis = elbow_r * tip_r <= 0.0
+    min_r = np.where(crosses_axis, 0.0, np.minimum(np.abs(elbow_r), np.abs(tip_r)))
+    beside_column = min_r - FOREARM_REACH > COLUMN_RADIUS + CLEARANCE
+    above_column = forearm_low > CLEARANCE
+    unfolded = t3 > SELF_CONTACT_THETA3
+    return above_floor & (above_column | beside_column) & unfolded
 
 
 def _closed(*args: object, **kwargs: object) -> NoReturn:

@@ -270,8 +270,8 @@ def test_reuse_target_side_replays_exactly_what_live_steps_compute(env_id, sourc
     assert set(env_module._EPISODE_CACHE) == {(key[0], 11), key}  # recorded once each
     trajectory, _periods, steps, _state = env_module._EPISODE_CACHE[key]
     assert reuse.unwrapped._trajectory is trajectory and reuse.unwrapped._script is steps
-    reuse.reset()  # unseeded: computed live, nothing recorded
-    assert reuse.unwrapped._script is None and len(env_module._EPISODE_CACHE) == 2
+    reuse.reset()  # unseeded: recorded, not kept
+    assert reuse.unwrapped._script is not None and len(env_module._EPISODE_CACHE) == 2
 
 
 def test_reuse_target_side_keeps_the_gymnasium_seeding_contract(make_env):

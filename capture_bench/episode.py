@@ -1,0 +1,194 @@
+"""What ``reset`` draws for an episode before any step, and the rules built on it alone.
+
+An episode's target trajectory and the real period of every control step are drawn at reset from
+the env's seeded generator (:func:`draw_episode`). The time limit, the end of the last possible
+step, how far the joints can have moved by a given time, and the physical-limit bound are
+functions of that :class:`EpisodePlan` alone, so :class:`~capture_bench.env.CaptureEnv` and the
+batched :class:`~capture_bench.vector_env.CaptureVectorEnv` share them here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from capture_bench import kinematics
+from capture_bench.camera import CameraModel
+from capture_bench.observation import TaskDescription
+from capture_bench.physical_limit import PhysicalLimit, physical_limits
+from capture_bench.scenarios import ControlConfig, Scenario
+from capture_bench.target_motion import TargetTrajectory, sample_trajectory
+
+FloatArray = NDArray[np.float64]
+
+MAX_PLACEMENT_TRIES = 1000
+PLACEMENT_MARGIN = 0.1  # markers start inside the central 90% of the sensor's width and height
+VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)  # s: ... and stay there on the true path at these times
+# Sums of control periods carry rounding (10 x 0.05 > 0.5); "longer than lost_after" means longer
+# by more than this, and the time limit is reached at this much before it, so the env, its
+# recordings and the physical-limit check count the same steps.
+TIME_SLACK = 1e-9  # s
+
+
+def time_limit(control: ControlConfig) -> float:
+    """The time at which an episode truncates, s (the episode limit, less the rounding slack)."""
+    return control.episode_limit - TIME_SLACK
+
+
+def place_target(
+    scenario: Scenario,
+    camera_model: CameraModel,
+    features: FloatArray,
+    rng: np.random.Generator,
+) -> TargetTrajectory:
+    """Draw trajectories until the start is reachable and above the floor, and the markers are
+    well inside the image (``PLACEMENT_MARGIN``) at every ``VIEW_CHECK_TIMES``."""
+    anchor = kinematics.forward_kinematics(kinematics.HOME)
+    floor = -kinematics.L0
+    for _ in range(MAX_PLACEMENT_TRIES):
+        traj = sample_trajectory(scenario.target, rng, anchor, scenario.control.episode_limit)
+        x0 = traj.position(0.0)
+        if (
+            x0[2] > floor + 0.05
+            and kinematics.reachable(x0)
+            and _stays_in_view(camera_model, features, traj)
+        ):
+            return traj
+    raise RuntimeError(
+        f"scenario {scenario.name!r}: no target start in view and in reach after "
+        f"{MAX_PLACEMENT_TRIES} draws; check target.initial_offset and the camera pose"
+    )
+
+
+def _stays_in_view(model: CameraModel, features: FloatArray, traj: TargetTrajectory) -> bool:
+    times = np.array(VIEW_CHECK_TIMES)
+    rotated = np.einsum("nj,tij->tni", features, traj.rotations(times))
+    points = (traj.position(times)[:, None, :] + rotated).reshape(-1, 3)
+    return bool(model.visible(model.to_camera(points), margin=PLACEMENT_MARGIN).all())
+
+
+def period_count(control: ControlConfig) -> int:
+    """How many control periods :func:`draw_periods` draws: enough for the longest episode
+    (every step as short as the jitter allows), and one more."""
+    shortest = control.period * (1.0 - control.period_jitter)
+    return math.ceil(control.episode_limit / shortest) + 1
+
+
+def draw_periods(control: ControlConfig, rng: np.random.Generator) -> FloatArray:
+    """The real control period of every step the episode can have, s: t_s, or in
+    ``period_jitter`` scenarios t_s (1 + jitter u) with u uniform in [-1, 1), drawn at reset so
+    that the physical-limit bound sees the periods the steps will have."""
+    n = period_count(control)
+    if control.period_jitter == 0.0:
+        periods = np.full(n, control.period)
+    else:
+        periods = control.period * (1.0 + control.period_jitter * rng.uniform(-1.0, 1.0, n))
+    periods.flags.writeable = False  # shared with replays of the episode
+    return periods
+
+
+@dataclass(frozen=True, eq=False)
+class EpisodePlan:
+    """An episode as reset draws it: the scenario, the target's true trajectory and the real
+    control period of every step it can have (s)."""
+
+    scenario: Scenario
+    trajectory: TargetTrajectory
+    periods: FloatArray
+
+    @classmethod
+    def draw(
+        cls,
+        scenario: Scenario,
+        camera_model: CameraModel,
+        features: FloatArray,
+        rng: np.random.Generator,
+    ) -> EpisodePlan:
+        """The trajectory (:func:`place_target`), then the periods (:func:`draw_periods`)."""
+        trajectory = place_target(scenario, camera_model, features, rng)
+        return cls(scenario, trajectory, draw_periods(scenario.control, rng))
+
+    def step_times(self) -> tuple[FloatArray, FloatArray]:
+        """``(time, dt)`` of reset (0, t_s) and of every step up to the one that reaches the time
+        limit, s: the times are the running sums a stepping env accumulates, bit for bit."""
+        ends = np.cumsum(self.periods)
+        n = int(np.searchsorted(ends, time_limit(self.scenario.control))) + 1
+        times = np.concatenate(([0.0], ends[:n]))
+        dts = np.concatenate(([self.scenario.control.period], self.periods[:n]))
+        return times, dts
+
+    def end(self) -> float:
+        """When the last possible step ends, s: the time limit, or under ``period_jitter`` the end
+        of the step that crosses it (a step truncates there)."""
+        control = self.scenario.control
+        if control.period_jitter == 0.0:
+            return control.episode_limit
+        ends = np.cumsum(self.periods)
+        return float(ends[np.searchsorted(ends, time_limit(control))])
+
+    def travel_time(self, times: FloatArray) -> FloatArray:
+        """How long the joints can have moved at full rate by each time t, s: a step of real
+        period dt moves a joint at most theta_dot_max min(dt, t_s) (the action's range is
+        theta_dot_max t_s), spread evenly over the step as the capture test assumes."""
+        periods = self.periods
+        moves = np.minimum(periods, self.scenario.control.period)
+        ends = np.cumsum(periods)  # t_j, the same sums as the steps' times
+        step = np.minimum(np.searchsorted(ends, times), periods.size - 1)  # t_{j-1} < t <= t_j
+        start = ends[step] - periods[step]
+        moved_before = np.cumsum(moves) - moves
+        return moved_before[step] + (times - start) / periods[step] * moves[step]
+
+    def leaves_reach_before(self, t_end: float) -> bool:
+        """Whether every episode of this plan ends ``unreachable`` on a step that ends before
+        ``t_end``, so that no capture is possible by then.
+
+        The env's own test, step by step, on the episode's real control periods: a step that ends
+        at or after ``t_end`` may capture first.
+        """
+        if not math.isfinite(t_end):
+            return False
+        limit = self.scenario.lost_after + TIME_SLACK
+        time = out_for = 0.0
+        for dt in self.periods.tolist():
+            time += dt
+            if time >= t_end:
+                return False
+            reach = kinematics.reachable(self.trajectory.state(time)[0])
+            out_for = 0.0 if reach else out_for + dt
+            if out_for > limit:
+                return True
+        return False
+
+
+def episode_bounds(
+    plans: Sequence[EpisodePlan], description: TaskDescription
+) -> list[PhysicalLimit]:
+    """The physical-limit bound of each episode (DESIGN.md), computed together: ``inf`` when the
+    target cannot be reached before the episode's last step ends, or leaves the arm's reach for
+    longer than ``lost_after`` before it can be."""
+    if not plans:
+        return []
+    arm = description.arm
+    control = plans[0].scenario.control
+    ends = [plan.end() for plan in plans]
+    limits = physical_limits(
+        [plan.trajectory.position for plan in plans],
+        arm.home,
+        arm.joint_rate_limits,
+        arm.joint_lower,
+        arm.joint_upper,
+        description.capture_tolerance,
+        horizons=ends,
+        period=control.period,
+        travel_times=[plan.travel_time if control.period_jitter else None for plan in plans],
+    )
+    out = []
+    for plan, end, limit in zip(plans, ends, limits, strict=True):
+        if limit.time > end or plan.leaves_reach_before(limit.time):
+            limit = PhysicalLimit(math.inf, None)
+        out.append(limit)
+    return out

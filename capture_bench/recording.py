@@ -1,0 +1,251 @@
+"""The target's side of whole episodes, many at once, as arrays (for ``CaptureVectorEnv``).
+
+Nothing on the target's side of a step depends on the agent's actions (see
+:class:`capture_bench.env.TargetStep`): the trajectory and control periods are drawn at reset, the
+camera's noise and drop-outs come from the episode's generator in a fixed order, and the estimator
+sees only the frames. So an episode's target side can be computed for its whole horizon at reset,
+and the target sides of many episodes can be computed together: the true states and the camera
+vectorised over time (:meth:`~capture_bench.camera.Camera.capture_sequence`), the EKF over
+episodes (:class:`~capture_bench.estimator_batch.BatchedTargetEstimator`), the bound over episodes
+(:func:`~capture_bench.episode.episode_bounds`). Each episode draws from its own generator exactly
+what ``CaptureEnv(reuse_target_side=True)`` draws, in the same order.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from capture_bench import kinematics
+from capture_bench.camera import Camera, Frame
+from capture_bench.episode import EpisodePlan, episode_bounds
+from capture_bench.estimator import STATUSES, TargetEstimator, normalised_error_squared
+from capture_bench.estimator_batch import BatchedTargetEstimator
+from capture_bench.observation import TaskDescription
+from capture_bench.physical_limit import PhysicalLimit
+from capture_bench.scenarios import Scenario
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+STATUS_OK = STATUSES.index("ok")
+
+
+@dataclass(eq=False)
+class RecordedEpisode:
+    """One episode's target side, indexed by step (0 is reset, k the end of step k).
+
+    Attributes mirror :class:`capture_bench.env.TargetStep`: ``time``, ``dt`` (T+1,), s;
+    ``position``, ``velocity`` (T+1, 3) true X_T and its rate; ``rotation`` (T+1, 3, 3) R_gt;
+    ``estimate_position``, ``estimate_velocity`` (T+1, 3), NaN where not ``estimate_valid``;
+    ``estimator_status`` (T+1,) index into :data:`capture_bench.estimator.STATUSES`;
+    ``visible``, ``reachable`` (T+1,); ``position_error``, ``velocity_error``, ``nees`` (T+1,).
+    ``bound`` is the episode's physical limit (``inf`` as ``CaptureEnv.physical_limit`` gives it).
+    """
+
+    plan: EpisodePlan
+    time: FloatArray
+    dt: FloatArray
+    position: FloatArray
+    velocity: FloatArray
+    rotation: FloatArray
+    estimate_position: FloatArray
+    estimate_velocity: FloatArray
+    estimate_valid: BoolArray
+    estimator_status: NDArray[np.int8]
+    visible: BoolArray
+    reachable: BoolArray
+    position_error: FloatArray
+    velocity_error: FloatArray
+    nees: FloatArray
+    bound: PhysicalLimit
+
+
+@dataclass
+class _Truth:
+    """An episode's plan, step times and true states, and its camera's frames."""
+
+    plan: EpisodePlan
+    time: FloatArray
+    dt: FloatArray
+    position: FloatArray
+    velocity: FloatArray
+    rotation: FloatArray
+    images: FloatArray  # (T+1, N, 2), NaN where no frame is delivered
+    visible: BoolArray
+
+
+# position, velocity (T+1, 3), covariance (T+1, 6, 6) (NaN where none), valid, status (T+1,)
+_Estimates = tuple[FloatArray, FloatArray, FloatArray, BoolArray, NDArray[np.int8]]
+
+
+def record_episodes(
+    scenario: Scenario,
+    camera: Camera,
+    features: FloatArray,
+    description: TaskDescription,
+    rngs: Sequence[np.random.Generator],
+) -> list[RecordedEpisode]:
+    """The next episode of each generator, recorded to its time limit.
+
+    Args:
+        scenario: the scenario (the estimator's source and settings come from it).
+        camera: the sensor (its settings; it is reset for each episode).
+        features: feature points, target frame, m, (N, 3).
+        description: the task (arm and capture tolerance) for the bound.
+        rngs: one generator per episode; each advances exactly as ``CaptureEnv`` with
+            ``reuse_target_side`` advances it in ``reset``.
+    """
+    truths = []
+    for rng in rngs:
+        plan = EpisodePlan.draw(scenario, camera.model, features, rng)
+        truths.append(_truth(plan, camera, features, rng))
+    source = scenario.estimator.source
+    if source == "ekf":
+        estimates = _estimate_ekf(scenario, camera, features, truths)
+    elif source == "photogrammetry":
+        estimator = _estimator(scenario, camera, features)
+        estimates = [_estimate_one_by_one(estimator, t) for t in truths]
+    else:
+        estimates = [_estimate_truth(t) for t in truths]
+    bounds = episode_bounds([t.plan for t in truths], description)
+    return [
+        _finish(truth, estimate, bound)
+        for truth, estimate, bound in zip(truths, estimates, bounds, strict=True)
+    ]
+
+
+def _truth(
+    plan: EpisodePlan, camera: Camera, features: FloatArray, rng: np.random.Generator
+) -> _Truth:
+    """True states at every step time, and the frames (none with the truth source, whose env
+    never calls the camera)."""
+    time, dt = plan.step_times()
+    traj = plan.trajectory
+    position, velocity, rotation = traj.position(time), traj.velocity(time), traj.rotations(time)
+    if plan.scenario.estimator.source == "truth":
+        images = np.full((time.size, features.shape[0], 2), np.nan)
+        visible = np.ones(time.size, dtype=bool)
+    else:
+        points = position[:, None, :] + np.einsum("nj,tij->tni", features, rotation)
+        camera.reset()
+        images, visible = camera.capture_sequence(points, rng)
+    return _Truth(plan, time, dt, position, velocity, rotation, images, visible)
+
+
+def _estimator(scenario: Scenario, camera: Camera, features: FloatArray) -> TargetEstimator:
+    est = scenario.estimator
+    return TargetEstimator(
+        camera.model,
+        features,
+        source=est.source,
+        noise_px=camera.noise_px,
+        sigma_acceleration=est.sigma_acceleration,
+        sigma_angular_acceleration=est.sigma_angular_acceleration,
+    )
+
+
+def _estimate_ekf(
+    scenario: Scenario, camera: Camera, features: FloatArray, truths: Sequence[_Truth]
+) -> list[_Estimates]:
+    """The EKF over all episodes together, step by step (episodes of different lengths stop
+    taking part after their last step)."""
+    est = scenario.estimator
+    n = len(truths)
+    batch = BatchedTargetEstimator(
+        n,
+        camera.model,
+        features,
+        noise_px=camera.noise_px,
+        sigma_acceleration=est.sigma_acceleration,
+        sigma_angular_acceleration=est.sigma_angular_acceleration,
+    )
+    lengths = np.array([t.time.size for t in truths])
+    n_steps = int(lengths.max())
+    images = np.full((n_steps, n, features.shape[0], 2), np.nan)
+    dt = np.full((n_steps, n), scenario.control.period)
+    for i, t in enumerate(truths):
+        images[: t.time.size, i] = t.images
+        dt[: t.time.size, i] = t.dt
+    position = np.full((n, n_steps, 3), np.nan)
+    velocity = np.full((n, n_steps, 3), np.nan)
+    covariance = np.full((n, n_steps, 6, 6), np.nan)
+    valid = np.zeros((n, n_steps), dtype=bool)
+    status = np.zeros((n, n_steps), dtype=np.int8)
+    for k in range(n_steps):
+        out = batch.update(images[k], dt[k], lengths > k)
+        position[:, k], velocity[:, k] = out.position, out.velocity
+        covariance[:, k] = out.covariance
+        valid[:, k], status[:, k] = out.valid, out.status
+    return [
+        (position[i, :m], velocity[i, :m], covariance[i, :m], valid[i, :m], status[i, :m])
+        for i, m in enumerate(lengths.tolist())
+    ]
+
+
+def _estimate_one_by_one(estimator: TargetEstimator, truth: _Truth) -> _Estimates:
+    """A single-episode estimator stepped through the episode's frames (photogrammetry)."""
+    estimator.reset()
+    n = truth.time.size
+    position, velocity = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    covariance = np.full((n, 6, 6), np.nan)
+    valid, status = np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int8)
+    for k in range(n):
+        image = truth.images[k]
+        frame = None if np.isnan(image).any() else Frame(image)
+        e = estimator.update(frame, float(truth.dt[k]), truth.position[k], truth.velocity[k])
+        position[k], velocity[k], valid[k] = e.position, e.velocity, e.valid
+        status[k] = STATUSES.index(e.status)
+        if e.covariance is not None:
+            covariance[k] = e.covariance
+    return position, velocity, covariance, valid, status
+
+
+def _estimate_truth(truth: _Truth) -> _Estimates:
+    """The truth source: the true state, always valid and "ok", no covariance."""
+    n = truth.time.size
+    return (
+        truth.position.copy(),
+        truth.velocity.copy(),
+        np.full((n, 6, 6), np.nan),
+        np.ones(n, dtype=bool),
+        np.full(n, STATUS_OK, dtype=np.int8),
+    )
+
+
+def _finish(truth: _Truth, estimates: _Estimates, bound: PhysicalLimit) -> RecordedEpisode:
+    """Errors, NEES and reachability of every step, as ``CaptureEnv`` derives them."""
+    position, velocity, covariance, valid, status = estimates
+    position_error = np.linalg.norm(position - truth.position, axis=1)
+    velocity_error = np.linalg.norm(velocity - truth.velocity, axis=1)
+    position_error[~valid] = velocity_error[~valid] = np.nan
+    error = np.concatenate([position - truth.position, velocity - truth.velocity], axis=1)
+    nees = np.full(truth.time.size, np.nan)
+    rows = np.flatnonzero(valid & np.isfinite(covariance).all(axis=(1, 2)))
+    try:  # e^T P^-1 e through one batched Cholesky factorisation
+        chol = np.linalg.cholesky(covariance[rows])
+        w = np.linalg.solve(chol, error[rows][:, :, None])[:, :, 0]
+        nees[rows] = np.einsum("ij,ij->i", w, w)
+    except np.linalg.LinAlgError:  # some P not positive definite: NaN there, as CaptureEnv
+        for k in rows.tolist():
+            nees[k] = normalised_error_squared(error[k], covariance[k])
+    return RecordedEpisode(
+        plan=truth.plan,
+        time=truth.time,
+        dt=truth.dt,
+        position=truth.position,
+        velocity=truth.velocity,
+        rotation=truth.rotation,
+        estimate_position=position,
+        estimate_velocity=velocity,
+        estimate_valid=valid,
+        estimator_status=status,
+        visible=truth.visible,
+        reachable=kinematics.reachable_points(truth.position),
+        position_error=position_error,
+        velocity_error=velocity_error,
+        nees=nees,
+        bound=bound,
+    )

@@ -1,0 +1,213 @@
+"""``CaptureVectorEnv`` against N single envs, and its own contract.
+
+The reference is gymnasium's ``SyncVectorEnv`` of ``CaptureEnv(reuse_target_side=True)`` (the
+same seeding and next-step autoreset): every observation, reward, termination and ``info`` entry
+must agree, floats to rounding (the batched arithmetic may differ in the last bits), everything
+discrete exactly.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import capture_bench  # noqa: F401  (registers the envs)
+from agents import make_agent
+from capture_bench.capture import (
+    arc_sag_bound,
+    arc_sag_bounds,
+    closest_approach,
+    closest_approaches,
+    first_entry_fraction,
+    first_entry_fractions,
+)
+from capture_bench.kinematics import reachable, reachable_points
+from capture_bench.observation import encode_observation, encode_observations
+from capture_bench.target_motion import FEATURE_POINTS
+from capture_bench.vector_env import CaptureVectorEnv
+from capture_bench.world import World, clear_of_collisions, limit_joint_increments
+
+DISCRETE = ("is_success", "failure", "saturated", "clipped", "target_visible", "estimator_status")
+
+
+def _pair(env_id: str, n: int, **kwargs):
+    sync = gym.make_vec(env_id, n, vectorization_mode="sync", reuse_target_side=True, **kwargs)
+    batched = gym.make_vec(env_id, n, vectorization_mode="vector_entry_point", **kwargs)
+    assert isinstance(batched, CaptureVectorEnv)
+    return sync, batched
+
+
+def _as_float(values: np.ndarray) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
+
+
+def _assert_same_info(ref: dict, got: dict, where: str) -> None:
+    for key, value in ref.items():
+        if key.startswith("_"):
+            continue
+        mask = ref[f"_{key}"]
+        np.testing.assert_array_equal(got[f"_{key}"], mask, err_msg=f"{where}: mask of {key}")
+        if key in DISCRETE:
+            assert list(got[key][mask]) == list(value[mask]), (where, key)
+        else:
+            np.testing.assert_allclose(
+                got[key][mask].astype(float),
+                _as_float(value[mask]),
+                rtol=1e-6,  # photogrammetry's finite-difference velocity amplifies rounding
+                atol=1e-8,
+                err_msg=f"{where}: {key}",
+            )
+    extra = {k for k in got if not k.startswith("_") and got[f"_{k}"].any()} - set(ref)
+    assert not extra, (where, extra)
+
+
+def _run_pair(sync, batched, seed: int, steps: int, act) -> int:
+    """Step both with the same actions; returns how many episodes ended."""
+    obs, info = sync.reset(seed=seed)
+    obs_b, info_b = batched.reset(seed=seed)
+    np.testing.assert_allclose(obs_b, obs, atol=1e-6)
+    _assert_same_info(info, info_b, "reset")
+    ended = 0
+    for t in range(steps):
+        actions = act(obs, t)
+        obs, reward, term, trunc, info = sync.step(actions)
+        obs_b, reward_b, term_b, trunc_b, info_b = batched.step(actions)
+        where = f"step {t}"
+        np.testing.assert_array_equal(term_b, term, err_msg=where)
+        np.testing.assert_array_equal(trunc_b, trunc, err_msg=where)
+        np.testing.assert_allclose(reward_b, reward, rtol=1e-7, atol=1e-9, err_msg=where)
+        np.testing.assert_allclose(obs_b, obs, atol=1e-5, err_msg=where)
+        _assert_same_info(info, info_b, where)
+        ended += int(term.sum() + trunc.sum())
+    return ended
+
+
+@pytest.mark.parametrize(
+    ("env_id", "source"),
+    [
+        ("CaptureBench/Paper-v0", None),
+        ("CaptureBench/Noisy-v0", None),  # drop-outs, divergences, target_lost
+        ("CaptureBench/Jitter-v0", None),  # episodes of different lengths in one batch
+        ("CaptureBench/Evasive-v0", None),
+        ("CaptureBench/Tumbling-v0", "photogrammetry"),
+        ("CaptureBench/Circular-v0", "truth"),
+    ],
+)
+def test_random_actions_match_single_envs_across_autoresets(env_id, source):
+    kwargs = {} if source is None else {"observation_source": source}
+    sync, batched = _pair(env_id, 4, **kwargs)
+    rng = np.random.default_rng(0)
+
+    def act(_obs, t):
+        return np.zeros((4, 3)) if t % 4 == 0 else rng.uniform(-1, 1, (4, 3))
+
+    ended = _run_pair(sync, batched, seed=7, steps=450, act=act)
+    assert ended >= 4  # every sub-env went through at least one autoreset
+    sync.close()
+    batched.close()
+
+
+def test_an_analytic_controller_captures_as_in_single_envs():
+    """Captures, capture times and the bound at the episode's end (incremental IK on Paper)."""
+    sync, batched = _pair("CaptureBench/Paper-v0", 3)
+    single = gym.make("CaptureBench/Paper-v0")
+    agents = [make_agent("incremental_ik", single) for _ in range(3)]
+    successes = []
+
+    def act(obs, t):
+        return np.stack([agent.predict(o)[0] for agent, o in zip(agents, obs, strict=True)])
+
+    original_step = sync.step
+
+    def step(actions):
+        out = original_step(actions)
+        successes.extend(out[4]["is_success"][out[4]["_is_success"]].tolist())
+        for agent, done in zip(agents, out[2] | out[3], strict=True):
+            if done:
+                agent.reset()
+        return out
+
+    sync.step = step
+    _run_pair(sync, batched, seed=100, steps=400, act=act)
+    assert sum(successes) >= 3
+    single.close()
+
+
+def test_seeding_reset_mask_and_autoreset_contract():
+    env = CaptureVectorEnv(3, "paper")
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.step(np.zeros((3, 3)))
+    obs_a, _ = env.reset(seed=[5, 6, 7])
+    obs_b, _ = CaptureVectorEnv(3, "paper").reset(seed=5)  # int s: s, s + 1, s + 2
+    np.testing.assert_array_equal(obs_a, obs_b)
+    assert env.observation_space.shape == (3, 16) and env.action_space.shape == (3, 3)
+    assert obs_a in env.observation_space
+    # reset_mask: only sub-env 1 starts again, from a new seed
+    env.step(np.zeros((3, 3)))
+    obs_c, info = env.reset(seed=[None, 9, None], options={"reset_mask": [False, True, False]})
+    assert info["_time"].tolist() == [False, True, False]
+    obs_9, _ = CaptureVectorEnv(3, "paper").reset(seed=[9, 9, 9])
+    np.testing.assert_array_equal(obs_c[1], obs_9[1])
+    for bad in (np.zeros((2, 3)), np.full((3, 3), np.nan)):
+        with pytest.raises(ValueError, match="actions must be a finite array of shape"):
+            env.step(bad)
+    with pytest.raises(ValueError, match="reward must be one of"):
+        CaptureVectorEnv(2, "paper", reward="shaped")
+    with pytest.raises(ValueError, match="num_envs must be a positive integer"):
+        CaptureVectorEnv(0, "paper")
+    env.close()
+
+
+def test_batched_helpers_equal_their_single_versions():
+    rng = np.random.default_rng(3)
+    tolerance = np.full(3, 0.01)
+    d0 = rng.normal(0, 0.02, (2000, 3))
+    d1 = rng.normal(0, 0.02, (2000, 3))
+    d1[:50, 1] = d0[:50, 1]  # a component that does not move
+    got = first_entry_fractions(d0, d1, tolerance)
+    want = [first_entry_fraction(a, b, tolerance) for a, b in zip(d0, d1, strict=True)]
+    np.testing.assert_array_equal(got, [np.nan if w is None else w for w in want])
+    assert np.isfinite(got).sum() > 100 and np.isnan(got).sum() > 100
+    np.testing.assert_allclose(
+        closest_approaches(d0, d1), [closest_approach(a, b) for a, b in zip(d0, d1, strict=True)]
+    )
+    points = rng.uniform(-1.0, 1.0, (5000, 3))
+    reach = reachable_points(points)
+    assert reach.tolist() == [reachable(p) for p in points] and 200 < reach.sum() < 4800
+    delta = rng.normal(0, 0.1, (100, 3))
+    np.testing.assert_allclose(arc_sag_bounds(delta), [arc_sag_bound(d) for d in delta])
+    args = [rng.normal(0, 0.3, (50, 3)) for _ in range(4)]
+    periods = rng.uniform(0.04, 0.06, 50)
+    got_obs = encode_observations(*args, periods, 0.05)
+    for i in range(50):
+        want_obs = encode_observation(*(a[i] for a in args), periods[i], 0.05)
+        np.testing.assert_array_equal(got_obs[i], want_obs)
+
+
+def test_joint_limits_and_collision_screen_agree_with_the_world():
+    world = World(FEATURE_POINTS["non_coplanar"])
+    from capture_bench.kinematics import ArmSpec
+
+    arm = ArmSpec()
+    rng = np.random.default_rng(4)
+    theta0 = rng.uniform(arm.joint_lower - 0.2, arm.joint_upper + 0.2, (300, 3))
+    request = rng.uniform(-0.6, 0.6, (300, 3))
+    dt = rng.uniform(0.03, 0.07, 300)
+    after, clipped, saturated = limit_joint_increments(theta0, request, dt, arm)
+    for i in range(300):
+        world.reset(theta0[i], np.zeros(3), np.eye(3))
+        step = world.apply_joint_increment(request[i], dt[i])
+        np.testing.assert_array_equal(after[i], step.theta)
+        assert (clipped[i], saturated[i]) == (step.clipped, step.saturated)
+    # The screen may send a clear pose to pybullet, never a colliding pose past it.
+    theta = rng.uniform(arm.joint_lower - 0.6, arm.joint_upper + 0.6, (3000, 3))
+    clear = clear_of_collisions(theta)
+    collides = []
+    for q in theta:
+        world.set_joint_positions(q.tolist())
+        collides.append(world.collision() is not None)
+    collides = np.array(collides)
+    assert collides.sum() > 300 and clear.sum() > 1000
+    assert not np.any(clear & collides)
+    world.close()
