@@ -94,6 +94,9 @@ class CaptureVectorEnv(VectorEnv):
         observation_source: ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the
             scenario's). ``"photogrammetry"`` runs its estimator episode by episode (slower).
         reward: ``"dense"`` or ``"sparse"``.
+        reuse_target_side: must be True (accepted so that ``make_vec(id, n,
+            reuse_target_side=True)`` means the same for every vectorization mode).
+        render_mode: must be None (the vector env does not render).
 
     Spaces, rewards, termination and ``info`` are ``CaptureEnv``'s (see its docstring), batched;
     see the module docstring for the format of ``info``. Autoreset: next step
@@ -110,7 +113,20 @@ class CaptureVectorEnv(VectorEnv):
         *,
         observation_source: str | None = None,
         reward: str = "dense",
+        reuse_target_side: bool = True,
+        render_mode: str | None = None,
     ) -> None:
+        if not reuse_target_side:
+            raise ValueError(
+                "CaptureVectorEnv always records each episode's target side at reset "
+                "(reuse_target_side=True); for live single envs use "
+                "gymnasium.make_vec(..., vectorization_mode='sync')"
+            )
+        if render_mode is not None:
+            raise ValueError(
+                f"CaptureVectorEnv does not render (render_mode={render_mode!r}); use "
+                "gymnasium.make_vec(..., vectorization_mode='sync', render_mode=...)"
+            )
         if int(num_envs) != num_envs or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         if reward not in REWARD_MODES:
@@ -128,7 +144,9 @@ class CaptureVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, n)
         self._features = self._single._features
         self._camera: Camera = self._single._camera
-        self._worlds = [World(self._features) for _ in range(n)]
+        # One pybullet world answers every sub-env's collision query in turn (a world per
+        # sub-env would cost ~28 MB each): the joints are set before each query.
+        self._world: World | None = World(self._features)
         self._rngs: list[np.random.Generator | None] = [None] * n
         self._queues: list[deque[RecordedEpisode]] = [deque() for _ in range(n)]
         # Row i holds sub-env i's episode, step by step (an episode has at most one step more
@@ -174,15 +192,19 @@ class CaptureVectorEnv(VectorEnv):
         elif isinstance(seed, (int, np.integer)):
             seeds = [int(seed) + i for i in range(n)]
         else:
-            seeds = list(seed)
+            seeds = [None if s is None else int(s) for s in seed]
             if len(seeds) != n:
                 raise ValueError(f"seed must be an int, None or a list of {n} seeds, got {seed!r}")
         if not self._started and not mask.all():
             raise ValueError("the first reset() must reset every sub-env (no reset_mask)")
-        for i in np.flatnonzero(mask).tolist():
-            if seeds[i] is not None or self._rngs[i] is None:
-                self._rngs[i] = seeding.np_random(seeds[i])[0]
-                self._queues[i].clear()  # recorded from the old generator
+        fresh = {  # every new generator first, so that a bad seed changes nothing
+            i: seeding.np_random(seeds[i])[0]
+            for i in np.flatnonzero(mask).tolist()
+            if seeds[i] is not None or self._rngs[i] is None
+        }
+        for i, rng in fresh.items():
+            self._rngs[i] = rng
+            self._queues[i].clear()  # recorded from the old generator
         envs = np.flatnonzero(mask)
         self._start(envs)
         self._ended[envs] = False
@@ -195,6 +217,8 @@ class CaptureVectorEnv(VectorEnv):
     ) -> tuple[
         NDArray[np.float32], FloatArray, NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]
     ]:
+        if self._world is None:
+            raise RuntimeError("CaptureVectorEnv.step() called after close()")
         if not self._started:
             raise RuntimeError("CaptureVectorEnv.step() called before reset(); call reset() first")
         n = self.num_envs
@@ -224,8 +248,9 @@ class CaptureVectorEnv(VectorEnv):
         return obs, rewards, terminated, truncated, info
 
     def close_extras(self, **kwargs: Any) -> None:
-        for world in self._worlds:
-            world.close()
+        if self._world is not None:
+            self._world.close()
+            self._world = None
         self._single.close()
 
     # -- episodes -------------------------------------------------------------------------------
@@ -254,7 +279,6 @@ class CaptureVectorEnv(VectorEnv):
             self._episodes[i] = episode
             self._load_tracks(i, episode)
             self._bound[i] = episode.bound.time
-            self._worlds[i].set_joint_positions(home)
         self._steps[envs] = 0
         self._theta[envs] = home
         self._x_e[envs] = kinematics.forward_kinematics_point(home)
@@ -354,7 +378,7 @@ class CaptureVectorEnv(VectorEnv):
         else:
             info = {key: _scatter(n, idx, value) for key, value in values.items()}
             mask = self._mask(idx)
-        info.update({f"_{key}": mask for key in values})
+        info.update({f"_{key}": mask.copy() for key in values})
         over = idx[ended | timeout]
         limit = np.full(n, np.nan)
         limit[over] = self._bound[over]
@@ -406,7 +430,8 @@ class CaptureVectorEnv(VectorEnv):
         failure = np.zeros(idx.size, dtype=np.int64)
         ask = ~captured & ~clear_of_collisions(theta)  # pybullet only where contact is possible
         for j in np.flatnonzero(ask).tolist():
-            world = self._worlds[idx[j]]
+            world = self._world
+            assert world is not None
             world.set_joint_positions(theta[j].tolist())
             if world.collision() is not None:
                 failure[j] = _COLLISION

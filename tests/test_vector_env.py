@@ -156,7 +156,17 @@ def test_seeding_reset_mask_and_autoreset_contract():
         CaptureVectorEnv(2, "paper", reward="shaped")
     with pytest.raises(ValueError, match="num_envs must be a positive integer"):
         CaptureVectorEnv(0, "paper")
+    with pytest.raises(ValueError, match="does not render"):
+        gym.make_vec("CaptureBench/Paper-v0", 2, render_mode="rgb_array")
+    with pytest.raises(ValueError, match="vectorization_mode='sync'"):
+        gym.make_vec("CaptureBench/Paper-v0", 2, reuse_target_side=False)
+    obs_d, _ = env.reset(seed=np.array([5, 6, 7]))  # numpy seeds too
+    np.testing.assert_array_equal(obs_d, obs_a)
+    info = env.step(np.zeros((3, 3)))[4]
+    assert info["_time"] is not info["_distance"]  # a mask per key, as SyncVectorEnv gives
     env.close()
+    with pytest.raises(RuntimeError, match="after close"):
+        env.step(np.zeros((3, 3)))
 
 
 def test_batched_helpers_equal_their_single_versions():
