@@ -381,6 +381,34 @@ _LEVEL_BATCHES = (2, 8, MAX_SPECULATIVE_LEVELS)
 _BATCHED_ROWS = 256  # from how many rows in a round batches pay
 
 
+def _trial(
+    gram: FloatArray,
+    lam: FloatArray,
+    base: FloatArray,
+    base_cost: FloatArray,
+    z: FloatArray,
+    alone: NDArray[np.bool_],
+    table: FloatArray,
+) -> tuple[NDArray[np.bool_], FloatArray, NDArray[np.floating], FloatArray, FloatArray]:
+    """One damped step per row, tried: ``(J^T J + lambda (diag(J^T J) + 1e-12)) step = -J^T r``
+    from ``base``; accepted when every point stays beyond the lens and the cost does not rise.
+
+    ``gram`` (M, 7, 7) is changed in place (its diagonal damped). Returns accepted (M,), the trial
+    poses, the steps, the trials' ``rj`` (M, 7, 2N) and their costs.
+    """
+    diag = gram.reshape(-1, 49)[:, 8::8]  # the diagonal of J^T J
+    diag += lam[:, None] * (diag + 1e-12)
+    step, solvable = _solve_damped(gram[:, 1:, 1:], gram[:, 1:, :1])
+    trial = base + step
+    rj, depth = project_poses(trial, table, z, alone)
+    rj = rj.reshape(rj.shape[0], 7, rj.shape[2] * rj.shape[3])
+    cost = np.einsum("ij,ij->i", rj[:, 0], rj[:, 0])
+    accept = (depth > 0).all(axis=1) & (cost <= base_cost)
+    if solvable is not None:
+        accept &= solvable
+    return accept, trial, step, rj, cost
+
+
 def _try_levels(
     gram: FloatArray,
     pose: FloatArray,
@@ -415,16 +443,8 @@ def _try_levels(
     k = levels.size
     n_eq = 2 * (table.shape[0] // (N_QUANTITIES * 3))
     if (levels == 1).all():  # the common round: one lambda per start, every row its own start
-        diag = gram.reshape(-1, 49)[:, 8::8]  # the diagonal of J^T J (gram is ours to change)
-        diag += damping[:, None] * (diag + 1e-12)  # J^T J + lambda (diag(J^T J) + 1e-12)
-        step, solvable = _solve_damped(gram[:, 1:, 1:], gram[:, 1:, :1])
-        trial = pose + step
-        rj_t, depth_t = project_poses(trial, table, z, alone)
-        rj_t = rj_t.reshape(-1, 7, n_eq)
-        cost_t = np.einsum("ij,ij->i", rj_t[:, 0], rj_t[:, 0])
-        accept = (depth_t > 0).all(axis=1) & (cost_t <= cost)
-        if solvable is not None:
-            accept &= solvable
+        # (gram is ours to change)
+        accept, trial, step, rj_t, cost_t = _trial(gram, damping, pose, cost, z, alone, table)
         return accept, trial, step, rj_t, cost_t, damping
     pending = np.arange(k)
     low = 0
@@ -437,17 +457,15 @@ def _try_levels(
         last = first + count - 1
         level = low + np.arange(owner.size) - np.repeat(first, count)
         lam_r = damping[owner] * _POWERS_OF_TEN[level]
-        a = gram[owner]
-        diag = a.reshape(-1, 49)[:, 8::8]
-        diag += lam_r[:, None] * (diag + 1e-12)
-        step_r, solvable = _solve_damped(a[:, 1:, 1:], a[:, 1:, :1])
-        trial_r = pose[owner] + step_r
-        rj_r, depth_r = project_poses(trial_r, table, z[owner] if per_start else z, alone[owner])
-        rj_r = rj_r.reshape(-1, 7, n_eq)
-        cost_r = np.einsum("ij,ij->i", rj_r[:, 0], rj_r[:, 0])
-        ok = (depth_r > 0).all(axis=1) & (cost_r <= cost[owner])
-        if solvable is not None:
-            ok &= solvable
+        ok, trial_r, step_r, rj_r, cost_r = _trial(
+            gram[owner],
+            lam_r,
+            pose[owner],
+            cost[owner],
+            z[owner] if per_start else z,
+            alone[owner],
+            table,
+        )
         # Each start's first accepted row, else its last one.
         rows = np.where(ok, np.arange(ok.size), ok.size)
         first_ok = np.minimum.reduceat(rows, first)
