@@ -31,14 +31,14 @@ def episodes(count: int) -> list[dict[str, Any]]:
     names = list_scenarios()
     out = []
     for i in range(count):
-        env = CaptureEnv(names[i % len(names)])  # one env per episode: travel_time is bound to it
+        env = CaptureEnv(names[i % len(names)])
         env.reset(seed=i)
-        arm, control = env.description.arm, env.scenario.control
+        arm, control, plan = env.description.arm, env.scenario.control, env._plan()
         out.append(
             {
                 "target_position": env.true_target_position,
-                "horizon": env._episode_end(),
-                "travel_time": env._travel_time if control.period_jitter else None,
+                "horizon": plan.end(),
+                "travel_time": plan.travel_time if control.period_jitter else None,
                 "shared": (
                     arm.home,
                     arm.joint_rate_limits,

@@ -202,12 +202,7 @@ class CaptureEnv(gym.Env):
         )
         self._camera = Camera(self.camera_model, cam.noise_px, cam.dropout, cam.latency_frames)
         self._estimator = TargetEstimator(
-            self.camera_model,
-            self._features,
-            source=sc.estimator.source,
-            noise_px=cam.noise_px,
-            sigma_acceleration=sc.estimator.sigma_acceleration,
-            sigma_angular_acceleration=sc.estimator.sigma_angular_acceleration,
+            self.camera_model, self._features, source=sc.estimator.source, **sc.estimator_settings()
         )
         self._world: World | None = None
         self._trajectory: TargetTrajectory | None = None
@@ -239,18 +234,6 @@ class CaptureEnv(gym.Env):
         """This episode's trajectory and control periods, as reset drew them."""
         assert self._trajectory is not None
         return EpisodePlan(self.scenario, self._trajectory, self._periods)
-
-    def _episode_end(self) -> float:
-        """When the episode's last possible step ends, s (:meth:`EpisodePlan.end`)."""
-        return self._plan().end()
-
-    def _travel_time(self, times: NDArray[np.float64]) -> NDArray[np.float64]:
-        """:meth:`EpisodePlan.travel_time` of this episode."""
-        return self._plan().travel_time(times)
-
-    def _leaves_reach_before(self, t_end: float) -> bool:
-        """:meth:`EpisodePlan.leaves_reach_before` of this episode."""
-        return self._plan().leaves_reach_before(t_end)
 
     def true_target_position(self, t: float | NDArray) -> NDArray[np.float64]:
         """X_T(t), global, m (privileged)."""

@@ -34,16 +34,11 @@ STATUS_OK = STATUSES.index("ok")
 
 
 @dataclass(eq=False)
-class RecordedEpisode:
-    """One episode's target side, indexed by step (0 is reset, k the end of step k).
-
-    Attributes mirror :class:`capture_bench.env.TargetStep`: ``time``, ``dt`` (T+1,), s;
-    ``position``, ``velocity`` (T+1, 3) true X_T and its rate; ``rotation`` (T+1, 3, 3) R_gt;
-    ``estimate_position``, ``estimate_velocity`` (T+1, 3), NaN where not ``estimate_valid``;
-    ``estimator_status`` (T+1,) index into :data:`capture_bench.estimator.STATUSES`;
-    ``visible``, ``reachable`` (T+1,); ``position_error``, ``velocity_error``, ``nees`` (T+1,).
-    ``bound`` is the episode's physical limit (``inf`` as ``CaptureEnv.physical_limit`` gives it).
-    """
+class EpisodeTruth:
+    """An episode's plan, the time and real period of reset (0) and of every step k, the true
+    state there and the camera's frames: ``time``, ``dt`` (T+1,), s; ``position``, ``velocity``
+    (T+1, 3) true X_T and its rate; ``rotation`` (T+1, 3, 3) R_gt; ``images`` (T+1, N, 2) the
+    frame delivered, NaN where none; ``visible`` (T+1,) every marker in view."""
 
     plan: EpisodePlan
     time: FloatArray
@@ -51,30 +46,31 @@ class RecordedEpisode:
     position: FloatArray
     velocity: FloatArray
     rotation: FloatArray
+    images: FloatArray
+    visible: BoolArray
+
+
+@dataclass(eq=False)
+class RecordedEpisode(EpisodeTruth):
+    """One episode's target side, indexed by step (0 is reset, k the end of step k).
+
+    The fields of :class:`EpisodeTruth`, then what :class:`capture_bench.env.TargetStep` derives
+    from them: ``estimate_position``, ``estimate_velocity`` (T+1, 3), NaN where not
+    ``estimate_valid``; ``estimator_status`` (T+1,) index into
+    :data:`capture_bench.estimator.STATUSES`; ``reachable`` (T+1,); ``position_error``,
+    ``velocity_error``, ``nees`` (T+1,). ``bound`` is the episode's physical limit (``inf`` as
+    ``CaptureEnv.physical_limit`` gives it).
+    """
+
     estimate_position: FloatArray
     estimate_velocity: FloatArray
     estimate_valid: BoolArray
     estimator_status: NDArray[np.int8]
-    visible: BoolArray
     reachable: BoolArray
     position_error: FloatArray
     velocity_error: FloatArray
     nees: FloatArray
     bound: PhysicalLimit
-
-
-@dataclass
-class _Truth:
-    """An episode's plan, step times and true states, and its camera's frames."""
-
-    plan: EpisodePlan
-    time: FloatArray
-    dt: FloatArray
-    position: FloatArray
-    velocity: FloatArray
-    rotation: FloatArray
-    images: FloatArray  # (T+1, N, 2), NaN where no frame is delivered
-    visible: BoolArray
 
 
 # position, velocity (T+1, 3), covariance (T+1, 6, 6) (NaN where none), valid, status (T+1,)
@@ -106,7 +102,9 @@ def record_episodes(
     if source == "ekf":
         estimates = _estimate_ekf(scenario, camera, features, truths)
     elif source == "photogrammetry":
-        estimator = _estimator(scenario, camera, features)
+        estimator = TargetEstimator(
+            camera.model, features, source=source, **scenario.estimator_settings()
+        )
         estimates = [_estimate_one_by_one(estimator, t) for t in truths]
     else:
         estimates = [_estimate_truth(t) for t in truths]
@@ -119,7 +117,7 @@ def record_episodes(
 
 def _truth(
     plan: EpisodePlan, camera: Camera, features: FloatArray, rng: np.random.Generator
-) -> _Truth:
+) -> EpisodeTruth:
     """True states at every step time, and the frames (none with the truth source, whose env
     never calls the camera)."""
     time, dt = plan.step_times()
@@ -132,36 +130,16 @@ def _truth(
         points = position[:, None, :] + np.einsum("nj,tij->tni", features, rotation)
         camera.reset()
         images, visible = camera.capture_sequence(points, rng)
-    return _Truth(plan, time, dt, position, velocity, rotation, images, visible)
-
-
-def _estimator(scenario: Scenario, camera: Camera, features: FloatArray) -> TargetEstimator:
-    est = scenario.estimator
-    return TargetEstimator(
-        camera.model,
-        features,
-        source=est.source,
-        noise_px=camera.noise_px,
-        sigma_acceleration=est.sigma_acceleration,
-        sigma_angular_acceleration=est.sigma_angular_acceleration,
-    )
+    return EpisodeTruth(plan, time, dt, position, velocity, rotation, images, visible)
 
 
 def _estimate_ekf(
-    scenario: Scenario, camera: Camera, features: FloatArray, truths: Sequence[_Truth]
+    scenario: Scenario, camera: Camera, features: FloatArray, truths: Sequence[EpisodeTruth]
 ) -> list[_Estimates]:
     """The EKF over all episodes together, step by step (episodes of different lengths stop
     taking part after their last step)."""
-    est = scenario.estimator
     n = len(truths)
-    batch = BatchedTargetEstimator(
-        n,
-        camera.model,
-        features,
-        noise_px=camera.noise_px,
-        sigma_acceleration=est.sigma_acceleration,
-        sigma_angular_acceleration=est.sigma_angular_acceleration,
-    )
+    batch = BatchedTargetEstimator(n, camera.model, features, **scenario.estimator_settings())
     lengths = np.array([t.time.size for t in truths])
     n_steps = int(lengths.max())
     images = np.full((n_steps, n, features.shape[0], 2), np.nan)
@@ -185,7 +163,7 @@ def _estimate_ekf(
     ]
 
 
-def _estimate_one_by_one(estimator: TargetEstimator, truth: _Truth) -> _Estimates:
+def _estimate_one_by_one(estimator: TargetEstimator, truth: EpisodeTruth) -> _Estimates:
     """A single-episode estimator stepped through the episode's frames (photogrammetry)."""
     estimator.reset()
     n = truth.time.size
@@ -203,7 +181,7 @@ def _estimate_one_by_one(estimator: TargetEstimator, truth: _Truth) -> _Estimate
     return position, velocity, covariance, valid, status
 
 
-def _estimate_truth(truth: _Truth) -> _Estimates:
+def _estimate_truth(truth: EpisodeTruth) -> _Estimates:
     """The truth source: the true state, always valid and "ok", no covariance."""
     n = truth.time.size
     return (
@@ -215,7 +193,7 @@ def _estimate_truth(truth: _Truth) -> _Estimates:
     )
 
 
-def _finish(truth: _Truth, estimates: _Estimates, bound: PhysicalLimit) -> RecordedEpisode:
+def _finish(truth: EpisodeTruth, estimates: _Estimates, bound: PhysicalLimit) -> RecordedEpisode:
     """Errors, NEES and reachability of every step, as ``CaptureEnv`` derives them."""
     position, velocity, covariance, valid, status = estimates
     position_error = np.linalg.norm(position - truth.position, axis=1)
@@ -232,17 +210,11 @@ def _finish(truth: _Truth, estimates: _Estimates, bound: PhysicalLimit) -> Recor
         for k in rows.tolist():
             nees[k] = normalised_error_squared(error[k], covariance[k])
     return RecordedEpisode(
-        plan=truth.plan,
-        time=truth.time,
-        dt=truth.dt,
-        position=truth.position,
-        velocity=truth.velocity,
-        rotation=truth.rotation,
+        **vars(truth),
         estimate_position=position,
         estimate_velocity=velocity,
         estimate_valid=valid,
         estimator_status=status,
-        visible=truth.visible,
         reachable=kinematics.reachable_points(truth.position),
         position_error=position_error,
         velocity_error=velocity_error,

@@ -141,6 +141,15 @@ class Scenario:
             self.seeds.training_start, self.seeds.training_start + self.seeds.training_count
         )
 
+    def estimator_settings(self) -> dict[str, float]:
+        """What the estimator assumes (pixel noise, process noise), as the keyword arguments of
+        ``TargetEstimator`` and ``BatchedTargetEstimator``."""
+        return {
+            "noise_px": self.camera.noise_px,
+            "sigma_acceleration": self.estimator.sigma_acceleration,
+            "sigma_angular_acceleration": self.estimator.sigma_angular_acceleration,
+        }
+
     def replace(self, **sections: Any) -> Scenario:
         """A copy with some fields replaced, e.g. ``replace(estimator={"source": "truth"})``;
         nested mappings are validated like YAML."""

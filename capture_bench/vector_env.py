@@ -53,7 +53,6 @@ from capture_bench.rewards import (
     CAPTURE_BONUS,
     FAILURE_PENALTY,
     PROGRESS_GAIN,
-    REWARD_MODES,
     TIME_PENALTY,
 )
 from capture_bench.scenarios import Scenario
@@ -129,9 +128,8 @@ class CaptureVectorEnv(VectorEnv):
             )
         if int(num_envs) != num_envs or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        if reward not in REWARD_MODES:
-            raise ValueError(f"reward must be one of {REWARD_MODES}, got {reward!r}")
-        # One single env holds the scenario, the task description, the camera and the spaces.
+        # One single env holds the scenario, the task description, the camera and the spaces (and
+        # checks the scenario, source and reward).
         self._single = CaptureEnv(scenario, observation_source=observation_source, reward=reward)
         self.scenario = self._single.scenario
         self.description = self._single.description
@@ -209,8 +207,7 @@ class CaptureVectorEnv(VectorEnv):
         self._start(envs)
         self._ended[envs] = False
         self._started = True
-        obs = self._observe(np.arange(n), self._tracks["dt"][np.arange(n), self._steps])
-        return obs, self._reset_info(envs)
+        return self._observe(), self._reset_info(envs)
 
     def step(
         self, actions: NDArray
@@ -235,8 +232,7 @@ class CaptureVectorEnv(VectorEnv):
         terminated = np.zeros(n, dtype=bool)
         truncated = np.zeros(n, dtype=bool)
         info = self._step(stepping, a[stepping], rewards, terminated, truncated)
-        dt = self._tracks["dt"][np.arange(n), self._steps]
-        obs = self._observe(np.arange(n), dt)
+        obs = self._observe()
         if resetting.size:
             for key, value in self._reset_info(resetting).items():
                 if key.startswith("_"):
@@ -429,9 +425,9 @@ class CaptureVectorEnv(VectorEnv):
         sc = self.scenario
         failure = np.zeros(idx.size, dtype=np.int64)
         ask = ~captured & ~clear_of_collisions(theta)  # pybullet only where contact is possible
+        world = self._world
+        assert world is not None  # step() refuses to run after close()
         for j in np.flatnonzero(ask).tolist():
-            world = self._world
-            assert world is not None
             world.set_joint_positions(theta[j].tolist())
             if world.collision() is not None:
                 failure[j] = _COLLISION
@@ -465,15 +461,20 @@ class CaptureVectorEnv(VectorEnv):
             "reward_failure": np.where(failed, FAILURE_PENALTY, 0.0),
         }
 
-    def _observe(self, idx: NDArray[np.intp], dt: FloatArray) -> NDArray[np.float32]:
-        """``CaptureEnv._observation`` for sub-envs ``idx`` at their current step."""
-        k = self._steps[idx]
-        valid = self._tracks["estimate_valid"][idx, k][:, None]
-        x_e = self._x_e[idx]
-        position = np.where(valid, self._tracks["estimate_position"][idx, k], x_e)
-        velocity = np.where(valid, self._tracks["estimate_velocity"][idx, k], 0.0)
+    def _observe(self) -> NDArray[np.float32]:
+        """``CaptureEnv._observation`` of every sub-env at its current step (the last real
+        period: that of the step just taken, t_s at reset)."""
+        rows, k, tracks = np.arange(self.num_envs), self._steps, self._tracks
+        valid = tracks["estimate_valid"][rows, k][:, None]
+        position = np.where(valid, tracks["estimate_position"][rows, k], self._x_e)
+        velocity = np.where(valid, tracks["estimate_velocity"][rows, k], 0.0)
         return encode_observations(
-            position, velocity, x_e, self._theta[idx], dt, self.scenario.control.period
+            position,
+            velocity,
+            self._x_e,
+            self._theta,
+            tracks["dt"][rows, k],
+            self.scenario.control.period,
         )
 
     def _mask(self, envs: NDArray[np.intp]) -> NDArray[np.bool_]:

@@ -167,9 +167,9 @@ def test_travel_time_under_jitter_is_what_full_rate_steps_move(make_env):
         dts.append(base._target.dt)
     k3 = k.JOINT_RATE_LIMITS[2]
     np.testing.assert_allclose(np.array(moved), k3 * np.minimum(dts, t_s), rtol=1e-9)
-    travel = base._travel_time(np.array(ends))
+    travel = base._plan().travel_time(np.array(ends))
     np.testing.assert_allclose(travel, np.cumsum(np.minimum(dts, t_s)), rtol=1e-12)
-    mid = base._travel_time(np.array(ends[:-1]) + 0.25 * np.array(dts[1:]))
+    mid = base._plan().travel_time(np.array(ends[:-1]) + 0.25 * np.array(dts[1:]))
     np.testing.assert_allclose(mid, travel[:-1] + 0.25 * np.minimum(dts[1:], t_s), rtol=1e-12)
     assert np.ptp(dts) > 0.01 and max(dts) > t_s > min(dts)
 
@@ -193,7 +193,7 @@ def test_bound_is_infinite_exactly_when_the_env_ends_unreachable_first_under_jit
         checked += unreachable
         for t_end in (t_f - 1e-6, t_f, t_f + 1e-6, 0.5 * t_f, 10.0):
             expected = unreachable and t_f < t_end
-            assert base._leaves_reach_before(t_end) == expected, (seed, t_end)
+            assert base._plan().leaves_reach_before(t_end) == expected, (seed, t_end)
     assert checked >= 3
 
 
