@@ -86,6 +86,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="also plot the first episode of every agent x scenario into DIR",
     )
+    parser.add_argument(
+        "--trust-model",
+        action="store_true",
+        help="load a model directory that has no safe policy.pt from its SB3 .zip; a .zip holds "
+        "pickled Python objects, which can run code when loaded: only for models you trust",
+    )
     return parser
 
 
@@ -108,6 +114,7 @@ def parse_config(argv: list[str]) -> EvaluationConfig:
         ray_address=args.ray_address,
         out=args.out,
         episode_plots=args.episode_plots,
+        trust_model=args.trust_model,
     )
 
 

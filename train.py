@@ -247,7 +247,10 @@ def save_final(
     run_dir: Path,
     total_wall: float,
 ) -> None:
-    """Write ``model.zip`` (+ ``vecnormalize.pkl``) and ``metadata.json`` for agents.sb3_policy."""
+    """Write the policy in the safe form (``policy.pt`` + declared ``metadata.json``, loaded
+    without unpickling: :mod:`agents.policy_file`), and SB3's own ``model.zip`` (+
+    ``vecnormalize.pkl``) for SB3 users who trust the run."""
+    from agents.policy_file import ObservationNormalizer, save_policy
     from capture_bench.evaluation.provenance import git_state, package_versions
 
     atomic_write(run_dir / "model.zip", writer=model.save)
@@ -277,7 +280,8 @@ def save_final(
             if v is not None and k not in ("resume", "config", "run_dir")
         ),
     }  # fmt: skip
-    atomic_write(run_dir / "metadata.json", json.dumps(metadata, indent=2).encode())
+    normalizer = None if env is None else ObservationNormalizer.from_vecnormalize(env)
+    save_policy(run_dir, config.algo, model.policy, normalizer, extra=metadata)
 
 
 if __name__ == "__main__":

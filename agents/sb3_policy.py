@@ -1,26 +1,38 @@
-"""Trained Stable-Baselines3 policies as :class:`agents.protocol.Agent`.
+"""Trained Stable-Baselines3 policies as :class:`agents.protocol.Agent`, loaded safely.
 
 A trained model lives in a directory (a training run directory, or an entry ``models/<name>/``)
-holding the SB3 ``.zip`` and a metadata file, ``metadata.json`` or ``metadata.yaml``::
+holding a metadata file, ``metadata.json`` (or ``metadata.yaml``), and the policy in one of two
+forms:
 
-    algorithm: PPO            # one of PPO, SAC, TD3, A2C, DDPG (required)
+* **safe** (what ``train.py`` writes and every shipped model uses): ``policy.pt`` (tensors only)
+  and a metadata file declaring the network, its spaces and its normalisation statistics as plain
+  numbers (:mod:`agents.policy_file`). Loading it unpickles nothing, so it runs no code.
+* **SB3 ``.zip``** (``model.save``), with optional ``vecnormalize.pkl``: pickled Python objects,
+  which can run any code when loaded. Loaded only with ``trust_model=True`` (``evaluate.py
+  --trust-model``) and only where the directory has no safe form; without it, loading is refused
+  with a message saying how to opt in or convert
+  (``python -m agents.policy_file convert DIR --trust-model``).
+
+The metadata of an SB3 ``.zip`` directory::
+
+    algorithm: PPO            # one of PPO, A2C, SAC, TD3, DDPG (TQC with sb3-contrib)
     scenario: paper           # the scenario it was trained on (informational)
     model: model.zip          # the SB3 file in the directory (optional if there is exactly one)
     vecnormalize: vecnormalize.pkl   # VecNormalize statistics, if training normalised observations
     observation_source: ekf   # what it was trained on (informational; evaluation uses the env's)
 
-``train.py`` writes this format. Observations are normalised with the saved VecNormalize
-statistics (frozen, as in SB3's evaluation) before the policy sees them.
-
-Loading checks the model's observation and action spaces against the environment's and raises
-:class:`PolicyLoadError` (a ``ValueError``) with a one-line message on any problem: no metadata,
-unknown algorithm, missing or corrupt ``.zip``, mismatched spaces. SB3 and torch are imported only
-when a model is loaded.
+Observations are normalised with the frozen statistics (as SB3's evaluation does) before the
+policy sees them. Every problem raises :class:`PolicyLoadError` (a ``ValueError``) with a one-line
+message: no metadata, unknown algorithm, missing or corrupt file, a declaration that does not
+match the weights, an algorithm that does not match the ``.zip``, mismatched spaces. SB3 and torch
+are imported only when a model is loaded.
 """
 
 from __future__ import annotations
 
 import json
+import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,12 +40,24 @@ from typing import Any
 import numpy as np
 import yaml
 
-ALGORITHMS = ("PPO", "SAC", "TD3", "A2C", "DDPG")
+from agents.policy_file import (
+    POLICY_CLASSES,
+    ObservationNormalizer,
+    PolicyDeclaration,
+    PolicyLoadError,
+    build_policy,
+    load_weights,
+    parse_declaration,
+    read_weights,
+)
+
+ALGORITHMS = tuple(POLICY_CLASSES)
 METADATA_FILES = ("metadata.json", "metadata.yaml", "metadata.yml")
-
-
-class PolicyLoadError(ValueError):
-    """A trained model cannot be used; the message names the file and what is wrong."""
+TRUST_HINT = (
+    "an SB3 .zip holds pickled Python objects, which can run code when loaded: pass "
+    "--trust-model (Python: trust_model=True) only if you trust its source, or convert it once "
+    "with: python -m agents.policy_file convert {directory} --trust-model"
+)
 
 
 @dataclass(frozen=True)
@@ -43,20 +67,38 @@ class ModelMetadata:
     Attributes:
         directory: the model directory.
         algorithm: SB3 algorithm name, one of :data:`ALGORITHMS`.
-        model_file: the SB3 ``.zip``.
-        scenario: scenario it was trained on ('' if not given).
         metadata_file: the metadata file read.
-        vecnormalize_file: saved VecNormalize statistics, or None.
+        scenario: scenario it was trained on ('' if not given).
         observation_source: observation source used in training ('' if not given).
+        weights_file: the safe form's ``policy.pt``, or None (an SB3 ``.zip`` only).
+        declaration: the safe form's validated network declaration, or None.
+        model_file: the SB3 ``.zip``, or None (the safe form only).
+        vecnormalize_file: the ``.zip``'s VecNormalize statistics, or None.
     """
 
     directory: Path
     algorithm: str
-    model_file: Path
-    scenario: str
     metadata_file: Path
-    vecnormalize_file: Path | None = None
+    scenario: str = ""
     observation_source: str = ""
+    weights_file: Path | None = None
+    declaration: PolicyDeclaration | None = None
+    model_file: Path | None = None
+    vecnormalize_file: Path | None = None
+
+    @property
+    def files(self) -> list[Path]:
+        """Every file the model is made of (for provenance hashes)."""
+        found = (self.metadata_file, self.weights_file, self.model_file, self.vecnormalize_file)
+        return [p for p in found if p is not None]
+
+
+@dataclass(frozen=True)
+class LoadedPolicy:
+    """A loaded policy: the SB3 policy network and its frozen observation statistics."""
+
+    policy: Any
+    normalizer: ObservationNormalizer | None
 
 
 def find_metadata_file(directory: Path) -> Path | None:
@@ -67,8 +109,38 @@ def find_metadata_file(directory: Path) -> Path | None:
     return None
 
 
+def _zip_file(directory: Path, data: dict, meta_file: Path, required: bool) -> Path | None:
+    if "model" in data and data["model"]:
+        model_file = directory / str(data["model"])
+    else:
+        zips = sorted(directory.glob("*.zip"))
+        if len(zips) != 1:
+            if not required and not zips:
+                return None
+            found = ", ".join(p.name for p in zips) or "none"
+            raise PolicyLoadError(
+                f"{directory}: expected exactly one SB3 .zip (found: {found}); "
+                f"or name it with key 'model' in {meta_file.name}"
+            )
+        model_file = zips[0]
+    if not model_file.is_file():
+        if not required:
+            return None
+        raise PolicyLoadError(f"{model_file}: model file is missing")
+    return model_file
+
+
+def _existing(path: Path | None) -> Path | None:
+    return path if path is not None and path.is_file() else None
+
+
 def read_metadata(directory: str | Path) -> ModelMetadata:
-    """Read and validate a model directory's metadata (see module docstring)."""
+    """Read and validate a model directory's metadata (see module docstring); reads no model.
+
+    Raises:
+        PolicyLoadError: no directory or metadata, unreadable metadata, a bad key or value, or
+            a missing file.
+    """
     directory = Path(directory)
     if not directory.is_dir():
         raise PolicyLoadError(f"{directory}: no such model directory")
@@ -82,7 +154,8 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
         text = meta_file.read_text()
         data = json.loads(text) if meta_file.suffix == ".json" else yaml.safe_load(text)
     except (OSError, ValueError, yaml.YAMLError) as exc:
-        raise PolicyLoadError(f"{meta_file}: unreadable metadata ({exc})") from None
+        reason = " ".join(str(exc).split())
+        raise PolicyLoadError(f"{meta_file}: unreadable metadata ({reason})") from None
     if not isinstance(data, dict):
         raise PolicyLoadError(f"{meta_file}: expected a mapping with key 'algorithm'")
     algorithm = str(data.get("algorithm", data.get("algo", ""))).upper()
@@ -91,63 +164,139 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
             f"{meta_file}: key 'algorithm' is {data.get('algorithm')!r}; "
             f"valid: {', '.join(ALGORITHMS)}"
         )
-    if "model" in data:
-        model_file = directory / str(data["model"])
-    else:
-        zips = sorted(directory.glob("*.zip"))
-        if len(zips) != 1:
-            found = ", ".join(p.name for p in zips) or "none"
-            raise PolicyLoadError(
-                f"{directory}: expected exactly one SB3 .zip (found: {found}); "
-                f"or name it with key 'model' in {meta_file.name}"
-            )
-        model_file = zips[0]
-    if not model_file.is_file():
-        raise PolicyLoadError(f"{model_file}: model file is missing")
+    common = {
+        "directory": directory,
+        "algorithm": algorithm,
+        "metadata_file": meta_file,
+        "scenario": str(data.get("scenario") or ""),
+        "observation_source": str(data.get("observation_source") or ""),
+    }
     vecnormalize = data.get("vecnormalize")
     vecnormalize_file = directory / str(vecnormalize) if vecnormalize else None
+    if "format" in data:  # the safe form
+        declaration = parse_declaration(data, str(meta_file))
+        weights = data.get("weights")
+        if not isinstance(weights, str) or not weights or Path(weights).name != weights:
+            raise PolicyLoadError(
+                f"{meta_file}: key 'weights' is {weights!r}; valid: a file name in {directory}"
+            )
+        weights_file = directory / weights
+        if not weights_file.is_file():
+            raise PolicyLoadError(f"{weights_file}: weights file is missing")
+        return ModelMetadata(
+            **common,
+            weights_file=weights_file,
+            declaration=declaration,
+            model_file=_zip_file(directory, data, meta_file, required=False),
+            vecnormalize_file=_existing(vecnormalize_file),  # the .zip's, for trusted loading
+        )
+    model_file = _zip_file(directory, data, meta_file, required=True)
     if vecnormalize_file is not None and not vecnormalize_file.is_file():
         raise PolicyLoadError(f"{vecnormalize_file}: VecNormalize statistics file is missing")
-    return ModelMetadata(
-        directory=directory,
-        algorithm=algorithm,
-        model_file=model_file,
-        scenario=str(data.get("scenario", "")),
-        metadata_file=meta_file,
-        vecnormalize_file=vecnormalize_file,
-        observation_source=str(data.get("observation_source") or ""),
-    )
+    return ModelMetadata(**common, model_file=model_file, vecnormalize_file=vecnormalize_file)
 
 
-def load_model(metadata: ModelMetadata) -> Any:
-    """Load the SB3 model on the CPU; a corrupt file raises :class:`PolicyLoadError`."""
+def load_policy(metadata: ModelMetadata, trust_model: bool = False) -> LoadedPolicy:
+    """Load the model of ``metadata`` on the CPU.
+
+    The safe form is always preferred. An SB3 ``.zip`` (pickles) is loaded only with
+    ``trust_model=True`` and only where there is no safe form.
+
+    Raises:
+        PolicyLoadError: refused (an SB3 ``.zip`` without ``trust_model``), or not loadable.
+    """
+    if metadata.declaration is not None and metadata.weights_file is not None:
+        where = str(metadata.weights_file)
+        policy = build_policy(metadata.declaration, str(metadata.metadata_file))
+        load_weights(policy, read_weights(metadata.weights_file), where, metadata.algorithm)
+        return LoadedPolicy(policy, metadata.declaration.normalization)
+    if not trust_model:
+        raise PolicyLoadError(
+            f"{metadata.directory}: refused to load its SB3 .zip (there is no safe policy.pt): "
+            + TRUST_HINT.format(directory=metadata.directory)
+        )
+    return load_trusted(metadata)
+
+
+#: The SB3 policy class each algorithm's ``.zip`` holds.
+_POLICY_CLASS_NAMES = {algorithm: name for algorithm, (_, name) in POLICY_CLASSES.items()}
+
+
+def _zip_policy_class(model_file: Path) -> tuple[str, set[str]] | None:
+    """The policy class name an SB3 ``.zip`` declares and its data keys, read as JSON only
+    (None if the file does not say)."""
+    try:
+        with zipfile.ZipFile(model_file) as archive:
+            data = json.loads(archive.read("data"))
+        init = str(data["policy_class"]["__init__"])
+    except Exception:  # not an SB3 zip, or an unusual one: SB3's own loader will say
+        return None
+    match = re.search(r"<function (\w+)\.__init__", init)
+    return (match.group(1), set(data)) if match else None
+
+
+def _check_zip_algorithm(metadata: ModelMetadata) -> None:
+    """Refuse a ``.zip`` whose policy class is not the metadata's algorithm's (before SB3 would
+    fail with its own, obscure, message)."""
+    assert metadata.model_file is not None
+    found = _zip_policy_class(metadata.model_file)
+    if found is None:
+        return
+    class_name, keys = found
+    held = [a for a, name in _POLICY_CLASS_NAMES.items() if name == class_name]
+    if "PPO" in held:  # PPO and A2C share ActorCriticPolicy; only PPO saves a clip range
+        held = ["PPO"] if "clip_range" in keys else [a for a in held if a != "PPO"]
+    if metadata.algorithm not in held:
+        says = held[0] if held else class_name
+        raise PolicyLoadError(
+            f"{metadata.metadata_file}: says algorithm {metadata.algorithm}, but "
+            f"{metadata.model_file.name} holds a {says} model ({class_name}); "
+            f"set 'algorithm' to {says}"
+        )
+
+
+def load_trusted(metadata: ModelMetadata) -> LoadedPolicy:
+    """Load the SB3 ``.zip`` (and VecNormalize statistics) by unpickling them: trusted files only.
+
+    Raises:
+        PolicyLoadError: no ``.zip``, an algorithm that does not match it, or a corrupt file.
+    """
     import stable_baselines3
 
-    algorithm_class = getattr(stable_baselines3, metadata.algorithm)
+    if metadata.model_file is None:
+        raise PolicyLoadError(f"{metadata.directory}: no SB3 .zip to load")
+    _check_zip_algorithm(metadata)
+    if metadata.algorithm == "TQC":
+        try:
+            import sb3_contrib
+        except ImportError:
+            raise PolicyLoadError(
+                f"{metadata.model_file}: TQC needs sb3-contrib; pip install sb3-contrib"
+            ) from None
+        algorithm_class = sb3_contrib.TQC
+    else:
+        algorithm_class = getattr(stable_baselines3, metadata.algorithm)
     try:
-        return algorithm_class.load(str(metadata.model_file), device="cpu")
+        model = algorithm_class.load(str(metadata.model_file), device="cpu")
     except Exception as exc:  # SB3 raises many kinds on a bad file; all mean "cannot load"
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise PolicyLoadError(
             f"{metadata.model_file}: not a loadable {metadata.algorithm} model ({reason})"
         ) from None
+    model.policy.set_training_mode(False)
+    return LoadedPolicy(model.policy, _load_vecnormalize(metadata))
 
 
-def load_normalizer(metadata: ModelMetadata) -> Any:
-    """The frozen VecNormalize statistics of the model (None if it has none).
-
-    Only ``normalize_obs`` is used, which needs no vectorised environment attached.
-    """
+def _load_vecnormalize(metadata: ModelMetadata) -> ObservationNormalizer | None:
+    """The frozen statistics of the ``.zip``'s VecNormalize pickle (None if it has none)."""
     if metadata.vecnormalize_file is None:
         return None
     import pickle
 
     try:
         with open(metadata.vecnormalize_file, "rb") as handle:
-            normalizer = pickle.load(handle)
-        normalizer.training = False
-        normalizer.norm_reward = False
-        normalizer.normalize_obs(np.zeros(normalizer.observation_space.shape, np.float32))
+            vecnormalize = pickle.load(handle)
+        normalizer = ObservationNormalizer.from_vecnormalize(vecnormalize)
     except Exception as exc:  # a bad pickle can raise almost anything
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise PolicyLoadError(
@@ -173,7 +322,7 @@ def check_spaces(model: Any, observation_space: Any, action_space: Any, where: s
     """Raise :class:`PolicyLoadError` unless the model's spaces equal the environment's.
 
     Args:
-        model: a loaded SB3 model.
+        model: a loaded SB3 policy (or model).
         observation_space, action_space: the environment's spaces.
         where: names the model and the environment in the message.
     """
@@ -189,25 +338,27 @@ def check_spaces(model: Any, observation_space: Any, action_space: Any, where: s
 
 
 class SB3Policy:
-    """A loaded SB3 model behind the :class:`agents.protocol.Agent` protocol.
+    """A loaded SB3 policy behind the :class:`agents.protocol.Agent` protocol.
 
     Args:
-        model: the SB3 model (its ``predict`` does the work).
+        policy: the SB3 policy network (``model.policy`` or :func:`load_policy`'s); its
+            ``predict`` does the work, exactly as ``model.predict`` would.
         name: label for reports.
-        normalizer: frozen VecNormalize statistics applied to observations first, or None.
+        normalizer: frozen observation statistics applied to observations first, or None.
     """
 
     privileged = False
 
-    def __init__(self, model: Any, name: str = "sb3", normalizer: Any = None) -> None:
+    def __init__(
+        self, policy: Any, name: str = "sb3", normalizer: ObservationNormalizer | None = None
+    ) -> None:
         from stable_baselines3.common.distributions import DiagGaussianDistribution
         from stable_baselines3.common.policies import ActorCriticPolicy
 
-        self.model = model
+        self.policy = policy
         self.name = name
         self.normalizer = normalizer
         # Whether the deterministic action is the action net's output (the Gaussian's mean).
-        policy = model.policy
         self._mean_is_action = isinstance(policy, ActorCriticPolicy) and (
             type(policy.action_dist) is DiagGaussianDistribution
         )
@@ -223,15 +374,15 @@ class SB3Policy:
         if self.normalizer is not None:
             observation = self.normalizer.normalize_obs(observation)
         obs = np.asarray(observation)
-        if deterministic and state is None and obs.shape == self.model.observation_space.shape:
+        if deterministic and state is None and obs.shape == self.policy.observation_space.shape:
             return self._deterministic_action(obs), None
-        action, state = self.model.predict(
+        action, state = self.policy.predict(
             observation, state=state, episode_start=episode_start, deterministic=deterministic
         )
         return np.asarray(action, dtype=np.float32), state
 
     def _deterministic_action(self, obs: np.ndarray) -> np.ndarray:
-        """``model.predict(obs, deterministic=True)`` for one Box observation, without its
+        """``policy.predict(obs, deterministic=True)`` for one Box observation, without its
         per-call checks and, for actor-critic policies, without building the action distribution
         only to take its mode: the mean of a diagonal Gaussian is the action net's output.
         The same torch operations on the same numbers, so the same action (tested).
@@ -239,7 +390,7 @@ class SB3Policy:
         import torch
         from stable_baselines3.common.policies import BasePolicy
 
-        policy = self.model.policy
+        policy = self.policy
         with torch.no_grad():
             tensor = torch.as_tensor(obs, dtype=torch.float32).unsqueeze(0)
             if self._mean_is_action:
@@ -248,25 +399,33 @@ class SB3Policy:
                 actions = policy.action_net(policy.mlp_extractor.forward_actor(features))
             else:
                 actions = policy._predict(tensor, deterministic=True)
-        action = actions.numpy().reshape(self.model.action_space.shape)
+        action = actions.numpy().reshape(policy.action_space.shape)
         if policy.squash_output:  # as BasePolicy.predict does for a Box action space
             action = policy.unscale_action(action)
         else:
-            action = np.clip(action, self.model.action_space.low, self.model.action_space.high)
+            action = np.clip(action, policy.action_space.low, policy.action_space.high)
         return np.asarray(action, dtype=np.float32)
 
     def reset(self) -> None:
         """Nothing to forget: recurrent state, if any, is passed through ``predict``."""
 
 
-def load_sb3_policy(directory: str | Path, env: Any, name: str | None = None) -> SB3Policy:
-    """Load the model in ``directory`` and check it fits ``env``.
+def load_sb3_policy(
+    directory: str | Path, env: Any, name: str | None = None, trust_model: bool = False
+) -> SB3Policy:
+    """Load the model in ``directory`` (safely; see :func:`load_policy`) and check it fits ``env``.
+
+    Args:
+        directory: the model directory.
+        env: the environment it will act in (its spaces are checked).
+        name: label for reports (default: the directory's name).
+        trust_model: allow unpickling an SB3 ``.zip`` where the directory has no safe form.
 
     Raises:
-        PolicyLoadError: bad metadata, missing or corrupt model, or mismatched spaces.
+        PolicyLoadError: bad metadata, refused or corrupt model, or mismatched spaces.
     """
     metadata = read_metadata(directory)
-    model = load_model(metadata)
+    loaded = load_policy(metadata, trust_model=trust_model)
     label = name or metadata.directory.name
-    check_spaces(model, env.observation_space, env.action_space, f"{metadata.model_file}")
-    return SB3Policy(model, label, load_normalizer(metadata))
+    check_spaces(loaded.policy, env.observation_space, env.action_space, str(metadata.directory))
+    return SB3Policy(loaded.policy, label, loaded.normalizer)

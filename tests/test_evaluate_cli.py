@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from agents.policy_file import ObservationNormalizer, save_policy
 from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
 from capture_bench.evaluation.aggregate import RESULT_TIMING_COLUMNS
 from capture_bench.evaluation.rollout import TIMING_COLUMNS
@@ -227,8 +228,8 @@ def test_ray_address_reaches_ray_init(monkeypatch, tmp_path):
 
 
 def _save_model(directory: Path, observation_shape: tuple[int, ...] = (16,)) -> Path:
-    """An untrained PPO whose spaces are the env's (or not), with VecNormalize statistics and
-    metadata as train.py writes them."""
+    """An untrained PPO whose spaces are the env's (or not), with VecNormalize statistics, in the
+    safe form train.py writes (policy.pt + declared metadata.json)."""
     import gymnasium
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -239,12 +240,9 @@ def _save_model(directory: Path, observation_shape: tuple[int, ...] = (16,)) -> 
 
     venv = VecNormalize(DummyVecEnv([Shaped]))
     model = PPO("MlpPolicy", venv, n_steps=64, batch_size=64, policy_kwargs={"net_arch": [16]})
-    directory.mkdir(parents=True)
-    model.save(directory / "model.zip")
-    venv.save(directory / "vecnormalize.pkl")
-    meta = {"algorithm": "PPO", "scenario": "paper", "model": "model.zip"}
-    meta |= {"vecnormalize": "vecnormalize.pkl", "observation_source": "ekf"}
-    (directory / "metadata.json").write_text(json.dumps(meta))
+    normalizer = ObservationNormalizer.from_vecnormalize(venv)
+    extra = {"scenario": "paper", "observation_source": "ekf"}
+    save_policy(directory, "PPO", model.policy, normalizer, extra=extra)
     return directory
 
 
@@ -263,14 +261,10 @@ def test_trained_model_and_user_agent_run_next_to_the_baseline(tmp_path):
     ]
     assert len(list((tmp_path / "episodes").glob("*.png"))) == 3
     policy = build_agent(resolve_agent(str(model)), env=None, seed=0)
-    assert policy.normalizer is not None and not policy.normalizer.training
+    assert isinstance(policy.normalizer, ObservationNormalizer)
     payload = json.loads((tmp_path / "reports" / "quick" / "results.json").read_text())
     model = payload["provenance"]["config_hashes"]["models"]["ppo_tiny"]
-    assert model["algorithm"] == "PPO" and set(model["sha256"]) == {
-        "model.zip",
-        "metadata.json",
-        "vecnormalize.pkl",
-    }
+    assert model["algorithm"] == "PPO" and set(model["sha256"]) == {"policy.pt", "metadata.json"}
 
 
 def _bad_model(kind: str, root: Path) -> str:
@@ -280,7 +274,7 @@ def _bad_model(kind: str, root: Path) -> str:
     directory.mkdir(parents=True)
     meta = {"algorithm": "PPO", "model": "model.zip"}
     (directory / "metadata.json").write_text(json.dumps(meta))
-    if kind == "corrupt":
+    if kind in ("corrupt", "untrusted"):
         (directory / "model.zip").write_bytes(b"this is not a zip file")
     return str(directory)
 
@@ -296,12 +290,14 @@ def _bad_model(kind: str, root: Path) -> str:
         (["--backend", "dask"], "invalid choice"),
         (["missing"], "model file is missing"),
         (["corrupt"], "not a loadable PPO model"),
+        (["untrusted"], "--trust-model"),
         (["mismatched"], "does not match"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_no_report(argv, expected, tmp_path, capsys):
-    if argv[0] in ("missing", "corrupt", "mismatched"):
-        argv = ["--agents", _bad_model(argv[0], tmp_path)]
+    if argv[0] in ("missing", "corrupt", "mismatched", "untrusted"):
+        trust = ["--trust-model"] if argv[0] == "corrupt" else []
+        argv = ["--agents", _bad_model(argv[0], tmp_path), *trust]
     out = tmp_path / "reports"
     assert main(["--suite", "quick", *argv, "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()

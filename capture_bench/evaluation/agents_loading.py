@@ -4,8 +4,9 @@ A spec is one of:
 
 * a built-in name (a key of :data:`agents.AGENTS`, e.g. ``incremental_ik``);
 * a trained model: a directory (a training run, or ``models/<name>``; ``<name>`` alone also finds
-  ``models/<name>``) holding an SB3 ``.zip`` and ``metadata.json``/``metadata.yaml`` naming the
-  algorithm (see :mod:`agents.sb3_policy`); ``models/*`` expands to every model shipped;
+  ``models/<name>``) holding ``metadata.json``/``metadata.yaml`` and the policy, loaded without
+  unpickling anything (an SB3 ``.zip`` only with ``trust_model``; see :mod:`agents.sb3_policy`);
+  ``models/*`` expands to every model shipped;
 * ``module:Class`` (or ``module:factory``): a user's agent following :class:`agents.Agent`. It is
   called with the environment's public :class:`TaskDescription` if it takes one argument, with no
   argument if it takes none.
@@ -32,7 +33,7 @@ MODELS_GLOB = "models/*"
 #: Built-in agents whose constructor takes ``seed``; they get the episode's seed.
 SEEDED_BUILTINS = frozenset({"random"})
 
-_MODEL_CACHE: dict[str, Any] = {}
+_MODEL_CACHE: dict[tuple[str, bool], Any] = {}
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,8 @@ class AgentSpec:
         kind: ``builtin``, ``model`` or ``python``.
         target: the built-in name, the model directory (absolute) or ``module:attr``.
         privileged: the agent reads ground truth (the oracle): reported, not ranked.
+        trust_model: a model may be loaded from an SB3 ``.zip`` (unpickled) where the directory
+            has no safe form; the user opted in.
     """
 
     spec: str
@@ -52,6 +55,7 @@ class AgentSpec:
     kind: str
     target: str
     privileged: bool = False
+    trust_model: bool = False
 
 
 def builtin_names() -> list[str]:
@@ -62,10 +66,14 @@ def builtin_names() -> list[str]:
 
 
 def shipped_models(models_dir: Path = MODELS_DIR) -> list[str]:
-    """Every model directory under ``models_dir`` (those holding a ``.zip``), sorted."""
+    """Every model directory under ``models_dir`` (those holding a metadata file), sorted."""
+    from agents.sb3_policy import find_metadata_file
+
     if not models_dir.is_dir():
         return []
-    return sorted(str(p) for p in models_dir.iterdir() if p.is_dir() and any(p.glob("*.zip")))
+    return sorted(
+        str(p) for p in models_dir.iterdir() if p.is_dir() and find_metadata_file(p) is not None
+    )
 
 
 def expand_specs(specs: list[str], models_dir: Path = MODELS_DIR) -> list[str]:
@@ -81,13 +89,14 @@ def expand_specs(specs: list[str], models_dir: Path = MODELS_DIR) -> list[str]:
 def _valid_specs() -> str:
     return (
         f"valid: a built-in agent ({', '.join(builtin_names())}), a trained-model directory "
-        "(models/<name> or a run directory with an SB3 .zip and metadata.json), or module:Class"
+        "(models/<name> or a run directory with metadata.json), or module:Class"
     )
 
 
-def resolve_agent(spec: str, models_dir: Path = MODELS_DIR) -> AgentSpec:
+def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = False) -> AgentSpec:
     """Resolve one spec (see module docstring); raises :class:`AgentSpecError` if it names
-    nothing. Models are not loaded here (see :func:`check_agent`)."""
+    nothing. Models are not loaded here (see :func:`check_agent`); ``trust_model`` lets a model
+    directory without a safe form be loaded from its SB3 ``.zip`` (unpickling it)."""
     from agents import PRIVILEGED_AGENTS
 
     if spec in builtin_names():
@@ -97,11 +106,11 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR) -> AgentSpec:
             label = candidate.resolve().name
             if label in builtin_names():
                 label = f"model:{label}"
-            return AgentSpec(spec, label, "model", str(candidate.resolve()))
+            return AgentSpec(spec, label, "model", str(candidate.resolve()), False, trust_model)
         if candidate.suffix == ".zip" and candidate.is_file():
             raise AgentSpecError(
                 f"agent {spec!r}: name the model's directory ({candidate.parent}), which must "
-                "also hold metadata.json naming the algorithm"
+                "also hold metadata.json"
             )
     if "/" in spec or spec.endswith(".zip"):
         raise AgentSpecError(f"agent {spec!r}: no such model directory; {_valid_specs()}")
@@ -143,19 +152,20 @@ def _call_user_factory(spec: AgentSpec, description: Any) -> Any:
     return factory(description) if required else factory()
 
 
-def _model(spec: AgentSpec) -> tuple[Any, Any]:
-    """The loaded SB3 model and its VecNormalize statistics (or None), cached per process."""
-    from agents.sb3_policy import load_model, load_normalizer, read_metadata
+def _model(spec: AgentSpec) -> Any:
+    """The loaded policy (:class:`agents.sb3_policy.LoadedPolicy`), cached per process."""
+    from agents.sb3_policy import load_policy, read_metadata
 
-    if spec.target not in _MODEL_CACHE:
+    key = (spec.target, spec.trust_model)
+    if key not in _MODEL_CACHE:
         import torch
 
         # one observation at a time: intra-op threads only add overhead (3.4 vs 0.5 ms/predict
         # for a 128x128 MLP on 2 cores), and parallelism comes from the worker processes
         torch.set_num_threads(1)
         metadata = read_metadata(spec.target)
-        _MODEL_CACHE[spec.target] = (load_model(metadata), load_normalizer(metadata))
-    return _MODEL_CACHE[spec.target]
+        _MODEL_CACHE[key] = load_policy(metadata, trust_model=spec.trust_model)
+    return _MODEL_CACHE[key]
 
 
 def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
@@ -168,8 +178,8 @@ def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
     if spec.kind == "model":
         from agents.sb3_policy import SB3Policy
 
-        model, normalizer = _model(spec)
-        return SB3Policy(model, spec.label, normalizer)
+        loaded = _model(spec)
+        return SB3Policy(loaded.policy, spec.label, loaded.normalizer)
     return _call_user_factory(spec, env.unwrapped.description)
 
 
@@ -181,8 +191,8 @@ def check_agent(spec: AgentSpec, env: Any, scenario: str) -> None:
     if spec.kind == "model":
         from agents.sb3_policy import check_spaces
 
-        model, _normalizer = _model(spec)
-        check_spaces(model, env.observation_space, env.action_space, f"{spec.spec} on {scenario}")
+        policy = _model(spec).policy
+        check_spaces(policy, env.observation_space, env.action_space, f"{spec.spec} on {scenario}")
     elif spec.kind == "python":
         try:
             agent = _call_user_factory(spec, env.unwrapped.description)

@@ -53,15 +53,17 @@ Progress = Callable[[int], None]
 
 @dataclass(frozen=True)
 class EpisodeTask:
-    """One episode to run: agent spec (string, see agents_loading), scenario name, seed."""
+    """One episode to run: agent spec (string, see agents_loading), scenario name, seed, and
+    whether the user allowed this agent's model to be unpickled (``--trust-model``)."""
 
     agent: str
     scenario: str
     seed: int
+    trust_model: bool = False
 
 
 _ENVS: dict[str, Any] = {}
-_SPECS: dict[str, AgentSpec] = {}
+_SPECS: dict[tuple[str, bool], AgentSpec] = {}
 
 
 def make_env(scenario: str, **kwargs: Any) -> Any:
@@ -88,9 +90,10 @@ def close_envs() -> None:
 
 def run_task(task: EpisodeTask, trace: bool = False) -> tuple[EpisodeRecord, EpisodeTrace | None]:
     """Run one task in this process (environment cached per scenario, agent built afresh)."""
-    if task.agent not in _SPECS:
-        _SPECS[task.agent] = resolve_agent(task.agent)
-    spec = _SPECS[task.agent]
+    key = (task.agent, task.trust_model)
+    if key not in _SPECS:
+        _SPECS[key] = resolve_agent(task.agent, trust_model=task.trust_model)
+    spec = _SPECS[key]
     env = _env(task.scenario)
     agent = build_agent(spec, env, task.seed)
     return run_episode(

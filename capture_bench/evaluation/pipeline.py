@@ -57,6 +57,8 @@ class EvaluationConfig:
         ray_address: Ray cluster address (``ray`` backend); None for a local instance.
         out: reports are written to ``<out>/<suite>/``.
         episode_plots: if set, per-episode figures of the first seed of every agent x scenario.
+        trust_model: load a model directory that has no safe policy file from its SB3 ``.zip``
+            (pickles, which can run code): only for models whose source you trust.
     """
 
     suite: str = "default"
@@ -68,6 +70,7 @@ class EvaluationConfig:
     ray_address: str | None = None
     out: Path = Path("reports")
     episode_plots: Path | None = None
+    trust_model: bool = False
 
     def resolved_workers(self) -> int:
         """Worker processes: as given, or every CPU this process may use."""
@@ -118,13 +121,13 @@ def _scenario_names(suite: Suite) -> list[str]:
 
 def _model_provenance(spec: AgentSpec) -> dict[str, Any]:
     meta = read_metadata(spec.target)
-    files = [meta.model_file, meta.metadata_file, meta.vecnormalize_file]
     return {
         "directory": str(meta.directory),
         "algorithm": meta.algorithm,
         "trained_on": meta.scenario,
         "trained_observation_source": meta.observation_source,
-        "sha256": {p.name: file_sha256(p) for p in files if p is not None},
+        "loaded_from": "SB3 .zip (trusted)" if meta.weights_file is None else "safe policy file",
+        "sha256": {p.name: file_sha256(p) for p in meta.files},
     }
 
 
@@ -142,7 +145,9 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
                 f"{len(published)} evaluation seeds; use --episodes <= {len(published)}"
             )
         seeds[name] = published[: suite.episodes]
-    specs = [resolve_agent(s) for s in expand_specs(list(suite.agents))]
+    specs = [
+        resolve_agent(s, trust_model=config.trust_model) for s in expand_specs(list(suite.agents))
+    ]
     if not specs:
         raise AgentSpecError("no agent to evaluate (models/* matched no model directory)")
     labels = [s.label for s in specs]
@@ -159,7 +164,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
             finally:
                 env.close()
     tasks = [
-        EpisodeTask(spec.spec, name, seed)
+        EpisodeTask(spec.spec, name, seed, spec.trust_model)
         for spec in specs
         for name in scenarios
         for seed in seeds[name]

@@ -1,0 +1,561 @@
+"""Trained policies stored so that loading them runs no code: weights plus declared metadata.
+
+An SB3 ``.zip`` carries pickled Python objects (the policy class, its keyword arguments, the
+spaces, the learning-rate schedule), and unpickling a file can run any code its author put in it.
+So a capture-bench model directory stores a policy as
+
+* ``policy.pt``: the policy network's ``state_dict`` (tensors only), read with
+  ``torch.load(..., weights_only=True)``, whose restricted unpickler builds tensors and plain
+  containers and refuses everything else;
+* ``metadata.json``: plain JSON declaring what the network is, validated field by field before
+  anything is built::
+
+      format: capture-bench-policy/1
+      algorithm: PPO                    # PPO, A2C, SAC, TD3, DDPG (TQC with sb3-contrib)
+      weights: policy.pt
+      policy_kwargs: {net_arch: ..., activation_fn: tanh, log_std_init: -1.0, ...}
+      observation_space: {type: Box, shape: [16], dtype: float32, low: [...], high: [...]}
+      action_space: {type: Box, shape: [3], dtype: float32, low: [...], high: [...]}
+      normalization: null | {mean: [...], var: [...], epsilon: 1e-8, clip_obs: 10.0}
+
+Loading rebuilds the algorithm's SB3 policy class from the declared keyword arguments and spaces
+and loads the weights into it strictly (every tensor named and shaped as the declared network
+expects). The result acts exactly as the same model loaded by SB3 (tested on every algorithm).
+:func:`save_policy` writes this form from a trained SB3 model; ``train.py`` calls it, and
+``python -m agents.policy_file convert DIR --trust-model`` converts an existing SB3 model
+directory (which unpickles it: only for files you trust).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import inspect
+import json
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+FORMAT = "capture-bench-policy/1"
+WEIGHTS_FILE = "policy.pt"
+METADATA_FILE = "metadata.json"
+
+#: Algorithm -> (module, class) of the SB3 policy that acts for it.
+POLICY_CLASSES: dict[str, tuple[str, str]] = {
+    "PPO": ("stable_baselines3.common.policies", "ActorCriticPolicy"),
+    "A2C": ("stable_baselines3.common.policies", "ActorCriticPolicy"),
+    "SAC": ("stable_baselines3.sac.policies", "SACPolicy"),
+    "TD3": ("stable_baselines3.td3.policies", "TD3Policy"),
+    "DDPG": ("stable_baselines3.td3.policies", "TD3Policy"),
+    "TQC": ("sb3_contrib.tqc.policies", "TQCPolicy"),
+}
+
+#: Declared activation name -> torch.nn class name.
+ACTIVATIONS = {
+    "tanh": "Tanh",
+    "relu": "ReLU",
+    "elu": "ELU",
+    "leaky_relu": "LeakyReLU",
+    "gelu": "GELU",
+    "silu": "SiLU",
+    "selu": "SELU",
+    "sigmoid": "Sigmoid",
+}
+
+_BOOL_KWARGS = (
+    "ortho_init",
+    "use_sde",
+    "full_std",
+    "use_expln",
+    "squash_output",
+    "share_features_extractor",
+    "normalize_images",
+)
+_FLOAT_KWARGS = ("log_std_init", "clip_mean")
+_INT_KWARGS = ("n_critics", "n_quantiles")
+#: Every policy keyword argument a metadata file may declare; anything else is refused.
+POLICY_KWARGS = ("net_arch", "activation_fn", *_BOOL_KWARGS, *_FLOAT_KWARGS, *_INT_KWARGS)
+#: Constructor arguments that must hold their SB3 default to be exported (not declarable).
+_DEFAULT_ONLY = {
+    "features_extractor_class": "FlattenExtractor",
+    "features_extractor_kwargs": None,
+}
+
+
+class PolicyLoadError(ValueError):
+    """A trained model cannot be used; the message names the file, what is wrong and the fix."""
+
+
+@dataclass(frozen=True)
+class ObservationNormalizer:
+    """Frozen observation statistics of SB3's ``VecNormalize``, as plain numbers.
+
+    ``normalize_obs(obs) = clip((obs - mean) / sqrt(var + epsilon), ±clip_obs)`` as float32,
+    the arithmetic of ``VecNormalize.normalize_obs`` (so the same numbers, tested).
+
+    Attributes:
+        mean, var: running mean and variance of each observation entry, shape (n,), float64.
+        epsilon: added to the variance.
+        clip_obs: bound of the normalised observation.
+    """
+
+    mean: np.ndarray
+    var: np.ndarray
+    epsilon: float
+    clip_obs: float
+
+    def normalize_obs(self, observation: np.ndarray) -> np.ndarray:
+        """Normalise one observation (n,) or a batch (k, n)."""
+        normalized = (observation - self.mean) / np.sqrt(self.var + self.epsilon)
+        return np.clip(normalized, -self.clip_obs, self.clip_obs).astype(np.float32)
+
+    @classmethod
+    def from_vecnormalize(cls, vecnormalize: Any) -> ObservationNormalizer | None:
+        """The statistics of a ``VecNormalize`` (None if it does not normalise observations)."""
+        if not getattr(vecnormalize, "norm_obs", False):
+            return None
+        rms = vecnormalize.obs_rms
+        return cls(
+            np.array(rms.mean, dtype=np.float64),
+            np.array(rms.var, dtype=np.float64),
+            float(vecnormalize.epsilon),
+            float(vecnormalize.clip_obs),
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain numbers for ``metadata.json``."""
+        return {
+            "mean": [float(x) for x in self.mean],
+            "var": [float(x) for x in self.var],
+            "epsilon": self.epsilon,
+            "clip_obs": self.clip_obs,
+        }
+
+
+@dataclass(frozen=True)
+class PolicyDeclaration:
+    """The validated network declaration of a ``metadata.json`` (see module docstring).
+
+    Attributes:
+        algorithm: SB3 algorithm name, a key of :data:`POLICY_CLASSES`.
+        policy_kwargs: keyword arguments of the policy class, JSON values (activation by name).
+        observation_space, action_space: Box declarations (type, shape, dtype, low, high).
+        normalization: frozen observation statistics, or None.
+    """
+
+    algorithm: str
+    policy_kwargs: dict[str, Any]
+    observation_space: dict[str, Any]
+    action_space: dict[str, Any]
+    normalization: ObservationNormalizer | None
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _fail(where: str, key: str, value: Any, valid: str) -> PolicyLoadError:
+    text = repr(value)
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return PolicyLoadError(f"{where}: key {key!r} is {text}; valid: {valid}")
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return (_is_int(value) or isinstance(value, float)) and math.isfinite(value)
+
+
+def _layers(value: Any) -> bool:
+    return isinstance(value, list) and all(_is_int(n) and 1 <= n <= 65536 for n in value)
+
+
+def _check_net_arch(value: Any, where: str) -> None:
+    if _layers(value):
+        return
+    if (
+        isinstance(value, dict)
+        and value
+        and set(value) <= {"pi", "vf", "qf"}
+        and all(_layers(v) for v in value.values())
+    ):
+        return
+    raise _fail(
+        where,
+        "policy_kwargs.net_arch",
+        value,
+        "a list of layer sizes (1..65536) or a mapping of 'pi', 'vf', 'qf' to such lists",
+    )
+
+
+def _check_policy_kwargs(kwargs: Any, algorithm: str, where: str) -> dict[str, Any]:
+    if not isinstance(kwargs, dict):
+        raise _fail(where, "policy_kwargs", kwargs, "a mapping of policy keyword arguments")
+    for key, value in kwargs.items():
+        name = f"policy_kwargs.{key}"
+        if key not in POLICY_KWARGS:
+            raise _fail(where, name, value, f"keys {', '.join(POLICY_KWARGS)}")
+        if key == "net_arch":
+            _check_net_arch(value, where)
+        elif key == "activation_fn" and value not in ACTIVATIONS:
+            raise _fail(where, name, value, ", ".join(ACTIVATIONS))
+        elif key in _BOOL_KWARGS and not isinstance(value, bool):
+            raise _fail(where, name, value, "true or false")
+        elif key in _FLOAT_KWARGS and not _is_number(value):
+            raise _fail(where, name, value, "a finite number")
+        elif key in _INT_KWARGS and not (_is_int(value) and 1 <= value <= 1000):
+            raise _fail(where, name, value, "an integer in 1..1000")
+    accepted = set(inspect.signature(_policy_class(algorithm, where).__init__).parameters)
+    for key in kwargs:
+        if key not in accepted:
+            valid = ", ".join(k for k in POLICY_KWARGS if k in accepted)
+            raise _fail(where, f"policy_kwargs.{key}", kwargs[key], f"for {algorithm}: {valid}")
+    return dict(kwargs)
+
+
+def _check_box(value: Any, key: str, where: str) -> dict[str, Any]:
+    valid = "{type: Box, shape: [n], dtype: float32, low: [n numbers], high: [n numbers]}"
+    if not isinstance(value, dict) or value.get("type") != "Box":
+        raise _fail(where, key, value, valid)
+    shape = value.get("shape")
+    if not (isinstance(shape, list) and len(shape) == 1 and _is_int(shape[0]) and shape[0] >= 1):
+        raise _fail(where, f"{key}.shape", shape, "[n] with n >= 1 (a flat Box)")
+    if value.get("dtype") not in ("float32", "float64"):
+        raise _fail(where, f"{key}.dtype", value.get("dtype"), "float32 or float64")
+    for bound in ("low", "high"):
+        numbers = value.get(bound)
+        if not (
+            isinstance(numbers, list)
+            and len(numbers) == shape[0]
+            and all(_is_int(x) or isinstance(x, float) for x in numbers)
+            and not any(isinstance(x, float) and math.isnan(x) for x in numbers)
+        ):
+            raise _fail(where, f"{key}.{bound}", numbers, f"a list of {shape[0]} numbers")
+    if any(lo > hi for lo, hi in zip(value["low"], value["high"])):
+        raise _fail(where, f"{key}.low", value["low"], "each entry <= the same entry of high")
+    return value
+
+
+def _check_normalization(value: Any, size: int, where: str) -> ObservationNormalizer | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict) or set(value) != {"mean", "var", "epsilon", "clip_obs"}:
+        raise _fail(where, "normalization", value, "null or {mean, var, epsilon, clip_obs}")
+    for key in ("mean", "var"):
+        numbers = value[key]
+        if not (isinstance(numbers, list) and len(numbers) == size):
+            raise _fail(where, f"normalization.{key}", numbers, f"a list of {size} finite numbers")
+        if not all(map(_is_number, numbers)):
+            raise _fail(where, f"normalization.{key}", numbers, f"a list of {size} finite numbers")
+    if any(v < 0 for v in value["var"]):
+        raise _fail(where, "normalization.var", value["var"], "variances >= 0")
+    for key in ("epsilon", "clip_obs"):
+        if not (_is_number(value[key]) and value[key] > 0):
+            raise _fail(where, f"normalization.{key}", value[key], "a finite number > 0")
+    return ObservationNormalizer(
+        np.array(value["mean"], dtype=np.float64),
+        np.array(value["var"], dtype=np.float64),
+        float(value["epsilon"]),
+        float(value["clip_obs"]),
+    )
+
+
+def parse_declaration(data: dict[str, Any], where: str) -> PolicyDeclaration:
+    """Validate the network declaration of a metadata mapping (see module docstring).
+
+    Raises:
+        PolicyLoadError: naming ``where``, the key, the bad value and what is valid.
+    """
+    if data.get("format") != FORMAT:
+        raise _fail(where, "format", data.get("format"), FORMAT)
+    algorithm = str(data.get("algorithm", "")).upper()
+    if algorithm not in POLICY_CLASSES:
+        raise _fail(where, "algorithm", data.get("algorithm"), ", ".join(POLICY_CLASSES))
+    observation_space = _check_box(data.get("observation_space"), "observation_space", where)
+    action_space = _check_box(data.get("action_space"), "action_space", where)
+    return PolicyDeclaration(
+        algorithm=algorithm,
+        policy_kwargs=_check_policy_kwargs(data.get("policy_kwargs", {}), algorithm, where),
+        observation_space=observation_space,
+        action_space=action_space,
+        normalization=_check_normalization(
+            data.get("normalization"), observation_space["shape"][0], where
+        ),
+    )
+
+
+# --------------------------------------------------------------------------- building
+
+
+def _policy_class(algorithm: str, where: str) -> Any:
+    module_name, class_name = POLICY_CLASSES[algorithm]
+    try:
+        return getattr(importlib.import_module(module_name), class_name)
+    except ImportError:
+        package = module_name.split(".")[0].replace("_", "-")
+        raise PolicyLoadError(
+            f"{where}: algorithm {algorithm} needs the package {package}; pip install {package}"
+        ) from None
+
+
+def _box(declared: dict[str, Any]) -> Any:
+    from gymnasium import spaces
+
+    dtype = np.dtype(declared["dtype"])
+    low = np.array(declared["low"], dtype=dtype)
+    high = np.array(declared["high"], dtype=dtype)
+    return spaces.Box(low=low, high=high, dtype=dtype)
+
+
+def _zero_schedule(_progress: float) -> float:
+    return 0.0  # the optimiser SB3 builds with the policy is never stepped here
+
+
+def build_policy(declaration: PolicyDeclaration, where: str) -> Any:
+    """The declared SB3 policy, untrained (weights as initialised; the caller loads them).
+
+    The construction's random initialisation does not touch the caller's torch random stream.
+    """
+    import torch
+    from torch import nn
+
+    kwargs = dict(declaration.policy_kwargs)
+    if "activation_fn" in kwargs:
+        kwargs["activation_fn"] = getattr(nn, ACTIVATIONS[kwargs["activation_fn"]])
+    policy_class = _policy_class(declaration.algorithm, where)
+    with torch.random.fork_rng(devices=[]):
+        try:
+            policy = policy_class(
+                _box(declaration.observation_space),
+                _box(declaration.action_space),
+                _zero_schedule,
+                **kwargs,
+            )
+        except Exception as exc:  # a declaration SB3 cannot build: say which, not SB3's trace
+            raise PolicyLoadError(
+                f"{where}: cannot build a {declaration.algorithm} policy from policy_kwargs "
+                f"{declaration.policy_kwargs} ({str(exc).splitlines()[0] if str(exc) else exc!r})"
+            ) from None
+    policy.set_training_mode(False)
+    return policy
+
+
+def read_weights(path: Path) -> dict[str, Any]:
+    """The tensors of a ``policy.pt``, read with ``weights_only=True`` (nothing else unpickled).
+
+    Raises:
+        PolicyLoadError: missing file, a file torch's weights-only reader refuses (for example
+            one that would build a Python object or call a function), or not a mapping of
+            parameter names to tensors.
+    """
+    import torch
+
+    if not path.is_file():
+        raise PolicyLoadError(f"{path}: weights file is missing")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises UnpicklingError, RuntimeError, EOFError, ...
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise PolicyLoadError(
+            f"{path}: not a weights-only policy file (refused by torch.load(weights_only=True): "
+            f"{reason})"
+        ) from None
+    if not isinstance(state, dict) or not all(
+        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
+    ):
+        raise PolicyLoadError(f"{path}: expected a mapping of parameter names to tensors")
+    return state
+
+
+def load_weights(policy: Any, state: dict[str, Any], where: str, algorithm: str) -> None:
+    """Load ``state`` into ``policy``: every declared tensor present, with its shape, none extra."""
+    expected = policy.state_dict()
+    missing = sorted(set(expected) - set(state))
+    unexpected = sorted(set(state) - set(expected))
+    if missing or unexpected:
+        detail = "; ".join(
+            f"{label}: {', '.join(names[:3])}{' ...' if len(names) > 3 else ''}"
+            for label, names in (("missing", missing), ("unexpected", unexpected))
+            if names
+        )
+        raise PolicyLoadError(
+            f"{where}: the weights are not those of the declared {algorithm} policy ({detail}); "
+            "does the metadata name the algorithm and policy_kwargs the model was trained with?"
+        )
+    for name, tensor in state.items():
+        if tuple(tensor.shape) != tuple(expected[name].shape):
+            raise PolicyLoadError(
+                f"{where}: tensor {name!r} has shape {tuple(tensor.shape)}, the declared "
+                f"{algorithm} policy expects {tuple(expected[name].shape)}; check policy_kwargs"
+            )
+    policy.load_state_dict(state, strict=True)
+
+
+# --------------------------------------------------------------------------- saving
+
+
+def _activation_name(activation: Any) -> str:
+    for name, class_name in ACTIVATIONS.items():
+        if getattr(activation, "__name__", None) == class_name:
+            return name
+    raise PolicyLoadError(
+        f"activation {activation!r} cannot be declared; valid: {', '.join(ACTIVATIONS)}"
+    )
+
+
+def _space_json(space: Any) -> dict[str, Any]:
+    from gymnasium import spaces
+
+    if not isinstance(space, spaces.Box) or len(space.shape) != 1:
+        raise PolicyLoadError(f"only flat Box spaces can be declared, not {space}")
+    return {
+        "type": "Box",
+        "shape": [int(space.shape[0])],
+        "dtype": str(space.dtype),
+        "low": [float(x) for x in space.low],
+        "high": [float(x) for x in space.high],
+    }
+
+
+def declare(algorithm: str, policy: Any, normalizer: ObservationNormalizer | None) -> dict:
+    """The metadata entries that declare ``policy`` (an SB3 policy of ``algorithm``)."""
+    algorithm = algorithm.upper()
+    if algorithm not in POLICY_CLASSES:
+        raise PolicyLoadError(f"algorithm {algorithm!r}; valid: {', '.join(POLICY_CLASSES)}")
+    params = policy._get_constructor_parameters()
+    for key, default in _DEFAULT_ONLY.items():
+        value = params.get(key)
+        if (getattr(value, "__name__", value) or None) != default:
+            raise PolicyLoadError(f"policy {key}={value!r} cannot be declared (only {default})")
+    kwargs: dict[str, Any] = {}
+    for key in POLICY_KWARGS:
+        if key not in params:
+            continue
+        value = params[key]
+        if key == "activation_fn":
+            value = _activation_name(value)
+        elif key in _BOOL_KWARGS:
+            value = bool(value)
+        elif key in _FLOAT_KWARGS:
+            value = float(value)
+        elif key in _INT_KWARGS:
+            value = int(value)
+        elif key == "net_arch" and value is not None:
+            value = json.loads(json.dumps(value))  # tuples -> lists, copies
+        if value is not None:
+            kwargs[key] = value
+    return {
+        "format": FORMAT,
+        "algorithm": algorithm,
+        "weights": WEIGHTS_FILE,
+        "policy_kwargs": kwargs,
+        "observation_space": _space_json(policy.observation_space),
+        "action_space": _space_json(policy.action_space),
+        "normalization": None if normalizer is None else normalizer.to_json(),
+    }
+
+
+def save_policy(
+    directory: Path,
+    algorithm: str,
+    policy: Any,
+    normalizer: ObservationNormalizer | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``policy.pt`` and ``metadata.json`` (``extra`` entries first) into ``directory``.
+
+    Each file is written to a temporary name and renamed, so an interrupted save leaves the
+    previous files whole. The weights are written before the metadata that names them.
+
+    Args:
+        directory: the model directory (created if missing).
+        algorithm: SB3 algorithm name.
+        policy: the SB3 policy (``model.policy``).
+        normalizer: frozen observation statistics, if training normalised observations.
+        extra: provenance entries (scenario, hyper-parameters, command, ...), plain JSON.
+
+    Returns:
+        The metadata file.
+    """
+    import io
+
+    import torch
+
+    from capture_bench.training import atomic_write
+
+    directory = Path(directory)
+    declaration = declare(algorithm, policy, normalizer)
+    metadata = {**(extra or {}), **declaration}
+    parse_declaration(metadata, str(directory / METADATA_FILE))  # what we write, we can read
+    state = {k: v.detach().cpu().clone() for k, v in policy.state_dict().items()}
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    directory.mkdir(parents=True, exist_ok=True)
+    atomic_write(directory / WEIGHTS_FILE, buffer.getvalue())
+    text = json.dumps(metadata, indent=2, allow_nan=False) + "\n"
+    atomic_write(directory / METADATA_FILE, text.encode())
+    return directory / METADATA_FILE
+
+
+# --------------------------------------------------------------------------- conversion
+
+
+def convert(directory: Path) -> Path:
+    """Write the safe form of the SB3 model directory ``directory`` beside its ``.zip``.
+
+    This unpickles the ``.zip`` (and VecNormalize statistics): call it only on files you trust.
+    Existing metadata entries are kept; the declaration entries are added.
+    """
+    from agents.sb3_policy import load_trusted, read_metadata
+
+    metadata = read_metadata(directory)
+    loaded = load_trusted(metadata)
+    text = metadata.metadata_file.read_text()
+    extra = json.loads(text) if metadata.metadata_file.suffix == ".json" else yaml.safe_load(text)
+    extra.pop("vecnormalize", None)
+    return save_policy(directory, metadata.algorithm, loaded.policy, loaded.normalizer, extra)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m agents.policy_file convert DIR --trust-model``: convert SB3 model dirs."""
+    parser = argparse.ArgumentParser(
+        prog="python -m agents.policy_file",
+        description="Convert an SB3 model directory (model.zip + metadata) to the safe form "
+        "(policy.pt + declared metadata.json) that capture-bench loads without unpickling.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    conv = sub.add_parser("convert", help="write policy.pt; declare the network in metadata.json")
+    conv.add_argument("directory", type=Path, nargs="+")
+    conv.add_argument(
+        "--trust-model",
+        action="store_true",
+        help="required: converting unpickles the .zip, which can run code; "
+        "only for files you trust",
+    )
+    args = parser.parse_args(argv)
+    if not args.trust_model:
+        print(
+            "policy_file: error: converting unpickles the SB3 .zip, which can run code; "
+            "pass --trust-model if you trust where it came from",
+            file=sys.stderr,
+        )
+        return 2
+    for directory in args.directory:
+        try:
+            written = convert(directory)
+        except PolicyLoadError as exc:
+            print(f"policy_file: error: {exc}", file=sys.stderr)
+            return 2
+        print(f"{directory}: wrote {directory / WEIGHTS_FILE} and {written}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
