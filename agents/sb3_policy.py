@@ -164,7 +164,7 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
             f"{meta_file}: key 'algorithm' is {data.get('algorithm')!r}; "
             f"valid: {', '.join(ALGORITHMS)}"
         )
-    common = {
+    common: dict[str, Any] = {
         "directory": directory,
         "algorithm": algorithm,
         "metadata_file": meta_file,
