@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from stand_in import sb3_model as _sb3_model
 
 import evaluate
 import train
@@ -42,51 +43,6 @@ class _Payload:
 
     def __reduce__(self):
         return (Path.touch, (self.marker,))
-
-
-def _spaces():
-    import gymnasium
-
-    observation = gymnasium.spaces.Box(-10, 10, (16,), np.float32)
-    action = gymnasium.spaces.Box(-1, 1, (3,), np.float32)
-    return observation, action
-
-
-def _sb3_model(algorithm: str, normalize: bool = False, learn: int = 0):
-    """A small SB3 model on a stand-in env with the benchmark's spaces (trained ``learn`` steps,
-    so its weights are not the initial ones), and its VecNormalize (or None)."""
-    import gymnasium
-    import stable_baselines3
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-    observation_space, action_space = _spaces()
-
-    class Stand(gymnasium.Env):
-        def __init__(self):
-            self.observation_space, self.action_space = observation_space, action_space
-
-        def reset(self, *, seed=None, options=None):
-            super().reset(seed=seed)
-            return self.observation_space.sample(), {}
-
-        def step(self, action):
-            obs = self.observation_space.sample()
-            return obs, float(-np.abs(action).sum()), False, False, {}
-
-    venv = DummyVecEnv([Stand])
-    venv = VecNormalize(venv) if normalize else venv
-    kwargs: dict = {"policy_kwargs": {"net_arch": [16, 16]}, "seed": 0, "device": "cpu"}
-    if algorithm in ("PPO", "A2C"):
-        kwargs["n_steps"] = 32
-        if algorithm == "PPO":
-            kwargs |= {"batch_size": 32, "n_epochs": 1}
-            kwargs["policy_kwargs"] |= {"activation_fn": __import__("torch").nn.ReLU}
-    else:
-        kwargs |= {"learning_starts": 16, "batch_size": 16, "buffer_size": 1000}
-    model = getattr(stable_baselines3, algorithm)("MlpPolicy", venv, **kwargs)
-    if learn:
-        model.learn(learn)
-    return model, (venv if normalize else None)
 
 
 def _observations(n: int = 100) -> np.ndarray:
