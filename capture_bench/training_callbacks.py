@@ -12,18 +12,17 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from capture_bench.checkpoint import BUFFER_FILE, list_checkpoints, save_checkpoint
 from capture_bench.scenarios import load_scenario
-from capture_bench.training import atomic_write
 
 
 class Checkpointer(BaseCallback):
     """Save a checkpoint every ``every`` environment steps (0: only when asked).
 
-    A checkpoint at N steps is ``model_N_steps.zip`` plus ``replay_buffer_N_steps.pkl``
-    (off-policy) and ``vecnormalize_N_steps.pkl`` (if observations are normalised). Companions are
-    written first and the model last, each through a temporary file, so a model file marks a
-    complete checkpoint. Replay buffers older than the last two checkpoints are deleted (they are
-    large); model files are kept.
+    A checkpoint at N steps is the directory ``step_N/`` of :mod:`capture_bench.checkpoint`
+    (written under a temporary name and renamed, so it is complete when it exists; read back
+    without unpickling). Replay buffers older than the last two checkpoints are deleted (they
+    are large); the rest of each checkpoint is kept.
 
     Args:
         directory: where checkpoints go (created).
@@ -49,32 +48,12 @@ class Checkpointer(BaseCallback):
         return True
 
     def save(self, model: Any) -> Path:
-        """Write the checkpoint of ``model`` now; return the model file's path."""
-        self.directory.mkdir(parents=True, exist_ok=True)
-        steps = int(model.num_timesteps)
-        stats = model.get_vec_normalize_env()
-        if stats is not None:
-            atomic_write(self.directory / f"vecnormalize_{steps}_steps.pkl", writer=stats.save)
+        """Write the checkpoint of ``model`` now; return its directory."""
+        path = save_checkpoint(model, self.directory, self.replay_buffer)
         if self.replay_buffer:
-            buffer_file = self.directory / f"replay_buffer_{steps}_steps.pkl"
-            atomic_write(buffer_file, writer=lambda p: _save_buffer(model, p))
-            self._prune()
-        path = self.directory / f"model_{steps}_steps.zip"
-        atomic_write(path, writer=model.save)
+            for _, old in list_checkpoints(self.directory)[:-2]:
+                (old / BUFFER_FILE).unlink(missing_ok=True)
         return path
-
-    def _prune(self) -> None:
-        buffers = sorted(
-            self.directory.glob("replay_buffer_*_steps.pkl"),
-            key=lambda p: int(p.name.split("_")[2]),
-        )
-        for old in buffers[:-2]:
-            old.unlink(missing_ok=True)
-
-
-def _save_buffer(model: Any, path: str) -> None:
-    with open(path, "wb") as handle:  # a file object: SB3 would otherwise append ".pkl"
-        model.save_replay_buffer(handle)
 
 
 class Progress(BaseCallback):

@@ -46,8 +46,8 @@ def test_run_writes_model_metadata_checkpoints_and_tensorboard(trained):
     assert meta["hyperparameters"]["policy_kwargs"] == {"net_arch": [16]}
     assert "stable-baselines3" in meta["packages"]
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == [
-        "model_32_steps.zip",
-        "model_64_steps.zip",
+        "step_32",
+        "step_64",
     ]
     assert list((run_dir / "tb").rglob("events.out.tfevents.*"))
     assert not list(run_dir.rglob(".tmp-*"))  # every save was renamed into place
@@ -77,11 +77,11 @@ def test_resume_continues_the_step_count(trained, tmp_path):
     assert train.main(["--resume", str(run_dir), "--total-timesteps", "128"]) == 0
     meta = json.loads((run_dir / "metadata.json").read_text())
     assert meta["total_timesteps"] == 128 and meta["seed"] == 3
-    assert (run_dir / "checkpoints" / "model_128_steps.zip").is_file()
+    assert (run_dir / "checkpoints" / "step_128" / "parameters.pt").is_file()
 
 
 def test_sac_resume_restores_replay_buffer_and_vecnormalize(tmp_path):
-    from stable_baselines3.common.save_util import load_from_pkl
+    from capture_bench.checkpoint import read_checkpoint
 
     config = tmp_path / "sac.yaml"
     config.write_text(
@@ -91,9 +91,10 @@ def test_sac_resume_restores_replay_buffer_and_vecnormalize(tmp_path):
     run_dir = tmp_path / "run"
     assert train.main(["--algo", "sac", "--config", str(config), "--run-dir", str(run_dir)]) == 0
     assert train.main(["--resume", str(run_dir), "--total-timesteps", "64"]) == 0
-    buffer = load_from_pkl(run_dir / "checkpoints" / "replay_buffer_64_steps.pkl")
-    assert buffer.size() == 64  # the 48 transitions of the first session were kept
-    assert (run_dir / "checkpoints" / "vecnormalize_64_steps.pkl").is_file()
+    checkpoint = read_checkpoint(run_dir / "checkpoints" / "step_64")
+    assert checkpoint.state["replay_buffer"]["pos"] == 64  # the first 48 transitions were kept
+    assert (checkpoint.buffer["rewards"][:64] != 0).all()
+    assert checkpoint.state["vecnormalize"]["obs_rms"]["count"] > 64
     meta = json.loads((run_dir / "metadata.json").read_text())
     assert meta["algorithm"] == "SAC" and meta["vecnormalize"] == "vecnormalize.pkl"
 
