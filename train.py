@@ -22,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
 import signal
 import sys
 import time
@@ -31,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.checkpoint import CheckpointError, list_checkpoints, read_checkpoint, restore
+from capture_bench.files import check_writable
 from capture_bench.scenarios import ConfigError, load_scenario
 from capture_bench.training import (
     ALGORITHMS,
@@ -169,7 +169,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
                 f"{run_dir}: the run has done {done} steps and --total-timesteps "
                 f"{hp['total_timesteps']} is not more; pass the new total, > {done}, to extend it"
             )
-        _check_writable(run_dir, "--resume")
+        check_writable(run_dir, "--resume")
         _note_rounding(config.algo, hp, hp["total_timesteps"] - done)
         return config, hp, run_dir, checkpoint
 
@@ -194,9 +194,10 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         raise ConfigError(
             f"{run_dir}: already holds a run; use --resume {run_dir} or another --run-dir"
         )
-    _check_writable(run_dir, "--run-dir")
+    check_writable(run_dir, "--run-dir")
     _note_rounding(config.algo, hp, hp["total_timesteps"])
     config.run_dir = str(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
     payload = {"config": vars(config) | {"resume": None}, "hyperparameters": hp}
     atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
     return config, hp, run_dir, None
@@ -238,20 +239,6 @@ def _check_env_count(n_envs: int) -> None:
             f"--n-envs {n_envs}: at most {most} environments fit in the "
             f"{available / 2**30:.1f} GiB of memory available (~{ENV_MEMORY_BYTES >> 20} MB each)"
         )
-
-
-def _check_writable(directory: Path, option: str) -> None:
-    """Create ``directory`` and write and remove a probe file there, or raise ConfigError."""
-    probe = directory / f".write-test-{os.getpid()}"
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigError(
-            f"{option} {directory}: cannot write there ({exc.strerror or exc}); "
-            "choose a writable directory"
-        ) from None
 
 
 def _note_rounding(algo: str, hp: dict, steps: int) -> None:

@@ -116,7 +116,7 @@ def test_unwritable_run_dir_is_refused_before_any_work(tmp_path, capsys):
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     for run_dir in (blocker / "run", Path("/proc/capture-bench-run")):
-        one_line_error(capsys, ["--run-dir", str(run_dir)], "--run-dir", "cannot write")
+        one_line_error(capsys, ["--run-dir", str(run_dir)], "--run-dir", "choose a writable folder")
 
 
 def test_too_many_envs_is_refused(tmp_path, capsys):

@@ -1,0 +1,41 @@
+"""Checks and writes on the files a command produces: writable before work, whole when written."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from capture_bench.scenarios import ConfigError
+
+
+def check_writable(directory: str | Path, option: str) -> None:
+    """Raise :class:`ConfigError` unless files can be created in ``directory``.
+
+    Nothing is left behind: a missing directory is not created; its nearest existing ancestor
+    must be a directory where a probe file can be created (then removed). Run before the first
+    episode or training step, so a bad output folder costs no work.
+
+    Args:
+        directory: where the command will write.
+        option: the command-line option that named it, for the message (``--out``).
+    """
+    path = Path(directory)
+    probe_in = path
+    while not probe_in.exists():
+        if probe_in.parent == probe_in:
+            break
+        probe_in = probe_in.parent
+    if probe_in.exists() and not probe_in.is_dir():
+        raise ConfigError(
+            f"{option} {path}: {probe_in} is a file, not a folder; choose a writable folder"
+        )
+    try:
+        handle, name = tempfile.mkstemp(prefix=".write-test-", dir=probe_in)
+        os.close(handle)
+        os.unlink(name)
+    except OSError as exc:
+        raise ConfigError(
+            f"{option} {path}: cannot write in {probe_in} ({exc.strerror or exc}); "
+            "choose a writable folder"
+        ) from None
