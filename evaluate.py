@@ -28,6 +28,8 @@ from capture_bench.evaluation.pipeline import (
     run_evaluation,
 )
 from capture_bench.evaluation.report import ReportData
+from capture_bench.evaluation.suites import ALL
+from capture_bench.scenarios import invalid_scenarios
 
 PROG = "evaluate.py"
 
@@ -183,6 +185,9 @@ def main(argv: list[str] | None = None) -> int:
         message = " ".join(str(exc).split())
         print(f"{PROG}: error: {message}", file=sys.stderr)
         return 2
+    if plan.suite.scenarios == (ALL,):  # "every scenario": say which invalid files were left out
+        for name, error in invalid_scenarios().items():
+            print(f"{PROG}: note: skipping invalid scenario {name!r}: {error}", file=sys.stderr)
     data, target = _run(plan, config, command)
     _summary_table(data, target)
     return 0

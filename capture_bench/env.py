@@ -40,6 +40,36 @@ _LIMIT_CACHE: dict[tuple[Scenario, int], PhysicalLimit] = {}
 _LIMIT_CACHE_SIZE = 65_536
 
 
+def check_actions(actions: Any, shape: tuple[int, ...], name: str) -> NDArray[np.float64]:
+    """``actions`` as a float64 array of ``shape``, or ``ValueError`` naming what is wrong.
+
+    Accepts any array-like of real numbers (bool, int or float dtype; lists and tuples too);
+    refuses other types (strings, complex, objects), another shape, and NaN or infinite entries
+    (the message gives the index of the first). Values outside [-1, 1] pass: the envs clip them.
+    """
+    try:
+        raw = np.asarray(actions)
+    except (TypeError, ValueError) as exc:  # ragged nested lists
+        raise ValueError(f"{name} must be an array of shape {shape} of numbers; {exc}") from None
+    if raw.dtype.kind not in "biuf":
+        raise ValueError(
+            f"{name} must be an array of shape {shape} of real numbers; got dtype {raw.dtype} "
+            f"({actions!r})"
+        )
+    if raw.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}; got shape {raw.shape} ({actions!r})")
+    a = raw.astype(np.float64)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        entry = f"{name}[{', '.join(map(str, index))}]"
+        raise ValueError(
+            f"{entry} is {a[index]}; every entry must be a finite number "
+            "(values outside [-1, 1] are clipped)"
+        )
+    return a
+
+
 class TargetStep(NamedTuple):
     """The target's side of one control step: its true state, what the camera and estimator made
     of it, and what the env derives from those alone.
@@ -86,8 +116,14 @@ class CaptureEnv(gym.Env):
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: ``ΔΘ_i = a_i · θ̇_max,i · t_s`` rad, θ̇_max = (10.304, 0.412,
     0.412) rad/s. The world clips every increment to ``θ̇_max,i · dt`` of the real period and to the
-    joint limits, whatever the agent asks. Actions outside [-1, 1] are clipped; a NaN, infinite or
-    wrongly shaped action raises ``ValueError``.
+    joint limits, whatever the agent asks. Actions outside [-1, 1] (however large) are clipped.
+    An action that is not a real number array of shape (3,) (a list or tuple of numbers is fine,
+    any int or float dtype), or that holds a NaN or an infinity, raises ``ValueError`` naming the
+    bad entry, and the step is not taken. Non-finite actions are refused rather than zeroed or
+    clipped: a NaN from a policy means a diverged network, and a benchmark that quietly turned
+    it into "hold still" would score the broken policy; Gymnasium's ``Box.contains`` refuses
+    them too. :class:`~capture_bench.vector_env.CaptureVectorEnv` applies the same rule
+    (:func:`check_actions`) to its (num_envs, 3) actions.
 
     ## Observation Space
     ``Box(-10, 10, (16,), float32)``, each entry scaled to order one
@@ -205,6 +241,7 @@ class CaptureEnv(gym.Env):
             self.camera_model, self._features, source=sc.estimator.source, **sc.estimator_settings()
         )
         self._world: World | None = None
+        self._closed = False
         self._trajectory: TargetTrajectory | None = None
         self._limit: PhysicalLimit | None = None
         self._limit_key: tuple[Scenario, int] | None = None
@@ -264,6 +301,7 @@ class CaptureEnv(gym.Env):
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         super().reset(seed=seed)
         sc = self.scenario
+        self._closed = False
         if self._world is None:
             self._world = World(self._features, render_mode=self.render_mode)
         key = None if seed is None else (self.scenario, int(seed))
@@ -305,15 +343,13 @@ class CaptureEnv(gym.Env):
     def step(
         self, action: NDArray
     ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+        if self._closed:
+            raise RuntimeError("CaptureEnv.step() called after close(); the env is closed")
         if self._world is None or self._trajectory is None:
             raise RuntimeError("CaptureEnv.step() called before reset(); call env.reset() first")
         if self._episode_over:
             raise RuntimeError("the episode has ended; call env.reset() before step()")
-        a = np.asarray(action, dtype=float)
-        if a.shape != (3,) or not np.all(np.isfinite(a)):
-            raise ValueError(
-                f"action must be a finite array of shape (3,) in [-1, 1]; got {action!r}"
-            )
+        a = check_actions(action, (3,), "action")
         desc = self.description
         self._steps += 1
         if self._script is None:  # the target's side of the step (it draws from np_random)
@@ -372,6 +408,9 @@ class CaptureEnv(gym.Env):
         return image if self.render_mode == "rgb_array" else None
 
     def close(self) -> None:
+        """Disconnect the pybullet world; safe twice. ``step()`` then raises; ``reset()`` opens a
+        new world and the env can be used again."""
+        self._closed = True
         if self._world is not None:
             self._world.close()
             self._world = None

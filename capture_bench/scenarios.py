@@ -162,26 +162,49 @@ class Scenario:
         return _build(Scenario, data, source="<override>", prefix="")
 
 
+def scenario_files() -> list[Path]:
+    """Every ``*.yaml`` file under :data:`SCENARIO_DIR`, valid or not, sorted by name."""
+    return sorted(SCENARIO_DIR.glob("*.yaml"))
+
+
 def list_scenarios() -> list[str]:
-    """Names of the shipped scenarios, sorted."""
-    return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+    """Names of the shipped scenarios that load, sorted. An invalid file is left out here (it
+    breaks only itself); :func:`invalid_scenarios` says which and why."""
+    invalid = invalid_scenarios()
+    return [p.stem for p in scenario_files() if p.stem not in invalid]
+
+
+def invalid_scenarios() -> dict[str, str]:
+    """The shipped scenario files that do not load: ``{name: the ConfigError message}`` (the
+    message names the file, the key and what is valid); ``load_scenario(name)`` raises it."""
+    invalid = {}
+    for path in scenario_files():
+        try:
+            load_scenario(path)
+        except ConfigError as exc:
+            invalid[path.stem] = str(exc)
+    return invalid
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
-    """Load and validate a shipped scenario by name, or any scenario YAML by path."""
+    """Load and validate a shipped scenario by name, or any scenario YAML by path.
+
+    Raises:
+        ConfigError: no such scenario, or the file is invalid (the message names the file, the
+            key, the bad value and what would be valid).
+    """
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
         path = SCENARIO_DIR / f"{name_or_path}.yaml"
         if not path.is_file():
-            raise ConfigError(
-                f"unknown scenario {str(name_or_path)!r}; valid: {', '.join(list_scenarios())}"
-            )
+            valid = ", ".join(list_scenarios()) or "none"
+            raise ConfigError(f"unknown scenario {str(name_or_path)!r}; valid: {valid}")
     if not path.is_file():
         raise ConfigError(f"{path}: no such scenario file")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: invalid YAML: {exc}") from None
+        raise ConfigError(f"{path}: invalid YAML: {' '.join(str(exc).split())}") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of scenario keys, got {type(data).__name__}")
     data.setdefault("name", path.stem)

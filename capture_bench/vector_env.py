@@ -44,7 +44,7 @@ from capture_bench.capture import (
     first_entry_along_arc,
     first_entry_fractions,
 )
-from capture_bench.env import FAILURES, CaptureEnv
+from capture_bench.env import FAILURES, CaptureEnv, check_actions
 from capture_bench.episode import TIME_SLACK, period_count, time_limit
 from capture_bench.estimator import STATUSES
 from capture_bench.observation import encode_observations
@@ -214,16 +214,18 @@ class CaptureVectorEnv(VectorEnv):
     ) -> tuple[
         NDArray[np.float32], FloatArray, NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]
     ]:
+        """Step every sub-env with its row of ``actions``, shape (num_envs, 3), in [-1, 1].
+
+        Out-of-range values are clipped; a wrong shape, a non-numeric dtype or a NaN/infinite
+        entry raises ``ValueError`` naming it (:func:`capture_bench.env.check_actions`, the rule of
+        :class:`CaptureEnv`), and nothing is stepped. After ``close()``: ``RuntimeError``.
+        """
         if self._world is None:
-            raise RuntimeError("CaptureVectorEnv.step() called after close()")
+            raise RuntimeError("CaptureVectorEnv.step() called after close(); the env is closed")
         if not self._started:
             raise RuntimeError("CaptureVectorEnv.step() called before reset(); call reset() first")
         n = self.num_envs
-        a = np.asarray(actions, dtype=float)
-        if a.shape != (n, 3) or not np.all(np.isfinite(a)):
-            raise ValueError(
-                f"actions must be a finite array of shape ({n}, 3) in [-1, 1]; got {actions!r}"
-            )
+        a = check_actions(actions, (n, 3), "actions")
         resetting = np.flatnonzero(self._ended)
         stepping = np.flatnonzero(~self._ended)
         if resetting.size:

@@ -301,13 +301,32 @@ def test_close_twice_is_safe(make_env):
 
 
 @pytest.mark.parametrize(
-    "action", [np.array([np.nan, 0, 0]), np.array([0, np.inf, 0]), np.zeros(2), np.zeros((3, 1))]
+    ("action", "message"),
+    [
+        (np.array([np.nan, 0, 0]), r"action\[0\] is nan; every entry must be a finite number"),
+        (np.array([0, np.inf, 0]), r"action\[1\] is inf; every entry must be a finite number"),
+        (np.zeros(2), r"action must have shape \(3,\); got shape \(2,\)"),
+        (np.zeros((3, 1)), r"action must have shape \(3,\); got shape \(3, 1\)"),
+        (["0", "0", "0"], r"action must be an array of shape \(3,\) of real numbers; got dtype"),
+        ([0, [1, 2], 0], r"action must be an array of shape \(3,\) of numbers"),
+    ],
 )
-def test_bad_actions_raise_a_value_error_that_shows_the_action(action, make_env):
+def test_bad_actions_raise_a_value_error_that_names_the_problem(action, message, make_env):
     env = make_env()
     env.reset(seed=0)
-    with pytest.raises(ValueError, match=r"finite array of shape \(3,\)"):
+    with pytest.raises(ValueError, match=message):
         env.unwrapped.step(action)
+
+
+def test_step_after_close_says_the_env_is_closed_and_reset_reopens_it(make_env):
+    env = make_env().unwrapped
+    env.reset(seed=0)
+    env.close()
+    with pytest.raises(RuntimeError, match=r"after close\(\); the env is closed"):
+        env.step(np.zeros(3))
+    env.reset(seed=0)  # a new world: the env is usable again
+    assert np.isfinite(env.step(np.array([1e300, -1e300, 7]))[1])  # huge values are clipped
+    env.close()
 
 
 def test_step_before_reset_is_an_error():

@@ -149,9 +149,12 @@ def test_seeding_reset_mask_and_autoreset_contract():
     assert info["_time"].tolist() == [False, True, False]
     obs_9, _ = CaptureVectorEnv(3, "paper").reset(seed=[9, 9, 9])
     np.testing.assert_array_equal(obs_c[1], obs_9[1])
-    for bad in (np.zeros((2, 3)), np.full((3, 3), np.nan)):
-        with pytest.raises(ValueError, match="actions must be a finite array of shape"):
-            env.step(bad)
+    with pytest.raises(ValueError, match=r"actions must have shape \(3, 3\); got shape \(2, 3\)"):
+        env.step(np.zeros((2, 3)))
+    with pytest.raises(
+        ValueError, match=r"actions\[0, 0\] is nan; every entry must be a finite number"
+    ):
+        env.step(np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match="reward must be one of"):
         CaptureVectorEnv(2, "paper", reward="shaped")
     with pytest.raises(ValueError, match="num_envs must be a positive integer"):
@@ -165,7 +168,7 @@ def test_seeding_reset_mask_and_autoreset_contract():
     info = env.step(np.zeros((3, 3)))[4]
     assert info["_time"] is not info["_distance"]  # a mask per key, as SyncVectorEnv gives
     env.close()
-    with pytest.raises(RuntimeError, match="after close"):
+    with pytest.raises(RuntimeError, match=r"after close\(\); the env is closed"):
         env.step(np.zeros((3, 3)))
 
 

@@ -110,11 +110,12 @@ class Plan:
 
 
 def _scenario_names(suite: Suite) -> list[str]:
-    if suite.scenarios == (ALL,):
+    if suite.scenarios == (ALL,):  # every valid scenario; the CLI names the invalid files skipped
         return list_scenarios()
     known = list_scenarios()
     for name in suite.scenarios:
         if name not in known:
+            load_scenario(name)  # an invalid shipped file raises its own error (file, key, valid)
             raise EvaluationError(f"unknown scenario {name!r}; valid: {', '.join(known)}")
     return list(suite.scenarios)
 

@@ -1,0 +1,110 @@
+"""``python -m capture_bench list``: what is installed, and what is broken, in one screen.
+
+Prints the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges),
+the invalid scenario files with their error (file, key, what is valid), the suites and the
+algorithm configs (each with its error if it does not load). Nothing here raises on a bad file:
+listing is how a user finds the bad file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from typing import Any
+
+PROG = "python -m capture_bench"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="capture-bench: list scenarios, suites and algorithm configs."
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands.add_parser(
+        "list",
+        help="list the valid scenarios (name, env ID, seed ranges), invalid scenario files with "
+        "their error, the suites and the algorithm configs",
+        description="List the valid scenarios (name, env ID, seed ranges), invalid scenario "
+        "files with their error, the suites and the algorithm configs.",
+    )
+    return parser
+
+
+def _seeds(start: int, count: int) -> str:
+    return f"{start}-{start + count - 1} ({count})"
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _try(load: Callable[[], Any]) -> tuple[Any, str | None]:
+    """``(load(), None)``, or ``(None, the error's message)`` for a bad-input error."""
+    from capture_bench.evaluation.errors import EvaluationError
+    from capture_bench.scenarios import ConfigError
+
+    try:
+        return load(), None
+    except (ConfigError, EvaluationError) as exc:
+        return None, _one_line(str(exc))
+
+
+def list_everything() -> list[str]:
+    """The lines ``python -m capture_bench list`` prints."""
+    from capture_bench.evaluation.suites import SUITES_DIR, list_suites, load_suite
+    from capture_bench.scenarios import (
+        SCENARIO_DIR,
+        invalid_scenarios,
+        list_scenarios,
+        load_scenario,
+    )
+    from capture_bench.training import ALGO_DIR, ALGORITHMS, load_hyperparameters
+
+    lines = [f"scenarios ({SCENARIO_DIR}):"]
+    for name in list_scenarios():
+        s = load_scenario(name)
+        lines.append(
+            f"  {name:<10} {s.env_id:<28} evaluation seeds "
+            f"{_seeds(s.seeds.evaluation_start, s.seeds.evaluation_count)}, training seeds "
+            f"{_seeds(s.seeds.training_start, s.seeds.training_count)}"
+        )
+    invalid = invalid_scenarios()
+    if invalid:
+        lines.append("invalid scenario files (skipped; using one raises this error):")
+        lines += [f"  {name:<10} {_one_line(error)}" for name, error in invalid.items()]
+    lines.append(f"suites ({SUITES_DIR}):")
+    for name in list_suites():
+        suite, error = _try(lambda name=name: load_suite(name))
+        if error is not None:
+            lines.append(f"  {name:<10} INVALID: {error}")
+        else:
+            lines.append(
+                f"  {name:<10} {', '.join(suite.scenarios)}; {suite.episodes} episodes; "
+                f"{len(suite.agents)} agent specs; {suite.description}"
+            )
+    lines.append(f"algorithm configs ({ALGO_DIR}):")
+    for algo in ALGORITHMS:
+        loaded, error = _try(lambda algo=algo: load_hyperparameters(algo))
+        if error is not None:
+            lines.append(f"  {algo:<10} INVALID: {error}")
+        else:
+            hp, path = loaded
+            lines.append(
+                f"  {algo:<10} {path.name}: {hp['total_timesteps']} steps, {hp['n_envs']} envs"
+            )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command; returns the exit code (0, or 2 for a malformed command line)."""
+    try:
+        build_parser().parse_args(sys.argv[1:] if argv is None else list(argv))
+    except SystemExit as exc:  # --help (0) or a bad command (2, already printed in one line)
+        return int(exc.code or 0)
+    print("\n".join(list_everything()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
