@@ -2,13 +2,20 @@
 
     python evaluate.py                       # default suite: every scenario, 100 seeds, all agents
     python evaluate.py --suite quick         # smoke run
-    python evaluate.py --agents incremental_ik models/ppo_paper --scenarios paper --episodes 20
+    python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper --episodes 20
+    python evaluate.py --scenarios path/to/my_scenario.yaml --suite quick
     python evaluate.py --workers 1           # serially, in this process (default: every CPU)
     python evaluate.py --backend ray --ray-address auto
 
-Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures).
-Bad input (unknown agent, scenario or suite, missing or corrupt model, mismatched spaces) prints
-one line to stderr and exits with code 2, before any episode runs or any file is written.
+Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures),
+replacing the previous report only once the new one is complete. ``--agents``, ``--scenarios`` or
+``--episodes`` that change the suite make a custom selection, written to
+``<out>/custom-<hash of the selection>/``: ``reports/<suite>/`` only ever holds that suite as
+defined. Bad input (unknown agent, scenario or suite, a missing, corrupt or untrusted model,
+mismatched spaces, an output folder that cannot be written) prints one line to stderr and exits
+with code 2, before any episode runs or any file is written. Ctrl-C (SIGINT) or SIGTERM stops
+every worker and exits with 130 or 143, writing nothing and leaving the previous report as it was.
+Models load without unpickling anything (``--trust-model`` to allow an SB3 ``.zip``).
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from capture_bench.evaluation.pipeline import (
 )
 from capture_bench.evaluation.report import ReportData
 from capture_bench.evaluation.suites import ALL
+from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.scenarios import invalid_scenarios
 
 PROG = "evaluate.py"
@@ -127,7 +135,7 @@ def _summary_table(data: ReportData, target: Path) -> None:
     scenarios = list(dict.fromkeys(s.scenario for s in data.summaries))
     rate = {(s.agent, s.scenario): s.capture_rate.value for s in data.summaries}
     table = Table(
-        title=f"capture-bench · {data.suite} suite · capture rate, % of episodes",
+        title=f"capture-bench · {data.suite} · capture rate, % of episodes",
         caption="ratio: mean over scenarios of the median capture time / physical limit",
     )
     table.add_column("rank", justify="right")
@@ -171,8 +179,7 @@ def _run(plan: Plan, config: EvaluationConfig, command: str) -> tuple[ReportData
         return run_evaluation(plan, config, command, lambda n: bar.advance(task, n))
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (0 done, 2 bad input)."""
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         config = parse_config(argv)
@@ -188,9 +195,29 @@ def main(argv: list[str] | None = None) -> int:
     if plan.suite.scenarios == (ALL,):  # "every scenario": say which invalid files were left out
         for name, error in invalid_scenarios().items():
             print(f"{PROG}: note: skipping invalid scenario {name!r}: {error}", file=sys.stderr)
+    if plan.suite.name != config.suite and plan.suite.name.startswith("custom-"):
+        print(
+            f"{PROG}: note: a custom selection, so the report goes to "
+            f"{config.out / plan.suite.name}/ (the {config.suite!r} suite's own report is left "
+            "as it is)",
+            file=sys.stderr,
+        )
     data, target = _run(plan, config, command)
     _summary_table(data, target)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (0 done, 2 bad input, 130/143 interrupted)."""
+    with sigterm_as_interrupt():
+        try:
+            return _main(argv)
+        except KeyboardInterrupt as exc:
+            print(
+                f"{PROG}: interrupted; no report written (a previous report is as it was)",
+                file=sys.stderr,
+            )
+            return exit_status(exc)
 
 
 if __name__ == "__main__":

@@ -19,18 +19,17 @@ is rounded up, with a note saying so.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import signal
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from capture_bench.checkpoint import CheckpointError, list_checkpoints, read_checkpoint, restore
 from capture_bench.files import check_writable
+from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.scenarios import ConfigError, load_scenario
 from capture_bench.training import (
     ALGORITHMS,
@@ -53,22 +52,6 @@ ENV_MEMORY_BYTES = 40 * 2**20
 MEMORY_SHARE = 0.8
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised where the main thread is, so that it is handled exactly as Ctrl-C."""
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    def handler(signum: int, frame: Any) -> None:
-        raise Terminated()
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run ``train.py`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
     try:
@@ -79,12 +62,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except SystemExit as exc:  # argparse: --help (0) or a bad option (2, already printed)
         return int(exc.code or 0)
-    with _sigterm_as_interrupt():
+    with sigterm_as_interrupt():
         try:
             return train(config, hp, run_dir, checkpoint)
         except KeyboardInterrupt as exc:  # before learning started (imports, env start-up)
             print("\ninterrupted before training started; nothing to save", file=sys.stderr)
-            return 143 if isinstance(exc, Terminated) else 130
+            return exit_status(exc)
         except CheckpointError as exc:  # the newest checkpoint does not fit the run's model
             print(f"train.py: error: {' '.join(str(exc).split())}", file=sys.stderr)
             return 2
@@ -326,7 +309,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
             tb_log_name="run",
         )
     except KeyboardInterrupt as exc:
-        status = 143 if isinstance(exc, Terminated) else 130
+        status = exit_status(exc)
         path = checkpointer.save(model)
         add_wall_time(run_dir, time.perf_counter() - start)
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint {path}; "

@@ -203,10 +203,10 @@ def test_terminal_shows_a_progress_bar_with_eta_and_the_summary_table(tmp_path, 
     argv = ["--suite", "quick", "--scenarios", "paper", "--episodes", "1", "--workers", "1"]
     assert main([*argv, "--out", str(tmp_path)]) == 0
     out, err = capsys.readouterr()
-    assert "quick: episodes" in err and "2/2" in err and "ETA" in err  # the final bar
+    assert "custom-" in err and "2/2" in err and "ETA" in err  # the final bar
     flat = " ".join(out.split())  # the table wraps to the (narrow) captured console
     assert "capture rate, % of episodes" in flat and "incremental_ik" in flat
-    assert f"report: {tmp_path / 'quick'}" in flat
+    assert f"report: {tmp_path / 'custom-'}" in flat and not (tmp_path / "quick").exists()
 
 
 def test_ray_address_reaches_ray_init(monkeypatch, tmp_path):
@@ -253,7 +253,9 @@ def test_trained_model_and_user_agent_run_next_to_the_baseline(tmp_path):
     argv += ["--out", str(tmp_path / "reports")]
     argv += ["--episode-plots", str(tmp_path / "episodes")]
     assert main(argv) == 0
-    rows = _rows(tmp_path / "reports" / "quick" / "results.csv")
+    (report,) = (tmp_path / "reports").iterdir()  # a custom selection: its own folder
+    assert report.name.startswith("custom-")
+    rows = _rows(report / "results.csv")
     assert [r["agent"] for r in rows] == [
         "incremental_ik",
         "ppo_tiny",
@@ -262,7 +264,7 @@ def test_trained_model_and_user_agent_run_next_to_the_baseline(tmp_path):
     assert len(list((tmp_path / "episodes").glob("*.png"))) == 3
     policy = build_agent(resolve_agent(str(model)), env=None, seed=0)
     assert isinstance(policy.normalizer, ObservationNormalizer)
-    payload = json.loads((tmp_path / "reports" / "quick" / "results.json").read_text())
+    payload = json.loads((report / "results.json").read_text())
     model = payload["provenance"]["config_hashes"]["models"]["ppo_tiny"]
     assert model["algorithm"] == "PPO" and set(model["sha256"]) == {"policy.pt", "metadata.json"}
 

@@ -22,9 +22,11 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from capture_bench.evaluation.agents_loading import (
@@ -69,11 +71,30 @@ _SPECS: dict[tuple[str, bool], AgentSpec] = {}
 def make_env(scenario: str, **kwargs: Any) -> Any:
     """The gymnasium environment of a shipped scenario (``CaptureBench/<Name>-v0``)."""
     import gymnasium
+    from gymnasium.envs.registration import EnvSpec
 
     import capture_bench  # noqa: F401  (registers the environment IDs)
     from capture_bench.scenarios import load_scenario
 
-    return gymnasium.make(load_scenario(scenario).env_id, **kwargs)
+    loaded = load_scenario(scenario)
+    if Path(scenario).suffix in (".yaml", ".yml"):  # a file given by path: not registered
+        spec = EnvSpec(
+            id=loaded.env_id,
+            entry_point="capture_bench.env:CaptureEnv",
+            kwargs={"scenario": str(Path(scenario).resolve())},
+        )
+        return gymnasium.make(spec, **kwargs)
+    return gymnasium.make(loaded.env_id, **kwargs)
+
+
+def scenario_label(scenario: str) -> str:
+    """The name a scenario spec has in reports: its own name (a file given by path: the name in
+    the file, or its stem), never the path."""
+    if Path(scenario).suffix in (".yaml", ".yml"):
+        from capture_bench.scenarios import load_scenario
+
+        return load_scenario(scenario).name
+    return scenario
 
 
 def _env(scenario: str) -> Any:
@@ -97,7 +118,12 @@ def run_task(task: EpisodeTask, trace: bool = False) -> tuple[EpisodeRecord, Epi
     env = _env(task.scenario)
     agent = build_agent(spec, env, task.seed)
     return run_episode(
-        env, agent, agent_name=spec.label, scenario=task.scenario, seed=task.seed, trace=trace
+        env,
+        agent,
+        agent_name=spec.label,
+        scenario=scenario_label(task.scenario),
+        seed=task.seed,
+        trace=trace,
     )
 
 
@@ -167,23 +193,40 @@ def _run_process(
         context.set_forkserver_preload(list(PRELOAD))
     results: list[list[EpisodeRecord] | None] = [None] * len(chunks)
     workers = min(workers, len(chunks))
-    with (
-        _single_threaded_children(),
-        ProcessPoolExecutor(workers, mp_context=context) as pool,
-    ):
-        pending = {pool.submit(run_chunk, chunk): i for i, chunk in enumerate(chunks)}
-        try:
-            while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for future in done:
-                    index = pending.pop(future)
-                    results[index] = future.result()
-                    progress(len(chunks[index]))
-        except BaseException:
-            for future in pending:
-                future.cancel()
-            raise
+    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_ignore_signals)
+    try:
+        with _single_threaded_children():  # workers (and the forkserver) start on submit
+            pending = {pool.submit(run_chunk, chunk): i for i, chunk in enumerate(chunks)}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                index = pending.pop(future)
+                results[index] = future.result()
+                progress(len(chunks[index]))
+    except BaseException:  # Ctrl-C, SIGTERM, a failed episode: stop now, leave no worker behind
+        _kill_workers(pool)
+        raise
+    pool.shutdown(wait=True)
     return [r for r in results if r is not None]
+
+
+def _ignore_signals() -> None:
+    """Worker initialiser: SIGINT (Ctrl-C reaches the whole process group) and SIGTERM are the
+    main process's to handle; it ends the workers itself."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+def _kill_workers(pool: ProcessPoolExecutor) -> None:
+    """End a pool at once: cancel what has not started, kill the workers (which ignore SIGINT
+    and SIGTERM), and shut down without waiting for running chunks (a graceful shutdown waits
+    for every running chunk: minutes)."""
+    processes = list(getattr(pool, "_processes", {}).values())  # the executor's own record
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.kill()
+    for process in processes:
+        process.join(timeout=5)
 
 
 def _run_ray(

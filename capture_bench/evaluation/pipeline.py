@@ -30,12 +30,14 @@ from capture_bench.evaluation.backends import (
     make_env,
     run_task,
     run_tasks,
+    scenario_label,
 )
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError
 from capture_bench.evaluation.provenance import file_sha256, git_state, package_versions
 from capture_bench.evaluation.report import ReportData, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
+from capture_bench.files import check_writable
 from capture_bench.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
 
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2.
@@ -114,6 +116,9 @@ def _scenario_names(suite: Suite) -> list[str]:
         return list_scenarios()
     known = list_scenarios()
     for name in suite.scenarios:
+        if is_scenario_file(name):  # a scenario YAML by path, as train.py --scenario takes
+            load_scenario(name)  # raises the file's error (file, key, what is valid)
+            continue
         if name not in known:
             load_scenario(name)  # an invalid shipped file raises its own error (file, key, valid)
             raise EvaluationError(f"unknown scenario {name!r}; valid: {', '.join(known)}")
@@ -132,11 +137,31 @@ def _model_provenance(spec: AgentSpec) -> dict[str, Any]:
     }
 
 
+def is_scenario_file(name: str) -> bool:
+    """Whether a scenario spec is a YAML path rather than a shipped scenario's name."""
+    return Path(name).suffix in (".yaml", ".yml")
+
+
+def scenario_file(name: str) -> Path:
+    """The YAML file a scenario spec names."""
+    return Path(name) if is_scenario_file(name) else SCENARIO_DIR / f"{name}.yaml"
+
+
 def plan_evaluation(config: EvaluationConfig) -> Plan:
-    """Validate the whole request; raises one of :data:`INPUT_ERRORS` naming what is wrong."""
+    """Validate the whole request; raises one of :data:`INPUT_ERRORS` naming what is wrong.
+
+    The output folders are checked writable last, so bad input of any kind costs no episode and
+    leaves no file."""
     config.resolved_backend()
     suite = narrow(load_suite(config.suite), config.agents, config.scenarios, config.episodes)
     scenarios = _scenario_names(suite)
+    labels = [scenario_label(name) for name in scenarios]
+    clash = next((x for x in labels if labels.count(x) > 1), None)
+    if clash:
+        raise EvaluationError(
+            f"two scenarios are both named {clash!r} in the report; give the file its own "
+            "'name' key or file name"
+        )
     seeds: dict[str, list[int]] = {}
     for name in scenarios:
         published = load_scenario(name).evaluation_seeds
@@ -172,9 +197,12 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     ]
     hashes: dict[str, Any] = {
         "suite": {"file": str(suite.path), "sha256": suite.sha256},
-        "scenarios": {n: file_sha256(SCENARIO_DIR / f"{n}.yaml") for n in scenarios},
+        "scenarios": {n: file_sha256(scenario_file(n)) for n in scenarios},
         "models": {s.label: _model_provenance(s) for s in specs if s.kind == "model"},
     }
+    check_writable(config.out, "--out")
+    if config.episode_plots is not None:
+        check_writable(config.episode_plots, "--episode-plots")
     return Plan(suite, specs, scenarios, seeds, tasks, hashes)
 
 
@@ -210,7 +238,9 @@ def write_episode_plots(plan: Plan, directory: Path) -> list[Path]:
                 seed = plan.seeds[name][0]
                 record, trace = run_task(EpisodeTask(spec.spec, name, seed), trace=True)
                 assert trace is not None
-                path = directory / f"{_safe(spec.label)}_{name}_seed{seed}.png"
+                path = (
+                    directory / f"{_safe(spec.label)}_{_safe(scenario_label(name))}_seed{seed}.png"
+                )
                 path.write_bytes(episode_figure(record, trace))
                 written.append(path)
     finally:

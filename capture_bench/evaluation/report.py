@@ -181,10 +181,18 @@ def _scenarios(data: ReportData) -> list[str]:
     return list(dict.fromkeys(s.scenario for s in data.summaries))
 
 
+def _title(data: ReportData, quote: str) -> str:
+    """``default suite``, or ``custom-<hash> (custom selection)``: never a suite's name for a
+    narrowed run."""
+    if data.suite.startswith("custom-"):
+        return f"{quote}{data.suite}{quote} (a custom selection, not a suite as defined)"
+    return f"{quote}{data.suite}{quote} suite"
+
+
 def markdown(data: ReportData) -> str:
     """The leaderboard in Markdown, headed by the command that regenerates it."""
     lines = [
-        f"# capture-bench leaderboard: `{data.suite}` suite",
+        f"# capture-bench leaderboard: {_title(data, '`')}",
         "",
         "Regenerate with:",
         "",
@@ -255,7 +263,7 @@ def html_page(data: ReportData, images: dict[str, bytes]) -> str:
         "<!DOCTYPE html>",
         f'<html lang="en"><head><meta charset="utf-8"><title>capture-bench: {esc(data.suite)}'
         f"</title><style>{STYLE}</style></head><body>",
-        f"<h1>capture-bench leaderboard: {esc(data.suite)} suite</h1>",
+        f"<h1>capture-bench leaderboard: {esc(_title(data, ''))}</h1>",
         f"<p>Regenerate with:</p><pre><code>{esc(data.command)}</code></pre>",
         f"<p>{esc(data.description)}</p>",
         f"<h2>Overall ranking</h2><p>{esc(RANKING_RULE)}</p>",

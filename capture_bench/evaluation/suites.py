@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,7 +34,8 @@ class Suite:
     """A validated suite.
 
     Attributes:
-        name: the file stem (``default``, ``quick``); reports go to ``reports/<name>/``.
+        name: the file stem (``default``, ``quick``), or ``custom-<hash>`` for a narrowed
+            selection (:func:`narrow`); reports go to ``reports/<name>/``.
         description: one line for people.
         agents: agent specs, in report order.
         scenarios: scenario names, in report order; ``("all",)`` means every shipped scenario.
@@ -122,7 +124,13 @@ def narrow(
     scenarios: list[str] | None = None,
     episodes: int | None = None,
 ) -> Suite:
-    """The suite with its agents, scenarios or episode count replaced (``--agents`` etc.)."""
+    """The suite with its agents, scenarios or episode count replaced (``--agents`` etc.).
+
+    A selection that differs from the suite as defined is not that suite: it is named
+    ``custom-<8 hex digits of the selection's hash>`` (so its report goes to its own folder,
+    ``<out>/custom-<hash>/``, and never replaces ``<out>/<suite>/``) and its description says
+    what it was narrowed from. The same selection always gets the same name.
+    """
     if episodes is not None and episodes < 1:
         raise SuiteError(f"--episodes {episodes}: expected a whole number >= 1")
     changes: dict[str, Any] = {}
@@ -132,4 +140,19 @@ def narrow(
         changes["scenarios"] = tuple(dict.fromkeys(scenarios))
     if episodes is not None:
         changes["episodes"] = episodes
-    return dataclasses.replace(suite, **changes)
+    narrowed = dataclasses.replace(suite, **changes)
+    if (narrowed.agents, narrowed.scenarios, narrowed.episodes) == (
+        suite.agents,
+        suite.scenarios,
+        suite.episodes,
+    ):
+        return narrowed
+    selection = json.dumps(
+        [suite.name, suite.sha256, narrowed.agents, narrowed.scenarios, narrowed.episodes]
+    )
+    digest = hashlib.sha256(selection.encode()).hexdigest()[:8]
+    described = (
+        f"custom selection from the {suite.name!r} suite: agents {', '.join(narrowed.agents)}; "
+        f"scenarios {', '.join(narrowed.scenarios)}; {narrowed.episodes} episodes each"
+    )
+    return dataclasses.replace(narrowed, name=f"custom-{digest}", description=described)

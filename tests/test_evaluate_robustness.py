@@ -1,0 +1,128 @@
+"""evaluate.py: output folders checked first, reports replaced only by what they are, signals end
+it at once with no worker left and the previous report intact."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from evaluate import main
+
+ROOT = Path(__file__).parents[1]
+
+
+def one_line_error(capsys, argv: list[str], *expected: str) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    for text in expected:
+        assert text in err, err
+
+
+@pytest.mark.parametrize("option", ["--out", "--episode-plots"])
+def test_an_unwritable_output_folder_is_refused_before_any_episode(option, tmp_path, capsys):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    for folder in (blocker, blocker / "below", Path("/proc/capture-bench-report")):
+        argv = ["--suite", "quick", "--workers", "1", option, str(folder)]
+        if option != "--out":
+            argv += ["--out", str(tmp_path / "reports")]
+        one_line_error(capsys, argv, option, "writable folder")
+    assert not (tmp_path / "reports").exists()
+
+
+def test_a_read_only_folder_is_refused(tmp_path, capsys):
+    if os.geteuid() == 0:
+        pytest.skip("root writes through permission bits (the /proc case covers root)")
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    one_line_error(capsys, ["--suite", "quick", "--out", str(folder)], "--out", "cannot write")
+
+
+def test_a_narrowed_run_never_replaces_the_suites_report(tmp_path, capsys):
+    out = tmp_path / "reports"
+    (out / "quick").mkdir(parents=True)
+    (out / "quick" / "marker").write_text("the quick suite's report")
+    argv = ["--suite", "quick", "--agents", "hold", "--scenarios", "paper", "--episodes", "1"]
+    assert main([*argv, "--workers", "1", "--out", str(out)]) == 0
+    assert (out / "quick" / "marker").read_text() == "the quick suite's report"
+    custom = [p for p in out.iterdir() if p.name.startswith("custom-")]
+    assert len(custom) == 1 and (custom[0] / "results.json").is_file()
+    assert str(custom[0]) in capsys.readouterr().err  # named in the output
+    html = (custom[0] / "leaderboard.md").read_text()
+    assert "custom selection" in html and "`quick` suite" not in html
+    assert main([*argv, "--workers", "1", "--out", str(out)]) == 0  # same selection, same folder
+    assert len([p for p in out.iterdir() if p.name.startswith("custom-")]) == 1
+
+
+def test_a_scenario_file_path_is_accepted(tmp_path, capsys):
+    mine = tmp_path / "my_paper.yaml"
+    shutil.copy(ROOT / "configs" / "scenarios" / "paper.yaml", mine)
+    argv = ["--suite", "quick", "--agents", "hold", "--scenarios", str(mine), "--episodes", "1"]
+    assert main([*argv, "--workers", "1", "--out", str(tmp_path / "r")]) == 0
+    (report,) = (tmp_path / "r").iterdir()
+    assert "my_paper" in (report / "results.csv").read_text()  # named by the file, not its path
+    capsys.readouterr()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("control:\n  period: -1\n")
+    argv[5] = str(bad)
+    one_line_error(capsys, [*argv, "--out", str(tmp_path / "r2")], str(bad))
+    argv[5] = str(tmp_path / "missing.yaml")
+    one_line_error(capsys, [*argv, "--out", str(tmp_path / "r2")], "no such scenario file")
+    assert not (tmp_path / "r2").exists()
+
+
+def _descendants(pid: int) -> list[int]:
+    children = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                children.append(int(entry.name))
+    return children + [d for c in children for d in _descendants(c)]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize(("signum", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_ends_evaluate_at_once_with_no_worker_left(signum, status, tmp_path):
+    out = tmp_path / "reports"
+    (out / "quick").mkdir(parents=True)
+    (out / "quick" / "marker").write_text("previous report")
+    proc = subprocess.Popen(
+        [sys.executable, "evaluate.py", "--suite", "quick", "--episodes", "50", "--workers", "2",
+         "--out", str(out)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
+    deadline = time.monotonic() + 60
+    workers: list[int] = []
+    while time.monotonic() < deadline and len(workers) < 3:  # forkserver + 2 workers running
+        time.sleep(0.2)
+        workers = _descendants(proc.pid)
+    assert len(workers) >= 3, "the workers never started"
+    time.sleep(1.0)  # mid-episodes
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == status, err
+    assert "Traceback" not in err and "interrupted" in err
+    time.sleep(0.5)
+    assert not [pid for pid in workers if _alive(pid)], "a worker outlived evaluate.py"
+    assert (out / "quick" / "marker").read_text() == "previous report"
+    assert sorted(p.name for p in out.iterdir()) == ["quick"]  # no staging folder left
