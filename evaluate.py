@@ -34,6 +34,7 @@ from capture_bench.evaluation.pipeline import (
     plan_evaluation,
     run_evaluation,
 )
+from capture_bench.evaluation.provenance import git_state
 from capture_bench.evaluation.report import ReportData
 from capture_bench.evaluation.suites import ALL
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
@@ -51,7 +52,12 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The command-line options (each maps to a field of ``EvaluationConfig``)."""
-    parser = _Parser(prog=PROG, description=__doc__.splitlines()[0])
+    parser = _Parser(
+        prog=PROG,
+        description=__doc__.splitlines()[0],
+        epilog="List the scenarios (and any invalid scenario file, with its error), suites and "
+        "algorithms: python -m capture_bench list",
+    )
     parser.add_argument(
         "--suite",
         default="default",
@@ -195,6 +201,12 @@ def _main(argv: list[str] | None) -> int:
     if plan.suite.scenarios == (ALL,):  # "every scenario": say which invalid files were left out
         for name, error in invalid_scenarios().items():
             print(f"{PROG}: note: skipping invalid scenario {name!r}: {error}", file=sys.stderr)
+    if git_state().get("dirty"):
+        print(
+            f"{PROG}: note: the checkout has uncommitted changes; results.json will say "
+            "dirty: true (commit first for a report others can trace to its code)",
+            file=sys.stderr,
+        )
     if plan.suite.name != config.suite and plan.suite.name.startswith("custom-"):
         print(
             f"{PROG}: note: a custom selection, so the report goes to "
