@@ -17,7 +17,7 @@ name                        what                                                
 ==========================  ==========================================================  =========
 
 Analytic agents are built from ``env.unwrapped.description`` (a
-:class:`capture_bench.observation.TaskDescription`) and nothing else; only the oracle keeps a
+:class:`capture_bench.task.observation.TaskDescription`) and nothing else; only the oracle keeps a
 reference to the environment, and it carries ``privileged = True``.
 """
 
@@ -26,8 +26,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from agents.base import AnalyticController
 from agents.baselines import DampedLeastSquares, Hold, Intercept, PurePursuit, RandomAgent
-from agents.incremental_ik import AnalyticController, IncrementalIK, incremental_step
+from agents.incremental_ik import IncrementalIK, incremental_step
 from agents.oracle import Oracle
 from agents.protocol import Agent
 

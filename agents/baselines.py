@@ -16,15 +16,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.incremental_ik import (
-    AnalyticController,
-    incremental_step,
-    lambda_max_of,
-    resolve_direction,
-    safe_action,
-)
-from capture_bench.kinematics import forward_kinematics, jacobian
-from capture_bench.observation import TaskDescription
+from agents.base import AnalyticController, safe_action
+from agents.incremental_ik import incremental_step, lambda_max_of, resolve_direction
+from capture_bench.sim.kinematics import forward_kinematics, jacobian
+from capture_bench.task.observation import TaskDescription
 
 
 class PurePursuit(AnalyticController):

@@ -3,7 +3,7 @@
 **Privileged.** Unlike every other agent it reads the world's ground truth through the
 environment's privileged API (``env.unwrapped.physical_limit()``, ``true_target_position(t)``,
 ``time``, ``next_control_period``). It is not a controller anyone could deploy; it exists to show
-that the per-episode lower bound on capture time (``capture_bench/physical_limit.py``) is
+that the per-episode lower bound on capture time (``capture_bench/task/physical_limit.py``) is
 attainable, so ratios to the bound are meaningful. Label it "oracle (privileged)" wherever it
 appears.
 
@@ -32,9 +32,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.incremental_ik import incremental_step, predict_each, safe_action
-from capture_bench.kinematics import inverse_kinematics, within_limits
-from capture_bench.observation import TaskDescription, decode_observation
+from agents.base import predict_each, safe_action
+from agents.incremental_ik import incremental_step
+from capture_bench.sim.kinematics import inverse_kinematics, within_limits
+from capture_bench.task.observation import TaskDescription, decode_observation
 
 
 class Oracle:

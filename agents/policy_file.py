@@ -488,7 +488,7 @@ def save_policy(
 
     import torch
 
-    from capture_bench.training import atomic_write
+    from capture_bench.files import atomic_write
 
     directory = Path(directory)
     declaration = declare(algorithm, policy, normalizer)

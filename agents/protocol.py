@@ -15,7 +15,7 @@ import numpy as np
 class Agent(Protocol):
     """An agent maps observations to actions in the shared action space ``Box(-1, 1, (3,))``.
 
-    ``predict`` takes one observation, shape (16,) (see ``capture_bench/observation.py``), and
+    ``predict`` takes one observation, shape (16,) (see ``capture_bench/task/observation.py``), and
     returns ``(action, state)`` with ``action`` of shape (3,), float32, inside [-1, 1]; ``state``
     is a recurrent state (``None`` for stateless agents). ``reset`` is called at the start of
     every episode.

@@ -26,9 +26,8 @@ import gymnasium as gym  # noqa: E402 (after the thread settings)
 import numpy as np  # noqa: E402
 
 import capture_bench  # noqa: E402
-from capture_bench.scenarios import list_scenarios, load_scenario  # noqa: E402
-
-SOURCES = ("ekf", "photogrammetry", "truth")
+from capture_bench.sensing.sources import SOURCES  # noqa: E402
+from capture_bench.task.scenarios import list_scenarios, load_scenario  # noqa: E402
 
 
 def steps_per_second(env_id: str, source: str, seconds: float, seed: int = 0) -> tuple[float, int]:

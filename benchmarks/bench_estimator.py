@@ -19,12 +19,13 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from capture_bench import photogrammetry
-from capture_bench.camera import Camera, CameraModel
-from capture_bench.ekf import LeanExtendedKalmanFilter, TargetEKF
-from capture_bench.estimator import TargetEstimator
-from capture_bench.photogrammetry import project_pose, projection_table, solve_pose
-from capture_bench.rotations import euler_to_matrix
+from capture_bench.sensing import photogrammetry
+from capture_bench.sensing.camera import Camera, CameraModel
+from capture_bench.sensing.ekf import LeanExtendedKalmanFilter, TargetEKF
+from capture_bench.sensing.estimator import TargetEstimator
+from capture_bench.sensing.photogrammetry import project_pose, projection_table, solve_pose
+from capture_bench.sensing.sources import SOURCES
+from capture_bench.sim.rotations import euler_to_matrix
 
 FEATURES = np.array([(0, 0, 0), (0.1, 0, 0), (0, 0.1, 0), (0, 0, 0.05)], dtype=float)
 DT = 0.05
@@ -144,7 +145,7 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
             best_us(update_floor(ExtendedKalmanFilter), repeats),
         )
     )
-    for source in ("ekf", "photogrammetry", "truth"):
+    for source in SOURCES:
         rows.append(
             (f"TargetEstimator.update, source={source}", best_us(estimator_steps(source), repeats))
         )

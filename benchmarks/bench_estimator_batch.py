@@ -26,8 +26,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_estimator import DT, FEATURES, make_frames  # noqa: E402
 
-from capture_bench.estimator import TargetEstimator  # noqa: E402
-from capture_bench.estimator_batch import BatchedTargetEstimator  # noqa: E402
+from capture_bench.sensing.estimator import TargetEstimator  # noqa: E402
+from capture_bench.sensing.estimator_batch import BatchedTargetEstimator  # noqa: E402
 
 
 def measure(

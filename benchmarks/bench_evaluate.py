@@ -95,7 +95,7 @@ def breakdown(episodes: int, suite: str) -> None:
     from capture_bench.evaluation.backends import make_env
     from capture_bench.evaluation.rollout import run_episode
     from capture_bench.evaluation.suites import ALL, load_suite
-    from capture_bench.scenarios import list_scenarios, load_scenario
+    from capture_bench.task.scenarios import list_scenarios, load_scenario
 
     loaded = load_suite(suite)
     scenarios = list_scenarios() if loaded.scenarios == (ALL,) else list(loaded.scenarios)

@@ -19,9 +19,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from capture_bench import photogrammetry
-from capture_bench.photogrammetry import solve_pose, solve_pose_batch
-from capture_bench.rotations import euler_to_matrix, matrix_to_euler
+from capture_bench.sensing import photogrammetry
+from capture_bench.sensing.photogrammetry import solve_pose, solve_pose_batch
+from capture_bench.sim.rotations import euler_to_matrix, matrix_to_euler
 
 FEATURES = np.array([(0, 0, 0), (0.1, 0, 0), (0, 0.1, 0), (0, 0, 0.05)], dtype=float)
 FOCAL_LENGTH = 0.008

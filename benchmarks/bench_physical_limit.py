@@ -19,9 +19,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from capture_bench.env import CaptureEnv
-from capture_bench.physical_limit import PhysicalLimit, physical_limit, physical_limits
-from capture_bench.scenarios import list_scenarios
+from capture_bench.envs.capture_env import CaptureEnv
+from capture_bench.task.physical_limit import PhysicalLimit, physical_limit, physical_limits
+from capture_bench.task.scenarios import list_scenarios
 
 CLOCKS = {"cpu": time.process_time, "wall": time.perf_counter}
 

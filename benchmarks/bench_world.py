@@ -19,9 +19,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from capture_bench.kinematics import HOME, JOINT_RATE_LIMITS
-from capture_bench.rotations import axis_angle_to_matrix
-from capture_bench.world import World
+from capture_bench.sim.kinematics import HOME, JOINT_RATE_LIMITS
+from capture_bench.sim.rotations import axis_angle_to_matrix
+from capture_bench.sim.world import World
 
 FEATURES = np.array([(0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (0.0, 0.1, 0.0), (0.0, 0.0, 0.05)])
 DT = 0.05  # s, the default control period

@@ -2,7 +2,8 @@
 
 Importing the package registers one gymnasium environment per shipped scenario,
 ``CaptureBench/<Name>-v0`` (``gymnasium.make("CaptureBench/Paper-v0")``), with a batched vector
-env (``gymnasium.make_vec("CaptureBench/Paper-v0", num_envs=64)``, :mod:`capture_bench.vector_env`).
+env (``gymnasium.make_vec("CaptureBench/Paper-v0", num_envs=64)``,
+:mod:`capture_bench.envs.vector_env`).
 
 An invalid file under ``configs/scenarios/`` breaks only itself: importing never raises or prints
 because of it, every valid scenario is registered, and the file's error (file, key, what is valid)
@@ -16,7 +17,7 @@ from __future__ import annotations
 from gymnasium import error
 from gymnasium.envs.registration import register, registry
 
-from capture_bench.scenarios import (
+from capture_bench.task.scenarios import (
     ConfigError,
     invalid_scenarios,
     list_scenarios,
@@ -44,8 +45,8 @@ def _register() -> None:
         try:  # No TimeLimit: the env truncates itself at the scenario's limit in simulated seconds.
             register(
                 id=env_id,
-                entry_point="capture_bench.env:CaptureEnv",
-                vector_entry_point="capture_bench.vector_env:CaptureVectorEnv",
+                entry_point="capture_bench.envs.capture_env:CaptureEnv",
+                vector_entry_point="capture_bench.envs.vector_env:CaptureVectorEnv",
                 kwargs={"scenario": path.stem},
             )
         except error.Error:  # a name gymnasium cannot use as an ID; load_scenario(name) still works

@@ -1,9 +1,14 @@
-"""``python -m capture_bench list``: what is installed, and what is broken, in one screen.
+"""``python -m capture_bench``: the package's commands.
 
-Prints the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges),
-the invalid scenario files with their error (file, key, what is valid), the suites and the
-algorithm configs (each with its error if it does not load). Nothing here raises on a bad file:
-listing is how a user finds the bad file.
+``python -m capture_bench evaluate ...`` and ``python -m capture_bench train ...`` run the same
+``main`` as ``python evaluate.py`` / ``python train.py`` and the console scripts
+``capture-bench-evaluate`` / ``capture-bench-train``, with the same options.
+
+``python -m capture_bench list``: what is installed, and what is broken, in one screen. It prints
+the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges), the
+invalid scenario files with their error (file, key, what is valid), the suites and the algorithm
+configs (each with its error if it does not load). Nothing here raises on a bad file: listing is
+how a user finds the bad file.
 """
 
 from __future__ import annotations
@@ -14,13 +19,20 @@ from collections.abc import Callable
 from typing import Any
 
 PROG = "python -m capture_bench"
+DELEGATED = {
+    "evaluate": "evaluate agents on a suite and write the leaderboard report",
+    "train": "train a Stable-Baselines3 policy on a scenario",
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=PROG, description="capture-bench: list scenarios, suites and algorithm configs."
+        prog=PROG,
+        description="capture-bench: evaluate agents, train policies, list what is installed.",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, what in DELEGATED.items():
+        commands.add_parser(name, help=f"{what} (the options of {name}.py: {PROG} {name} --help)")
     commands.add_parser(
         "list",
         help="list the valid scenarios (name, env ID, seed ranges), invalid scenario files with "
@@ -42,7 +54,7 @@ def _one_line(text: str) -> str:
 def _try(load: Callable[[], Any]) -> tuple[Any, str | None]:
     """``(load(), None)``, or ``(None, the error's message)`` for a bad-input error."""
     from capture_bench.evaluation.errors import EvaluationError
-    from capture_bench.scenarios import ConfigError
+    from capture_bench.task.scenarios import ConfigError
 
     try:
         return load(), None
@@ -53,13 +65,13 @@ def _try(load: Callable[[], Any]) -> tuple[Any, str | None]:
 def list_everything() -> list[str]:
     """The lines ``python -m capture_bench list`` prints."""
     from capture_bench.evaluation.suites import SUITES_DIR, list_suites, load_suite
-    from capture_bench.scenarios import (
+    from capture_bench.task.scenarios import (
         SCENARIO_DIR,
         invalid_scenarios,
         list_scenarios,
         load_scenario,
     )
-    from capture_bench.training import ALGO_DIR, ALGORITHMS, load_hyperparameters
+    from capture_bench.training.hyperparameters import ALGO_DIR, ALGORITHMS, load_hyperparameters
 
     lines = [f"scenarios ({SCENARIO_DIR}):"]
     for name in list_scenarios():
@@ -98,8 +110,17 @@ def list_everything() -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command; returns the exit code (0, or 2 for a malformed command line)."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    if args and args[0] == "evaluate":
+        from capture_bench.evaluation.cli import main as evaluate
+
+        return evaluate(args[1:])
+    if args and args[0] == "train":
+        from capture_bench.training.run import main as train
+
+        return train(args[1:])
     try:
-        build_parser().parse_args(sys.argv[1:] if argv is None else list(argv))
+        build_parser().parse_args(args)
     except SystemExit as exc:  # --help (0) or a bad command (2, already printed in one line)
         return int(exc.code or 0)
     print("\n".join(list_everything()))

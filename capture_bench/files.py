@@ -5,8 +5,9 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
-from capture_bench.scenarios import ConfigError
+from capture_bench.task.scenarios import ConfigError
 
 
 def check_writable(directory: str | Path, option: str) -> None:
@@ -39,3 +40,14 @@ def check_writable(directory: str | Path, option: str) -> None:
             f"{option} {path}: cannot write in {probe_in} ({exc.strerror or exc}); "
             "choose a writable folder"
         ) from None
+
+
+def atomic_write(path: Path, data: bytes | None = None, writer: Any = None) -> None:
+    """Write ``data`` (or call ``writer(tmp_path)``) to a temporary file, then rename it onto
+    ``path``: a reader never sees a half-written file."""
+    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
+    if writer is None:
+        tmp.write_bytes(data or b"")
+    else:
+        writer(str(tmp))
+    os.replace(tmp, path)

@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from capture_bench.sensing.sources import SOURCES
+
 PAPER_CAPTURE_TIME = 2.3  # s, "a capture is made at about 2.3 s" (section 4)
 
 
@@ -60,9 +62,9 @@ def run_episode(
 
     import capture_bench  # noqa: F401  (registers the env IDs)
     from agents import make_agent
-    from capture_bench.kinematics import forward_kinematics
-    from capture_bench.observation import decode_observation
-    from capture_bench.scenarios import load_scenario
+    from capture_bench.sim.kinematics import forward_kinematics
+    from capture_bench.task.observation import decode_observation
+    from capture_bench.task.scenarios import load_scenario
 
     env = gymnasium.make(load_scenario(scenario).env_id, observation_source=source)
     try:
@@ -128,7 +130,7 @@ def plot_episode(ep: Episode, out: Path, title: str) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from capture_bench.kinematics import JOINT_RATE_LIMITS
+    from capture_bench.sim.kinematics import JOINT_RATE_LIMITS
 
     a = ep.arrays()
     t = a["time"]
@@ -251,7 +253,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--source",
         default="ekf",
-        choices=("ekf", "photogrammetry", "truth"),
+        choices=SOURCES,
         help="observation source (default: ekf, as in the paper)",
     )
     parser.add_argument(
@@ -271,7 +273,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the reproduction; returns the exit status."""
-    from capture_bench.scenarios import load_scenario
+    from capture_bench.task.scenarios import load_scenario
 
     args = parse_args(argv)
     scenario = load_scenario(args.scenario)

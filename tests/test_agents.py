@@ -10,7 +10,7 @@ import pytest
 import agents
 from agents import AGENTS, IncrementalIK, Oracle, make_agent
 from agents.incremental_ik import incremental_step, lambda_max_of
-from capture_bench.kinematics import (
+from capture_bench.sim.kinematics import (
     HOME,
     JOINT_LOWER,
     JOINT_UPPER,
@@ -19,7 +19,7 @@ from capture_bench.kinematics import (
     forward_kinematics,
     jacobian_determinant,
 )
-from capture_bench.observation import TaskDescription, decode_observation, encode_observation
+from capture_bench.task.observation import TaskDescription, decode_observation, encode_observation
 
 DESCRIPTION = TaskDescription()
 T_S = DESCRIPTION.control_period
@@ -250,13 +250,13 @@ def open_env(scenario: str, source: str = "truth"):
     import gymnasium
 
     import capture_bench  # noqa: F401  (registers the IDs)
-    from capture_bench.scenarios import load_scenario
+    from capture_bench.task.scenarios import load_scenario
 
     return gymnasium.make(load_scenario(scenario).env_id, observation_source=source)
 
 
 def evaluation_seeds(scenario: str, count: int) -> list[int]:
-    from capture_bench.scenarios import load_scenario
+    from capture_bench.task.scenarios import load_scenario
 
     return load_scenario(scenario).evaluation_seeds[:count]
 

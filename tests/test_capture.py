@@ -2,14 +2,14 @@
 
 import numpy as np
 
-from capture_bench.capture import (
+from capture_bench.sim.kinematics import forward_kinematics
+from capture_bench.task.capture import (
     arc_sag_bound,
     closest_approach,
     first_entry_along_arc,
     first_entry_fraction,
     within_tolerance,
 )
-from capture_bench.kinematics import forward_kinematics
 
 EPS = np.full(3, 1e-3)
 

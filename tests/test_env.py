@@ -8,9 +8,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 
 import capture_bench
-from capture_bench import kinematics as k
-from capture_bench.env import FAILURES, CaptureEnv
-from capture_bench.scenarios import ConfigError
+from capture_bench.envs.capture_env import FAILURES, CaptureEnv
+from capture_bench.sim import kinematics as k
+from capture_bench.task.scenarios import ConfigError
 
 ALWAYS = {
     "is_success",
@@ -200,7 +200,7 @@ def test_bound_is_infinite_exactly_when_the_env_ends_unreachable_first_under_jit
 def test_bound_cached_per_scenario_and_seed_equals_a_fresh_computation(make_env):
     """The per-process bound cache: reset(seed=s) in another env reuses the bound computed for
     (scenario, s); it equals the bound computed afresh; an unseeded reset does not reuse it."""
-    from capture_bench import env as env_module
+    from capture_bench.envs import capture_env as env_module
 
     first, second = make_env(observation_source="truth"), make_env(observation_source="truth")
     first.reset(seed=5)
@@ -255,7 +255,7 @@ def test_reuse_target_side_replays_exactly_what_live_steps_compute(env_id, sourc
     """``reuse_target_side``: a seed's target side is recorded once and replayed; whatever the
     actions, every output equals an env that computes each step live. Two seeds are recorded one
     after the other in the same env, so the recording starts from a used camera and estimator."""
-    from capture_bench import env as env_module
+    from capture_bench.envs import capture_env as env_module
 
     env_module._EPISODE_CACHE.clear()
     live = make_env(env_id, observation_source=source)
@@ -278,7 +278,7 @@ def test_reuse_target_side_keeps_the_gymnasium_seeding_contract(make_env):
     """After ``reset(seed=s)`` the generator stands at the same place whether s was recorded just
     now or replayed, so the unseeded episode that follows is the same; gymnasium's checker, which
     tests reset's seeding, passes."""
-    from capture_bench import env as env_module
+    from capture_bench.envs import capture_env as env_module
 
     env_module._EPISODE_CACHE.clear()
     reuse = make_env(reuse_target_side=True)
@@ -391,7 +391,7 @@ def test_making_and_resetting_an_env_prints_nothing():
 
 
 def test_nees_is_the_quadratic_form_by_solve_and_nan_without_positive_definite_covariance():
-    from capture_bench.env import normalised_error_squared
+    from capture_bench.envs.capture_env import normalised_error_squared
 
     rng = np.random.default_rng(0)
     for _ in range(50):

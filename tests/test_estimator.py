@@ -6,17 +6,17 @@ import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 
-from capture_bench.camera import Camera, CameraModel, Frame
-from capture_bench.ekf import (
+from capture_bench.sensing.camera import Camera, CameraModel, Frame
+from capture_bench.sensing.ekf import (
     LeanExtendedKalmanFilter,
     TargetEKF,
     measurement,
     measurement_jacobian,
     transition_matrices,
 )
-from capture_bench.estimator import DIVERGENCE_FRAMES, TargetEstimator
-from capture_bench.photogrammetry import pose_projection, solve_pose
-from capture_bench.rotations import euler_to_matrix
+from capture_bench.sensing.estimator import DIVERGENCE_FRAMES, TargetEstimator
+from capture_bench.sensing.photogrammetry import pose_projection, solve_pose
+from capture_bench.sim.rotations import euler_to_matrix
 
 F = 0.008
 PITCH = 3.75e-6

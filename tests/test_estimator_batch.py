@@ -5,15 +5,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capture_bench import kinematics
-from capture_bench.camera import Camera, CameraModel, Frame
-from capture_bench.estimator import DIVERGENCE_FRAMES, STATUSES, TargetEstimator
-from capture_bench.estimator_batch import BLOCK_ORDER, BatchedEstimates, BatchedTargetEstimator
-from capture_bench.photogrammetry import pose_projection
-from capture_bench.scenarios import load_scenario
-from capture_bench.target_motion import FEATURE_POINTS, sample_trajectory
+from capture_bench.sensing.camera import Camera, CameraModel, Frame
+from capture_bench.sensing.estimator import DIVERGENCE_FRAMES, STATUSES, TargetEstimator
+from capture_bench.sensing.estimator_batch import (
+    BLOCK_ORDER,
+    BatchedEstimates,
+    BatchedTargetEstimator,
+)
+from capture_bench.sensing.photogrammetry import pose_projection
+from capture_bench.sim import kinematics
+from capture_bench.sim.target_motion import FEATURE_POINTS, sample_trajectory
+from capture_bench.task.scenarios import load_scenario
 
-RTOL, ATOL = 1e-9, 1e-12
+# The batched and single estimators run the same equations through different BLAS/LAPACK calls
+# (stacked vs one at a time), whose rounding depends on the CPU's OpenBLAS kernel: equal to
+# rounding, not bit for bit. A re-initialised EKF's velocity amplifies that rounding, so the
+# states (m, m/s, rad, rad/s) get an absolute 1e-10 floor; covariances keep 1e-12.
+RTOL, ATOL, STATE_ATOL = 1e-9, 1e-12, 1e-10
 
 
 class Sequences:
@@ -100,12 +108,16 @@ def step_both(
         assert bool(out.valid[i]) == ref.valid, where
         assert batch.reinitialisations[i] == est.reinitialisations, where
         if ref.valid:
-            np.testing.assert_allclose(out.position[i], ref.position, RTOL, ATOL, err_msg=where)
-            np.testing.assert_allclose(out.velocity[i], ref.velocity, RTOL, ATOL, err_msg=where)
+            np.testing.assert_allclose(
+                out.position[i], ref.position, RTOL, STATE_ATOL, err_msg=where
+            )
+            np.testing.assert_allclose(
+                out.velocity[i], ref.velocity, RTOL, STATE_ATOL, err_msg=where
+            )
             assert ref.covariance is not None
             np.testing.assert_allclose(out.covariance[i], ref.covariance, RTOL, ATOL, err_msg=where)
             # The whole filter state, in the paper's order (angles wrapped alike).
-            np.testing.assert_allclose(batch.state[i], est.ekf.x, RTOL, ATOL, err_msg=where)
+            np.testing.assert_allclose(batch.state[i], est.ekf.x, RTOL, STATE_ATOL, err_msg=where)
             np.testing.assert_allclose(batch.covariance[i], est.ekf.P, RTOL, ATOL, err_msg=where)
         else:
             assert np.isnan(out.position[i]).all() and np.isnan(out.velocity[i]).all(), where
@@ -267,7 +279,7 @@ def test_cold_solve_uses_the_estimators_acceptance_rule():
         sol = singles[0]._solve(image, None)
         assert ok == (sol is not None)
         if sol is not None:
-            np.testing.assert_array_equal(pose, sol.pose)
+            np.testing.assert_allclose(pose, sol.pose, RTOL, STATE_ATOL)  # rounding (above)
     assert accepted.tolist() == [True, False, True]
 
 

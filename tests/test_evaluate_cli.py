@@ -18,7 +18,7 @@ from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
 from capture_bench.evaluation.aggregate import RESULT_TIMING_COLUMNS
 from capture_bench.evaluation.rollout import TIMING_COLUMNS
 from capture_bench.evaluation.suites import load_suite
-from capture_bench.scenarios import load_scenario
+from capture_bench.task.scenarios import load_scenario
 from evaluate import main
 
 REPORT_FILES = {

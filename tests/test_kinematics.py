@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from capture_bench import kinematics as k
+from capture_bench.sim import kinematics as k
 
 
 def test_home_pose_is_the_documented_point():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from capture_bench.photogrammetry import (
+from capture_bench.sensing.photogrammetry import (
     _levenberg_marquardt,
     pose_features,
     pose_projection,
@@ -13,7 +13,7 @@ from capture_bench.photogrammetry import (
     projection_table,
     solve_pose,
 )
-from capture_bench.rotations import euler_to_matrix, matrix_to_euler
+from capture_bench.sim.rotations import euler_to_matrix, matrix_to_euler
 
 F = 0.008
 PITCH = 3.75e-6
@@ -125,7 +125,7 @@ def test_noisy_image_gives_close_pose_and_plausible_residual():
 def test_cold_solutions_are_memoised_by_exact_image():
     """The cold multi-start is solved once per exact image: a repeat returns an equal, unshared
     solution; a different image (one bit) is solved afresh; a cleared cache gives the same."""
-    from capture_bench import photogrammetry
+    from capture_bench.sensing import photogrammetry
 
     rng = np.random.default_rng(21)
     pose, _ = random_pose(rng)

@@ -13,8 +13,8 @@ from test_photogrammetry import (
     random_pose,
 )
 
-from capture_bench import photogrammetry
-from capture_bench.photogrammetry import (
+from capture_bench.sensing import photogrammetry
+from capture_bench.sensing.photogrammetry import (
     _CUBE_ANGLES,
     _CUBE_MATRICES,
     project_poses,
@@ -23,7 +23,7 @@ from capture_bench.photogrammetry import (
     solve_pose_batch,
     translations_for_rotations,
 )
-from capture_bench.rotations import euler_to_matrix
+from capture_bench.sim.rotations import euler_to_matrix
 
 
 def noisy_images(points: np.ndarray, m: int, seed: int, close: int = 0) -> np.ndarray:
@@ -40,7 +40,12 @@ def noisy_images(points: np.ndarray, m: int, seed: int, close: int = 0) -> np.nd
 
 
 def assert_equals_solve_pose(images, points, **kwargs) -> tuple:
-    """Exact equality, image by image, with the single-image cold solve; returns the batch."""
+    """Equality, image by image, with the single-image cold solve; returns the batch.
+
+    Convergence exactly; poses and residuals to rounding, and not the iteration count (which of
+    two starts that reach the same pose wins can turn on the last bit): the batch stacks the LAPACK solves
+    that solve_pose makes one at a time, and on some CPUs OpenBLAS rounds the two differently
+    (bit for bit on the machine this was written on, ~1e-12 apart on another)."""
     poses, converged, iterations, rms = solve_pose_batch(images, points, F, **kwargs)
     m = len(images)
     assert poses.shape == (m, 6) and poses.dtype == float
@@ -50,9 +55,9 @@ def assert_equals_solve_pose(images, points, **kwargs) -> tuple:
     photogrammetry._solve_cold.cache_clear()
     for i in range(m):
         sol = solve_pose(images[i], points, F, **kwargs)
-        np.testing.assert_array_equal(poses[i], sol.pose)
-        assert (bool(converged[i]), int(iterations[i])) == (sol.converged, sol.iterations)
-        np.testing.assert_array_equal(rms[i], sol.residual_rms)  # bit for bit (nan == nan)
+        np.testing.assert_allclose(poses[i], sol.pose, rtol=1e-8, atol=1e-8)  # m, rad
+        assert bool(converged[i]) == sol.converged
+        np.testing.assert_allclose(rms[i], sol.residual_rms, rtol=1e-9, atol=1e-12)  # nan == nan
     return poses, converged, iterations, rms
 
 

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from capture_bench import kinematics as k
-from capture_bench.physical_limit import (
+from capture_bench.sim import kinematics as k
+from capture_bench.sim.target_motion import sample_trajectory
+from capture_bench.task.physical_limit import (
     CHUNK,
     REFINE,
     REFINE_PASSES,
@@ -16,8 +17,7 @@ from capture_bench.physical_limit import (
     physical_limit,
     physical_limits,
 )
-from capture_bench.scenarios import load_scenario
-from capture_bench.target_motion import sample_trajectory
+from capture_bench.task.scenarios import load_scenario
 
 EPS = np.full(3, 1e-3)
 ARGS = (k.HOME, k.JOINT_RATE_LIMITS, k.JOINT_LOWER, k.JOINT_UPPER, EPS)

@@ -105,7 +105,7 @@ def test_the_same_zip_loads_with_trust_model_and_then_its_pickles_do_run(tmp_pat
 
 
 def test_python_equivalent_of_trust_model(tmp_path):
-    from capture_bench.env import CaptureEnv
+    from capture_bench.envs.capture_env import CaptureEnv
 
     model = _zip_only_model(tmp_path / "plain")
     env = CaptureEnv("paper")

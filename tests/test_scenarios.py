@@ -2,7 +2,7 @@
 
 import pytest
 
-from capture_bench.scenarios import ConfigError, list_scenarios, load_scenario
+from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
 
 REQUIRED = {"paper", "drift", "circular", "tumbling", "jitter", "noisy"}
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from capture_bench.scenarios import list_scenarios, load_scenario
-from capture_bench.target_motion import FEATURE_POINTS, sample_trajectory
+from capture_bench.sim.target_motion import FEATURE_POINTS, sample_trajectory
+from capture_bench.task.scenarios import list_scenarios, load_scenario
 
 ANCHOR = np.array([0.4445, 0.0, 0.454025])
 

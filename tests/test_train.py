@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import train
-from capture_bench.scenarios import ConfigError, load_scenario
-from capture_bench.training import TrainingSeeds, load_hyperparameters, validate_hyperparameters
+from capture_bench.task.scenarios import ConfigError, load_scenario
+from capture_bench.training.hyperparameters import load_hyperparameters, validate_hyperparameters
+from capture_bench.training.seeds import TrainingSeeds
 
 TINY = """\
 n_envs: 1
@@ -55,7 +56,7 @@ def test_run_writes_model_metadata_checkpoints_and_tensorboard(trained):
 
 def test_trained_model_loads_as_an_agent_acting_in_the_action_space(trained):
     from agents.sb3_policy import load_sb3_policy
-    from capture_bench.env import CaptureEnv
+    from capture_bench.envs.capture_env import CaptureEnv
 
     env = CaptureEnv("paper")
     try:
@@ -81,7 +82,7 @@ def test_resume_continues_the_step_count(trained, tmp_path):
 
 
 def test_sac_resume_restores_replay_buffer_and_vecnormalize(tmp_path):
-    from capture_bench.checkpoint import read_checkpoint
+    from capture_bench.training.checkpoint import read_checkpoint
 
     config = tmp_path / "sac.yaml"
     config.write_text(
@@ -189,7 +190,7 @@ def test_deterministic_predict_shortcut_equals_sb3_predict(algorithm):
     import stable_baselines3
 
     from agents.sb3_policy import SB3Policy
-    from capture_bench.env import CaptureEnv
+    from capture_bench.envs.capture_env import CaptureEnv
 
     env = CaptureEnv("paper")
     try:

@@ -14,7 +14,12 @@ import pytest
 
 import capture_bench  # noqa: F401  (registers the envs)
 from agents import make_agent
-from capture_bench.capture import (
+from capture_bench.envs.vector_env import CaptureVectorEnv
+from capture_bench.sim.collision_screen import clear_of_collisions
+from capture_bench.sim.kinematics import reachable, reachable_points
+from capture_bench.sim.target_motion import FEATURE_POINTS
+from capture_bench.sim.world import World, limit_joint_increments
+from capture_bench.task.capture import (
     arc_sag_bound,
     arc_sag_bounds,
     closest_approach,
@@ -22,11 +27,7 @@ from capture_bench.capture import (
     first_entry_fraction,
     first_entry_fractions,
 )
-from capture_bench.kinematics import reachable, reachable_points
-from capture_bench.observation import encode_observation, encode_observations
-from capture_bench.target_motion import FEATURE_POINTS
-from capture_bench.vector_env import CaptureVectorEnv
-from capture_bench.world import World, clear_of_collisions, limit_joint_increments
+from capture_bench.task.observation import encode_observation, encode_observations
 
 DISCRETE = ("is_success", "failure", "saturated", "clipped", "target_visible", "estimator_status")
 
@@ -200,7 +201,7 @@ def test_batched_helpers_equal_their_single_versions():
 
 def test_joint_limits_and_collision_screen_agree_with_the_world():
     world = World(FEATURE_POINTS["non_coplanar"])
-    from capture_bench.kinematics import ArmSpec
+    from capture_bench.sim.kinematics import ArmSpec
 
     arm = ArmSpec()
     rng = np.random.default_rng(4)

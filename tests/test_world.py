@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capture_bench.kinematics import (
+from capture_bench.sim.kinematics import (
     HOME,
     JOINT_LOWER,
     JOINT_RATE_LIMITS,
@@ -22,8 +22,8 @@ from capture_bench.kinematics import (
     forward_kinematics,
     within_limits,
 )
-from capture_bench.rotations import axis_angle_to_matrix
-from capture_bench.world import World
+from capture_bench.sim.rotations import axis_angle_to_matrix
+from capture_bench.sim.world import World
 
 FEATURES = np.array([(0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (0.0, 0.1, 0.0), (0.0, 0.0, 0.05)])
 DT = 0.05

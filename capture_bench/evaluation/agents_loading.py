@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.evaluation.errors import AgentSpecError
+from capture_bench.paths import models_dir
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-MODELS_DIR = REPO_ROOT / "models"
+MODELS_DIR = models_dir()  # models/: see capture_bench.paths
 MODELS_GLOB = "models/*"
 #: Built-in agents whose constructor takes ``seed``; they get the episode's seed.
 SEEDED_BUILTINS = frozenset({"random"})

@@ -29,23 +29,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from capture_bench.evaluation.agents_loading import (
-    REPO_ROOT,
-    AgentSpec,
-    build_agent,
-    resolve_agent,
-)
+from capture_bench.evaluation.agents_loading import AgentSpec, build_agent, resolve_agent
 from capture_bench.evaluation.errors import EvaluationError
 from capture_bench.evaluation.rollout import EpisodeRecord, EpisodeTrace, run_episode
+from capture_bench.paths import CHECKOUT_DIR
 
 BACKENDS = ("serial", "process", "ray")
 #: Seeds per chunk (each with every agent): small enough to balance load and move the progress
 #: bar, large enough that dispatch costs little next to the episodes, and fewer than the envs keep
-#: recorded (``capture_bench.env._EPISODE_CACHE_SIZE``).
+#: recorded (``capture_bench.envs.capture_env._EPISODE_CACHE_SIZE``).
 SEEDS_PER_CHUNK = 5
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded.
-PRELOAD = ("capture_bench.evaluation.backends", "capture_bench.env", "agents")
+PRELOAD = ("capture_bench.evaluation.backends", "capture_bench.envs.capture_env", "agents")
 
 #: Not shipped to Ray workers with the checkout.
 RAY_EXCLUDES = [".git", "reports", "runs", "**/__pycache__", "*.egg-info", ".venv", "*.png"]
@@ -74,13 +70,13 @@ def make_env(scenario: str, **kwargs: Any) -> Any:
     from gymnasium.envs.registration import EnvSpec
 
     import capture_bench  # noqa: F401  (registers the environment IDs)
-    from capture_bench.scenarios import load_scenario
+    from capture_bench.task.scenarios import load_scenario
 
     loaded = load_scenario(scenario)
     if Path(scenario).suffix in (".yaml", ".yml"):  # a file given by path: not registered
         spec = EnvSpec(
             id=loaded.env_id,
-            entry_point="capture_bench.env:CaptureEnv",
+            entry_point="capture_bench.envs.capture_env:CaptureEnv",
             kwargs={"scenario": str(Path(scenario).resolve())},
         )
         return gymnasium.make(spec, **kwargs)
@@ -91,7 +87,7 @@ def scenario_label(scenario: str) -> str:
     """The name a scenario spec has in reports: its own name (a file given by path: the name in
     the file, or its stem), never the path."""
     if Path(scenario).suffix in (".yaml", ".yml"):
-        from capture_bench.scenarios import load_scenario
+        from capture_bench.task.scenarios import load_scenario
 
         return load_scenario(scenario).name
     return scenario
@@ -239,7 +235,7 @@ def _run_ray(
     started = not ray.is_initialized()
     if started:
         # ship this checkout (code, configs, models) so the workers run what this process runs
-        runtime_env = {"working_dir": str(REPO_ROOT), "excludes": RAY_EXCLUDES}
+        runtime_env = {"working_dir": str(CHECKOUT_DIR), "excludes": RAY_EXCLUDES}
         ray.init(
             address=address,
             include_dashboard=False,

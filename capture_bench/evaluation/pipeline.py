@@ -38,7 +38,7 @@ from capture_bench.evaluation.report import ReportData, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
 from capture_bench.files import check_writable
-from capture_bench.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
+from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
 
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2.
 INPUT_ERRORS: tuple[type[Exception], ...] = (EvaluationError, ConfigError, PolicyLoadError)

@@ -8,7 +8,9 @@ import subprocess
 from importlib import metadata
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
+from capture_bench.paths import CHECKOUT_DIR
+
+REPO_ROOT = CHECKOUT_DIR  # git describes the checkout (no commit in a wheel install)
 PACKAGES = (
     "capture-bench",
     "numpy",

@@ -24,8 +24,9 @@ from typing import Any
 import yaml
 
 from capture_bench.evaluation.errors import SuiteError
+from capture_bench.task.scenarios import CONFIG_DIR
 
-SUITES_DIR = Path(__file__).resolve().parents[2] / "configs" / "suites"
+SUITES_DIR = CONFIG_DIR / "suites"
 ALL = "all"
 
 

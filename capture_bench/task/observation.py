@@ -26,7 +26,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from capture_bench.kinematics import ArmSpec
+from capture_bench.sim.kinematics import ArmSpec
 
 OBSERVATION_SIZE = 16
 OBSERVATION_BOUND = 10.0  # every scaled entry is clipped to [-10, 10]

@@ -1,105 +1,28 @@
-"""Training configuration: the command-line options and the per-algorithm YAML hyper-parameters.
+"""Per-algorithm hyper-parameters: ``configs/algos/<algo>.yaml`` (RL-Zoo-like keys), validated once.
 
-``python train.py`` reads its options into :class:`TrainConfig` (one typed dataclass; each field's
-doc string is its ``--help``) and its hyper-parameters from ``configs/algos/<algo>.yaml``
-(RL-Zoo-like keys), validated here once: an unknown key or a bad value raises
-:class:`~capture_bench.scenarios.ConfigError` naming the file, the key, the value and what is
-valid. Training episodes draw their seeds only from the scenario's training seeds
-(:class:`TrainingSeeds`). No SB3 or torch import happens at module level.
+An unknown key or a bad value raises :class:`~capture_bench.task.scenarios.ConfigError` naming the
+file, the key, the value and what is valid; :func:`sb3_kwargs` turns a validated mapping into the
+SB3 algorithm's constructor arguments. No SB3 or torch import happens at module level.
 """
 
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import math
-import os
-import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import yaml
 
-from capture_bench.scenarios import CONFIG_DIR, ConfigError, Scenario
+from capture_bench.task.scenarios import CONFIG_DIR, ConfigError
 
 ALGO_DIR = CONFIG_DIR / "algos"
 ALGORITHMS = ("ppo", "sac", "td3")
 OFF_POLICY = ("sac", "td3")
-OBSERVATION_SOURCES = ("ekf", "photogrammetry", "truth")
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
 
-def _opt(default: Any, doc: str, choices: tuple[str, ...] | None = None) -> Any:
-    return field(default=default, metadata={"doc": doc, "choices": choices})
-
-
-@dataclass
-class TrainConfig:
-    """The options of ``train.py`` (None: take the value from the YAML file or the scenario)."""
-
-    algo: str = _opt("ppo", f"SB3 algorithm, one of {', '.join(ALGORITHMS)}")
-    scenario: str = _opt("paper", "scenario name (configs/scenarios/<name>.yaml) or YAML path")
-    config: str | None = _opt(None, "hyper-parameter YAML (default: configs/algos/<algo>.yaml)")
-    total_timesteps: int | None = _opt(None, "environment steps to train for, in total (all envs)")
-    n_envs: int | None = _opt(None, "parallel environments (default: the YAML's n_envs)")
-    vec_env: str = _opt(
-        "dummy", "vectorisation: dummy (one process) or subproc", ("dummy", "subproc")
-    )
-    seed: int | None = _opt(
-        None, "seed; must be one of the scenario's training seeds (default: the first)"
-    )
-    observation_source: str | None = _opt(
-        None, "target estimate the agent sees (default: the scenario's)", OBSERVATION_SOURCES
-    )
-    run_dir: str | None = _opt(None, "output directory (default: runs/<scenario>-<algo>-<seed>)")
-    resume: str | None = _opt(
-        None, "continue the run in this directory from its last checkpoint, with its saved config"
-    )
-    device: str = _opt(
-        "cpu", "torch device (SB3 advises cpu for MLP policies)", ("auto", "cpu", "cuda")
-    )
-
-
-RESUMABLE_OPTIONS = ("total_timesteps", "vec_env", "device")
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
-        """One line on stderr and exit status 2 (argparse's own also prints the usage)."""
-        print(f"{self.prog}: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-
-def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
-    """An argument parser generated from :class:`TrainConfig` (each field's doc is its help)."""
-    parser = _Parser(prog=prog, description="Train a Stable-Baselines3 policy on a scenario.")
-    for f in dataclasses.fields(TrainConfig):
-        base = str if f.name in ("algo", "scenario") else f.type
-        kind = int if "int" in str(base) else str
-        doc = f.metadata["doc"] + (f" (default: {f.default})" if f.default is not None else "")
-        parser.add_argument(
-            "--" + f.name.replace("_", "-"),
-            type=kind,
-            default=None,  # None = not given, so --resume can tell what was asked for
-            choices=f.metadata["choices"],
-            help=doc,
-            metavar=f.name.upper(),
-        )
-    return parser
-
-
-def parse_args(argv: list[str] | None) -> tuple[TrainConfig, set[str]]:
-    """The options as a :class:`TrainConfig` and the set of option names given explicitly."""
-    namespace = build_parser().parse_args(argv)
-    given = {k for k, v in vars(namespace).items() if v is not None}
-    config = TrainConfig(**{k: v for k, v in vars(namespace).items() if v is not None})
-    return config, given
-
-
-# -- hyper-parameters ---------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Rule:
     """How one YAML key is validated: ``kind`` and, for numbers, the range [low, high]."""
@@ -316,22 +239,6 @@ def load_hyperparameters(algo: str, path: str | Path | None = None) -> tuple[dic
     return validate_hyperparameters(data, algo, str(file)), file
 
 
-def check_training_seed(seed: int, scenario: Scenario) -> None:
-    """Raise :class:`ConfigError` unless ``seed`` is a training seed (never an evaluation seed)."""
-    train, evaluation = scenario.training_seeds, scenario.evaluation_seeds
-    if seed in set(evaluation):
-        raise ConfigError(
-            f"seed {seed} is one of scenario {scenario.name!r}'s evaluation seeds "
-            f"({evaluation[0]}-{evaluation[-1]}); training may use seeds "
-            f"{train.start}-{train.stop - 1}"
-        )
-    if seed not in train:
-        raise ConfigError(
-            f"seed {seed} is outside scenario {scenario.name!r}'s training seeds "
-            f"({train.start}-{train.stop - 1})"
-        )
-
-
 def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
     """The validated hyper-parameters as keyword arguments of the SB3 algorithm's constructor.
 
@@ -363,45 +270,3 @@ def _linear(initial: float) -> Any:
         return progress_remaining * initial
 
     return schedule
-
-
-class TrainingSeeds(gym.Wrapper):
-    """Give every episode an explicit seed drawn from the scenario's training seeds.
-
-    The seed passed to :meth:`reset` (SB3 passes one on the first reset) only re-seeds the draw;
-    episodes themselves never use a seed outside ``scenario.training_seeds`` and never an
-    evaluation seed, so training cannot see an evaluation episode.
-
-    Args:
-        env: a capture-bench environment.
-        scenario: its scenario (for the seed ranges).
-        seed: seeds the draw until :meth:`reset` is given another.
-    """
-
-    def __init__(self, env: gym.Env, scenario: Scenario, seed: int) -> None:
-        super().__init__(env)
-        self._range = scenario.training_seeds
-        self._excluded = set(scenario.evaluation_seeds)
-        self._rng = np.random.default_rng(seed)
-        self.episode_seed: int | None = None
-
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
-        if seed is not None:
-            self._rng = np.random.default_rng(seed)
-        while True:
-            episode_seed = int(self._rng.integers(self._range.start, self._range.stop))
-            if episode_seed not in self._excluded:
-                break
-        self.episode_seed = episode_seed
-        return self.env.reset(seed=episode_seed, options=options)
-
-
-def atomic_write(path: Path, data: bytes | None = None, writer: Any = None) -> None:
-    """Write ``data`` (or call ``writer(tmp_path)``) to a temporary file, then rename it onto
-    ``path``: a reader never sees a half-written file."""
-    tmp = path.with_name(f".tmp-{os.getpid()}-{path.name}")
-    if writer is None:
-        tmp.write_bytes(data or b"")
-    else:
-        writer(str(tmp))
-    os.replace(tmp, path)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.rotations import look_at
+from capture_bench.sim.rotations import look_at
 
 FloatArray = NDArray[np.float64]
 

@@ -7,11 +7,12 @@ episodes, the same observations, rewards and ``info`` (tests compare them, to ro
 arithmetic may differ from the single env's in the last bits).
 
 How it is fast: nothing on the target's side of a step depends on the actions, so each sub-env's
-next episodes are recorded ahead, many at once (:func:`capture_bench.recording.record_episodes`:
-camera vectorised over time, EKF and bound over episodes), and a step only does the arm's side:
-the joint limits, forward kinematics, the capture test over the step, failures, reward and
-observation for all sub-envs together, and a pybullet collision query only for the sub-envs whose
-arm is near the floor or the base column (:func:`capture_bench.world.clear_of_collisions`).
+next episodes are recorded ahead, many at once
+(:func:`capture_bench.task.recording.record_episodes`: camera vectorised over time, EKF and bound
+over episodes), and a step only does the arm's side: the joint limits, forward kinematics, the
+capture test over the step, failures, reward and observation for all sub-envs together, and a
+pybullet collision query only for the sub-envs whose arm is near the floor or the base column
+(:func:`capture_bench.sim.collision_screen.clear_of_collisions`).
 
 Differences from N single envs, all in the format only:
 
@@ -35,28 +36,29 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from capture_bench import kinematics
-from capture_bench.camera import Camera
-from capture_bench.capture import (
+from capture_bench.envs.capture_env import FAILURES, CaptureEnv, check_actions
+from capture_bench.sensing.camera import Camera
+from capture_bench.sensing.estimator import STATUSES
+from capture_bench.sim import kinematics
+from capture_bench.sim.collision_screen import clear_of_collisions
+from capture_bench.sim.world import World, limit_joint_increments
+from capture_bench.task.capture import (
     ARC_RESOLUTION,
     arc_sag_bounds,
     closest_approaches,
     first_entry_along_arc,
     first_entry_fractions,
 )
-from capture_bench.env import FAILURES, CaptureEnv, check_actions
-from capture_bench.episode import TIME_SLACK, period_count, time_limit
-from capture_bench.estimator import STATUSES
-from capture_bench.observation import encode_observations
-from capture_bench.recording import RecordedEpisode, record_episodes
-from capture_bench.rewards import (
+from capture_bench.task.episode import TIME_SLACK, period_count, time_limit
+from capture_bench.task.observation import encode_observations
+from capture_bench.task.recording import RecordedEpisode, record_episodes
+from capture_bench.task.rewards import (
     CAPTURE_BONUS,
     FAILURE_PENALTY,
     PROGRESS_GAIN,
     TIME_PENALTY,
 )
-from capture_bench.scenarios import Scenario
-from capture_bench.world import World, clear_of_collisions, limit_joint_increments
+from capture_bench.task.scenarios import Scenario
 
 FloatArray = NDArray[np.float64]
 RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs episodes)
@@ -85,7 +87,8 @@ _TRACKS = (
 
 
 class CaptureVectorEnv(VectorEnv):
-    """N :class:`~capture_bench.env.CaptureEnv` episodes of one scenario, stepped together.
+    """N :class:`~capture_bench.envs.capture_env.CaptureEnv` episodes of one scenario, stepped
+    together.
 
     Args:
         num_envs: number of sub-envs N.
@@ -217,8 +220,9 @@ class CaptureVectorEnv(VectorEnv):
         """Step every sub-env with its row of ``actions``, shape (num_envs, 3), in [-1, 1].
 
         Out-of-range values are clipped; a wrong shape, a non-numeric dtype or a NaN/infinite
-        entry raises ``ValueError`` naming it (:func:`capture_bench.env.check_actions`, the rule of
-        :class:`CaptureEnv`), and nothing is stepped. After ``close()``: ``RuntimeError``.
+        entry raises ``ValueError`` naming it
+        (:func:`capture_bench.envs.capture_env.check_actions`, the rule of :class:`CaptureEnv`),
+        and nothing is stepped. After ``close()``: ``RuntimeError``.
         """
         if self._world is None:
             raise RuntimeError("CaptureVectorEnv.step() called after close(); the env is closed")
@@ -452,7 +456,7 @@ class CaptureVectorEnv(VectorEnv):
         captured: NDArray[np.bool_],
         failure: NDArray[np.int64],
     ) -> dict[str, FloatArray]:
-        """:func:`capture_bench.rewards.reward_terms`, batched (same terms, same order)."""
+        """:func:`capture_bench.task.rewards.reward_terms`, batched (same terms, same order)."""
         if self.reward_mode == "sparse":
             return {"reward_capture": np.where(captured, 1.0, 0.0)}
         failed = (failure != 0) & (failure != _TIMEOUT)

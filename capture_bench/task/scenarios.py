@@ -16,10 +16,16 @@ from typing import Any
 
 import yaml
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+from capture_bench.paths import config_dir
+from capture_bench.sensing.sources import SOURCES
+
+CONFIG_DIR = config_dir()  # configs/: see capture_bench.paths
 SCENARIO_DIR = CONFIG_DIR / "scenarios"
 POSITIVE = (0.0, math.inf, False)  # (low, high, low inclusive)
 NON_NEGATIVE = (0.0, math.inf, True)
+
+
+OBSERVATION_SOURCES = SOURCES
 
 
 class ConfigError(ValueError):
@@ -64,7 +70,7 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class EstimatorConfig:
-    source: str = _f("ekf", "observation source", choices=("ekf", "photogrammetry", "truth"))
+    source: str = _f("ekf", "observation source", choices=SOURCES)
     sigma_acceleration: float = _f(0.01, "EKF process noise, m/s^2", POSITIVE)
     sigma_angular_acceleration: float = _f(0.01, "EKF process noise, rad/s^2", POSITIVE)
 

@@ -1,14 +1,15 @@
 """The target's side of whole episodes, many at once, as arrays (for ``CaptureVectorEnv``).
 
 Nothing on the target's side of a step depends on the agent's actions (see
-:class:`capture_bench.env.TargetStep`): the trajectory and control periods are drawn at reset, the
-camera's noise and drop-outs come from the episode's generator in a fixed order, and the estimator
-sees only the frames. So an episode's target side can be computed for its whole horizon at reset,
-and the target sides of many episodes can be computed together: the true states and the camera
-vectorised over time (:meth:`~capture_bench.camera.Camera.capture_sequence`), the EKF over
-episodes (:class:`~capture_bench.estimator_batch.BatchedTargetEstimator`), the bound over episodes
-(:func:`~capture_bench.episode.episode_bounds`). Each episode draws from its own generator exactly
-what ``CaptureEnv(reuse_target_side=True)`` draws, in the same order.
+:class:`capture_bench.envs.capture_env.TargetStep`): the trajectory and control periods are drawn
+at reset, the camera's noise and drop-outs come from the episode's generator in a fixed order, and
+the estimator sees only the frames. So an episode's target side can be computed for its whole
+horizon at reset, and the target sides of many episodes can be computed together: the true states
+and the camera vectorised over time
+(:meth:`~capture_bench.sensing.camera.Camera.capture_sequence`), the EKF over episodes
+(:class:`~capture_bench.sensing.estimator_batch.BatchedTargetEstimator`), the bound over episodes
+(:func:`~capture_bench.task.episode.episode_bounds`). Each episode draws from its own generator
+exactly what ``CaptureEnv(reuse_target_side=True)`` draws, in the same order.
 """
 
 from __future__ import annotations
@@ -19,14 +20,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench import kinematics
-from capture_bench.camera import Camera, Frame
-from capture_bench.episode import EpisodePlan, episode_bounds
-from capture_bench.estimator import STATUSES, TargetEstimator, normalised_error_squared
-from capture_bench.estimator_batch import BatchedTargetEstimator
-from capture_bench.observation import TaskDescription
-from capture_bench.physical_limit import PhysicalLimit
-from capture_bench.scenarios import Scenario
+from capture_bench.sensing.camera import Camera, Frame
+from capture_bench.sensing.estimator import STATUSES, TargetEstimator, normalised_error_squared
+from capture_bench.sensing.estimator_batch import BatchedTargetEstimator
+from capture_bench.sim import kinematics
+from capture_bench.task.episode import EpisodePlan, episode_bounds
+from capture_bench.task.observation import TaskDescription
+from capture_bench.task.physical_limit import PhysicalLimit
+from capture_bench.task.scenarios import Scenario
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -54,12 +55,12 @@ class EpisodeTruth:
 class RecordedEpisode(EpisodeTruth):
     """One episode's target side, indexed by step (0 is reset, k the end of step k).
 
-    The fields of :class:`EpisodeTruth`, then what :class:`capture_bench.env.TargetStep` derives
-    from them: ``estimate_position``, ``estimate_velocity`` (T+1, 3), NaN where not
-    ``estimate_valid``; ``estimator_status`` (T+1,) index into
-    :data:`capture_bench.estimator.STATUSES`; ``reachable`` (T+1,); ``position_error``,
-    ``velocity_error``, ``nees`` (T+1,). ``bound`` is the episode's physical limit (``inf`` as
-    ``CaptureEnv.physical_limit`` gives it).
+    The fields of :class:`EpisodeTruth`, then what
+    :class:`capture_bench.envs.capture_env.TargetStep` derives from them: ``estimate_position``,
+    ``estimate_velocity`` (T+1, 3), NaN where not ``estimate_valid``; ``estimator_status`` (T+1,)
+    index into :data:`capture_bench.sensing.estimator.STATUSES`; ``reachable`` (T+1,);
+    ``position_error``, ``velocity_error``, ``nees`` (T+1,). ``bound`` is the episode's physical
+    limit (``inf`` as ``CaptureEnv.physical_limit`` gives it).
     """
 
     estimate_position: FloatArray

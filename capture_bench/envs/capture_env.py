@@ -13,9 +13,16 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from capture_bench import kinematics
-from capture_bench.camera import Camera, CameraModel
-from capture_bench.capture import (
+from capture_bench.sensing.camera import Camera, CameraModel
+from capture_bench.sensing.estimator import (
+    TargetEstimate,
+    TargetEstimator,
+    normalised_error_squared,
+)
+from capture_bench.sim import kinematics
+from capture_bench.sim.target_motion import FEATURE_POINTS, TargetTrajectory
+from capture_bench.sim.world import World
+from capture_bench.task.capture import (
     ARC_RESOLUTION,
     arc_sag_bound,
     closest_approach,
@@ -23,14 +30,11 @@ from capture_bench.capture import (
     first_entry_fraction,
     segment_length,
 )
-from capture_bench.episode import TIME_SLACK, EpisodePlan, episode_bounds, time_limit
-from capture_bench.estimator import TargetEstimate, TargetEstimator, normalised_error_squared
-from capture_bench.observation import TaskDescription, encode_observation, observation_space
-from capture_bench.physical_limit import PhysicalLimit
-from capture_bench.rewards import REWARD_MODES, reward_terms
-from capture_bench.scenarios import Scenario, load_scenario
-from capture_bench.target_motion import FEATURE_POINTS, TargetTrajectory
-from capture_bench.world import World
+from capture_bench.task.episode import TIME_SLACK, EpisodePlan, episode_bounds, time_limit
+from capture_bench.task.observation import TaskDescription, encode_observation, observation_space
+from capture_bench.task.physical_limit import PhysicalLimit
+from capture_bench.task.rewards import REWARD_MODES, reward_terms
+from capture_bench.task.scenarios import Scenario, load_scenario
 
 FAILURES = ("timeout", "collision", "target_lost", "unreachable")
 # Physical-limit bounds already computed in this process, by (scenario, seed): ``reset(seed=s)``
@@ -122,12 +126,12 @@ class CaptureEnv(gym.Env):
     bad entry, and the step is not taken. Non-finite actions are refused rather than zeroed or
     clipped: a NaN from a policy means a diverged network, and a benchmark that quietly turned
     it into "hold still" would score the broken policy; Gymnasium's ``Box.contains`` refuses
-    them too. :class:`~capture_bench.vector_env.CaptureVectorEnv` applies the same rule
+    them too. :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` applies the same rule
     (:func:`check_actions`) to its (num_envs, 3) actions.
 
     ## Observation Space
     ``Box(-10, 10, (16,), float32)``, each entry scaled to order one
-    (``capture_bench.observation.decode_observation`` undoes it):
+    (``capture_bench.task.observation.decode_observation`` undoes it):
 
     | index | quantity (global frame)                       | unit | scale   |
     |-------|-----------------------------------------------|------|---------|
@@ -174,8 +178,8 @@ class CaptureEnv(gym.Env):
     or leaves the arm's reach for longer than ``lost_after`` before it can be).
 
     ## Arguments
-    ``scenario``: a shipped name (``capture_bench.scenarios.list_scenarios()``), a YAML path or a
-    ``Scenario``. ``observation_source``: ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
+    ``scenario``: a shipped name (``capture_bench.task.scenarios.list_scenarios()``), a YAML path
+    or a ``Scenario``. ``observation_source``: ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
     (default: the scenario's). ``reward``: ``"dense"`` or ``"sparse"``. ``render_mode``:
     ``"rgb_array"`` or ``"human"``. ``reuse_target_side``: when True, ``reset(seed=s)`` records
     the target's side of the whole episode up to the time limit at once (trajectory, control
@@ -187,7 +191,7 @@ class CaptureEnv(gym.Env):
     After any reset ``np_random`` stands where the recording left it (the time limit), so the
     episodes that follow a seeded reset are the same whatever the actions, though after the
     first they are not the ones a plain env gives (it advances ``np_random`` by the steps actually
-    taken); :class:`~capture_bench.vector_env.CaptureVectorEnv` gives exactly these episodes.
+    taken); :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` gives exactly these episodes.
     Default False: each reset pays for the whole horizon.
 
     ## Version History

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.rotations import axis_angle_to_matrix
+from capture_bench.sim.rotations import axis_angle_to_matrix
 
 FloatArray = NDArray[np.float64]
 _EYE3 = np.eye(3)

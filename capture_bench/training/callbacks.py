@@ -12,14 +12,14 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from capture_bench.checkpoint import BUFFER_FILE, list_checkpoints, save_checkpoint
-from capture_bench.scenarios import load_scenario
+from capture_bench.task.scenarios import load_scenario
+from capture_bench.training.checkpoint import BUFFER_FILE, list_checkpoints, save_checkpoint
 
 
 class Checkpointer(BaseCallback):
     """Save a checkpoint every ``every`` environment steps (0: only when asked).
 
-    A checkpoint at N steps is the directory ``step_N/`` of :mod:`capture_bench.checkpoint`
+    A checkpoint at N steps is the directory ``step_N/`` of :mod:`capture_bench.training.checkpoint`
     (written under a temporary name and renamed, so it is complete when it exists; read back
     without unpickling). Replay buffers older than the last two checkpoints are deleted (they
     are large); the rest of each checkpoint is kept.
@@ -65,7 +65,7 @@ class Progress(BaseCallback):
     ``eval/median_capture_time`` (s) to TensorBoard.
 
     Args:
-        config: the run's :class:`~capture_bench.training.TrainConfig`.
+        config: the run's :class:`~capture_bench.training.options.TrainConfig`.
         hp: its validated hyper-parameters.
         target: total environment steps of the run.
     """
@@ -112,7 +112,7 @@ class Progress(BaseCallback):
 
     def evaluate(self) -> dict[str, float]:
         """Run the evaluation episodes now; log and return their statistics."""
-        from capture_bench.env import CaptureEnv
+        from capture_bench.envs.capture_env import CaptureEnv
 
         scenario = load_scenario(self.config.scenario)
         if self._env is None:

@@ -3,8 +3,9 @@
 An episode's target trajectory and the real period of every control step are drawn at reset from
 the env's seeded generator (:func:`draw_episode`). The time limit, the end of the last possible
 step, how far the joints can have moved by a given time, and the physical-limit bound are
-functions of that :class:`EpisodePlan` alone, so :class:`~capture_bench.env.CaptureEnv` and the
-batched :class:`~capture_bench.vector_env.CaptureVectorEnv` share them here.
+functions of that :class:`EpisodePlan` alone, so
+:class:`~capture_bench.envs.capture_env.CaptureEnv` and the batched
+:class:`~capture_bench.envs.vector_env.CaptureVectorEnv` share them here.
 """
 
 from __future__ import annotations
@@ -16,12 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench import kinematics
-from capture_bench.camera import CameraModel
-from capture_bench.observation import TaskDescription
-from capture_bench.physical_limit import PhysicalLimit, physical_limits
-from capture_bench.scenarios import ControlConfig, Scenario
-from capture_bench.target_motion import TargetTrajectory, sample_trajectory
+from capture_bench.sensing.camera import CameraModel
+from capture_bench.sim import kinematics
+from capture_bench.sim.target_motion import TargetTrajectory, sample_trajectory
+from capture_bench.task.observation import TaskDescription
+from capture_bench.task.physical_limit import PhysicalLimit, physical_limits
+from capture_bench.task.scenarios import ControlConfig, Scenario
 
 FloatArray = NDArray[np.float64]
 

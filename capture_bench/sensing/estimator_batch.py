@@ -1,12 +1,12 @@
 """n independent ``TargetEstimator(source="ekf")`` stepped together with stacked numpy arrays.
 
-The batched twin of :class:`capture_bench.estimator.TargetEstimator` with the ``"ekf"`` source, for
-a vectorised environment: env i of :meth:`BatchedTargetEstimator.update` gets exactly what env i
-would get from its own estimator fed the same frames and periods (tests check it step by step, to
-rounding): the same initialisation from an accepted cold photogrammetry solve, predict(dt) then
-update, predict-only without a frame, divergence rules, re-initialisation, Euler-angle wrapping,
-global-frame output (eqs. 11-12) and status. The rules and constants come from
-:mod:`capture_bench.estimator` and :mod:`capture_bench.ekf`; see their docstrings.
+The batched twin of :class:`capture_bench.sensing.estimator.TargetEstimator` with the ``"ekf"``
+source, for a vectorised environment: env i of :meth:`BatchedTargetEstimator.update` gets exactly
+what env i would get from its own estimator fed the same frames and periods (tests check it step by
+step, to rounding): the same initialisation from an accepted cold photogrammetry solve, predict(dt)
+then update, predict-only without a frame, divergence rules, re-initialisation, Euler-angle
+wrapping, global-frame output (eqs. 11-12) and status. The rules and constants come from
+:mod:`capture_bench.sensing.estimator` and :mod:`capture_bench.sensing.ekf`; see their docstrings.
 
 The filter (eqs. 3-7) is the single filter's, with its state permuted into blocks,
 ``X = (q, q_dot)`` with ``q = (x, y, z, theta_x, theta_y, theta_z)`` the pose (the paper orders
@@ -18,7 +18,7 @@ order). In blocks the model's structure is plain:
 * eq. 5: ``B Q B' = [[t_s^4/4, t_s^3/2], [t_s^3/2, t_s^2]] (x) diag(sigma_a^2 I_3,
   sigma_alpha^2 I_3)``;
 * eq. 6: ``H = [J, 0]`` with J (8, 6) the analytic Jacobian of the image points in the pose
-  (:func:`capture_bench.photogrammetry.project_poses`), so ``P H' = P[:, :6] J'``;
+  (:func:`capture_bench.sensing.photogrammetry.project_poses`), so ``P H' = P[:, :6] J'``;
 * eq. 7: ``S = H P H' + R`` (Cholesky ``S = L L'``: the positive-definiteness test of the single
   filter), ``K = P H' S^-1`` with ``S^-1 = L^-T L^-1``, ``X += K (z - h(X))``, the NIS
   ``|L^-1 (z - h)|^2``, and the Joseph form ``P = (I - K H) P (I - K H)' + K R K'``.
@@ -32,14 +32,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.camera import CameraModel
-from capture_bench.ekf import (
+from capture_bench.sensing.camera import CameraModel
+from capture_bench.sensing.ekf import (
     POSE_INDEX,
     default_initial_covariance,
     measurement_sigma,
     wrap_angle,
 )
-from capture_bench.estimator import (
+from capture_bench.sensing.estimator import (
     DIVERGENCE_FRAMES,
     NIS_LIMIT,
     NOISE_FLOOR_PX,
@@ -48,7 +48,7 @@ from capture_bench.estimator import (
     solution_accepted,
     state_to_global,
 )
-from capture_bench.photogrammetry import project_poses, projection_table, solve_pose_batch
+from capture_bench.sensing.photogrammetry import project_poses, projection_table, solve_pose_batch
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -74,7 +74,7 @@ class BatchedEstimates:
         covariance: (n, 6, 6) covariance of (position, velocity); NaN where not valid (where
             ``TargetEstimate.covariance`` is None).
         valid: (n,) whether position and velocity hold an estimate.
-        status: (n,) int8 index into :data:`capture_bench.estimator.STATUSES`.
+        status: (n,) int8 index into :data:`capture_bench.sensing.estimator.STATUSES`.
 
     Rows of envs that were not active in the step carry no estimate (NaN, not valid) and their
     previous status.

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.rotations import matrix_to_euler
+from capture_bench.sim.rotations import matrix_to_euler
 
 FloatArray = NDArray[np.float64]
 

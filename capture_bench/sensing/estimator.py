@@ -3,7 +3,7 @@
 Three sources, chosen by name:
 
 * ``"ekf"`` (the paper): the first frame whose photogrammetry solution is accepted initialises the
-  :class:`~capture_bench.ekf.TargetEKF` (that step reports the photogrammetry position, zero
+  :class:`~capture_bench.sensing.ekf.TargetEKF` (that step reports the photogrammetry position, zero
   velocity and the prior covariance); afterwards each step is ``predict(dt)`` then ``update`` with
   the frame (a missing frame is a predict-only step).
 * ``"photogrammetry"`` (raw-measurement ablation): the per-frame pose, warm-started from the
@@ -39,13 +39,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import lapack
 
-from capture_bench.camera import CameraModel, Frame
-from capture_bench.ekf import POSITION_VELOCITY_INDEX, TargetEKF, measurement_sigma
-from capture_bench.photogrammetry import PoseSolution, solve_pose
+from capture_bench.sensing.camera import CameraModel, Frame
+from capture_bench.sensing.ekf import POSITION_VELOCITY_INDEX, TargetEKF, measurement_sigma
+from capture_bench.sensing.photogrammetry import PoseSolution, solve_pose
+from capture_bench.sensing.sources import SOURCES
 
 FloatArray = NDArray[np.float64]
 
-SOURCES = ("ekf", "photogrammetry", "truth")
 STATUSES = ("ok", "predicting", "initialising", "diverged")
 NIS_LIMIT = 100.0
 DIVERGENCE_FRAMES = 5

@@ -20,7 +20,7 @@ from typing import cast
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.kinematics import L1, L2, forward_kinematics
+from capture_bench.sim.kinematics import L1, L2, forward_kinematics
 
 ARC_RESOLUTION = 1e-5  # m: largest allowed gap between the end-effector's arc and a test chord
 

@@ -3,9 +3,9 @@
 Frames and units (see ``docs/architecture.md``): global frame at the centre of joint 2, z up,
 metres and radians; the floor is the plane ``z = -L0``. The arm is loaded from
 ``assets/arm.urdf`` with a fixed base; its link frames agree with
-:func:`capture_bench.kinematics.forward_kinematics` and
-:func:`capture_bench.kinematics.elbow_position` to pybullet's single-precision geometry (~1e-7 m;
-pybullet 3.2.7 stores link offsets and joint rotations as 32-bit floats, so 1e-9 m is not
+:func:`capture_bench.sim.kinematics.forward_kinematics` and
+:func:`capture_bench.sim.kinematics.elbow_position` to pybullet's single-precision geometry (~1e-7
+m; pybullet 3.2.7 stores link offsets and joint rotations as 32-bit floats, so 1e-9 m is not
 attainable).
 
 The arm is driven **kinematically**, as in the paper: joint angles are set, not simulated. The
@@ -33,7 +33,9 @@ with quiet_c_output():  # pybullet prints its build time on import
     import pybullet
     from pybullet_utils.bullet_client import BulletClient
 
-from capture_bench.kinematics import L0, L1, L2, ArmSpec, FloatArray
+from capture_bench.sim.kinematics import L0, L1, L2, ArmSpec, FloatArray
+from capture_bench.sim.rotations import quaternion_xyzw
+from capture_bench.sim.traces import draw_polyline, project_points
 
 ARM_URDF = Path(__file__).parent / "assets" / "arm.urdf"
 
@@ -223,7 +225,7 @@ class World:
         )
         if len(p) != 3 or len(r) != 3:
             raise ValueError("position must have shape (3,) and rotation (3, 3)")
-        self._reset_base(self.target, p, _quaternion_xyzw(r))
+        self._reset_base(self.target, p, quaternion_xyzw(r))
 
     def apply_joint_increment(self, delta_theta: ArrayLike, dt: float) -> JointStep:
         """Move the joints by ``delta_theta`` within the rate and joint limits (kinematic control).
@@ -351,7 +353,7 @@ class World:
         for index, (name, points) in enumerate((traces or {}).items()):
             colour = _TRACE_COLOURS[index % len(_TRACE_COLOURS)]
             pts = np.asarray(points, dtype=float).reshape(-1, 3)
-            _draw_polyline(image, _project(pts, transform, width, height), colour)
+            draw_polyline(image, project_points(pts, transform, width, height), colour)
             if self.render_mode == "human":
                 self._draw_debug_trace(bullet, name, pts, colour)
         return image
@@ -411,88 +413,5 @@ def limit_joint_increments(
     return np.asarray(after, dtype=float), clipped, saturated
 
 
-# Bounds of the collision model (see World): everything on the forearm and wrist lies within
-# FOREARM_REACH of the segment elbow -> end-effector (tube offset 0.06 m + radius 0.025 m; the
-# bracket ends 0.06 m + 0.02 m from the tip), the upper arm within 0.025 m of joint 2 -> elbow.
-FOREARM_REACH = 0.085  # m
-UPPER_ARM_RADIUS = 0.025  # m
-COLUMN_RADIUS = 0.05  # m; the column spans z in [-L0, 0]
-SELF_CONTACT_THETA3 = math.radians(-80.0)  # the wrist meets the upper arm only below ~-84 deg
-CLEARANCE = 0.01  # m: what "clearly" means in clear_of_collisions
-
-
-def clear_of_collisions(theta: FloatArray) -> NDArray[np.bool_]:
-    """For M joint vectors (M, 3), rad: True where the arm is certainly in no collision of
-    :meth:`World.collision`, by bounds on its collision shapes with ``CLEARANCE`` to spare.
-
-    False means "ask pybullet": a batched env queries its worlds only there.
-    """
-    t2, t3 = theta[:, 1], theta[:, 2]
-    # Joint 2 at the origin, the elbow and the tip in the arm's vertical plane: (r, z), where r is
-    # the horizontal distance along the arm's heading (the tube's sideways offset only adds to
-    # the horizontal distance from the column's axis, so |r| bounds it from below).
-    elbow_r, elbow_z = L1 * np.cos(t2), L1 * np.sin(t2)
-    tip_r, tip_z = elbow_r + L2 * np.sin(t2 + t3), elbow_z - L2 * np.cos(t2 + t3)
-    forearm_low = np.minimum(elbow_z, tip_z) - FOREARM_REACH
-    upper_arm_low = np.minimum(elbow_z, 0.0) - UPPER_ARM_RADIUS
-    above_floor = np.minimum(forearm_low, upper_arm_low) > -L0 + CLEARANCE
-    crosses_axis = elbow_r * tip_r <= 0.0
-    min_r = np.where(crosses_axis, 0.0, np.minimum(np.abs(elbow_r), np.abs(tip_r)))
-    beside_column = min_r - FOREARM_REACH > COLUMN_RADIUS + CLEARANCE
-    above_column = forearm_low > CLEARANCE
-    unfolded = t3 > SELF_CONTACT_THETA3
-    return above_floor & (above_column | beside_column) & unfolded
-
-
 def _closed(*args: object, **kwargs: object) -> NoReturn:
     raise RuntimeError("the World is closed")
-
-
-def _quaternion_xyzw(r: Sequence[Sequence[float]]) -> tuple[float, float, float, float]:
-    """Unit quaternion (x, y, z, w) of a rotation matrix given as nested lists (Shepperd)."""
-    m00, m01, m02 = r[0]
-    m10, m11, m12 = r[1]
-    m20, m21, m22 = r[2]
-    trace = m00 + m11 + m22
-    if trace > 0.0:
-        s = 2.0 * math.sqrt(trace + 1.0)
-        return ((m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s)
-    if m00 > m11 and m00 > m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        return (0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s)
-    if m11 > m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        return ((m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s)
-    s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-    return ((m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s)
-
-
-def _project(points: FloatArray, transform: FloatArray, width: int, height: int) -> FloatArray:
-    """Pixel coordinates (u right, v down), shape (N, 2); NaN for points behind the camera."""
-    clip = np.c_[points, np.ones(len(points))] @ transform.T
-    w = clip[:, 3:4]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ndc = np.where(w > 1e-9, clip[:, :2] / w, np.nan)
-    return np.c_[(ndc[:, 0] + 1.0) * 0.5 * width, (1.0 - ndc[:, 1]) * 0.5 * height]
-
-
-def _draw_polyline(image: np.ndarray, pixels: FloatArray, colour: tuple[int, ...]) -> None:
-    """Draw a 2-pixel-wide polyline through ``pixels`` (N, 2) into ``image`` in place."""
-    height, width = image.shape[:2]
-    pixels = np.clip(pixels, -1e6, 1e6)  # NaN stays NaN
-    if len(pixels) == 1:
-        pixels = np.repeat(pixels, 2, axis=0)
-    a, b = pixels[:-1], pixels[1:]
-    ok = np.all(np.isfinite(a) & np.isfinite(b), axis=1)
-    a, b = a[ok], b[ok]
-    if len(a) == 0:
-        return
-    limit = 4 * (width + height)  # far off-screen segments: sample coarsely, never huge arrays
-    n = np.minimum(np.ceil(np.abs(b - a).max(axis=1)).astype(int), limit) + 1
-    segment = np.repeat(np.arange(len(n)), n)
-    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(np.maximum(n - 1, 1), n)
-    samples = np.rint(a[segment] + (b - a)[segment] * t[:, None]).astype(int)
-    for du, dv in ((0, 0), (1, 0), (0, 1), (1, 1)):
-        u, v = samples[:, 0] + du, samples[:, 1] + dv
-        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-        image[v[inside], u[inside]] = colour

@@ -10,9 +10,9 @@ give ``R_ct = Rz Ry Rx``, radians. Constant-velocity model per coordinate (eqs. 
 white acceleration noise ``omega`` with covariance ``Q = diag(sigma_a^2 x3, sigma_alpha^2 x3)``;
 filterpy's process noise is ``B Q B^T``. Measurement (eq. 6): the image points of the four feature
 points by eq. 2, flattened as (x_m1, z_m1, ..., x_m4, z_m4), with noise ``R = sigma_m^2 I_8``;
-``H`` is the analytic Jacobian (:func:`capture_bench.photogrammetry.project_pose`, on the feature
-points' projection table, computed once); h and H come from one evaluation per update and are
-written into arrays the filter owns. The filter equations (eq. 7) are those of filterpy's
+``H`` is the analytic Jacobian (:func:`capture_bench.sensing.photogrammetry.project_pose`, on the
+feature points' projection table, computed once); h and H come from one evaluation per update and
+are written into arrays the filter owns. The filter equations (eq. 7) are those of filterpy's
 ``ExtendedKalmanFilter.predict`` and ``update``, run by :class:`LeanExtendedKalmanFilter`, a
 subclass that computes them with fewer numpy calls (tests check it against filterpy's own methods
 step for step).
@@ -28,7 +28,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import lapack
 
-from capture_bench.photogrammetry import pose_projection, project_pose, projection_table
+from capture_bench.sensing.photogrammetry import pose_projection, project_pose, projection_table
 
 FloatArray = NDArray[np.float64]
 

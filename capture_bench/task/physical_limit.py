@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench.kinematics import (
+from capture_bench.sim.kinematics import (
     L1,
     L2,
     forward_kinematics,

@@ -1,0 +1,236 @@
+"""Evaluate agents on a leaderboard suite and write the report: capture-bench's main job.
+
+    python evaluate.py                       # default suite: every scenario, 100 seeds, all agents
+    python evaluate.py --suite quick         # smoke run
+    python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper --episodes 20
+    python evaluate.py --scenarios path/to/my_scenario.yaml --suite quick
+    python evaluate.py --workers 1           # serially, in this process (default: every CPU)
+    python evaluate.py --backend ray --ray-address auto
+
+Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures),
+replacing the previous report only once the new one is complete. ``--agents``, ``--scenarios`` or
+``--episodes`` that change the suite make a custom selection, written to
+``<out>/custom-<hash of the selection>/``: ``reports/<suite>/`` only ever holds that suite as
+defined. Bad input (unknown agent, scenario or suite, a missing, corrupt or untrusted model,
+mismatched spaces, an output folder that cannot be written) prints one line to stderr and exits
+with code 2, before any episode runs or any file is written. Ctrl-C (SIGINT) or SIGTERM stops
+every worker and exits with 130 or 143, writing nothing and leaving the previous report as it was.
+Models load without unpickling anything (``--trust-model`` to allow an SB3 ``.zip``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+from typing import NoReturn
+
+from capture_bench.evaluation.backends import BACKENDS
+from capture_bench.evaluation.pipeline import (
+    INPUT_ERRORS,
+    EvaluationConfig,
+    Plan,
+    plan_evaluation,
+    run_evaluation,
+)
+from capture_bench.evaluation.provenance import git_state
+from capture_bench.evaluation.report import ReportData
+from capture_bench.evaluation.suites import ALL
+from capture_bench.interrupts import exit_status, sigterm_as_interrupt
+from capture_bench.task.scenarios import invalid_scenarios
+
+PROG = "evaluate.py"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a bad option in one line (and exit code 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{PROG}: error: {message} (see --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line options (each maps to a field of ``EvaluationConfig``)."""
+    parser = _Parser(
+        prog=PROG,
+        description=__doc__.splitlines()[0],
+        epilog="List the scenarios (and any invalid scenario file, with its error), suites and "
+        "algorithms: python -m capture_bench list",
+    )
+    parser.add_argument(
+        "--suite",
+        default="default",
+        help="suite name in configs/suites/ or a suite YAML path (default: default)",
+    )
+    parser.add_argument(
+        "--agents",
+        nargs="+",
+        metavar="AGENT",
+        help="agents replacing the suite's: built-in names, model directories "
+        "(models/<name>, run dirs), module:Class; comma or space separated",
+    )
+    parser.add_argument(
+        "--scenarios",
+        nargs="+",
+        metavar="SCENARIO",
+        help="scenarios replacing the suite's (comma or space separated)",
+    )
+    parser.add_argument(
+        "--episodes", type=int, help="episodes per agent x scenario: the first N published seeds"
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help="local worker processes (default: every usable CPU; 1 runs serially in this process)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        help="where episodes run (default: process if more than one worker, else serial)",
+    )
+    parser.add_argument("--ray-address", help="Ray cluster address for --backend ray")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("reports"),
+        help="report root; the report goes to OUT/<suite>/ (default reports/)",
+    )
+    parser.add_argument(
+        "--episode-plots",
+        type=Path,
+        metavar="DIR",
+        help="also plot the first episode of every agent x scenario into DIR",
+    )
+    parser.add_argument(
+        "--trust-model",
+        action="store_true",
+        help="load a model directory that has no safe policy.pt from its SB3 .zip; a .zip holds "
+        "pickled Python objects, which can run code when loaded: only for models you trust",
+    )
+    return parser
+
+
+def _split(values: list[str] | None) -> list[str] | None:
+    if values is None:
+        return None
+    return [item for value in values for item in value.split(",") if item]
+
+
+def parse_config(argv: list[str]) -> EvaluationConfig:
+    """Parse the command line into a typed config."""
+    args = build_parser().parse_args(argv)
+    return EvaluationConfig(
+        suite=args.suite,
+        agents=_split(args.agents),
+        scenarios=_split(args.scenarios),
+        episodes=args.episodes,
+        backend=args.backend,
+        workers=args.workers,
+        ray_address=args.ray_address,
+        out=args.out,
+        episode_plots=args.episode_plots,
+        trust_model=args.trust_model,
+    )
+
+
+def _summary_table(data: ReportData, target: Path) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    scenarios = list(dict.fromkeys(s.scenario for s in data.summaries))
+    rate = {(s.agent, s.scenario): s.capture_rate.value for s in data.summaries}
+    table = Table(
+        title=f"capture-bench · {data.suite} · capture rate, % of episodes",
+        caption="ratio: mean over scenarios of the median capture time / physical limit",
+    )
+    table.add_column("rank", justify="right")
+    table.add_column("agent", no_wrap=True)
+    for column in ("mean", *scenarios, "ratio"):
+        table.add_column(column, justify="right")
+    for row in data.ranking:
+        table.add_row(
+            "—" if row.rank is None else str(row.rank),
+            row.agent + (" (privileged)" if row.privileged else ""),
+            f"{100 * row.mean_capture_rate:.0f}",
+            *(f"{100 * rate.get((row.agent, s), float('nan')):.0f}" for s in scenarios),
+            f"{row.mean_ratio_median:.2f}",
+        )
+    console = Console()
+    console.print(table)
+    console.print(f"report: {target}")
+
+
+def _run(plan: Plan, config: EvaluationConfig, command: str) -> tuple[ReportData, Path]:
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
+        task = bar.add_task(f"{plan.suite.name}: episodes", total=len(plan.tasks))
+        return run_evaluation(plan, config, command, lambda n: bar.advance(task, n))
+
+
+def _main(argv: list[str] | None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        config = parse_config(argv)
+    except SystemExit as exc:  # --help, or a malformed option (already reported in one line)
+        return int(exc.code or 0)
+    command = " ".join(["python", PROG, *(shlex.quote(a) for a in argv)])
+    try:
+        plan = plan_evaluation(config)
+    except INPUT_ERRORS as exc:
+        message = " ".join(str(exc).split())
+        print(f"{PROG}: error: {message}", file=sys.stderr)
+        return 2
+    if plan.suite.scenarios == (ALL,):  # "every scenario": say which invalid files were left out
+        for name, error in invalid_scenarios().items():
+            print(f"{PROG}: note: skipping invalid scenario {name!r}: {error}", file=sys.stderr)
+    if git_state().get("dirty"):
+        print(
+            f"{PROG}: note: the checkout has uncommitted changes; results.json will say "
+            "dirty: true (commit first for a report others can trace to its code)",
+            file=sys.stderr,
+        )
+    if plan.suite.name != config.suite and plan.suite.name.startswith("custom-"):
+        print(
+            f"{PROG}: note: a custom selection, so the report goes to "
+            f"{config.out / plan.suite.name}/ (the {config.suite!r} suite's own report is left "
+            "as it is)",
+            file=sys.stderr,
+        )
+    data, target = _run(plan, config, command)
+    _summary_table(data, target)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (0 done, 2 bad input, 130/143 interrupted)."""
+    with sigterm_as_interrupt():
+        try:
+            return _main(argv)
+        except KeyboardInterrupt as exc:
+            print(
+                f"{PROG}: interrupted; no report written (a previous report is as it was)",
+                file=sys.stderr,
+            )
+            return exit_status(exc)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

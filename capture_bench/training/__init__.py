@@ -1,0 +1,1 @@
+"""Training: hyper-parameter files, callbacks and checkpoints for ``train.py``."""

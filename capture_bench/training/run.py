@@ -1,0 +1,395 @@
+"""What ``train.py`` does: check every option before any work, build the envs and the SB3 model
+(or restore the run's newest checkpoint), learn, and save the policy in the safe form.
+
+Hyper-parameters come from ``configs/algos/<algo>.yaml`` (or ``--config``), validated by
+:mod:`capture_bench.training.hyperparameters`. A run directory holds ``config.json`` (everything
+needed to resume), ``tb/`` (TensorBoard), ``checkpoints/step_<N>/``
+(:mod:`capture_bench.training.checkpoint`: parameters, optimiser state, counters, replay buffer
+and VecNormalize statistics, written under a temporary name and renamed, and read back without
+unpickling anything), and at the end the policy in the safe form ``policy.pt`` +
+``metadata.json`` (:mod:`agents.policy_file`), beside SB3's own ``model.zip``. Ctrl-C (SIGINT) or
+SIGTERM saves a checkpoint and exits with status 130 or 143. A user's mistake is one line on
+stderr and exit 2, found before any environment is built. PPO and A2C train in whole rollouts of
+``n_steps x n_envs`` steps: a budget that is not a multiple is rounded up, with a note saying so.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from capture_bench.files import atomic_write, check_writable
+from capture_bench.interrupts import exit_status, sigterm_as_interrupt
+from capture_bench.task.scenarios import OBSERVATION_SOURCES, ConfigError, load_scenario
+from capture_bench.training.checkpoint import (
+    CheckpointError,
+    list_checkpoints,
+    read_checkpoint,
+    restore,
+)
+from capture_bench.training.hyperparameters import (
+    ALGORITHMS,
+    OFF_POLICY,
+    load_hyperparameters,
+    sb3_kwargs,
+    validate_hyperparameters,
+)
+from capture_bench.training.options import RESUMABLE_OPTIONS, TrainConfig, parse_args
+from capture_bench.training.seeds import TrainingSeeds, check_training_seed
+
+#: Memory one training environment holds (a pybullet world, the estimator, the recordings):
+#: measured ~30 MB per CaptureEnv on the 2-core machine; the check leaves a margin.
+ENV_MEMORY_BYTES = 40 * 2**20
+#: Share of the available memory the environments may take.
+MEMORY_SHARE = 0.8
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``train.py`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
+    try:
+        config, given = parse_args(argv)
+        config, hp, run_dir, checkpoint = prepare(config, given)
+    except (ConfigError, CheckpointError) as exc:
+        print(f"train.py: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # argparse: --help (0) or a bad option (2, already printed)
+        return int(exc.code or 0)
+    with sigterm_as_interrupt():
+        try:
+            return train(config, hp, run_dir, checkpoint)
+        except KeyboardInterrupt as exc:  # before learning started (imports, env start-up)
+            print("\ninterrupted before training started; nothing to save", file=sys.stderr)
+            return exit_status(exc)
+        except CheckpointError as exc:  # the newest checkpoint does not fit the run's model
+            print(f"train.py: error: {' '.join(str(exc).split())}", file=sys.stderr)
+            return 2
+
+
+def _read_run_config(run_dir: Path) -> tuple[dict, TrainConfig]:
+    """The saved ``config.json`` of a run, validated: (its mapping, its options)."""
+    saved = run_dir / "config.json"
+    if not saved.is_file():
+        raise ConfigError(f"{run_dir}: not a run directory (no config.json) to resume")
+    try:
+        data = json.loads(saved.read_text())
+    except (OSError, ValueError) as exc:
+        reason = " ".join(str(exc).split())
+        raise ConfigError(f"{saved}: unreadable ({reason}); it is written by train.py") from None
+    if not (
+        isinstance(data, dict)
+        and isinstance(data.get("config"), dict)
+        and isinstance(data.get("hyperparameters"), dict)
+    ):
+        raise ConfigError(f"{saved}: expected keys 'config' and 'hyperparameters' (mappings)")
+    try:
+        old = TrainConfig(**data["config"])
+    except TypeError as exc:
+        raise ConfigError(
+            f"{saved}: key 'config' does not hold train.py's options ({exc})"
+        ) from None
+    if not isinstance(old.algo, str) or old.algo not in ALGORITHMS:
+        raise ConfigError(
+            f"{saved}: key 'config.algo' is {old.algo!r}; valid: {', '.join(ALGORITHMS)}"
+        )
+    for key in ("seed", "n_envs"):
+        value = getattr(old, key)
+        if (
+            not isinstance(value, int)
+            or isinstance(value, bool)
+            or value < (1 if key == "n_envs" else 0)
+        ):
+            raise ConfigError(f"{saved}: key 'config.{key}' is {value!r}; valid: a whole number")
+    if old.observation_source not in OBSERVATION_SOURCES:
+        raise ConfigError(
+            f"{saved}: key 'config.observation_source' is {old.observation_source!r}; "
+            f"valid: {', '.join(OBSERVATION_SOURCES)}"
+        )
+    try:
+        load_scenario(str(old.scenario))
+    except ConfigError as exc:
+        raise ConfigError(f"{saved}: key 'config.scenario': {exc}") from None
+    return data, old
+
+
+def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Path, Path | None]:
+    """Resolve and check the options before any work: the run's config, hyper-parameters,
+    directory and resume checkpoint. Raises :class:`ConfigError` naming what is wrong."""
+    _check_device(config.device)
+    if config.resume is not None:
+        run_dir = Path(config.resume)
+        data, old = _read_run_config(run_dir)
+        extra = sorted(given - set(RESUMABLE_OPTIONS) - {"resume"})
+        if extra:
+            raise ConfigError(
+                f"--resume reuses the run's saved config; only --total-timesteps, --vec-env and "
+                f"--device may be given with it, not --{extra[0].replace('_', '-')}"
+            )
+        config = TrainConfig(
+            **{**data["config"], **{k: getattr(config, k) for k in given if k != "resume"}}
+        )
+        hp = validate_hyperparameters(
+            data["hyperparameters"], old.algo, str(run_dir / "config.json")
+        )
+        if config.total_timesteps is not None:
+            hp["total_timesteps"] = config.total_timesteps
+        found = list_checkpoints(run_dir / "checkpoints")
+        if not found:
+            raise ConfigError(
+                f"{run_dir}: no complete checkpoint (checkpoints/step_<N>/) to resume"
+            )
+        done, checkpoint = found[-1]
+        read_checkpoint(checkpoint)  # a corrupt newest checkpoint is an error here, not later
+        if hp["total_timesteps"] <= done:
+            raise ConfigError(
+                f"{run_dir}: the run has done {done} steps and --total-timesteps "
+                f"{hp['total_timesteps']} is not more; pass the new total, > {done}, to extend it"
+            )
+        check_writable(run_dir, "--resume")
+        _note_rounding(config.algo, hp, hp["total_timesteps"] - done)
+        return config, hp, run_dir, checkpoint
+
+    config.algo = config.algo.lower()
+    hp, _ = load_hyperparameters(config.algo, config.config)
+    scenario = load_scenario(config.scenario)
+    if config.seed is None:
+        config.seed = scenario.training_seeds.start
+    check_training_seed(config.seed, scenario)
+    for key in ("total_timesteps", "n_envs"):
+        if getattr(config, key) is not None:
+            if getattr(config, key) < 1:
+                raise ConfigError(
+                    f"--{key.replace('_', '-')} must be >= 1, got {getattr(config, key)}"
+                )
+            hp[key] = getattr(config, key)
+    config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
+    _check_env_count(config.n_envs)
+    config.observation_source = config.observation_source or scenario.estimator.source
+    run_dir = Path(config.run_dir or f"runs/{scenario.name}-{config.algo}-{config.seed}")
+    if (run_dir / "config.json").exists():
+        raise ConfigError(
+            f"{run_dir}: already holds a run; use --resume {run_dir} or another --run-dir"
+        )
+    check_writable(run_dir, "--run-dir")
+    _note_rounding(config.algo, hp, hp["total_timesteps"])
+    config.run_dir = str(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    payload = {"config": vars(config) | {"resume": None}, "hyperparameters": hp}
+    atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
+    return config, hp, run_dir, None
+
+
+def _check_device(device: str) -> None:
+    """``cuda`` where torch sees no CUDA device is an error, not a silent CPU run."""
+    if device != "cuda":
+        return
+    import torch
+
+    if not torch.cuda.is_available():
+        build = "built without CUDA" if torch.version.cuda is None else "no CUDA device visible"
+        raise ConfigError(
+            f"--device cuda: torch {torch.__version__} has no CUDA device here ({build}); "
+            "use --device cpu (or auto)"
+        )
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory available to new processes (Linux's MemAvailable), or None."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _check_env_count(n_envs: int) -> None:
+    """Refuse more environments than the memory available can hold (they would swap or hang)."""
+    available = _available_memory()
+    if available is None:
+        return
+    most = max(1, int(available * MEMORY_SHARE // ENV_MEMORY_BYTES))
+    if n_envs > most:
+        raise ConfigError(
+            f"--n-envs {n_envs}: at most {most} environments fit in the "
+            f"{available / 2**30:.1f} GiB of memory available (~{ENV_MEMORY_BYTES >> 20} MB each)"
+        )
+
+
+def _note_rounding(algo: str, hp: dict, steps: int) -> None:
+    """Print a note where SB3 will run more steps than asked (whole rollouts) or learn nothing."""
+    if algo in OFF_POLICY:
+        starts = hp.get("learning_starts", 100)
+        if steps <= starts:
+            print(f"note: {steps} steps is not more than learning_starts {starts}: "
+                  "the policy will not be updated")  # fmt: skip
+        return
+    rollout = hp.get("n_steps", 2048) * hp["n_envs"]
+    if steps % rollout:
+        rounded = math.ceil(steps / rollout) * rollout
+        print(
+            f"note: {algo.upper()} trains in whole rollouts of n_steps x n_envs = {rollout} steps; "
+            f"{steps} steps are rounded up to {rounded}"
+        )
+
+
+def make_env(config: TrainConfig, reward: str, rank: int, subprocess: bool) -> Any:
+    """A thunk building environment ``rank``: CaptureEnv with training seeds only."""
+
+    def thunk() -> Any:
+        if subprocess:  # signals are the main process's: it saves, then ends the workers
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        from capture_bench.envs.capture_env import CaptureEnv
+
+        scenario = load_scenario(config.scenario)
+        env = CaptureEnv(scenario, observation_source=config.observation_source, reward=reward)
+        return TrainingSeeds(env, scenario, seed=(config.seed or 0) * 1000 + rank)
+
+    return thunk
+
+
+def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
+    """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
+    import stable_baselines3
+    from stable_baselines3.common.vec_env import (
+        DummyVecEnv,
+        SubprocVecEnv,
+        VecMonitor,
+        VecNormalize,
+    )
+
+    from capture_bench.training.callbacks import Checkpointer, Progress
+
+    algo = config.algo
+    subprocess = config.vec_env == "subproc"
+    fns = [make_env(config, hp["reward"], i, subprocess) for i in range(config.n_envs or 1)]
+    venv: Any = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
+    venv = VecMonitor(venv)
+    if hp["normalize"]:
+        venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99))
+    algorithm = getattr(stable_baselines3, algo.upper())
+    tb = str(run_dir / "tb")
+    model = algorithm(
+        hp["policy"], venv, seed=config.seed, device=config.device, tensorboard_log=tb,
+        **sb3_kwargs(hp, algo),
+    )  # fmt: skip
+    seed_note = f"seed {config.seed}"
+    if checkpoint is not None:
+        try:
+            restore(model, read_checkpoint(checkpoint))  # read again: nothing unpickled
+        except CheckpointError:
+            close_envs(venv, interrupted=False)
+            raise
+        model.set_random_seed((config.seed or 0) + model.num_timesteps)  # fresh episode draws
+        seed_note = f"resuming {checkpoint.name}"
+    target = hp["total_timesteps"]
+    print(
+        f"training {algo.upper()} on {config.scenario} ({config.observation_source}), "
+        f"{config.n_envs} {config.vec_env} envs, {seed_note}, {target} steps -> {run_dir}"
+    )
+    print(f"TensorBoard: tensorboard --logdir {tb}")
+    checkpointer = Checkpointer(run_dir / "checkpoints", hp["checkpoint_freq"], algo in OFF_POLICY)
+    progress = Progress(config, hp, target)
+    start = time.perf_counter()
+    status = 0
+    try:
+        model.learn(
+            total_timesteps=max(target - model.num_timesteps, 0),
+            callback=[checkpointer, progress],
+            reset_num_timesteps=checkpoint is None,
+            tb_log_name="run",
+        )
+    except KeyboardInterrupt as exc:
+        status = exit_status(exc)
+        path = checkpointer.save(model)
+        add_wall_time(run_dir, time.perf_counter() - start)
+        print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint {path}; "
+              f"continue with: python train.py --resume {run_dir}")  # fmt: skip
+    finally:
+        progress.close()
+        close_envs(venv, interrupted=status != 0)
+    if status:
+        return status
+    checkpointer.save(model)
+    wall = time.perf_counter() - start
+    total_wall = add_wall_time(run_dir, wall)
+    save_final(model, config, hp, run_dir, total_wall)
+    print(f"done: {model.num_timesteps} steps in {wall:.0f} s; model: {run_dir / 'policy.pt'}")
+    return 0
+
+
+def close_envs(venv: Any, interrupted: bool) -> None:
+    """Close the vectorised envs; after an interrupt, kill subprocess workers instead.
+
+    The signal can land while the main process waits on the workers' pipes; SB3's graceful close
+    would then wait for replies already consumed, forever (seen on the 16-env device run). The
+    workers ignore SIGINT and SIGTERM (the main process handles them), so they are killed.
+    """
+    base = venv.unwrapped
+    if interrupted and hasattr(base, "processes"):
+        for process in base.processes:
+            process.kill()
+        for process in base.processes:
+            process.join(timeout=5)
+        base.closed = True
+        return
+    venv.close()
+
+
+def add_wall_time(run_dir: Path, seconds: float) -> float:
+    """Add a session's training time to ``run_dir/wall_time.json``; return the total, s."""
+    path = run_dir / "wall_time.json"
+    total = json.loads(path.read_text())["wall_time_s"] if path.is_file() else 0.0
+    total += seconds
+    atomic_write(path, json.dumps({"wall_time_s": round(total, 1)}).encode())
+    return total
+
+
+def save_final(
+    model: Any,
+    config: TrainConfig,
+    hp: dict,
+    run_dir: Path,
+    total_wall: float,
+) -> None:
+    """Write the policy in the safe form (``policy.pt`` + declared ``metadata.json``, loaded
+    without unpickling: :mod:`agents.policy_file`), and SB3's own ``model.zip`` (+
+    ``vecnormalize.pkl``) for SB3 users who trust the run."""
+    from agents.policy_file import ObservationNormalizer, save_policy
+    from capture_bench.evaluation.provenance import git_state, package_versions
+
+    atomic_write(run_dir / "model.zip", writer=model.save)
+    env = model.get_vec_normalize_env()
+    if env is not None:
+        atomic_write(run_dir / "vecnormalize.pkl", writer=env.save)
+    scenario = load_scenario(config.scenario)
+    metadata = {
+        "algorithm": config.algo.upper(),
+        "scenario": scenario.name,
+        "env_id": scenario.env_id,
+        "model": "model.zip",
+        "observation_source": config.observation_source,
+        "reward": hp["reward"],
+        "vecnormalize": "vecnormalize.pkl" if env is not None else None,
+        "total_timesteps": int(model.num_timesteps),
+        "seed": config.seed,
+        "n_envs": config.n_envs,
+        "device": str(model.device),
+        "wall_time_s": round(total_wall, 1),  # training time over all sessions of the run
+        "steps_per_second": round(model.num_timesteps / total_wall, 1) if total_wall else None,
+        "git": git_state(),
+        "packages": package_versions(),
+        "hyperparameters": hp,
+        "command": "python train.py " + " ".join(
+            f"--{k.replace('_', '-')} {v}" for k, v in vars(config).items()
+            if v is not None and k not in ("resume", "config", "run_dir")
+        ),
+    }  # fmt: skip
+    normalizer = None if env is None else ObservationNormalizer.from_vecnormalize(env)
+    save_policy(run_dir, config.algo, model.policy, normalizer, extra=metadata)
