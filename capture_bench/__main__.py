@@ -14,6 +14,7 @@ how a user finds the bad file.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -87,7 +88,7 @@ def list_everything() -> list[str]:
         lines += [f"  {name:<10} {_one_line(error)}" for name, error in invalid.items()]
     lines.append(f"suites ({SUITES_DIR}):")
     for name in list_suites():
-        suite, error = _try(lambda name=name: load_suite(name))
+        suite, error = _try(functools.partial(load_suite, name))
         if error is not None:
             lines.append(f"  {name:<10} INVALID: {error}")
         else:
@@ -97,7 +98,7 @@ def list_everything() -> list[str]:
             )
     lines.append(f"algorithm configs ({ALGO_DIR}):")
     for algo in ALGORITHMS:
-        loaded, error = _try(lambda algo=algo: load_hyperparameters(algo))
+        loaded, error = _try(functools.partial(load_hyperparameters, algo))
         if error is not None:
             lines.append(f"  {algo:<10} INVALID: {error}")
         else:

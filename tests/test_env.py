@@ -341,7 +341,7 @@ def test_step_before_reset_is_an_error():
 def test_unknown_scenario_and_bad_options_name_what_is_valid():
     with pytest.raises(ConfigError, match="unknown scenario 'moon'; valid: .*tumbling"):
         CaptureEnv("moon")
-    with pytest.raises(ConfigError, match="choose one of ekf, photogrammetry, truth"):
+    with pytest.raises(ConfigError, match="expected one of ekf, photogrammetry, truth"):
         CaptureEnv("paper", observation_source="lidar")
     with pytest.raises(ValueError, match="reward must be one of"):
         CaptureEnv("paper", reward="shaped")

@@ -30,7 +30,7 @@ from capture_bench.task.scenarios import (
 
 SHIPPED = scenarios.SCENARIO_DIR
 WARP = "target:\n  motion: warp\n"  # not a motion the benchmark has
-WARP_ERROR = "key 'target.motion': 'warp' is not valid; choose one of drift, circular, tumbling"
+WARP_ERROR = "key 'target.motion': 'warp' is not valid; expected one of drift, circular, tumbling"
 
 
 @pytest.fixture

@@ -21,10 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from capture_bench.evaluation.errors import SuiteError
 from capture_bench.task.scenarios import CONFIG_DIR
+from capture_bench.validation import Rule, check_mapping, read_mapping
 
 SUITES_DIR = CONFIG_DIR / "suites"
 ALL = "all"
@@ -57,21 +56,18 @@ class Suite:
     sha256: str
 
 
-_KEYS = ("description", "agents", "scenarios", "episodes", "reference")
+_SCHEMA = {  # capture_bench.validation rules
+    "description": Rule("string"),
+    "agents": Rule("names"),
+    "scenarios": Rule("names", choices=(ALL,)),
+    "episodes": Rule("int", 1),
+    "reference": Rule("string"),
+}
 
 
 def list_suites(suites_dir: Path = SUITES_DIR) -> list[str]:
     """Names of the shipped suites, sorted."""
     return sorted(p.stem for p in suites_dir.glob("*.yaml"))
-
-
-def _string_list(value: Any, where: str, allow_all: bool) -> tuple[str, ...]:
-    if allow_all and value == ALL:
-        return (ALL,)
-    if not isinstance(value, list) or not value or not all(isinstance(v, str) and v for v in value):
-        also = f" or {ALL!r}" if allow_all else ""
-        raise SuiteError(f"{where}: {value!r} should be a non-empty list of names{also}")
-    return tuple(dict.fromkeys(value))
 
 
 def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite:
@@ -84,36 +80,16 @@ def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite
             raise SuiteError(f"unknown suite {str(name_or_path)!r}; valid suites: {valid}")
     if not path.is_file():
         raise SuiteError(f"{path}: no such suite file")
-    raw = path.read_bytes()
-    try:
-        data = yaml.safe_load(raw)
-    except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0]
-        raise SuiteError(f"{path}: invalid YAML ({first})") from None
-    if not isinstance(data, dict):
-        raise SuiteError(f"{path}: expected a mapping with keys {', '.join(_KEYS)}")
-    unknown = sorted(set(data) - set(_KEYS))
-    if unknown:
-        raise SuiteError(f"{path}: unknown key {unknown[0]!r}; valid keys: {', '.join(_KEYS)}")
-    for key in ("agents", "scenarios", "episodes"):
-        if key not in data:
-            raise SuiteError(f"{path}: missing key {key!r}")
-    episodes = data["episodes"]
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise SuiteError(f"{path}: key 'episodes' is {episodes!r}; expected a whole number >= 1")
-    reference = data.get("reference", "incremental_ik")
-    if not isinstance(reference, str) or not reference:
-        raise SuiteError(f"{path}: key 'reference' is {reference!r}; expected an agent name")
-    description = data.get("description", "")
-    if not isinstance(description, str):
-        raise SuiteError(f"{path}: key 'description' is {description!r}; expected a string")
+    data, raw = read_mapping(path, f"suite keys ({', '.join(_SCHEMA)})", SuiteError)
+    required = {key: _SCHEMA[key].describe() for key in ("agents", "scenarios", "episodes")}
+    checked = check_mapping(data, _SCHEMA, str(path), error=SuiteError, required=required)
     return Suite(
         name=path.stem,
-        description=description,
-        agents=_string_list(data["agents"], f"{path}: key 'agents'", allow_all=False),
-        scenarios=_string_list(data["scenarios"], f"{path}: key 'scenarios'", allow_all=True),
-        episodes=episodes,
-        reference=reference,
+        description=checked.get("description", ""),
+        agents=checked["agents"],
+        scenarios=checked["scenarios"],
+        episodes=checked["episodes"],
+        reference=checked.get("reference", "incremental_ik"),
         path=path,
         sha256=hashlib.sha256(raw).hexdigest(),
     )

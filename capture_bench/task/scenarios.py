@@ -14,10 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from capture_bench.paths import config_dir
 from capture_bench.sensing.sources import SOURCES
+from capture_bench.validation import ConfigError, Rule, check_mapping, read_mapping
 
 CONFIG_DIR = config_dir()  # configs/: see capture_bench.paths
 SCENARIO_DIR = CONFIG_DIR / "scenarios"
@@ -26,10 +25,6 @@ NON_NEGATIVE = (0.0, math.inf, True)
 
 
 OBSERVATION_SOURCES = SOURCES
-
-
-class ConfigError(ValueError):
-    """A configuration file or value is invalid; the message says where and what is valid."""
 
 
 def _f(
@@ -207,76 +202,44 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
             raise ConfigError(f"unknown scenario {str(name_or_path)!r}; valid: {valid}")
     if not path.is_file():
         raise ConfigError(f"{path}: no such scenario file")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: invalid YAML: {' '.join(str(exc).split())}") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a mapping of scenario keys, got {type(data).__name__}")
+    data, _ = read_mapping(path, "scenario keys")
     data.setdefault("name", path.stem)
     scenario = _build(Scenario, data, source=str(path), prefix="")
     return scenario
 
 
-def _build(cls: type, data: dict[str, Any], source: str, prefix: str) -> Any:
-    """Validate a mapping against dataclass ``cls`` and build it (recursively)."""
+def _schema(cls: type) -> dict[str, Any]:
+    """The validation schema of a config dataclass: a :class:`~capture_bench.validation.Rule` per
+    field (from its type and its ``bounds``/``choices`` metadata), a nested schema per section."""
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise ConfigError(
-            f"{source}: unknown key {prefix + unknown[0]!r}; valid keys: {', '.join(fields)}"
-        )
-    values = {}
-    for name, value in data.items():
-        key, kind, meta = prefix + name, hints[name], fields[name].metadata
+    schema: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        kind, meta = hints[f.name], f.metadata
         if isinstance(kind, type) and dataclasses.is_dataclass(kind):
-            if not isinstance(value, dict):
-                raise ConfigError(f"{source}: key {key!r} must be a mapping, got {value!r}")
-            values[name] = _build(kind, value, source, key + ".")
+            schema[f.name] = _schema(kind)
+        elif typing.get_origin(kind) is tuple:
+            items = typing.get_args(kind)
+            schema[f.name] = Rule("numbers", length=len(items), item=items[0].__name__)
+        elif kind is str:
+            choices = meta.get("choices")
+            schema[f.name] = Rule("choice", choices=choices) if choices else Rule("string")
         else:
-            values[name] = _check_value(value, kind, meta, source, key)
-    return cls(**values)
+            low, high, inclusive = meta.get("bounds") or (-math.inf, math.inf, True)
+            schema[f.name] = Rule(kind.__name__, low, high, inclusive)
+    return schema
 
 
-def _check_value(value: Any, kind: Any, meta: Any, source: str, key: str) -> Any:
-    where = f"{source}: key {key!r}"
-    if typing.get_origin(kind) is tuple:
-        item_types = typing.get_args(kind)
-        if not isinstance(value, (list, tuple)) or len(value) != len(item_types):
-            raise ConfigError(f"{where}: {value!r} should be a list of {len(item_types)} numbers")
-        items = tuple(_number(v, t, where) for v, t in zip(value, item_types))
-        if len(items) == 2 and item_types[0] is float and items[0] > items[1]:
-            raise ConfigError(f"{where}: range {list(value)} has low > high; write [low, high]")
-        return items
-    if kind is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where}: {value!r} should be a string")
-        choices = meta.get("choices")
-        if choices and value not in choices:
-            raise ConfigError(
-                f"{where}: {value!r} is not valid; choose one of {', '.join(choices)}"
-            )
-        return value
-    number = _number(value, kind, where)
-    bounds = meta.get("bounds")
-    if bounds is not None:
-        low, high, inclusive = bounds
-        if not ((number >= low if inclusive else number > low) and number <= high):
-            rule = f"{'>=' if inclusive else '>'} {low:g}" + (
-                f" and <= {high:g}" if high < math.inf else ""
-            )
-            raise ConfigError(f"{where}: {value!r} is out of range; expected a number {rule}")
-    return number
+def _build(cls: type, data: dict[str, Any], source: str, prefix: str) -> Any:
+    """Validate a mapping against dataclass ``cls`` (:func:`capture_bench.validation.check_mapping`
+    on :func:`_schema`) and build it, sections recursively."""
+    return _construct(cls, check_mapping(data, _schema(cls), source, prefix=prefix))
 
 
-def _number(value: Any, kind: Any, where: str) -> Any:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{where}: {value!r} should be a number")
-    if kind is int:
-        if float(value) != int(value):
-            raise ConfigError(f"{where}: {value!r} should be a whole number")
-        return int(value)
-    if not math.isfinite(value):
-        raise ConfigError(f"{where}: {value!r} should be a finite number")
-    return float(value)
+def _construct(cls: type, values: dict[str, Any]) -> Any:
+    hints = typing.get_type_hints(cls)
+    return cls(
+        **{
+            name: _construct(hints[name], value) if isinstance(value, dict) else value
+            for name, value in values.items()
+        }
+    )

@@ -7,46 +7,18 @@ SB3 algorithm's constructor arguments. No SB3 or torch import happens at module 
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from capture_bench.task.scenarios import CONFIG_DIR, ConfigError
+from capture_bench.task.scenarios import CONFIG_DIR
+from capture_bench.validation import ConfigError, Rule, Schema, check_mapping, read_mapping
 
 ALGO_DIR = CONFIG_DIR / "algos"
 ALGORITHMS = ("ppo", "sac", "td3")
 OFF_POLICY = ("sac", "td3")
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
-
-
-@dataclass(frozen=True)
-class Rule:
-    """How one YAML key is validated: ``kind`` and, for numbers, the range [low, high]."""
-
-    kind: str  # int, float, bool, choice, schedule, float_or_auto, optional_float, mapping
-    low: float = -math.inf
-    high: float = math.inf
-    choices: tuple[str, ...] = ()
-
-    def describe(self) -> str:
-        if self.kind == "choice":
-            return "one of " + ", ".join(self.choices)
-        bounded = math.isfinite(self.low) or math.isfinite(self.high)
-        rng = f" in [{self.low:g}, {self.high:g}]" if bounded else ""
-        text = {
-            "int": "a whole number",
-            "float": "a number",
-            "bool": "true or false",
-            "schedule": "a number > 0 or 'lin_<number>' (linear decay to 0)",
-            "float_or_auto": "a number, 'auto' or 'auto_<number>'",
-            "optional_float": "a number or null",
-            "mapping": "a mapping",
-        }[self.kind]
-        return text + (rng if self.kind in ("int", "float", "optional_float") else "")
 
 
 POS_INT, NONNEG_INT = Rule("int", 1), Rule("int", 0)
@@ -104,75 +76,12 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
     },
 }
 POLICY_KWARGS = {
-    "net_arch": Rule("mapping"),  # list of layer widths, or {pi: [...], vf|qf: [...]}
+    "net_arch": Rule("layers", choices=("pi", "vf", "qf")),  # qf for sac/td3
     "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
     "log_std_init": Rule("float"),
     "ortho_init": Rule("bool"),
     "n_critics": POS_INT,
 }
-
-
-def _check(value: Any, rule: Rule, where: str) -> Any:
-    """Validate one value against its rule; return it in canonical form."""
-    bad = ConfigError(f"{where}: {value!r} is not valid; expected {rule.describe()}")
-    kind = rule.kind
-    if kind == "bool":
-        if not isinstance(value, bool):
-            raise bad
-        return value
-    if kind == "choice":
-        if value not in rule.choices:
-            raise bad
-        return value
-    if kind == "optional_float" and value is None:
-        return None
-    if kind in ("schedule", "float_or_auto") and isinstance(value, str) and not _is_number(value):
-        prefix = "lin_" if kind == "schedule" else "auto"
-        rest = value[len(prefix) :].lstrip("_")
-        if not value.startswith(prefix) or (rest and not _is_number(rest)):
-            raise bad
-        if kind == "schedule" and (not rest or float(rest) <= 0):
-            raise bad
-        return value
-    if isinstance(value, bool) or not _is_number(value):
-        raise bad
-    number = float(value)  # YAML reads 3e-4 (no dot) as a string; accept it as the number it is
-    if kind == "int":
-        if not number.is_integer():
-            raise bad
-        number = int(number)
-    low = 0.0 if kind == "schedule" else rule.low
-    if not (math.isfinite(number) and low <= number <= rule.high) or (
-        kind == "schedule" and number <= 0
-    ):
-        raise bad
-    return number
-
-
-def _is_number(value: Any) -> bool:
-    try:
-        float(value)
-    except (TypeError, ValueError):
-        return False
-    return not isinstance(value, bool)
-
-
-def _check_net_arch(value: Any, where: str) -> Any:
-    def layers(v: Any) -> bool:
-        return isinstance(v, list) and all(isinstance(n, int) and n > 0 for n in v)
-
-    if layers(value):
-        return value
-    if (
-        isinstance(value, dict)
-        and value
-        and all(k in ("pi", "vf", "qf") and layers(v) for k, v in value.items())
-    ):
-        return value
-    raise ConfigError(
-        f"{where}: {value!r} is not valid; expected a list of layer widths like [64, 64] "
-        "or a mapping {pi: [...], vf: [...]} (qf for sac/td3)"
-    )
 
 
 def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any]:
@@ -184,36 +93,9 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
     """
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping of hyper-parameters, got {data!r}")
-    rules = {**TRAINING_KEYS, **ALGO_KEYS[algo]}
-    out: dict[str, Any] = {}
-    for key, value in data.items():
-        if key not in rules:
-            raise ConfigError(
-                f"{source}: unknown key {key!r} for {algo}; valid keys: {', '.join(rules)}"
-            )
-        where = f"{source}: key {key!r}"
-        if key == "policy_kwargs":
-            if not isinstance(value, dict):
-                raise ConfigError(f"{where}: {value!r} is not valid; expected a mapping")
-            kwargs = {}
-            for sub, sub_value in value.items():
-                if sub not in POLICY_KWARGS:
-                    raise ConfigError(
-                        f"{source}: unknown key 'policy_kwargs.{sub}'; "
-                        f"valid keys: {', '.join(POLICY_KWARGS)}"
-                    )
-                sub_where = f"{source}: key 'policy_kwargs.{sub}'"
-                kwargs[sub] = (
-                    _check_net_arch(sub_value, sub_where)
-                    if sub == "net_arch"
-                    else _check(sub_value, POLICY_KWARGS[sub], sub_where)
-                )
-            out[key] = kwargs
-        else:
-            out[key] = _check(value, rules[key], where)
-    for key in ("n_envs", "total_timesteps"):
-        if key not in out:
-            raise ConfigError(f"{source}: missing key {key!r} (a whole number >= 1)")
+    schema: Schema = {**TRAINING_KEYS, **ALGO_KEYS[algo], "policy_kwargs": POLICY_KWARGS}
+    required = dict.fromkeys(("n_envs", "total_timesteps"), POS_INT.describe())
+    out = check_mapping(data, schema, source, required=required)
     out.setdefault("policy", "MlpPolicy")
     out.setdefault("policy_kwargs", {})
     out.setdefault("normalize", False)
@@ -231,11 +113,7 @@ def load_hyperparameters(algo: str, path: str | Path | None = None) -> tuple[dic
     file = Path(path) if path is not None else ALGO_DIR / f"{algo}.yaml"
     if not file.is_file():
         raise ConfigError(f"{file}: no such hyper-parameter file")
-    try:
-        data = yaml.safe_load(file.read_text())
-    except yaml.YAMLError as exc:
-        first = str(exc).splitlines()[0] if str(exc) else "parse error"
-        raise ConfigError(f"{file}: invalid YAML ({first})") from None
+    data, _ = read_mapping(file, "hyper-parameters")
     return validate_hyperparameters(data, algo, str(file)), file
 
 

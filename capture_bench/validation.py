@@ -1,0 +1,272 @@
+"""One validator for every configuration file: scenarios, suites and algorithm hyper-parameters.
+
+A file is read once (:func:`read_mapping`: missing file, invalid YAML, not a mapping), then checked
+against a schema, a mapping of key to :class:`Rule` (or to a nested schema) by
+:func:`check_mapping`. Every message has one shape, names the file and the key (dotted for nested
+keys), the bad value and what would be valid::
+
+    configs/scenarios/x.yaml: key 'camera.noise_px': -1 is not valid; expected a number >= 0
+    configs/scenarios/x.yaml: unknown key 'camera.noise_pix'; valid keys: position, look_at, ...
+    configs/suites/s.yaml: missing key 'episodes' (expected a whole number >= 1)
+
+The error type is the caller's (``ConfigError`` for scenarios and algorithms, ``SuiteError`` for
+suites), so each CLI keeps its own catch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration file or value is invalid; the message says where and what is valid."""
+
+
+@dataclass(frozen=True)
+class Rule:
+    """What one key accepts.
+
+    ``kind``: ``int``, ``float`` (finite numbers in [low, high], ``low`` exclusive unless
+    ``low_inclusive``), ``bool``, ``string``, ``choice`` (one of ``choices``), ``numbers`` (a list
+    of ``length`` numbers of ``item`` kind; a 2-float list is a [low, high] range), ``names`` (a
+    non-empty list of non-empty strings, or one of ``choices`` as a whole), ``schedule`` (a number
+    > 0 or ``lin_<number>``), ``float_or_auto`` (a number, ``auto`` or ``auto_<number>``),
+    ``optional_float`` (a number or null), ``layers`` (a list of layer widths, or a mapping of
+    ``choices`` to such lists), ``mapping`` (checked by a nested schema).
+    """
+
+    kind: str
+    low: float = -math.inf
+    high: float = math.inf
+    low_inclusive: bool = True
+    choices: tuple[str, ...] = ()
+    length: int = 0
+    item: str = "float"
+
+    def describe(self) -> str:
+        """What the rule accepts, in words."""
+        kind = self.kind
+        if kind == "choice":
+            return "one of " + ", ".join(self.choices)
+        if kind in ("int", "float", "optional_float"):
+            text = {"int": "a whole number", "float": "a number", "optional_float": "a number"}[
+                kind
+            ]
+            return text + self._range() + (" or null" if kind == "optional_float" else "")
+        if kind == "numbers":
+            what = "whole numbers" if self.item == "int" else "numbers"
+            order = (
+                " [low, high] with low <= high" if self.length == 2 and self.item == "float" else ""
+            )
+            return f"a list of {self.length} {what}{order}"
+        if kind == "names":
+            also = f", or {' or '.join(map(repr, self.choices))}" if self.choices else ""
+            return "a non-empty list of names" + also
+        if kind == "layers":
+            keys = ", ".join(f"{k}: [...]" for k in self.choices)
+            return f"a list of layer widths like [64, 64] or a mapping {{{keys}}}"
+        return {
+            "bool": "true or false",
+            "string": "a string",
+            "schedule": "a number > 0 or 'lin_<number>' (linear decay to 0)",
+            "float_or_auto": "a number, 'auto' or 'auto_<number>'",
+            "mapping": "a mapping",
+        }[kind]
+
+    def _range(self) -> str:
+        low = math.isfinite(self.low)
+        high = math.isfinite(self.high)
+        if low and high:
+            return f" in {'[' if self.low_inclusive else '('}{self.low:g}, {self.high:g}]"
+        if low:
+            return f" {'>=' if self.low_inclusive else '>'} {self.low:g}"
+        if high:
+            return f" <= {self.high:g}"
+        return ""
+
+    def check(self, value: Any, where: str, error: type[ValueError] = ConfigError) -> Any:
+        """``value`` in canonical form (ints as int, numbers as float, lists as tuples of
+        ``numbers``), or ``error`` saying ``where: value is not valid; expected ...``."""
+        ok, canonical = _CHECKS[self.kind](self, value)
+        if not ok:
+            raise error(f"{where}: {value!r} is not valid; expected {self.describe()}")
+        return canonical
+
+
+def _number(value: Any) -> float | None:
+    """The value as a finite float, or None (bools are not numbers; YAML reads 3e-4 as a string,
+    which is accepted as the number it is)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        return None
+    try:
+        number = float(value)
+    except (ValueError, OverflowError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _in_range(rule: Rule, number: float) -> bool:
+    above = number >= rule.low if rule.low_inclusive else number > rule.low
+    return above and number <= rule.high
+
+
+def _check_int(rule: Rule, value: Any) -> tuple[bool, Any]:
+    if isinstance(value, int) and not isinstance(value, bool):  # exact, however large
+        return _in_range(rule, value), value
+    number = _number(value)
+    if number is None or not number.is_integer() or not _in_range(rule, number):
+        return False, None
+    return True, int(number)
+
+
+def _check_float(rule: Rule, value: Any) -> tuple[bool, Any]:
+    number = _number(value)
+    return (number is not None and _in_range(rule, number)), number
+
+
+def _check_optional_float(rule: Rule, value: Any) -> tuple[bool, Any]:
+    return (True, None) if value is None else _check_float(rule, value)
+
+
+def _check_numbers(rule: Rule, value: Any) -> tuple[bool, Any]:
+    if not isinstance(value, (list, tuple)) or len(value) != rule.length:
+        return False, None
+    items = []
+    for v in value:
+        ok, number = _CHECKS[rule.item](Rule(rule.item), v)
+        if not ok:
+            return False, None
+        items.append(number)
+    if rule.length == 2 and rule.item == "float" and items[0] > items[1]:
+        return False, None
+    return True, tuple(items)
+
+
+def _check_names(rule: Rule, value: Any) -> tuple[bool, Any]:
+    if isinstance(value, str) and value in rule.choices:
+        return True, (value,)
+    ok = isinstance(value, list) and value and all(isinstance(v, str) and v for v in value)
+    return bool(ok), tuple(dict.fromkeys(value)) if ok else None
+
+
+def _check_prefixed(rule: Rule, value: Any) -> tuple[bool, Any]:
+    """``schedule`` (a number > 0 or lin_<number > 0>) and ``float_or_auto``."""
+    if isinstance(value, str) and _number(value) is None:
+        prefix = "lin_" if rule.kind == "schedule" else "auto"
+        rest = value[len(prefix) :].lstrip("_")
+        if not value.startswith(prefix) or (rest and _number(rest) is None):
+            return False, None
+        if rule.kind == "schedule" and (not rest or float(rest) <= 0):
+            return False, None
+        return True, value
+    number = _number(value)
+    if number is None or (rule.kind == "schedule" and number <= 0):
+        return False, None
+    return True, number
+
+
+def _check_layers(rule: Rule, value: Any) -> tuple[bool, Any]:
+    def widths(v: Any) -> bool:
+        return isinstance(v, list) and all(
+            isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in v
+        )
+
+    if widths(value):
+        return True, value
+    ok = (
+        isinstance(value, dict)
+        and bool(value)
+        and all(k in rule.choices and widths(v) for k, v in value.items())
+    )
+    return ok, value
+
+
+_CHECKS = {
+    "int": _check_int,
+    "float": _check_float,
+    "optional_float": _check_optional_float,
+    "bool": lambda rule, v: (isinstance(v, bool), v),
+    "string": lambda rule, v: (isinstance(v, str), v),
+    "choice": lambda rule, v: (isinstance(v, str) and v in rule.choices, v),
+    "numbers": _check_numbers,
+    "names": _check_names,
+    "schedule": _check_prefixed,
+    "float_or_auto": _check_prefixed,
+    "layers": _check_layers,
+    "mapping": lambda rule, v: (isinstance(v, dict), v),
+}
+
+#: A schema: key -> Rule, or key -> nested schema (a mapping under that key).
+Schema = Mapping[str, "Rule | Schema"]
+
+
+def read_mapping(
+    path: Path, what: str, error: type[ValueError] = ConfigError
+) -> tuple[dict[str, Any], bytes]:
+    """The YAML mapping in ``path`` and the file's bytes (for provenance hashes).
+
+    Raises ``error`` naming the file: no such file, unreadable, invalid YAML (its first line), or
+    not a mapping (``what`` says of what: "scenario keys", "hyper-parameters", ...).
+    """
+    if not path.is_file():
+        raise error(f"{path}: no such file")
+    try:
+        raw = path.read_bytes()
+        data = yaml.safe_load(raw)
+    except OSError as exc:
+        raise error(f"{path}: unreadable ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        first = " ".join(str(exc).split()) or "parse error"
+        raise error(f"{path}: invalid YAML ({first})") from None
+    except ValueError as exc:  # bytes that are not text
+        raise error(f"{path}: invalid YAML ({' '.join(str(exc).split())})") from None
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a mapping of {what}, got {type(data).__name__}")
+    return data, raw
+
+
+def check_mapping(
+    data: Any,
+    schema: Schema,
+    source: str,
+    *,
+    error: type[ValueError] = ConfigError,
+    prefix: str = "",
+    required: Mapping[str, str] | None = None,
+) -> dict[str, Any]:
+    """``data`` checked against ``schema``: every key known, every value valid (nested schemas
+    recursively); returns the canonical values (keys absent from ``data`` stay absent).
+
+    Args:
+        data: the mapping read from the file.
+        schema: key -> :class:`Rule` or nested schema.
+        source: the file (or ``<override>``), first in every message.
+        error: the exception type raised.
+        prefix: the dotted path of ``data`` inside the file (``"camera."``), for messages.
+        required: keys that must be present -> what they hold, for the message.
+    """
+    if not isinstance(data, dict):
+        where = f"key {prefix[:-1]!r}" if prefix else "the file"
+        raise error(f"{source}: {where} must be a mapping, got {data!r}")
+    unknown = [key for key in data if key not in schema]
+    if unknown:
+        raise error(
+            f"{source}: unknown key {prefix + str(unknown[0])!r}; valid keys: {', '.join(schema)}"
+        )
+    for key, what in (required or {}).items():
+        if key not in data:
+            raise error(f"{source}: missing key {prefix + key!r} ({what})")
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        rule = schema[key]
+        if isinstance(rule, Rule):
+            out[key] = rule.check(value, f"{source}: key {prefix + key!r}", error)
+        else:
+            out[key] = check_mapping(value, rule, source, error=error, prefix=f"{prefix}{key}.")
+    return out
