@@ -28,6 +28,13 @@ class ConfigError(ValueError):
     """A configuration file or value is invalid; the message says where and what is valid."""
 
 
+#: What reading YAML raises on text that is not valid YAML data: besides ``YAMLError``, the safe
+#: constructors raise ValueError, KeyError, AttributeError or TypeError on a tagged, date-like or
+#: unhashable scalar that does not parse (``!!bool maybe``, ``2001-13-01``, ``? [a]: 1``), the
+#: parser RecursionError on deep nesting; bytes that are not UTF-8 raise UnicodeDecodeError.
+YAML_ERRORS = (yaml.YAMLError, ValueError, KeyError, AttributeError, TypeError, RecursionError)
+
+
 @dataclass(frozen=True)
 class Rule:
     """What one key accepts.
@@ -206,26 +213,32 @@ _CHECKS = {
 Schema = Mapping[str, "Rule | Schema"]
 
 
+def is_file(path: Path) -> bool:
+    """``path.is_file()``, False where the path cannot even be looked at (a name too long, no
+    permission on a parent) instead of an OSError."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
+
+
 def read_mapping(
     path: Path, what: str, error: type[ValueError] = ConfigError
 ) -> tuple[dict[str, Any], bytes]:
     """The YAML mapping in ``path`` and the file's bytes (for provenance hashes).
 
-    Raises ``error`` naming the file: no such file, unreadable, invalid YAML (its first line), or
+    Raises ``error`` naming the file: it cannot be read, invalid YAML (the parser's message), or
     not a mapping (``what`` says of what: "scenario keys", "hyper-parameters", ...).
     """
-    if not path.is_file():
-        raise error(f"{path}: no such file")
     try:
         raw = path.read_bytes()
+    except OSError as exc:  # missing, a folder, no permission, a name too long
+        raise error(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
         data = yaml.safe_load(raw)
-    except OSError as exc:
-        raise error(f"{path}: unreadable ({exc.strerror or exc})") from None
-    except yaml.YAMLError as exc:
-        first = " ".join(str(exc).split()) or "parse error"
+    except YAML_ERRORS as exc:
+        first = " ".join(str(exc).split()) or type(exc).__name__
         raise error(f"{path}: invalid YAML ({first})") from None
-    except ValueError as exc:  # bytes that are not text
-        raise error(f"{path}: invalid YAML ({' '.join(str(exc).split())})") from None
     if not isinstance(data, dict):
         raise error(f"{path}: expected a mapping of {what}, got {type(data).__name__}")
     return data, raw

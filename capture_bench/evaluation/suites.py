@@ -23,7 +23,7 @@ from typing import Any
 
 from capture_bench.evaluation.errors import SuiteError
 from capture_bench.task.scenarios import CONFIG_DIR
-from capture_bench.validation import Rule, check_mapping, read_mapping
+from capture_bench.validation import Rule, check_mapping, is_file, read_mapping
 
 SUITES_DIR = CONFIG_DIR / "suites"
 ALL = "all"
@@ -75,10 +75,10 @@ def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
         path = suites_dir / f"{name_or_path}.yaml"
-        if not path.is_file():
+        if not is_file(path):
             valid = ", ".join(list_suites(suites_dir)) or "none"
             raise SuiteError(f"unknown suite {str(name_or_path)!r}; valid suites: {valid}")
-    if not path.is_file():
+    if not is_file(path):
         raise SuiteError(f"{path}: no such suite file")
     data, raw = read_mapping(path, f"suite keys ({', '.join(_SCHEMA)})", SuiteError)
     required = {key: _SCHEMA[key].describe() for key in ("agents", "scenarios", "episodes")}

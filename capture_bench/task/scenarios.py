@@ -16,7 +16,7 @@ from typing import Any
 
 from capture_bench.paths import config_dir
 from capture_bench.sensing.sources import SOURCES
-from capture_bench.validation import ConfigError, Rule, check_mapping, read_mapping
+from capture_bench.validation import ConfigError, Rule, check_mapping, is_file, read_mapping
 
 CONFIG_DIR = config_dir()  # configs/: see capture_bench.paths
 SCENARIO_DIR = CONFIG_DIR / "scenarios"
@@ -197,10 +197,10 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
         path = SCENARIO_DIR / f"{name_or_path}.yaml"
-        if not path.is_file():
+        if not is_file(path):
             valid = ", ".join(list_scenarios()) or "none"
             raise ConfigError(f"unknown scenario {str(name_or_path)!r}; valid: {valid}")
-    if not path.is_file():
+    if not is_file(path):
         raise ConfigError(f"{path}: no such scenario file")
     data, _ = read_mapping(path, "scenario keys")
     data.setdefault("name", path.stem)

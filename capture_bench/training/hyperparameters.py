@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from capture_bench.task.scenarios import CONFIG_DIR
-from capture_bench.validation import ConfigError, Rule, Schema, check_mapping, read_mapping
+from capture_bench.validation import ConfigError, Rule, Schema, check_mapping, is_file, read_mapping
 
 ALGO_DIR = CONFIG_DIR / "algos"
 ALGORITHMS = ("ppo", "sac", "td3")
@@ -111,7 +111,7 @@ def load_hyperparameters(algo: str, path: str | Path | None = None) -> tuple[dic
     if algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
     file = Path(path) if path is not None else ALGO_DIR / f"{algo}.yaml"
-    if not file.is_file():
+    if not is_file(file):
         raise ConfigError(f"{file}: no such hyper-parameter file")
     data, _ = read_mapping(file, "hyper-parameters")
     return validate_hyperparameters(data, algo, str(file)), file
