@@ -33,7 +33,13 @@ from capture_bench.evaluation.backends import (
     scenario_label,
 )
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError
-from capture_bench.evaluation.provenance import file_sha256, git_state, package_versions
+from capture_bench.evaluation.provenance import (
+    display_path,
+    file_sha256,
+    git_state,
+    machine,
+    package_versions,
+)
 from capture_bench.evaluation.report import ReportData, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
@@ -128,7 +134,7 @@ def _scenario_names(suite: Suite) -> list[str]:
 def _model_provenance(spec: AgentSpec) -> dict[str, Any]:
     meta = read_metadata(spec.target)
     return {
-        "directory": str(meta.directory),
+        "directory": display_path(meta.directory),
         "algorithm": meta.algorithm,
         "trained_on": meta.scenario,
         "trained_observation_source": meta.observation_source,
@@ -196,7 +202,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         for seed in seeds[name]
     ]
     hashes: dict[str, Any] = {
-        "suite": {"file": str(suite.path), "sha256": suite.sha256},
+        "suite": {"file": display_path(suite.path), "sha256": suite.sha256},
         "scenarios": {n: file_sha256(scenario_file(n)) for n in scenarios},
         "models": {s.label: _model_provenance(s) for s in specs if s.kind == "model"},
     }
@@ -211,10 +217,16 @@ def _provenance(plan: Plan, config: EvaluationConfig, command: str, seconds: flo
         "command": command,
         "git": git_state(),
         "packages": package_versions(),
+        "machine": machine(),
         "config_hashes": plan.config_hashes,
         "seeds": plan.seeds,
         "agents": [
-            {"label": s.label, "spec": s.spec, "kind": s.kind, "privileged": s.privileged}
+            {
+                "label": s.label,
+                "spec": display_path(Path(s.spec)) if s.kind == "model" else s.spec,
+                "kind": s.kind,
+                "privileged": s.privileged,
+            }
             for s in plan.agents
         ],
         "backend": {"name": config.resolved_backend(), "workers": config.resolved_workers()},

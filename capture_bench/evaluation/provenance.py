@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import os
 import platform
 import subprocess
 from importlib import metadata
@@ -51,6 +52,30 @@ def package_versions(names: tuple[str, ...] = PACKAGES) -> dict[str, str | None]
         except metadata.PackageNotFoundError:
             versions[name] = None
     return versions
+
+
+def display_path(path: Path) -> str:
+    """``path`` relative to the checkout where it lies inside it (``configs/suites/default.yaml``,
+    ``models/ppo-paper``), so that a committed report names no machine's folders; else absolute."""
+    resolved = Path(path).resolve()
+    try:
+        return resolved.relative_to(CHECKOUT_DIR).as_posix()
+    except ValueError:
+        return str(resolved)
+
+
+def machine() -> dict[str, object]:
+    """The machine a report was computed on: batched and single linear algebra round differently
+    on different CPUs' BLAS kernels, so results are reproducible to rounding across machines."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "system": platform.system()}
 
 
 def file_sha256(path: Path) -> str:
