@@ -223,7 +223,7 @@ def _provenance(plan: Plan, config: EvaluationConfig, command: str, seconds: flo
         "agents": [
             {
                 "label": s.label,
-                "spec": display_path(Path(s.spec)) if s.kind == "model" else s.spec,
+                "spec": display_path(Path(s.target)) if s.kind == "model" else s.spec,
                 "kind": s.kind,
                 "privileged": s.privileged,
             }
