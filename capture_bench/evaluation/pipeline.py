@@ -46,8 +46,9 @@ from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
 from capture_bench.files import check_writable
 from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
 
-#: Exceptions that mean "bad input": the CLI prints their message and exits with code 2.
-INPUT_ERRORS: tuple[type[Exception], ...] = (EvaluationError, ConfigError, PolicyLoadError)
+#: Exceptions that mean "bad input": the CLI prints their message and exits with code 2. OSError:
+#: a named path that cannot even be looked at ("File name too long", "Permission denied").
+INPUT_ERRORS: tuple[type[Exception], ...] = (EvaluationError, ConfigError, PolicyLoadError, OSError)
 
 
 @dataclass(frozen=True)

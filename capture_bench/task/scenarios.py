@@ -99,7 +99,9 @@ class TargetConfig:
 @dataclass(frozen=True)
 class SeedConfig:
     evaluation_start: int = _f(1_000_000, "first published evaluation seed", NON_NEGATIVE)
-    evaluation_count: int = _f(100, "number of published evaluation seeds", POSITIVE)
+    evaluation_count: int = _f(
+        100, "number of published evaluation seeds (listed in every report)", (0, 100_000, False)
+    )
     training_start: int = _f(0, "first seed training may draw from", NON_NEGATIVE)
     training_count: int = _f(1_000_000, "number of training seeds", POSITIVE)
 

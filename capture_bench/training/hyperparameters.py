@@ -21,7 +21,9 @@ OFF_POLICY = ("sac", "td3")
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
 
-POS_INT, NONNEG_INT = Rule("int", 1), Rule("int", 0)
+# Counts SB3 and numpy hold as machine integers: at most 2**53 (exact as a float, fits an int64).
+MOST = 2**53
+POS_INT, NONNEG_INT = Rule("int", 1, MOST), Rule("int", 0, MOST)
 UNIT, NONNEG = Rule("float", 0.0, 1.0), Rule("float", 0.0)
 TRAINING_KEYS = {
     "n_envs": POS_INT,

@@ -52,6 +52,14 @@ class _Parser(argparse.ArgumentParser):
         print(f"{self.prog}: error: {message}", file=sys.stderr)
         raise SystemExit(2)
 
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
+        """argparse's, but ``--workers=--`` is an error: argparse (3.11) makes its value ``[]``."""
+        parsed, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:
+            if action.nargs is None and getattr(parsed, action.dest, None) == []:
+                self.error(f"argument {action.option_strings[0]}: expected one argument")
+        return parsed, extras
+
 
 def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
     """An argument parser generated from :class:`TrainConfig` (each field's doc is its help)."""

@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config, given = parse_args(argv)
         config, hp, run_dir, checkpoint = prepare(config, given)
-    except (ConfigError, CheckpointError) as exc:
+    except (ConfigError, CheckpointError, OSError) as exc:  # OSError: a path that cannot be read
         print(f"train.py: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     except SystemExit as exc:  # argparse: --help (0) or a bad option (2, already printed)
