@@ -13,7 +13,7 @@ from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.evaluation.aggregate import KNOWN_FAILURES
 from capture_bench.sensing.estimator import TargetEstimate
-from capture_bench.task.recording import estimate_errors, estimate_errors_scalar
+from capture_bench.task.recording import STEP_TRACKS, estimate_errors, estimate_errors_scalar
 from capture_bench.task.rewards import REWARD_MODES, REWARD_TERMS
 from capture_bench.task.step_rule import (
     END_INFO_KEYS,
@@ -131,3 +131,82 @@ def test_an_env_given_its_own_episode_cache_keeps_recordings_there_and_clear_emp
         np.testing.assert_array_equal(again.estimate_position, episode.estimate_position)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize(
+    ("scenario", "source", "reward"),
+    [
+        ("paper", None, "dense"),
+        ("jitter", None, "dense"),
+        ("noisy", None, "sparse"),
+        ("tumbling", "truth", "dense"),
+    ],
+)
+def test_the_single_envs_scalar_step_equals_the_batched_rule(scenario, source, reward):
+    """StepRule.step_scalar (the single env's fast path) against StepRule.step at N = 1 on the
+    same recorded episodes and the same arm motion: every returned value, every info entry and
+    the carried state. The motion closes on the target (so steps capture, and the arc test runs
+    near it) or wanders (so failures happen)."""
+    from agents import make_agent
+    from capture_bench.sim import kinematics
+    from capture_bench.sim.world import limit_joint_increments
+    from capture_bench.task.step_rule import ArmState, scalar_info
+
+    env = CaptureEnv(scenario, observation_source=source, reward=reward, reuse_target_side=True)
+    agent = make_agent("incremental_ik", env)
+    rule, arm = env.rule, env.description.arm
+    rng = np.random.default_rng(1)
+    compared = captured = 0
+    try:
+        for seed in range(8):
+            obs, _ = env.reset(seed=seed)
+            episode = env.recorded_episode
+            scalar, batched = ArmState.empty(1), ArmState.empty(1)
+            for state in (scalar, batched):
+                rule.start(state, slice(None), episode.position[:1])
+            wander = seed % 2 == 1
+            for k in range(1, episode.time.size):
+                action = rng.uniform(-1, 1, 3) if wander else agent.predict(obs)[0]
+                request = env.description.action_to_increment(np.clip(action, -1, 1))
+                dt = episode.dt[k : k + 1]
+                theta, clipped, saturated = limit_joint_increments(
+                    scalar.theta.copy(), request[None], dt, arm
+                )
+                x_e = kinematics.forward_kinematics(theta)
+                collide = bool(rng.random() < 0.02)  # the world's answer, the same for both
+                reward_s, term_s, trunc_s, info_s = rule.step_scalar(
+                    scalar, episode, k, theta[0], x_e[0], bool(clipped[0]), bool(saturated[0]),
+                    lambda collide=collide: collide, env.plan.trajectory,
+                )  # fmt: skip
+                rows = {n: getattr(episode, n)[k - 1 : k] for n in STEP_TRACKS}
+                after = {n: getattr(episode, n)[k : k + 1] for n in STEP_TRACKS}
+                out = rule.step(
+                    batched, slice(None), rows, after, theta, x_e, clipped, saturated,
+                    lambda ask, collide=collide: ask & collide, lambda j: env.plan.trajectory,
+                )  # fmt: skip
+                info_b = scalar_info(out.info)
+                assert tuple(info_s) == tuple(info_b) == info_keys(reward)
+                for key, value in info_s.items():
+                    other = info_b[key]
+                    if isinstance(value, float):
+                        assert value == pytest.approx(other, rel=1e-12, abs=1e-15, nan_ok=True), key
+                    else:
+                        assert value == other, key
+                assert reward_s == pytest.approx(float(out.reward[0]), rel=1e-12, abs=1e-15)
+                assert (term_s, trunc_s) == (bool(out.terminated[0]), bool(out.truncated[0]))
+                for name in ("theta", "x_e", "distance", "path_length", "since_frame",
+                             "unreachable_for", "capture_time_estimated"):  # fmt: skip
+                    np.testing.assert_allclose(
+                        getattr(scalar, name), getattr(batched, name), rtol=1e-12, atol=1e-15
+                    )
+                compared += 1
+                captured += info_s["is_success"]
+                obs = rule.observe_scalar(scalar, episode, k)
+                np.testing.assert_allclose(
+                    obs, rule.observe(batched, slice(None), after)[0], rtol=1e-6, atol=1e-7
+                )
+                if term_s or trunc_s:
+                    break
+    finally:
+        env.close()
+    assert compared > 150 and captured >= 1

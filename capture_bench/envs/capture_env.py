@@ -21,12 +21,11 @@ from numpy.typing import NDArray
 
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sim import kinematics
-from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World
 from capture_bench.task.episode import EpisodePlan, episode_bounds
 from capture_bench.task.observation import TaskDescription, observation_space
 from capture_bench.task.physical_limit import PhysicalLimit
-from capture_bench.task.recording import STEP_TRACKS, RecordedEpisode
+from capture_bench.task.recording import RecordedEpisode
 from capture_bench.task.scenarios import Scenario, load_scenario
 from capture_bench.task.step_rule import FAILURES, ArmState, StepRule, scalar_info
 from capture_bench.task.target_side import (
@@ -59,11 +58,6 @@ def describe_task(scenario: Scenario) -> TaskDescription:
         control_period=scenario.control.period,
         capture_tolerance=np.full(3, scenario.capture_tolerance),
     )
-
-
-def _rows(episode: RecordedEpisode, k: int) -> dict[str, NDArray]:
-    """Step k of ``episode`` as the step rule reads it: 1-row arrays by track name."""
-    return {name: getattr(episode, name)[k : k + 1] for name in STEP_TRACKS}
 
 
 def check_actions(actions: Any, shape: tuple[int, ...], name: str) -> NDArray[np.float64]:
@@ -228,7 +222,6 @@ class CaptureEnv(gym.Env):
         self._side: TargetSide | None = None  # this episode's target side
         self._key: EpisodeKey | None = None  # (scenario, seed) of a seeded reset
         self._state = ArmState.empty(1)
-        self._rows: dict[str, NDArray] = {}  # the target side at the current step
         self._steps = 0  # steps since reset
         self._time = 0.0
         self._episode_over = True
@@ -301,15 +294,14 @@ class CaptureEnv(gym.Env):
         self._steps = 0
         self._time = 0.0
         episode = self._side.through(0)
-        self._rows = _rows(episode, 0)
-        info = scalar_info(self.rule.start(self._state, _ALL, self._rows["position"]))
+        info = scalar_info(self.rule.start(self._state, _ALL, episode.position[:1]))
         self._world.reset(self.description.arm.home, episode.position[0], episode.rotation[0])
         self._traces: dict[str, list[NDArray]] = {
             "target": [episode.position[0]],
             "end_effector": [self._state.x_e[0].copy()],
         }
         self._episode_over = False
-        return self.rule.observe(self._state, _ALL, self._rows)[0], info
+        return self.rule.observe_scalar(self._state, episode, 0), info
 
     def step(
         self, action: NDArray
@@ -323,36 +315,38 @@ class CaptureEnv(gym.Env):
         a = check_actions(action, (3,), "action")
         k = self._steps + 1
         episode = self._side.through(k)  # the target's side (a live one draws from np_random)
-        after = _rows(episode, k)
         dt = float(episode.dt[k])
         joint_step = self._world.apply_joint_increment(
             self.description.action_to_increment(np.minimum(np.maximum(a, -1.0), 1.0)), dt
         )
         x_e = kinematics.forward_kinematics_point(joint_step.theta)
         self._world.set_target_pose(episode.position[k], episode.rotation[k])
-        out = self.rule.step(
+        # the step rule's one-episode fast path (StepRule.step_scalar, tested equal to step)
+        reward, terminated, truncated, info = self.rule.step_scalar(
             self._state,
-            _ALL,
-            self._rows,
-            after,
-            joint_step.theta[None],
-            x_e[None],
-            np.array([joint_step.clipped]),
-            np.array([joint_step.saturated]),
-            self._collides,
-            self._trajectory,
+            episode,
+            k,
+            joint_step.theta,
+            x_e,
+            joint_step.clipped,
+            joint_step.saturated,
+            self._in_collision,
+            self.plan.trajectory,
         )
-        self._steps, self._rows, self._time = k, after, float(episode.time[k])
-        terminated, truncated = bool(out.terminated[0]), bool(out.truncated[0])
+        self._steps, self._time = k, float(episode.time[k])
         self._episode_over = terminated or truncated
-        info = scalar_info(out.info)
         if self._episode_over:
             info["physical_limit_time"] = self.physical_limit().time
         if self.render_mode is not None:
             self._traces["target"].append(episode.position[k])
             self._traces["end_effector"].append(x_e)
-        obs = self.rule.observe(self._state, _ALL, after)[0]
-        return obs, float(out.reward[0]), terminated, truncated, info
+        return (
+            self.rule.observe_scalar(self._state, episode, k),
+            reward,
+            terminated,
+            truncated,
+            info,
+        )
 
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode is None or self._world is None:
@@ -392,9 +386,6 @@ class CaptureEnv(gym.Env):
         return TargetSide.replay(episode)
 
     # -- the world's answers to the step rule -----------------------------------------------------
-    def _collides(self, ask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    def _in_collision(self) -> bool:
         assert self._world is not None
-        return np.array([bool(ask[0]) and self._world.collision() is not None])
-
-    def _trajectory(self, j: int) -> TargetTrajectory:
-        return self.plan.trajectory
+        return self._world.collision() is not None

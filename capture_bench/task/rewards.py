@@ -1,4 +1,4 @@
-"""The reward terms of a capture step, over N episodes at once (one definition for both envs).
+"""The reward terms of a capture step, over N episodes at once or one (one definition, both envs).
 
 ``reward="dense"``: progress on the true distance ||X_E - X_T|| (eq. 20's quantity), a time
 penalty per step, a bonus on capture (eq. 20 held during the step) and a penalty on every failure
@@ -8,8 +8,7 @@ its name; :data:`REWARD_TERMS` names them per mode, in the order they are summed
 
 from __future__ import annotations
 
-import numpy as np
-from numpy.typing import NDArray
+from typing import Any
 
 PROGRESS_GAIN = 10.0  # reward per metre of true distance closed
 TIME_PENALTY = -0.01  # per step
@@ -25,38 +24,41 @@ REWARD_TERMS: dict[str, tuple[str, ...]] = {
 REWARD_MODES = tuple(REWARD_TERMS)
 
 
+#: (M,) arrays for M episodes, or one episode's Python float / bool
+Values = Any
+
+
 def reward_terms(
-    mode: str,
-    previous_distance: NDArray[np.float64],
-    distance: NDArray[np.float64],
-    captured: NDArray[np.bool_],
-    penalised: NDArray[np.bool_],
-) -> dict[str, NDArray[np.float64]]:
-    """The reward of one step of M episodes, split into the named terms of ``mode``.
+    mode: str, previous_distance: Values, distance: Values, captured: Values, penalised: Values
+) -> dict[str, Values]:
+    """The reward of one step of M episodes (arrays (M,)) or of one (scalars), split into the
+    named terms of ``mode``.
 
     Args:
         mode: ``"dense"`` or ``"sparse"``.
-        previous_distance: true ||X_E - X_T|| before the step, m, (M,).
-        distance: the same after the step, m, (M,).
-        captured: eq. 20 held during the step, (M,).
-        penalised: the step ended with a failure other than :data:`UNPENALISED_FAILURES`, (M,).
+        previous_distance: true ||X_E - X_T|| before the step, m.
+        distance: the same after the step, m.
+        captured: eq. 20 held during the step.
+        penalised: the step ended with a failure other than :data:`UNPENALISED_FAILURES`.
 
     Returns:
-        ``{term: (M,) values}`` with the keys of ``REWARD_TERMS[mode]``, in that order.
+        ``{term: values}`` with the keys of ``REWARD_TERMS[mode]``, in that order.
     """
+    # Arithmetic only (a bool times a number, + 0.0 so that no term is -0.0), so that the same
+    # lines serve numpy arrays (M,) and the single env's Python floats and bools.
     if mode == "sparse":
-        return {"reward_capture": np.where(captured, 1.0, 0.0)}
+        return {"reward_capture": 1.0 * captured + 0.0}
     return {
         "reward_progress": PROGRESS_GAIN * (previous_distance - distance),
-        "reward_time": np.full(distance.shape, TIME_PENALTY),
-        "reward_capture": np.where(captured, CAPTURE_BONUS, 0.0),
-        "reward_failure": np.where(penalised, FAILURE_PENALTY, 0.0),
+        "reward_time": TIME_PENALTY + 0.0 * distance,
+        "reward_capture": CAPTURE_BONUS * captured + 0.0,
+        "reward_failure": FAILURE_PENALTY * penalised + 0.0,
     }
 
 
-def total_reward(terms: dict[str, NDArray[np.float64]]) -> NDArray[np.float64]:
-    """The step's reward: the terms summed in their order, (M,)."""
-    total = np.zeros(next(iter(terms.values())).shape)
+def total_reward(terms: dict[str, Values]) -> Values:
+    """The step's reward: the terms summed in their order."""
+    total: Any = 0.0
     for value in terms.values():
         total = total + value
     return total

@@ -20,6 +20,11 @@ read the target's half from a :class:`~capture_bench.task.recording.RecordedEpis
 
 Adding an ``info`` key, a reward term, an observation entry or a failure reason is an edit here
 (or in ``rewards.py`` / ``observation.py``); tests check both envs expose exactly these sets.
+
+Why one file of ~530 lines: :meth:`StepRule.step` (N episodes, numpy) and its one-episode fast
+path :meth:`StepRule.step_scalar` (the single env: numpy's per-call overhead would double a
+replayed step's cost) are the same rules and must change together; side by side, a change to one
+is seen next to the other, and ``tests/test_step_rule.py`` checks them equal.
 """
 
 from __future__ import annotations
@@ -44,9 +49,15 @@ from capture_bench.task.capture import (
     first_entry_along_arc,
     first_entry_fraction,
     first_entry_fractions,
+    segment_length,
 )
 from capture_bench.task.episode import TIME_SLACK, time_limit
-from capture_bench.task.observation import TaskDescription, encode_observations
+from capture_bench.task.observation import (
+    TaskDescription,
+    encode_observation,
+    encode_observations,
+)
+from capture_bench.task.recording import RecordedEpisode
 from capture_bench.task.rewards import (
     REWARD_MODES,
     REWARD_TERMS,
@@ -261,6 +272,144 @@ class StepRule:
             **terms,
         }
         return StepOutcome(total_reward(terms), ended, timeout, failure, info)
+
+    def step_scalar(
+        self,
+        state: ArmState,
+        episode: RecordedEpisode,
+        k: int,
+        theta: FloatArray,
+        x_e: FloatArray,
+        clipped: bool,
+        saturated: bool,
+        collides: Callable[[], bool],
+        trajectory: TargetTrajectory,
+    ) -> tuple[float, bool, bool, dict[str, Any]]:
+        """:meth:`step` for one episode (row 0 of ``state``), in scalar Python: the single env's
+        fast path (at one row numpy's per-call overhead is most of the rule's cost; measured by
+        ``benchmarks/bench_env.py``). The same rules in the same order; ``tests/test_step_rule.py``
+        checks it equal to :meth:`step`, value for value.
+
+        Args:
+            state: one episode's state, updated in place.
+            episode: its target side; ``k`` the step that ends now (``k - 1`` its start).
+            theta, x_e: joint angles after the world's limits, rad, and X_E there, m, (3,).
+            clipped, saturated: the world's flags.
+            collides: whether the arm is in collision now (asked only if it did not capture).
+            trajectory: the episode's true trajectory (for the arc test).
+
+        Returns:
+            ``(reward, terminated, truncated, info)``, ``info`` as the single env gives it:
+            Python scalars, None for no capture or no failure.
+        """
+        dt, time = float(episode.dt[k]), float(episode.time[k])
+        x_t, x_t0 = episode.position[k], episode.position[k - 1]
+        theta0, x_e0 = state.theta[0].copy(), state.x_e[0].copy()
+        d_prev = float(state.distance[0])
+        state.theta[0], state.x_e[0] = theta, x_e
+        path_length = float(state.path_length[0]) + segment_length(x_e0, x_e)
+        state.path_length[0] = path_length
+        t0 = time - dt
+
+        s = self.capture_fraction_scalar(theta0, theta - theta0, x_e0 - x_t0, x_e - x_t, t0, dt,
+                                         trajectory)  # fmt: skip
+        captured = s is not None
+        estimated = float(state.capture_time_estimated[0])
+        if math.isnan(estimated) and episode.estimate_valid[k - 1] and episode.estimate_valid[k]:
+            s_est = first_entry_fraction(
+                x_e0 - episode.estimate_position[k - 1],
+                x_e - episode.estimate_position[k],
+                self.tolerance,
+            )
+            if s_est is not None:
+                estimated = t0 + s_est * dt
+                state.capture_time_estimated[0] = estimated
+        failure = self.failure_scalar(state, episode, k, captured, collides)
+        ended = captured or failure != 0
+        timeout = not ended and time >= self.time_limit
+        if timeout:
+            failure = TIMEOUT
+
+        distance = segment_length(x_e, x_t)
+        state.distance[0] = distance
+        terms = reward_terms(self.reward_mode, d_prev, distance, captured, _PENALISED[failure])
+        info: dict[str, Any] = {
+            "is_success": captured,
+            "failure": FAILURE_NAMES[failure],
+            "capture_time": None if s is None else t0 + s * dt,
+            "capture_time_estimated": None if math.isnan(estimated) else estimated,
+            "time": time,
+            "dt": dt,
+            "distance": distance,
+            "relative_speed": segment_length((x_e - x_e0) / dt, episode.velocity[k]),
+            "estimate_position_error": float(episode.position_error[k]),
+            "estimate_velocity_error": float(episode.velocity_error[k]),
+            "estimate_nees": float(episode.nees[k]),
+            "saturated": saturated,
+            "clipped": clipped,
+            "path_length": path_length,
+            "target_visible": bool(episode.visible[k]),
+            "estimator_status": STATUSES[episode.estimator_status[k]],
+            **{name: float(value) for name, value in terms.items()},
+        }
+        return float(total_reward(terms)), ended, timeout, info
+
+    def capture_fraction_scalar(
+        self,
+        theta0: FloatArray,
+        applied: FloatArray,
+        d0: FloatArray,
+        d1: FloatArray,
+        t0: float,
+        dt: float,
+        trajectory: TargetTrajectory,
+    ) -> float | None:
+        """:meth:`capture_fractions` for one step, with the scalar tests of ``capture.py``;
+        None where eq. 20 did not hold."""
+        sag = arc_sag_bound(applied)
+        if sag <= ARC_RESOLUTION:
+            return first_entry_fraction(d0, d1, self.tolerance)
+        if closest_approach(d0, d1) > self.tolerance_radius + sag:
+            return None  # the arc stays within `sag` of the chord: no capture possible
+        return first_entry_along_arc(
+            theta0, applied, lambda f: trajectory.position(t0 + f * dt), self.tolerance
+        )
+
+    def failure_scalar(
+        self,
+        state: ArmState,
+        episode: RecordedEpisode,
+        k: int,
+        captured: bool,
+        collides: Callable[[], bool],
+    ) -> int:
+        """:meth:`failures` for one step (row 0 of ``state``, step ``k`` of ``episode``)."""
+        dt = float(episode.dt[k])
+        failure = COLLISION if not captured and collides() else 0
+        unreachable_for = 0.0 if episode.reachable[k] else float(state.unreachable_for[0]) + dt
+        state.unreachable_for[0] = unreachable_for
+        if failure == 0 and not captured and unreachable_for > self.lost_after:
+            failure = UNREACHABLE
+        if self.frames_matter:
+            usable = episode.estimator_status[k] == _STATUS_OK
+            since = 0.0 if usable else float(state.since_frame[0]) + dt
+            state.since_frame[0] = since
+            if failure == 0 and not captured and since > self.lost_after:
+                failure = TARGET_LOST
+        return failure
+
+    def observe_scalar(
+        self, state: ArmState, episode: RecordedEpisode, k: int
+    ) -> NDArray[np.float32]:
+        """:meth:`observe` of one episode (row 0 of ``state``) at step ``k`` of ``episode``."""
+        x_e = state.x_e[0]
+        if episode.estimate_valid[k]:
+            position, velocity = episode.estimate_position[k], episode.estimate_velocity[k]
+        else:
+            position, velocity = x_e, np.zeros(3)
+        return encode_observation(
+            position, velocity, x_e, state.theta[0], float(episode.dt[k]), self.control_period
+        )
 
     def capture_fractions(
         self,
