@@ -24,6 +24,9 @@ expects). The result acts exactly as the same model loaded by SB3 (tested on eve
 :func:`save_policy` writes this form from a trained SB3 model; ``train.py`` calls it, and
 ``python -m agents.policy_file convert DIR --trust-model`` converts an existing SB3 model
 directory (which unpickles it: only for files you trust).
+
+Why one file of ~560 lines: the writer, the validating reader and the converter of one file format;
+the validation rules are the format's definition and must be read beside what writes it.
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ import capture_bench
 from capture_bench.envs.capture_env import FAILURES, CaptureEnv
 from capture_bench.sim import kinematics as k
 from capture_bench.task.scenarios import ConfigError
+from capture_bench.task.target_side import DEFAULT_EPISODE_CACHE
 
 ALWAYS = {
     "is_success",
@@ -161,15 +162,15 @@ def test_travel_time_under_jitter_is_what_full_rate_steps_move(make_env):
     ends, moved, dts = [], [], []
     for _ in range(40):
         before = base.joint_angles[2]
-        env.step(np.array([0.0, 0.0, -1.0], np.float32))  # joint 3 down at full rate, in limits
+        *_, info = env.step(np.array([0.0, 0.0, -1.0], np.float32))  # joint 3 down, full rate
         ends.append(base.time)
         moved.append(before - base.joint_angles[2])
-        dts.append(base._target.dt)
+        dts.append(info["dt"])
     k3 = k.JOINT_RATE_LIMITS[2]
     np.testing.assert_allclose(np.array(moved), k3 * np.minimum(dts, t_s), rtol=1e-9)
-    travel = base._plan().travel_time(np.array(ends))
+    travel = base.plan.travel_time(np.array(ends))
     np.testing.assert_allclose(travel, np.cumsum(np.minimum(dts, t_s)), rtol=1e-12)
-    mid = base._plan().travel_time(np.array(ends[:-1]) + 0.25 * np.array(dts[1:]))
+    mid = base.plan.travel_time(np.array(ends[:-1]) + 0.25 * np.array(dts[1:]))
     np.testing.assert_allclose(mid, travel[:-1] + 0.25 * np.minimum(dts[1:], t_s), rtol=1e-12)
     assert np.ptp(dts) > 0.01 and max(dts) > t_s > min(dts)
 
@@ -193,27 +194,25 @@ def test_bound_is_infinite_exactly_when_the_env_ends_unreachable_first_under_jit
         checked += unreachable
         for t_end in (t_f - 1e-6, t_f, t_f + 1e-6, 0.5 * t_f, 10.0):
             expected = unreachable and t_f < t_end
-            assert base._plan().leaves_reach_before(t_end) == expected, (seed, t_end)
+            assert base.plan.leaves_reach_before(t_end) == expected, (seed, t_end)
     assert checked >= 3
 
 
 def test_bound_cached_per_scenario_and_seed_equals_a_fresh_computation(make_env):
     """The per-process bound cache: reset(seed=s) in another env reuses the bound computed for
     (scenario, s); it equals the bound computed afresh; an unseeded reset does not reuse it."""
-    from capture_bench.envs import capture_env as env_module
-
     first, second = make_env(observation_source="truth"), make_env(observation_source="truth")
     first.reset(seed=5)
     bound = first.unwrapped.physical_limit()
     second.reset(seed=5)
     assert second.unwrapped.physical_limit() is bound  # served from the cache
-    env_module._LIMIT_CACHE.clear()
+    second.unwrapped.episode_cache.clear()
     second.reset(seed=5)
     fresh = second.unwrapped.physical_limit()
     assert fresh is not bound and fresh.time == bound.time
     np.testing.assert_array_equal(fresh.theta, bound.theta)
     second.reset()  # no seed: a new trajectory, so its own bound
-    assert second.unwrapped._limit_key is None
+    assert second.unwrapped.episode_key is None
     assert second.unwrapped.physical_limit() is not fresh
     other = make_env("CaptureBench/Drift-v0", observation_source="truth")
     other.reset(seed=5)  # same seed, another scenario: another trajectory and bound
@@ -255,9 +254,7 @@ def test_reuse_target_side_replays_exactly_what_live_steps_compute(env_id, sourc
     """``reuse_target_side``: a seed's target side is recorded once and replayed; whatever the
     actions, every output equals an env that computes each step live. Two seeds are recorded one
     after the other in the same env, so the recording starts from a used camera and estimator."""
-    from capture_bench.envs import capture_env as env_module
-
-    env_module._EPISODE_CACHE.clear()
+    DEFAULT_EPISODE_CACHE.clear()
     live = make_env(env_id, observation_source=source)
     reuse = make_env(env_id, observation_source=source, reuse_target_side=True)
     rng = np.random.default_rng(1)
@@ -267,20 +264,20 @@ def test_reuse_target_side_replays_exactly_what_live_steps_compute(env_id, sourc
                 _full_rollout(live, seed, actions), _full_rollout(reuse, seed, actions)
             )
     key = (reuse.unwrapped.scenario, 12)
-    assert set(env_module._EPISODE_CACHE) == {(key[0], 11), key}  # recorded once each
-    trajectory, _periods, steps, _state = env_module._EPISODE_CACHE[key]
-    assert reuse.unwrapped._trajectory is trajectory and reuse.unwrapped._script is steps
+    cache = reuse.unwrapped.episode_cache
+    assert cache is DEFAULT_EPISODE_CACHE
+    assert set(cache.recorded_keys()) == {(key[0], 11), key}  # recorded once each
+    episode, _state = cache.recording(key)
+    assert reuse.unwrapped.recorded_episode is episode
     reuse.reset()  # unseeded: recorded, not kept
-    assert reuse.unwrapped._script is not None and len(env_module._EPISODE_CACHE) == 2
+    assert reuse.unwrapped.recorded_episode is not episode and len(cache.recorded_keys()) == 2
 
 
 def test_reuse_target_side_keeps_the_gymnasium_seeding_contract(make_env):
     """After ``reset(seed=s)`` the generator stands at the same place whether s was recorded just
     now or replayed, so the unseeded episode that follows is the same; gymnasium's checker, which
     tests reset's seeding, passes."""
-    from capture_bench.envs import capture_env as env_module
-
-    env_module._EPISODE_CACHE.clear()
+    DEFAULT_EPISODE_CACHE.clear()
     reuse = make_env(reuse_target_side=True)
     follow_ups = []
     for _ in range(2):  # recorded, then replayed
@@ -391,7 +388,7 @@ def test_making_and_resetting_an_env_prints_nothing():
 
 
 def test_nees_is_the_quadratic_form_by_solve_and_nan_without_positive_definite_covariance():
-    from capture_bench.envs.capture_env import normalised_error_squared
+    from capture_bench.sensing.estimator import normalised_error_squared
 
     rng = np.random.default_rng(0)
     for _ in range(50):

@@ -9,10 +9,12 @@ arithmetic may differ from the single env's in the last bits).
 How it is fast: nothing on the target's side of a step depends on the actions, so each sub-env's
 next episodes are recorded ahead, many at once
 (:func:`capture_bench.task.recording.record_episodes`: camera vectorised over time, EKF and bound
-over episodes), and a step only does the arm's side: the joint limits, forward kinematics, the
-capture test over the step, failures, reward and observation for all sub-envs together, and a
-pybullet collision query only for the sub-envs whose arm is near the floor or the base column
-(:func:`capture_bench.sim.collision_screen.clear_of_collisions`).
+over episodes), and a step only does the arm's side for all sub-envs together: the joint limits,
+forward kinematics and a pybullet collision query only for the sub-envs whose arm is near the
+floor or the base column (:func:`capture_bench.sim.collision_screen.clear_of_collisions`); then
+the task's rules (capture along the arc, eq. 20; failures; reward; ``info``; observation) are
+:class:`capture_bench.task.step_rule.StepRule`'s, the same that ``CaptureEnv`` applies to its one
+episode.
 
 Differences from N single envs, all in the format only:
 
@@ -31,59 +33,26 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from capture_bench.envs.capture_env import FAILURES, CaptureEnv, check_actions
-from capture_bench.sensing.camera import Camera
-from capture_bench.sensing.estimator import STATUSES
+from capture_bench.envs.capture_env import check_actions, describe_task, resolve_scenario
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
+from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World, limit_joint_increments
-from capture_bench.task.capture import (
-    ARC_RESOLUTION,
-    arc_sag_bounds,
-    closest_approaches,
-    first_entry_along_arc,
-    first_entry_fractions,
-)
-from capture_bench.task.episode import TIME_SLACK, period_count, time_limit
-from capture_bench.task.observation import encode_observations
-from capture_bench.task.recording import RecordedEpisode, record_episodes
-from capture_bench.task.rewards import (
-    CAPTURE_BONUS,
-    FAILURE_PENALTY,
-    PROGRESS_GAIN,
-    TIME_PENALTY,
-)
+from capture_bench.task.episode import period_count
+from capture_bench.task.observation import observation_space
+from capture_bench.task.recording import STEP_TRACKS, RecordedEpisode, record_episodes
 from capture_bench.task.scenarios import Scenario
+from capture_bench.task.step_rule import ArmState, StepRule
+from capture_bench.task.target_side import scenario_camera
 
 FloatArray = NDArray[np.float64]
 RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs episodes)
-_STATUS_OK = STATUSES.index("ok")
-_STATUS_NAMES = np.array(STATUSES, dtype=object)
-_FAILURE_NAMES = np.array((None, *FAILURES), dtype=object)  # code 0: no failure
-_COLLISION, _UNREACHABLE, _TARGET_LOST, _TIMEOUT = (
-    1 + FAILURES.index(name) for name in ("collision", "unreachable", "target_lost", "timeout")
-)
-# Per-step quantities of the recorded episodes, stacked (N, steps, ...) for fancy indexing.
-_TRACKS = (
-    "time",
-    "dt",
-    "position",
-    "velocity",
-    "estimate_position",
-    "estimate_velocity",
-    "estimate_valid",
-    "estimator_status",
-    "visible",
-    "reachable",
-    "position_error",
-    "velocity_error",
-    "nees",
-)
 
 
 class CaptureVectorEnv(VectorEnv):
@@ -131,20 +100,17 @@ class CaptureVectorEnv(VectorEnv):
             )
         if int(num_envs) != num_envs or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        # One single env holds the scenario, the task description, the camera and the spaces (and
-        # checks the scenario, source and reward).
-        self._single = CaptureEnv(scenario, observation_source=observation_source, reward=reward)
-        self.scenario = self._single.scenario
-        self.description = self._single.description
+        self.scenario = sc = resolve_scenario(scenario, observation_source)
+        self.description = describe_task(sc)
+        self.rule = StepRule(sc, self.description, reward)  # checks ``reward``
         self.reward_mode = reward
         self.render_mode = None
         self.num_envs = n = int(num_envs)
-        self.single_observation_space = self._single.observation_space
-        self.single_action_space = self._single.action_space
+        self.single_observation_space = observation_space()
+        self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._features = self._single._features
-        self._camera: Camera = self._single._camera
+        self._camera, self._features = scenario_camera(sc)
         # One pybullet world answers every sub-env's collision query in turn (a world per
         # sub-env would cost ~28 MB each): the joints are set before each query.
         self._world: World | None = World(self._features)
@@ -152,21 +118,15 @@ class CaptureVectorEnv(VectorEnv):
         self._queues: list[deque[RecordedEpisode]] = [deque() for _ in range(n)]
         # Row i holds sub-env i's episode, step by step (an episode has at most one step more
         # than it has control periods).
-        steps = period_count(self.scenario.control) + 1
+        steps = period_count(sc.control) + 1
         self._tracks: dict[str, NDArray] = {
             name: np.zeros((n, steps, *_TRACK_SHAPES[name]), dtype=_TRACK_DTYPES[name])
-            for name in _TRACKS
+            for name in STEP_TRACKS
         }
         self._bound = np.full(n, np.nan)
         self._episodes: list[RecordedEpisode | None] = [None] * n
         self._steps = np.zeros(n, dtype=np.int64)
-        self._theta = np.tile(self.description.arm.home, (n, 1))
-        self._x_e = np.zeros((n, 3))
-        self._distance = np.zeros(n)
-        self._path_length = np.zeros(n)
-        self._since_frame = np.zeros(n)
-        self._unreachable_for = np.zeros(n)
-        self._capture_time_estimated = np.full(n, np.nan)
+        self._state = ArmState.empty(n)
         self._ended = np.ones(n, dtype=bool)  # reset these sub-envs at the next step
         self._started = False
 
@@ -253,7 +213,6 @@ class CaptureVectorEnv(VectorEnv):
         if self._world is not None:
             self._world.close()
             self._world = None
-        self._single.close()
 
     # -- episodes -------------------------------------------------------------------------------
     def _start(self, envs: NDArray[np.intp]) -> None:
@@ -275,24 +234,19 @@ class CaptureVectorEnv(VectorEnv):
             )
             for i, episode in zip(short, recorded, strict=True):
                 self._queues[i].append(episode)
-        home = self.description.arm.home
         for i in envs.tolist():
             episode = self._queues[i].popleft()
+            assert episode.bound is not None  # record_episodes computes it
             self._episodes[i] = episode
             self._load_tracks(i, episode)
             self._bound[i] = episode.bound.time
         self._steps[envs] = 0
-        self._theta[envs] = home
-        self._x_e[envs] = kinematics.forward_kinematics_point(home)
-        self._path_length[envs] = self._since_frame[envs] = self._unreachable_for[envs] = 0.0
-        self._capture_time_estimated[envs] = np.nan
-        x_t = self._tracks["position"][envs, 0]
-        self._distance[envs] = np.linalg.norm(self._x_e[envs] - x_t, axis=1)
+        self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
 
     def _load_tracks(self, i: int, episode: RecordedEpisode) -> None:
         """Copy an episode's per-step arrays into row i of the stacked tracks."""
         length = episode.time.size
-        for name in _TRACKS:
+        for name in STEP_TRACKS:
             self._tracks[name][i, :length] = getattr(episode, name)
 
     # -- one step of the arm's side --------------------------------------------------------------
@@ -304,76 +258,43 @@ class CaptureVectorEnv(VectorEnv):
         terminated: NDArray[np.bool_],
         truncated: NDArray[np.bool_],
     ) -> dict[str, Any]:
-        """``CaptureEnv.step`` for the sub-envs ``idx`` (their actions), in place."""
+        """The arm's side of a step for the sub-envs ``idx`` (their actions), then the step rule
+        (:class:`~capture_bench.task.step_rule.StepRule`), in place; returns the vector info."""
         n, m = self.num_envs, idx.size
-        tracks, desc, sc = self._tracks, self.description, self.scenario
+        tracks, arm = self._tracks, self.description.arm
         k = self._steps[idx] + 1
         self._steps[idx] = k
-        dt, time, x_t = tracks["dt"][idx, k], tracks["time"][idx, k], tracks["position"][idx, k]
-        x_t0 = tracks["position"][idx, k - 1]
-        est_valid, est_pos = tracks["estimate_valid"][idx, k], tracks["estimate_position"][idx, k]
-        est0_valid = tracks["estimate_valid"][idx, k - 1]
-        est0_pos = tracks["estimate_position"][idx, k - 1]
-
-        # The world: rate and joint limits, then pybullet's joints for the collision query.
-        request = np.minimum(np.maximum(action, -1.0), 1.0) * desc.arm.joint_rate_limits
-        request = request * desc.control_period  # TaskDescription.action_to_increment
-        theta0, x_e0, d_prev = self._theta[idx], self._x_e[idx], self._distance[idx]
-        theta, clipped, saturated = limit_joint_increments(theta0, request, dt, desc.arm)
-        self._theta[idx] = theta
+        before = {name: track[idx, k - 1] for name, track in tracks.items()}
+        after = {name: track[idx, k] for name, track in tracks.items()}
+        # The world: rate and joint limits (TaskDescription.action_to_increment, then
+        # World.apply_joint_increment's limits, batched).
+        request = np.minimum(np.maximum(action, -1.0), 1.0) * arm.joint_rate_limits
+        request = request * self.description.control_period
+        theta0 = self._state.theta[idx]
+        theta, clipped, saturated = limit_joint_increments(theta0, request, after["dt"], arm)
         x_e = kinematics.forward_kinematics(theta)
-        self._x_e[idx] = x_e
-        self._path_length[idx] += np.linalg.norm(x_e - x_e0, axis=1)
 
-        # Capture over the whole step (eq. 20 on the true target), as CaptureEnv does.
-        applied = theta - theta0
-        s = self._capture_fractions(idx, theta0, applied, x_e0 - x_t0, x_e - x_t, time - dt, dt)
-        captured = ~np.isnan(s)
-        capture_time = time - dt + s * dt
-        pending = np.isnan(self._capture_time_estimated[idx]) & est0_valid & est_valid
-        if pending.any():
-            s_est = first_entry_fractions(
-                (x_e0 - est0_pos)[pending], (x_e - est_pos)[pending], desc.capture_tolerance
-            )
-            rows = idx[pending]
-            t_start = (time - dt)[pending]
-            found = ~np.isnan(s_est)
-            self._capture_time_estimated[rows[found]] = (t_start + s_est * dt[pending])[found]
+        def collides(ask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+            """pybullet's answer, asked only where contact is possible."""
+            hit = np.zeros(m, dtype=bool)
+            world = self._world
+            assert world is not None  # step() refuses to run after close()
+            for j in np.flatnonzero(ask & ~clear_of_collisions(theta)).tolist():
+                world.set_joint_positions(theta[j].tolist())
+                hit[j] = world.collision() is not None
+            return hit
 
-        failure = self._failures(idx, theta, captured, dt, k)
-        ended = captured | (failure != 0)
-        timeout = ~ended & (time >= time_limit(sc.control))
-        failure[timeout] = _TIMEOUT
-        terminated[idx], truncated[idx] = ended, timeout
+        def trajectory(j: int) -> TargetTrajectory:
+            episode = self._episodes[idx[j]]
+            assert episode is not None
+            return episode.plan.trajectory
 
-        distance = np.linalg.norm(x_e - x_t, axis=1)
-        self._distance[idx] = distance
-        terms = self._reward_terms(d_prev, distance, captured, failure)
-        total = np.zeros(m)
-        for value in terms.values():
-            total = total + value
-        rewards[idx] = total
-
-        v_e = (x_e - x_e0) / dt[:, None]
-        values: dict[str, NDArray] = {
-            "is_success": captured,
-            "failure": _FAILURE_NAMES[failure],
-            "capture_time": capture_time,
-            "capture_time_estimated": self._capture_time_estimated[idx],
-            "time": time,
-            "dt": dt,
-            "distance": distance,
-            "relative_speed": np.linalg.norm(v_e - tracks["velocity"][idx, k], axis=1),
-            "estimate_position_error": tracks["position_error"][idx, k],
-            "estimate_velocity_error": tracks["velocity_error"][idx, k],
-            "estimate_nees": tracks["nees"][idx, k],
-            "saturated": saturated,
-            "clipped": clipped,
-            "path_length": self._path_length[idx],
-            "target_visible": tracks["visible"][idx, k],
-            "estimator_status": _STATUS_NAMES[tracks["estimator_status"][idx, k]],
-            **terms,
-        }
+        out = self.rule.step(
+            self._state, idx, before, after, theta, x_e, clipped, saturated, collides, trajectory
+        )
+        terminated[idx], truncated[idx] = out.terminated, out.truncated
+        rewards[idx] = out.reward
+        values = out.info
         if m == n:  # every sub-env stepped (no autoreset this step)
             info = values
             mask = np.ones(n, dtype=bool)
@@ -381,107 +302,19 @@ class CaptureVectorEnv(VectorEnv):
             info = {key: _scatter(n, idx, value) for key, value in values.items()}
             mask = self._mask(idx)
         info.update({f"_{key}": mask.copy() for key in values})
-        over = idx[ended | timeout]
+        over = idx[out.terminated | out.truncated]
         limit = np.full(n, np.nan)
         limit[over] = self._bound[over]
         info["physical_limit_time"] = limit
         info["_physical_limit_time"] = self._mask(over)
         return info
 
-    def _capture_fractions(
-        self,
-        idx: NDArray[np.intp],
-        theta0: FloatArray,
-        applied: FloatArray,
-        d0: FloatArray,
-        d1: FloatArray,
-        t0: FloatArray,
-        dt: FloatArray,
-    ) -> FloatArray:
-        """``CaptureEnv._capture_fraction`` for each stepping sub-env: NaN where no capture."""
-        tolerance = self.description.capture_tolerance
-        s = first_entry_fractions(d0, d1, tolerance)
-        sag = arc_sag_bounds(applied)
-        arc = sag > ARC_RESOLUTION
-        if arc.any():
-            radius = self._single._tolerance_radius
-            near = arc & ~(closest_approaches(d0, d1) > radius + sag)
-            s[arc & ~near] = np.nan
-            for j in np.flatnonzero(near).tolist():  # along the true arc (rare: near the target)
-                episode = self._episodes[idx[j]]
-                assert episode is not None
-                traj, start, step = episode.plan.trajectory, float(t0[j]), float(dt[j])
-
-                def target_at(f: FloatArray, traj=traj, start=start, step=step) -> FloatArray:
-                    return traj.position(start + f * step)
-
-                entry = first_entry_along_arc(theta0[j], applied[j], target_at, tolerance)
-                s[j] = np.nan if entry is None else entry
-        return s
-
-    def _failures(
-        self,
-        idx: NDArray[np.intp],
-        theta: FloatArray,
-        captured: NDArray[np.bool_],
-        dt: FloatArray,
-        k: NDArray[np.int64],
-    ) -> NDArray[np.int64]:
-        """``CaptureEnv._failure`` for the stepping sub-envs: a code into ``_FAILURE_NAMES``."""
-        sc = self.scenario
-        failure = np.zeros(idx.size, dtype=np.int64)
-        ask = ~captured & ~clear_of_collisions(theta)  # pybullet only where contact is possible
-        world = self._world
-        assert world is not None  # step() refuses to run after close()
-        for j in np.flatnonzero(ask).tolist():
-            world.set_joint_positions(theta[j].tolist())
-            if world.collision() is not None:
-                failure[j] = _COLLISION
-        lost_after = sc.lost_after + TIME_SLACK
-        reach = self._tracks["reachable"][idx, k]
-        unreachable_for = np.where(reach, 0.0, self._unreachable_for[idx] + dt)
-        self._unreachable_for[idx] = unreachable_for
-        failure[(failure == 0) & ~captured & (unreachable_for > lost_after)] = _UNREACHABLE
-        if sc.estimator.source != "truth":
-            usable = self._tracks["estimator_status"][idx, k] == _STATUS_OK
-            since = np.where(usable, 0.0, self._since_frame[idx] + dt)
-            self._since_frame[idx] = since
-            failure[(failure == 0) & ~captured & (since > lost_after)] = _TARGET_LOST
-        return failure
-
-    def _reward_terms(
-        self,
-        d_prev: FloatArray,
-        distance: FloatArray,
-        captured: NDArray[np.bool_],
-        failure: NDArray[np.int64],
-    ) -> dict[str, FloatArray]:
-        """:func:`capture_bench.task.rewards.reward_terms`, batched (same terms, same order)."""
-        if self.reward_mode == "sparse":
-            return {"reward_capture": np.where(captured, 1.0, 0.0)}
-        failed = (failure != 0) & (failure != _TIMEOUT)
-        return {
-            "reward_progress": PROGRESS_GAIN * (d_prev - distance),
-            "reward_time": np.full(d_prev.size, TIME_PENALTY),
-            "reward_capture": np.where(captured, CAPTURE_BONUS, 0.0),
-            "reward_failure": np.where(failed, FAILURE_PENALTY, 0.0),
-        }
-
     def _observe(self) -> NDArray[np.float32]:
-        """``CaptureEnv._observation`` of every sub-env at its current step (the last real
-        period: that of the step just taken, t_s at reset)."""
-        rows, k, tracks = np.arange(self.num_envs), self._steps, self._tracks
-        valid = tracks["estimate_valid"][rows, k][:, None]
-        position = np.where(valid, tracks["estimate_position"][rows, k], self._x_e)
-        velocity = np.where(valid, tracks["estimate_velocity"][rows, k], 0.0)
-        return encode_observations(
-            position,
-            velocity,
-            self._x_e,
-            self._theta,
-            tracks["dt"][rows, k],
-            self.scenario.control.period,
-        )
+        """The observation of every sub-env at its current step (the last real period: that of
+        the step just taken, t_s at reset)."""
+        rows, k = np.arange(self.num_envs), self._steps
+        now = {name: self._tracks[name][rows, k] for name in _OBSERVED}
+        return self.rule.observe(self._state, slice(None), now)
 
     def _mask(self, envs: NDArray[np.intp]) -> NDArray[np.bool_]:
         """(N,) True at ``envs``."""
@@ -495,17 +328,18 @@ class CaptureVectorEnv(VectorEnv):
         return {
             "time": np.where(mask, 0.0, np.nan),
             "_time": mask,
-            "distance": np.where(mask, self._distance, np.nan),
+            "distance": np.where(mask, self._state.distance, np.nan),
             "_distance": mask.copy(),
         }
 
 
+_OBSERVED = ("estimate_valid", "estimate_position", "estimate_velocity", "dt")
 _TRACK_SHAPES: dict[str, tuple[int, ...]] = {
     name: (3,) if name in {"position", "velocity", "estimate_position", "estimate_velocity"} else ()
-    for name in _TRACKS
+    for name in STEP_TRACKS
 }
 _TRACK_DTYPES: dict[str, Any] = {
-    **dict.fromkeys(_TRACKS, np.float64),
+    **dict.fromkeys(STEP_TRACKS, np.float64),
     **dict.fromkeys(("estimate_valid", "visible", "reachable"), np.bool_),
     "estimator_status": np.int8,
 }

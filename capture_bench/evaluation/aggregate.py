@@ -29,11 +29,12 @@ from capture_bench.evaluation.metrics import (
     wilson_interval,
 )
 from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.task.step_rule import FAILURES
 
 REFERENCE_AGENT = "incremental_ik"
 PRIVILEGED_AGENTS = frozenset({"oracle"})
 #: Failure reasons always given a column, in this order; others found are appended sorted.
-KNOWN_FAILURES = ("timeout", "collision", "target_lost", "unreachable")
+KNOWN_FAILURES = FAILURES  # the step rule's, in its order
 RANKING_RULE = (
     "Ranked by capture rate averaged over scenarios (equal weights); ties broken by the mean over "
     "scenarios of the median capture-time ratio to the physical limit (lower is better, a scenario "

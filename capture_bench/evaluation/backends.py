@@ -37,7 +37,7 @@ from capture_bench.paths import CHECKOUT_DIR
 BACKENDS = ("serial", "process", "ray")
 #: Seeds per chunk (each with every agent): small enough to balance load and move the progress
 #: bar, large enough that dispatch costs little next to the episodes, and fewer than the envs keep
-#: recorded (``capture_bench.envs.capture_env._EPISODE_CACHE_SIZE``).
+#: recorded (``capture_bench.task.target_side.EpisodeCache.max_episodes``, 16 by default).
 SEEDS_PER_CHUNK = 5
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded.

@@ -29,6 +29,9 @@ than ``|epsilon|`` from X_T, and after the first feasible time; it gives exactly
 every time with :func:`feasible_solutions` would. :func:`physical_limits` runs the search for
 many episodes at once (one evaluation per round for all of them); :func:`physical_limit` is its
 one-episode case.
+
+Why one file of ~510 lines: the bound's search, its pruning bound and its brute-force reference
+(:func:`feasible_solutions`, the test's definition of the answer) belong together.
 """
 
 from __future__ import annotations

@@ -1,7 +1,13 @@
-"""The target's side of whole episodes, many at once, as arrays (for ``CaptureVectorEnv``).
+"""The target's side of an episode as one record type, :class:`RecordedEpisode`, and its batched
+recording, many episodes at once (for ``CaptureVectorEnv``).
 
-Nothing on the target's side of a step depends on the agent's actions (see
-:class:`capture_bench.envs.capture_env.TargetStep`): the trajectory and control periods are drawn
+:class:`RecordedEpisode` is what both envs consume, live or replayed
+(:mod:`capture_bench.task.target_side` fills one step by step for ``CaptureEnv``): the true state
+(the trajectory, paper section 4), the camera's frames (eq. 2), the estimates in the global frame
+(EKF eqs. 3-7, 11-12), their errors and NEES (:func:`estimate_errors`), and reachability.
+
+Nothing on the target's side of a step depends on the agent's actions: the trajectory and control
+periods are drawn
 at reset, the camera's noise and drop-outs come from the episode's generator in a fixed order, and
 the estimator sees only the frames. So an episode's target side can be computed for its whole
 horizon at reset, and the target sides of many episodes can be computed together: the true states
@@ -14,6 +20,7 @@ exactly what ``CaptureEnv(reuse_target_side=True)`` draws, in the same order.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -21,7 +28,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from capture_bench.sensing.camera import Camera, Frame
-from capture_bench.sensing.estimator import STATUSES, TargetEstimator, normalised_error_squared
+from capture_bench.sensing.estimator import (
+    STATUSES,
+    TargetEstimate,
+    TargetEstimator,
+    normalised_error_squared,
+)
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator
 from capture_bench.sim import kinematics
 from capture_bench.task.episode import EpisodePlan, episode_bounds
@@ -55,12 +67,13 @@ class EpisodeTruth:
 class RecordedEpisode(EpisodeTruth):
     """One episode's target side, indexed by step (0 is reset, k the end of step k).
 
-    The fields of :class:`EpisodeTruth`, then what
-    :class:`capture_bench.envs.capture_env.TargetStep` derives from them: ``estimate_position``,
+    The fields of :class:`EpisodeTruth`, then what the estimator and the env derive from them:
+    ``estimate_position``,
     ``estimate_velocity`` (T+1, 3), NaN where not ``estimate_valid``; ``estimator_status`` (T+1,)
     index into :data:`capture_bench.sensing.estimator.STATUSES`; ``reachable`` (T+1,);
     ``position_error``, ``velocity_error``, ``nees`` (T+1,). ``bound`` is the episode's physical
-    limit (``inf`` as ``CaptureEnv.physical_limit`` gives it).
+    limit (``inf`` as ``CaptureEnv.physical_limit`` gives it), None until computed (the single
+    env computes it lazily, at the end of an episode or when the oracle asks).
     """
 
     estimate_position: FloatArray
@@ -71,7 +84,25 @@ class RecordedEpisode(EpisodeTruth):
     position_error: FloatArray
     velocity_error: FloatArray
     nees: FloatArray
-    bound: PhysicalLimit
+    bound: PhysicalLimit | None
+
+
+#: The per-step quantities of a :class:`RecordedEpisode` that a step reads, (T+1, ...) each.
+STEP_TRACKS = (
+    "time",
+    "dt",
+    "position",
+    "velocity",
+    "estimate_position",
+    "estimate_velocity",
+    "estimate_valid",
+    "estimator_status",
+    "visible",
+    "reachable",
+    "position_error",
+    "velocity_error",
+    "nees",
+)
 
 
 # position, velocity (T+1, 3), covariance (T+1, 6, 6) (NaN where none), valid, status (T+1,)
@@ -197,19 +228,9 @@ def _estimate_truth(truth: EpisodeTruth) -> _Estimates:
 def _finish(truth: EpisodeTruth, estimates: _Estimates, bound: PhysicalLimit) -> RecordedEpisode:
     """Errors, NEES and reachability of every step, as ``CaptureEnv`` derives them."""
     position, velocity, covariance, valid, status = estimates
-    position_error = np.linalg.norm(position - truth.position, axis=1)
-    velocity_error = np.linalg.norm(velocity - truth.velocity, axis=1)
-    position_error[~valid] = velocity_error[~valid] = np.nan
-    error = np.concatenate([position - truth.position, velocity - truth.velocity], axis=1)
-    nees = np.full(truth.time.size, np.nan)
-    rows = np.flatnonzero(valid & np.isfinite(covariance).all(axis=(1, 2)))
-    try:  # e^T P^-1 e through one batched Cholesky factorisation
-        chol = np.linalg.cholesky(covariance[rows])
-        w = np.linalg.solve(chol, error[rows][:, :, None])[:, :, 0]
-        nees[rows] = np.einsum("ij,ij->i", w, w)
-    except np.linalg.LinAlgError:  # some P not positive definite: NaN there, as CaptureEnv
-        for k in rows.tolist():
-            nees[k] = normalised_error_squared(error[k], covariance[k])
+    position_error, velocity_error, nees = estimate_errors(
+        position, velocity, covariance, valid, truth.position, truth.velocity
+    )
     return RecordedEpisode(
         **vars(truth),
         estimate_position=position,
@@ -222,3 +243,53 @@ def _finish(truth: EpisodeTruth, estimates: _Estimates, bound: PhysicalLimit) ->
         nees=nees,
         bound=bound,
     )
+
+
+def estimate_errors(
+    position: FloatArray,
+    velocity: FloatArray,
+    covariance: FloatArray,
+    valid: BoolArray,
+    true_position: FloatArray,
+    true_velocity: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """``(|X^_T - X_T|, |Xdot^_T - Xdot_T|, NEES)`` of T estimates, (T,) each, NaN where the
+    estimate is not valid (the NEES also where it has no covariance, or P is not positive
+    definite).
+
+    Args:
+        position, velocity: estimates, global, m and m/s, (T, 3).
+        covariance: (T, 6, 6) of (position, velocity), NaN where none.
+        valid: (T,) which estimates hold values.
+        true_position, true_velocity: X_T and its rate, (T, 3).
+    """
+    position_error = np.linalg.norm(position - true_position, axis=1)
+    velocity_error = np.linalg.norm(velocity - true_velocity, axis=1)
+    position_error[~valid] = velocity_error[~valid] = np.nan
+    error = np.concatenate([position - true_position, velocity - true_velocity], axis=1)
+    nees = np.full(valid.size, np.nan)
+    rows = np.flatnonzero(valid & np.isfinite(covariance).all(axis=(1, 2)))
+    try:  # e^T P^-1 e through one batched Cholesky factorisation
+        chol = np.linalg.cholesky(covariance[rows])
+        w = np.linalg.solve(chol, error[rows][:, :, None])[:, :, 0]
+        nees[rows] = np.einsum("ij,ij->i", w, w)
+    except np.linalg.LinAlgError:  # some P not positive definite: NaN there
+        for k in rows.tolist():
+            nees[k] = normalised_error_squared(error[k], covariance[k])
+    return position_error, velocity_error, nees
+
+
+def estimate_errors_scalar(
+    estimate: TargetEstimate, true_position: FloatArray, true_velocity: FloatArray
+) -> tuple[float, float, float]:
+    """:func:`estimate_errors` of one estimate, in scalar ``math`` (the live single env's fast
+    path: it runs every step; tests check it equals the batched form to rounding)."""
+    if not estimate.valid:
+        return math.nan, math.nan, math.nan
+    pos_err = math.dist(estimate.position.tolist(), true_position.tolist())
+    vel_err = math.dist(estimate.velocity.tolist(), true_velocity.tolist())
+    nees = math.nan
+    if estimate.covariance is not None:
+        e = np.concatenate([estimate.position - true_position, estimate.velocity - true_velocity])
+        nees = normalised_error_squared(e, estimate.covariance)
+    return pos_err, vel_err, nees

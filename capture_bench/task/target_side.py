@@ -1,0 +1,226 @@
+"""One producer of an episode's target side, live or replayed, and the cache of recorded ones.
+
+An episode's target side is everything on the target's half of every step: the true state
+(trajectory, paper section 4), the camera's frame (eq. 2), the estimate in the global frame
+(photogrammetry, EKF eqs. 3-7, 11-12), its errors and NEES, and reachability. None of it depends
+on the agent's actions: after ``reset(seed=s)`` it is a function of the scenario, s and the step
+index (the control periods, the trajectory, the camera's noise and drop-outs all come from the
+seeded generator, in an order no action changes).
+
+:class:`TargetSide` holds it as one :class:`~capture_bench.task.recording.RecordedEpisode`:
+
+* live (:meth:`TargetSide.live`), the single env's default: step k's row is computed when the
+  step asks for it (:meth:`TargetSide.through`), drawing the camera's noise from the env's
+  generator then, step by step, as a plain gymnasium env would;
+* recorded (:meth:`TargetSide.record_all`): every row to the time limit at once, in the same order
+  of draws (``CaptureEnv(reuse_target_side=True)``);
+* replayed (:meth:`TargetSide.replay`): a recording kept in an :class:`EpisodeCache`.
+
+``CaptureVectorEnv`` records its episodes in batches
+(:func:`capture_bench.task.recording.record_episodes`), the same record type.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from capture_bench.sensing.camera import Camera, CameraModel
+from capture_bench.sensing.estimator import STATUSES, TargetEstimator
+from capture_bench.sim import kinematics
+from capture_bench.sim.target_motion import FEATURE_POINTS
+from capture_bench.task.episode import EpisodePlan
+from capture_bench.task.physical_limit import PhysicalLimit
+from capture_bench.task.recording import RecordedEpisode, estimate_errors_scalar
+from capture_bench.task.scenarios import Scenario
+
+FloatArray = NDArray[np.float64]
+EpisodeKey = tuple[Scenario, int]  # (scenario, seed)
+
+
+def scenario_camera(scenario: Scenario) -> tuple[Camera, FloatArray]:
+    """The scenario's camera (model, noise, drop-out, latency) and the target's feature points
+    (target frame, m, (N, 3))."""
+    cam = scenario.camera
+    model = CameraModel.looking_at(
+        cam.position,
+        cam.look_at,
+        focal_length=cam.focal_length,
+        pixel_pitch=cam.pixel_pitch,
+        resolution=cam.resolution,
+    )
+    camera = Camera(model, cam.noise_px, cam.dropout, cam.latency_frames)
+    return camera, FEATURE_POINTS[scenario.target.feature_points]
+
+
+class TargetSide:
+    """One episode's target side as a :class:`RecordedEpisode`, its rows filled up to
+    :attr:`filled` (every row once complete).
+
+    Build it with :meth:`live` or :meth:`replay`; read row k of ``episode`` after
+    :meth:`through` (k).
+    """
+
+    def __init__(
+        self,
+        episode: RecordedEpisode,
+        filled: int,
+        sensors: tuple[Camera, TargetEstimator, FloatArray, np.random.Generator] | None = None,
+    ) -> None:
+        self.episode = episode
+        self.filled = filled  # rows 0 .. filled - 1 hold values
+        self._sensors = sensors
+
+    @classmethod
+    def live(
+        cls,
+        plan: EpisodePlan,
+        camera: Camera,
+        estimator: TargetEstimator,
+        features: FloatArray,
+        rng: np.random.Generator,
+    ) -> TargetSide:
+        """The episode of ``plan`` with nothing computed yet: the camera and the estimator are
+        reset, and each row, when asked for, draws its frame's noise from ``rng``."""
+        time, dt = plan.step_times()
+        n, m = time.size, features.shape[0]
+        nan3 = np.full((n, 3), np.nan)
+        episode = RecordedEpisode(
+            plan=plan,
+            time=time,
+            dt=dt,
+            position=nan3.copy(),
+            velocity=nan3.copy(),
+            rotation=np.full((n, 3, 3), np.nan),
+            images=np.full((n, m, 2), np.nan),
+            visible=np.zeros(n, dtype=bool),
+            estimate_position=nan3.copy(),
+            estimate_velocity=nan3,
+            estimate_valid=np.zeros(n, dtype=bool),
+            estimator_status=np.zeros(n, dtype=np.int8),
+            reachable=np.zeros(n, dtype=bool),
+            position_error=np.full(n, np.nan),
+            velocity_error=np.full(n, np.nan),
+            nees=np.full(n, np.nan),
+            bound=None,
+        )
+        camera.reset()
+        estimator.reset()
+        return cls(episode, 0, (camera, estimator, features, rng))
+
+    @classmethod
+    def replay(cls, episode: RecordedEpisode) -> TargetSide:
+        """A recorded episode, every row available."""
+        return cls(episode, episode.time.size)
+
+    @property
+    def complete(self) -> bool:
+        """Whether every row, to the time limit, is filled."""
+        return self.filled == self.episode.time.size
+
+    def through(self, k: int) -> RecordedEpisode:
+        """The episode with rows 0..k filled (a live side computes the missing rows now, in
+        order), ``IndexError`` past the time limit's step."""
+        while self.filled <= k:
+            self._fill_next()
+        return self.episode
+
+    def record_all(self) -> RecordedEpisode:
+        """Every row to the time limit (a live side computes them now; its sensors are dropped)."""
+        episode = self.through(self.episode.time.size - 1)
+        self._sensors = None
+        return episode
+
+    def _fill_next(self) -> None:
+        """Row ``filled``: the true state at its time, the camera's frame (none with the truth
+        source, whose env never calls the camera), the estimator's update, its errors."""
+        if self._sensors is None or self.complete:
+            raise IndexError(f"step {self.filled} is past the episode's time limit")
+        camera, estimator, features, rng = self._sensors
+        ep, k = self.episode, self.filled
+        time, dt = float(ep.time[k]), float(ep.dt[k])
+        x_t, v_t, rotation = ep.plan.trajectory.state(time)
+        if ep.plan.scenario.estimator.source == "truth":
+            frame = None
+        else:
+            frame = camera.capture(x_t + features @ rotation.T, rng)
+        est = estimator.update(frame, dt, x_t, v_t)
+        ep.position[k], ep.velocity[k], ep.rotation[k] = x_t, v_t, rotation
+        if frame is not None:
+            ep.images[k] = frame.image_points
+        ep.visible[k] = camera.last_visible
+        ep.estimate_valid[k] = est.valid
+        if est.valid:
+            ep.estimate_position[k], ep.estimate_velocity[k] = est.position, est.velocity
+        ep.estimator_status[k] = STATUSES.index(est.status)
+        ep.reachable[k] = kinematics.reachable(x_t)
+        ep.position_error[k], ep.velocity_error[k], ep.nees[k] = estimate_errors_scalar(
+            est, x_t, v_t
+        )
+        self.filled = k + 1
+
+
+class EpisodeCache:
+    """Target sides and physical-limit bounds already computed, by (scenario, seed).
+
+    ``reset(seed=s)`` draws the episode's target side from the scenario and s alone, before
+    anything an agent does, so every agent evaluated on the same seed has the same recording and
+    the same bound (it costs ~8 ms per episode). An evaluation runs every agent on a few seeds at
+    a time in one worker, so a few recordings suffice (``max_episodes``, least recently used
+    dropped first; ~1 MB each); bounds are small (``max_limits``, all dropped when full).
+    Each env uses :data:`DEFAULT_EPISODE_CACHE` unless given another; :meth:`clear` empties it.
+    """
+
+    def __init__(self, max_episodes: int = 16, max_limits: int = 65_536) -> None:
+        self.max_episodes = max_episodes
+        self.max_limits = max_limits
+        # (episode, np_random's state after recording it)
+        self._episodes: OrderedDict[EpisodeKey, tuple[RecordedEpisode, Mapping[str, Any]]] = (
+            OrderedDict()
+        )
+        self._limits: dict[EpisodeKey, PhysicalLimit] = {}
+
+    def recording(self, key: EpisodeKey) -> tuple[RecordedEpisode, Mapping[str, Any]] | None:
+        """The recorded episode of ``key`` and the generator's state after recording it, or
+        None."""
+        found = self._episodes.get(key)
+        if found is not None:
+            self._episodes.move_to_end(key)
+        return found
+
+    def keep_recording(
+        self, key: EpisodeKey, episode: RecordedEpisode, rng_state: Mapping[str, Any]
+    ) -> None:
+        """Keep a complete recording (and the generator's state after it) for ``key``."""
+        self._episodes[key] = (episode, rng_state)
+        if len(self._episodes) > self.max_episodes:
+            self._episodes.popitem(last=False)
+
+    def recorded_keys(self) -> list[EpisodeKey]:
+        """The keys of the kept recordings, least recently used first."""
+        return list(self._episodes)
+
+    def limit(self, key: EpisodeKey) -> PhysicalLimit | None:
+        """The physical-limit bound computed for ``key``, or None."""
+        return self._limits.get(key)
+
+    def keep_limit(self, key: EpisodeKey, limit: PhysicalLimit) -> None:
+        """Keep a bound for ``key`` (its joint angles become read-only: shared)."""
+        if len(self._limits) >= self.max_limits:
+            self._limits.clear()
+        if limit.theta is not None:
+            limit.theta.flags.writeable = False
+        self._limits[key] = limit
+
+    def clear(self) -> None:
+        """Forget every recording and bound."""
+        self._episodes.clear()
+        self._limits.clear()
+
+
+#: The process-wide cache every env uses unless given its own.
+DEFAULT_EPISODE_CACHE = EpisodeCache()
