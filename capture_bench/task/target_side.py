@@ -200,6 +200,10 @@ class EpisodeCache:
         if len(self._episodes) > self.max_episodes:
             self._episodes.popitem(last=False)
 
+    def counts(self) -> tuple[int, int]:
+        """(recordings kept, bounds kept): what the cache holds now."""
+        return len(self._episodes), len(self._limits)
+
     def recorded_keys(self) -> list[EpisodeKey]:
         """The keys of the kept recordings, least recently used first."""
         return list(self._episodes)
