@@ -123,7 +123,7 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
 
     def photogrammetry_cold() -> int:
         for z in images[:cold]:
-            photogrammetry._solve_cold.cache_clear()  # time the solve, not the memo of its result
+            photogrammetry.clear_solve_cache()  # time the solve, not the memo of its result
             solve_pose(z, FEATURES, f)
         return cold
 

@@ -67,7 +67,7 @@ def measure(count: int, repeats: int, seed: int) -> list[tuple[str, float]]:
 
     def single() -> None:
         for z in images:
-            photogrammetry._solve_cold.cache_clear()  # time the solve, not the memo of its result
+            photogrammetry.clear_solve_cache()  # time the solve, not the memo of its result
             solve_pose(z, FEATURES, FOCAL_LENGTH)
 
     def batched(m: int) -> Callable[[], None]:

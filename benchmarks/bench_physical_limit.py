@@ -33,7 +33,7 @@ def episodes(count: int) -> list[dict[str, Any]]:
     for i in range(count):
         env = CaptureEnv(names[i % len(names)])
         env.reset(seed=i)
-        arm, control, plan = env.description.arm, env.scenario.control, env._plan()
+        arm, control, plan = env.description.arm, env.scenario.control, env.plan
         out.append(
             {
                 "target_position": env.true_target_position,

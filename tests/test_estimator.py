@@ -67,8 +67,8 @@ def test_filter_h_and_H_are_eq_2_and_its_jacobian():
         p_c = FEATURES @ euler_to_matrix(state[6::2]).T + state[0:6:2]
         return (-F * p_c[:, [0, 2]] / (p_c[:, 1:2] - F)).reshape(8)
 
-    h_mat = ekf._jacobian(x).copy()
-    np.testing.assert_allclose(ekf._measure(x), by_hand(x), rtol=1e-13)
+    h_mat = ekf.jacobian(x).copy()
+    np.testing.assert_allclose(ekf.measure(x), by_hand(x), rtol=1e-13)
     fd = np.empty((8, 12))
     for k in range(12):
         e = np.zeros(12)
@@ -87,7 +87,7 @@ def test_lean_filter_equals_filterpy_step_for_step():
     ekf = TargetEKF(FEATURES, focal_length=F, pixel_pitch=PITCH)  # supplies F, Q, R, x0, P0
     ekf.initialise([0.02, 1.2, -0.01, 0.4, -0.3, 0.6])
     for kf in (reference, lean):
-        kf.R, kf.x, kf.P = ekf._kf.R.copy(), ekf.x.copy(), ekf.P.copy()
+        kf.R, kf.x, kf.P = ekf.R.copy(), ekf.x.copy(), ekf.P.copy()
 
     def h(x: np.ndarray) -> np.ndarray:
         return measurement(x, FEATURES, F)
@@ -103,7 +103,7 @@ def test_lean_filter_equals_filterpy_step_for_step():
         truth = a @ truth
         z = None if k % 7 == 3 else h(truth) + rng.normal(scale=PITCH, size=8)
         for kf in (reference, lean):
-            kf.F, kf.Q = ekf._kf.F, ekf._kf.Q
+            kf.F, kf.Q = ekf.F, ekf.Q
             kf.predict()
             kf.update(z, jac, h)
         names = ("x", "P", "x_prior", "P_prior", "x_post", "P_post")
@@ -261,14 +261,18 @@ def test_divergence_reinitialises_from_photogrammetry():
     assert est.ekf.nis < 100.0
     assert np.linalg.norm(outs[-1].position - (pos + jump)) < 0.01
     # A non-finite filter is diverged; without a frame it cannot restart and says so.
-    est.ekf._kf.P[0, 0] = np.nan
+    nan_p = est.ekf.covariance
+    nan_p[0, 0] = np.nan
+    est.ekf.set_state(covariance=nan_p)
     out = est.update(None, DT, pos, np.zeros(3))
     assert out.status == "diverged" and not out.valid
     out = est.update(Frame(cam.project(cam.to_camera(markers(pos)))), DT, pos, np.zeros(3))
     assert out.status == "ok" and np.linalg.norm(out.position - pos) < 0.01
     assert est.reinitialisations == 2
     # A prediction that puts the target behind the lens (absurd velocity toward the camera).
-    est.ekf._kf.x[3] = -40.0  # y_dot in the camera frame, m/s
+    fast = est.ekf.state
+    fast[3] = -40.0  # y_dot in the camera frame, m/s
+    est.ekf.set_state(state=fast)
     out = est.update(Frame(cam.project(cam.to_camera(markers(pos)))), DT, pos, np.zeros(3))
     assert out.status == "ok" and est.reinitialisations == 3
     assert np.linalg.norm(out.position - pos) < 0.01

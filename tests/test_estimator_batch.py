@@ -185,14 +185,18 @@ def test_divergence_and_reinitialisation():
         if k == 2:
             # env 2: a non-finite covariance with a frame; env 3: without a frame.
             for i in (2, 3):
-                singles[i].ekf._kf.P[0, 0] = np.nan
+                nan_p = singles[i].ekf.covariance
+                nan_p[0, 0] = np.nan
+                singles[i].ekf.set_state(covariance=nan_p)
                 batch.P[i, 0, 0] = np.nan
             shifted[k, 3] = np.nan
             # env 4: a prediction behind the lens (y_dot toward the camera).
-            singles[4].ekf._kf.x[3] = -40.0
+            fast = singles[4].ekf.state
+            fast[3] = -40.0
+            singles[4].ekf.set_state(state=fast)
             batch.x[4, BLOCK_ORDER.tolist().index(3)] = -40.0
             # env 5: S not positive definite.
-            singles[5].ekf._kf.P[...] = -np.eye(12)
+            singles[5].ekf.set_state(covariance=-np.eye(12))
             batch.P[5] = -np.eye(12)
         statuses.append(step_both(batch, singles, shifted[k], seq.dts[20 + k])[1])
     column = [[row[i] for row in statuses] for i in range(n)]
@@ -274,9 +278,9 @@ def test_cold_solve_uses_the_estimators_acceptance_rule():
     batch, singles = seq.estimators(3)
     images = seq.images[0].copy()
     images[1] = np.random.default_rng(0).uniform(-1e-3, 1e-3, (4, 2))  # no consistent pose
-    poses, accepted = batch._cold_solve(images)
+    poses, accepted = batch.cold_solve(images)
     for image, pose, ok in zip(images, poses, accepted):
-        sol = singles[0]._solve(image, None)
+        sol = singles[0].solve(image, None)
         assert ok == (sol is not None)
         if sol is not None:
             np.testing.assert_allclose(pose, sol.pose, RTOL, STATE_ATOL)  # rounding (above)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from capture_bench.sensing.photogrammetry import (
-    _levenberg_marquardt,
+    levenberg_marquardt,
     pose_features,
     pose_projection,
     project_poses,
@@ -134,7 +134,7 @@ def test_cold_solutions_are_memoised_by_exact_image():
     first.pose[:] = 0.0  # a caller's edit must not reach the cache
     again = solve_pose(z, NON_COPLANAR, F)
     assert again.converged and np.linalg.norm(again.pose[:3] - pose[:3]) < 0.05  # not the zeros
-    photogrammetry._solve_cold.cache_clear()
+    photogrammetry.clear_solve_cache()
     fresh = solve_pose(z, NON_COPLANAR, F)
     np.testing.assert_array_equal(fresh.pose, again.pose)
     assert (fresh.converged, fresh.iterations, fresh.residual_rms) == (
@@ -173,9 +173,9 @@ def test_starts_run_together_as_they_would_alone(points):
     z = image_of(pose, points) + rng.normal(scale=PITCH, size=(4, 2))
     table = projection_table(points, F)
     starts = np.array([pose + rng.normal(scale=0.3, size=6) for _ in range(8)])
-    together = _levenberg_marquardt(z.T, table, starts, 50, 1e-10)
+    together = levenberg_marquardt(z.T, table, starts, 50, 1e-10)
     for k in range(len(starts)):
-        alone = _levenberg_marquardt(z.T, table, starts[k : k + 1], 50, 1e-10)
+        alone = levenberg_marquardt(z.T, table, starts[k : k + 1], 50, 1e-10)
         np.testing.assert_array_equal(together[1][k], alone[1][0])  # converged
         np.testing.assert_allclose(together[0][k], alone[0][0], rtol=0, atol=1e-9)
         np.testing.assert_allclose(together[3][k], alone[3][0], rtol=1e-9)

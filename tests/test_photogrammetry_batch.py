@@ -15,8 +15,8 @@ from test_photogrammetry import (
 
 from capture_bench.sensing import photogrammetry
 from capture_bench.sensing.photogrammetry import (
-    _CUBE_ANGLES,
-    _CUBE_MATRICES,
+    CUBE_ANGLES,
+    CUBE_MATRICES,
     project_poses,
     projection_table,
     solve_pose,
@@ -52,7 +52,7 @@ def assert_equals_solve_pose(images, points, **kwargs) -> tuple:
     assert converged.shape == (m,) and converged.dtype == bool
     assert iterations.shape == (m,) and np.issubdtype(iterations.dtype, np.integer)
     assert rms.shape == (m,) and rms.dtype == float
-    photogrammetry._solve_cold.cache_clear()
+    photogrammetry.clear_solve_cache()
     for i in range(m):
         sol = solve_pose(images[i], points, F, **kwargs)
         np.testing.assert_allclose(poses[i], sol.pose, rtol=1e-8, atol=1e-8)  # m, rad
@@ -63,9 +63,9 @@ def assert_equals_solve_pose(images, points, **kwargs) -> tuple:
 
 def starts_behind_lens(image: np.ndarray, points: np.ndarray) -> int:
     """How many of the 24 cold starts of this image have a point at or behind the lens."""
-    rotated = np.einsum("kij,nj->kni", _CUBE_MATRICES, points)
+    rotated = np.einsum("kij,nj->kni", CUBE_MATRICES, points)
     t = translations_for_rotations(image, rotated, F)
-    _, depth = project_poses(np.concatenate([t, _CUBE_ANGLES], axis=1), projection_table(points, F))
+    _, depth = project_poses(np.concatenate([t, CUBE_ANGLES], axis=1), projection_table(points, F))
     return int((depth <= 0).any(axis=1).sum())
 
 

@@ -9,13 +9,13 @@ from capture_bench.task.physical_limit import (
     CHUNK,
     REFINE,
     REFINE_PASSES,
-    _distance_lower_bound,
-    _first_feasible,
-    _refine_times,
+    distance_lower_bound,
     feasible_solutions,
+    first_feasible,
     nearest_in_box,
     physical_limit,
     physical_limits,
+    refine_times,
 )
 from capture_bench.task.scenarios import load_scenario
 
@@ -219,7 +219,7 @@ def test_first_feasible_row_agrees_with_feasible_solutions():
         offsets = np.concatenate(([0], np.cumsum(lengths)))
         targets, times = np.concatenate(targets), np.concatenate(times)
         ok, theta = feasible_solutions(targets, times, *ARGS[:-1], eps)
-        first, first_theta = _first_feasible(targets, times, offsets, *ARGS[:-1], eps)
+        first, first_theta = first_feasible(targets, times, offsets, *ARGS[:-1], eps)
         for s in range(len(lengths)):
             part = ok[offsets[s] : offsets[s + 1]]
             if part.any():
@@ -243,7 +243,7 @@ def test_distance_lower_bound_never_exceeds_the_distance_to_a_dense_grid_of_the_
         axes = [np.linspace(lo[i], hi[i], 21) for i in range(3)]
         grid = k.forward_kinematics(np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3))
         nearest = np.linalg.norm(grid[None] - goals[:, None], axis=2).min(axis=1)
-        bound = _distance_lower_bound(
+        bound = distance_lower_bound(
             goals,
             k.inverse_kinematics_batch(goals),
             np.tile(lo, (10, 1)),
@@ -271,6 +271,6 @@ def test_refine_times_are_those_of_linspace_bit_for_bit():
     rng = np.random.default_rng(2)
     t_lo = np.concatenate((rng.uniform(0.0, 10.0, 500), [0.0, 1e-300, 3.0]))
     t_hi = t_lo + np.concatenate((rng.uniform(0.0, 0.05, 500) ** 3, [0.05, 1e-300, 0.0]))
-    got = _refine_times(t_lo, t_hi)
+    got = refine_times(t_lo, t_hi)
     for i in range(t_lo.size):
         np.testing.assert_array_equal(got[i], np.linspace(t_lo[i], t_hi[i], REFINE + 1)[1:])

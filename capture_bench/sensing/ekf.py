@@ -204,6 +204,22 @@ class TargetEKF:
         self.nis = float("nan")
         self.initialised = True
 
+    def set_state(
+        self, state: ArrayLike | None = None, covariance: ArrayLike | None = None
+    ) -> None:
+        """Replace X and/or P as given (copies), keeping everything else (``initialised``, NIS,
+        the last dt): a restart from a full state, or a test that puts the filter in a given
+        (say non-finite) state.
+
+        Args:
+            state: X (12,) in the paper's order (metres, m/s, radians, rad/s); None: kept.
+            covariance: P (12, 12) in state order; None: kept.
+        """
+        if state is not None:
+            self._kf.x = np.array(state, dtype=float).reshape(12)
+        if covariance is not None:
+            self._kf.P = np.array(covariance, dtype=float).reshape(12, 12)
+
     # -- filter steps -------------------------------------------------------------------------
     def predict(self, dt: float) -> None:
         """Propagate by ``dt`` seconds with eq. 3 (A and B are rebuilt only when dt changes)."""
@@ -223,11 +239,11 @@ class TargetEKF:
             image_points: measured ``[x_m, z_m]`` of the feature points, metres, shape (4, 2).
         """
         if image_points is None:
-            self._kf.update(None, self._jacobian, self._measure)
+            self._kf.update(None, self.jacobian, self.measure)
             self.nis = float("nan")
             return
         z = np.asarray(image_points, dtype=float).reshape(-1)
-        self._kf.update(z, self._jacobian, self._measure)
+        self._kf.update(z, self.jacobian, self.measure)
         y = self._kf.y
         self.nis = float(y @ self._kf.SI @ y)
         x = self._kf.x
@@ -235,8 +251,13 @@ class TargetEKF:
             if not -math.pi <= x[i] < math.pi:
                 x[i] = wrap_angle(x[i])
 
-    def _jacobian(self, x: FloatArray) -> FloatArray:
-        """H = dh/dX (8, 12); also caches h(X) for :meth:`_measure` at the same state object."""
+    def jacobian(self, x: FloatArray) -> FloatArray:
+        """H = dh/dX (2N, 12) at a state X (12,), the callback the filter's update calls first.
+
+        Metres of image per metre / radian of state; the rate columns (odd) are zero. Returns the
+        EKF's own array (overwritten by the next call); also sets :attr:`prior_in_front` and
+        caches h(X) for :meth:`measure` at the same state object.
+        """
         h, jt, depth = project_pose(x.tolist()[0::2], self._table)
         self.prior_in_front = bool(depth.min() > 0.0)
         self._H_pose[...] = jt.T  # (6, 2, N) -> (N, 2, 6)
@@ -244,8 +265,12 @@ class TargetEKF:
         self._hx_for = x
         return self._H
 
-    def _measure(self, x: FloatArray) -> FloatArray:
-        """h(X) of eq. 6: image points (8,) of the feature points, metres."""
+    def measure(self, x: FloatArray) -> FloatArray:
+        """h(X) of eq. 6 at a state X (12,): image points (2N,) of the feature points, metres.
+
+        The filter's update calls it after :meth:`jacobian`; at that same state object it returns
+        the cached array (the EKF's own, overwritten by the next :meth:`jacobian`).
+        """
         if x is self._hx_for:
             return self._hx
         return measurement(x, self.feature_points, self.focal_length)
@@ -253,13 +278,32 @@ class TargetEKF:
     # -- read-out -----------------------------------------------------------------------------
     @property
     def x(self) -> FloatArray:
-        """X (12,), the filter's own array (read only; use :meth:`initialise` to set it)."""
+        """X (12,), the filter's own array (read only; :meth:`initialise` or :meth:`set_state`
+        sets it)."""
         return self._kf.x
 
     @property
     def P(self) -> FloatArray:
         """P (12, 12), the filter's own array (read only)."""
         return self._kf.P
+
+    @property
+    def F(self) -> FloatArray:
+        """F (12, 12), the state transition A of eq. 3 for the dt of the last :meth:`predict`
+        (identity before any), the filter's own array (read only)."""
+        return self._kf.F
+
+    @property
+    def Q(self) -> FloatArray:
+        """Q = B diag(sigma_a^2 (x3), sigma_alpha^2 (x3)) B' (12, 12) for the dt of the last
+        :meth:`predict` (identity before any), the filter's own array (read only)."""
+        return self._kf.Q
+
+    @property
+    def R(self) -> FloatArray:
+        """R (2N, 2N), the image noise covariance, m^2 (diagonal), the filter's own array (read
+        only)."""
+        return self._kf.R
 
     @property
     def state(self) -> FloatArray:

@@ -196,10 +196,18 @@ class TargetEstimator:
         return self._update_ekf(image, dt)
 
     # -- sources ------------------------------------------------------------------------------
-    def _solve(self, image: FloatArray, guess: FloatArray | None) -> PoseSolution | None:
+    def solve(self, image: FloatArray, guess: FloatArray | None) -> PoseSolution | None:
         """Photogrammetry of one image; None unless converged with a plausible residual.
 
         A warm start that is rejected is retried cold (it may sit in a wrong local minimum).
+
+        Args:
+            image: measured ``[x_m, z_m]`` of the feature points, metres, shape (N, 2), finite.
+            guess: pose (6,) in the camera frame to start from (metres, radians), or None for
+                the cold multi-start.
+
+        Returns:
+            The accepted :class:`PoseSolution` (pose in the camera frame), or None.
         """
         f = self.camera_model.focal_length
         sol = solve_pose(image, self.feature_points, f, guess)
@@ -235,7 +243,7 @@ class TargetEstimator:
 
     def _try_initialise(self, image: FloatArray | None, failed_status: str) -> TargetEstimate:
         """Initialise the EKF from photogrammetry of ``image`` (paper: photogrammetry first)."""
-        sol = None if image is None else self._solve(image, None)
+        sol = None if image is None else self.solve(image, None)
         if sol is None:
             return _invalid(failed_status)
         self.last_solution = sol
@@ -257,7 +265,7 @@ class TargetEstimator:
         previous = self.last_solution
         sol = None
         if image is not None:
-            sol = self._solve(image, None if previous is None else previous.pose)
+            sol = self.solve(image, None if previous is None else previous.pose)
         if sol is None:
             if previous is None:
                 return _invalid("initialising")

@@ -353,7 +353,7 @@ class BatchedTargetEstimator:
         idx = np.flatnonzero(which)
         if idx.size == 0:
             return
-        poses, accepted = self._cold_solve(z[idx])
+        poses, accepted = self.cold_solve(z[idx])
         idx, poses = idx[accepted], poses[accepted]
         self.x[idx] = 0.0
         self.x[idx, :6] = poses  # rates zero
@@ -364,9 +364,10 @@ class BatchedTargetEstimator:
         self.high_nis[idx] = 0
         self._status[idx] = OK
 
-    def _cold_solve(self, images: FloatArray) -> tuple[FloatArray, BoolArray]:
-        """Cold photogrammetry (no initial guess) of m images (m, N, 2): poses (m, 6) and which
-        are accepted (where ``TargetEstimator._solve(image, None)`` is not None)."""
+    def cold_solve(self, images: FloatArray) -> tuple[FloatArray, BoolArray]:
+        """Cold photogrammetry (no initial guess) of m images (m, N, 2), metres: poses (m, 6) in
+        the camera frame (metres, radians) and which are accepted (m,) (where
+        ``TargetEstimator.solve(image, None)`` is not None)."""
         f = self.camera_model.focal_length
         poses, converged, _, rms = solve_pose_batch(images, self.feature_points, f)
         return poses, solution_accepted(converged, rms, self.max_residual)

@@ -309,7 +309,9 @@ def _cube_rotations() -> tuple[FloatArray, FloatArray]:
     return np.array(mats), np.array(angles)
 
 
-_CUBE_MATRICES, _CUBE_ANGLES = _cube_rotations()
+CUBE_MATRICES, CUBE_ANGLES = _cube_rotations()
+"""The cold solve's 24 starting rotations: matrices (24, 3, 3) and their Euler angles
+``(theta_x, theta_y, theta_z)`` (24, 3), radians (read only; shared by every solve)."""
 
 
 def translations_for_rotations(
@@ -493,7 +495,7 @@ def _try_levels(
     return accept, trial, step, rj_t, cost_t, lam
 
 
-def _levenberg_marquardt(
+def levenberg_marquardt(
     z: FloatArray,
     table: FloatArray,
     poses0: FloatArray,
@@ -649,7 +651,7 @@ def solve_pose(
     n_eq = uv.size
     if initial_guess is not None:
         start = np.asarray(initial_guess, dtype=float).reshape(1, 6)
-        pose, conv, its, cost = _levenberg_marquardt(z, table, start, max_iterations, tol)
+        pose, conv, its, cost = levenberg_marquardt(z, table, start, max_iterations, tol)
         rms = math.sqrt(cost[0] / n_eq)
         if conv[0] and math.isfinite(rms):
             return PoseSolution(_canonical(pose[0]), True, int(its[0]), rms)
@@ -673,7 +675,14 @@ def _solve_cold(
     return PoseSolution(poses[0], bool(conv[0]), int(its[0]), float(rms[0]))
 
 
-N_STARTS = len(_CUBE_ANGLES)
+def clear_solve_cache() -> None:
+    """Forget the memoised cold solves of :func:`solve_pose` (the multi-start without an initial
+    guess), so the next one is solved afresh (to time the solve itself, or to check that a
+    memoised solution equals a fresh one). The projection tables stay memoised."""
+    _solve_cold.cache_clear()
+
+
+N_STARTS = len(CUBE_ANGLES)
 
 
 def _multi_start(
@@ -690,17 +699,17 @@ def _multi_start(
     """
     m, n_eq = uv.shape[0], uv.shape[1] * uv.shape[2]
     table = projection_table(pts, focal_length)
-    rotated = np.einsum("kij,nj->kni", _CUBE_MATRICES, pts)  # R_k p_i, (24, N, 3)
+    rotated = np.einsum("kij,nj->kni", CUBE_MATRICES, pts)  # R_k p_i, (24, N, 3)
     starts = np.empty((m, N_STARTS, 6))
     for i in range(m):  # the image's own least-squares matrix: one lstsq call per image
         starts[i, :, :3] = translations_for_rotations(uv[i], rotated, focal_length)
-    starts[:, :, 3:] = _CUBE_ANGLES
+    starts[:, :, 3:] = CUBE_ANGLES
     z = uv.transpose(0, 2, 1)  # (M, 2, N): the x_m row, then the z_m row
     if m == 1:  # one solve: one image for every start
         z_arg, solves = z[0], None
     else:
         z_arg, solves = np.repeat(z, N_STARTS, axis=0), np.repeat(np.arange(m), N_STARTS)
-    poses, conv, its, costs = _levenberg_marquardt(
+    poses, conv, its, costs = levenberg_marquardt(
         z_arg, table, starts.reshape(-1, 6), max_iterations, tol, solves
     )
     rms_all = np.sqrt(costs / n_eq).reshape(m, N_STARTS)

@@ -23,8 +23,8 @@ How it is computed:
    bound is exact to well below the control period, assuming feasibility does not switch on and
    off again inside one period (the box grows monotonically; the target moves mm per period).
 
-Only each chunk's or pass's *first* feasible time matters, so the search (:func:`_first_feasible`)
-skips the local search wherever :func:`_distance_lower_bound` already puts the whole box farther
+Only each chunk's or pass's *first* feasible time matters, so the search (:func:`first_feasible`)
+skips the local search wherever :func:`distance_lower_bound` already puts the whole box farther
 than ``|epsilon|`` from X_T, and after the first feasible time; it gives exactly what evaluating
 every time with :func:`feasible_solutions` would. :func:`physical_limits` runs the search for
 many episodes at once (one evaluation per round for all of them); :func:`physical_limit` is its
@@ -56,7 +56,7 @@ NEAR_BOX = 0.1  # rad
 REFINE = 64
 REFINE_PASSES = 2
 CHUNK = 32
-BOUND_MARGIN = 1e-9  # m: rounding allowance of _distance_lower_bound
+BOUND_MARGIN = 1e-9  # m: rounding allowance of distance_lower_bound
 
 
 @dataclass(frozen=True)
@@ -133,7 +133,7 @@ def _box_solutions(
     return box_lo, box_hi, solutions, excess
 
 
-def _first_feasible(
+def first_feasible(
     targets: FloatArray,
     times: FloatArray,
     offsets: NDArray[np.intp],
@@ -147,7 +147,7 @@ def _first_feasible(
 
     Exactly what ``feasible_solutions`` gives (the same row, the same theta), with a fraction of
     its work: only the rows before a segment's first feasible one matter, and a near solution
-    needs the local search only when :func:`_distance_lower_bound` does not already put the box
+    needs the local search only when :func:`distance_lower_bound` does not already put the box
     out of tolerance. The local searches then go in rounds, the earliest remaining candidate row
     of every segment per round (:func:`nearest_in_box` gives a row the same result in any batch).
 
@@ -178,9 +178,7 @@ def _first_feasible(
         return first, theta
     radius = float(np.linalg.norm(tolerance))
     enough = radius + BOUND_MARGIN
-    bound = _distance_lower_bound(
-        targets[rows], solutions[rows], box_lo[rows], box_hi[rows], enough
-    )
+    bound = distance_lower_bound(targets[rows], solutions[rows], box_lo[rows], box_hi[rows], enough)
     keep = bound < enough  # the others are certainly not close
     rows, cols = rows[keep], cols[keep]
     while rows.size:
@@ -221,7 +219,7 @@ def _group_starts(keys: NDArray[np.intp]) -> NDArray[np.bool_]:
     return starts
 
 
-def _distance_lower_bound(
+def distance_lower_bound(
     goal: FloatArray, solutions: FloatArray, lo: FloatArray, hi: FloatArray, enough: float
 ) -> FloatArray:
     """A lower bound on ``min ||f(theta) - goal||`` over theta in the box [lo, hi], m, (M,).
@@ -411,7 +409,7 @@ def physical_limits(
 
     Every episode follows the search of the module docstring (grid chunks of ``CHUNK`` times,
     then ``REFINE_PASSES`` refine passes), but each round evaluates the next chunk or pass of
-    every unfinished episode in one :func:`_first_feasible` call (the target positions and
+    every unfinished episode in one :func:`first_feasible` call (the target positions and
     travel times are asked of each episode's callables). Its rows are independent of one another
     (:func:`nearest_in_box` stops row by row), so episode g's result is exactly that of
     ``physical_limit(target_positions[g], ..., horizons[g], period, travel_times[g])``, which is
@@ -458,7 +456,7 @@ def physical_limits(
         index = start[grid, None] + grid_steps
         valid = index < n_grid[grid, None]
         lengths = np.concatenate((valid.sum(axis=1), np.full(fine.size, REFINE)))
-        fine_times = _refine_times(t_lo[fine], t_hi[fine])
+        fine_times = refine_times(t_lo[fine], t_hi[fine])
         times = np.concatenate((index[valid].astype(np.float64) * period, fine_times.ravel()))
         offsets = np.zeros(lengths.size + 1, dtype=np.intp)
         np.cumsum(lengths, out=offsets[1:])
@@ -470,7 +468,7 @@ def physical_limits(
             travel = travels[g]
             if travel is not None:
                 moved[part] = travel(times[part])
-        first, theta = _first_feasible(np.concatenate(targets), moved, offsets, *args)
+        first, theta = first_feasible(np.concatenate(targets), moved, offsets, *args)
         found = first < times.size
         local = first - offsets[:-1]
         at = np.minimum(first, times.size - 1)
@@ -505,7 +503,7 @@ def physical_limits(
     ]
 
 
-def _refine_times(t_lo: FloatArray, t_hi: FloatArray) -> FloatArray:
+def refine_times(t_lo: FloatArray, t_hi: FloatArray) -> FloatArray:
     """``np.linspace(t_lo[i], t_hi[i], REFINE + 1)[1:]`` for every i, bit for bit, (I, REFINE)."""
     delta = (t_hi - t_lo)[:, None]
     steps = np.arange(1, REFINE + 1, dtype=np.float64)
