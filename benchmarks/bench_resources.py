@@ -107,12 +107,12 @@ def recorded_connections() -> Iterator[list[int]]:
 
 def memos() -> str:
     """The per-process memos that grow by design, as one line."""
-    cold = photogrammetry._solve_cold.cache_info()
+    cold_now, cold_most = photogrammetry.solve_cache_size()
     cache = DEFAULT_EPISODE_CACHE
     recordings, bounds = cache.counts()
     return (
         f"recordings {recordings}/{cache.max_episodes}, bounds {bounds}/{cache.max_limits}, "
-        f"cold photogrammetry {cold.currsize}/{cold.maxsize}"
+        f"cold photogrammetry {cold_now}/{cold_most}"
     )
 
 

@@ -682,6 +682,12 @@ def clear_solve_cache() -> None:
     _solve_cold.cache_clear()
 
 
+def solve_cache_size() -> tuple[int, int]:
+    """(cold solves memoised now, the most the memo keeps): the memo is a bounded LRU."""
+    info = _solve_cold.cache_info()
+    return info.currsize, info.maxsize or 0
+
+
 N_STARTS = len(CUBE_ANGLES)
 
 
