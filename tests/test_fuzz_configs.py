@@ -12,6 +12,7 @@ so CI sees the same inputs every run and nothing is written into the repository.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -23,7 +24,7 @@ from hypothesis import strategies as st
 
 from capture_bench.evaluation.errors import SuiteError
 from capture_bench.evaluation.suites import Suite, load_suite
-from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
+from capture_bench.task.scenarios import ConfigError, Scenario, SeedConfig, load_scenario
 from capture_bench.training.hyperparameters import (
     ALGO_KEYS,
     ALGORITHMS,
@@ -294,7 +295,20 @@ def _assert_built_as_written(scenario: Scenario, data: dict[str, Any], stem: str
 @example(data={"seeds": {"evaluation_start": 2**1024, "training_count": 1e300}})
 def test_a_valid_scenario_mapping_builds_with_the_values_written(tmp_path, data):
     path = _write(tmp_path, "fuzz_valid.yaml", _dump(data))
+    if _seed_ranges_overlap(data.get("seeds", {})):  # every key valid, the ranges not disjoint
+        with pytest.raises(ConfigError, match=r"key 'seeds': the training seeds .* overlap"):
+            load_scenario(path)
+        return
     _assert_built_as_written(load_scenario(path), data, "fuzz_valid")
+
+
+def _seed_ranges_overlap(seeds: dict[str, Any]) -> bool:
+    """Whether the training range meets the evaluation + validation range (the defaults for
+    keys not given)."""
+    s = {**dataclasses.asdict(SeedConfig()), **seeds}
+    start, stop = s["evaluation_start"], s["evaluation_start"] + s["evaluation_count"]
+    stop += s["validation_count"]
+    return s["training_start"] < stop and start < s["training_start"] + s["training_count"]
 
 
 @settings(FUZZ, max_examples=200)

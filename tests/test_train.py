@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,9 +11,9 @@ import numpy as np
 import pytest
 
 import train
-from capture_bench.task.scenarios import ConfigError, load_scenario
+from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
 from capture_bench.training.hyperparameters import load_hyperparameters, validate_hyperparameters
-from capture_bench.training.seeds import TrainingSeeds
+from capture_bench.training.seeds import TrainingSeeds, check_training_seed
 
 TINY = """\
 n_envs: 1
@@ -173,10 +174,11 @@ class _SeedRecorder(gym.Env):
 
 
 def test_training_episodes_use_training_seeds_only():
-    # training seeds 999990-1000009 overlap the evaluation seeds 1000000-1000099 on purpose
-    scenario = load_scenario("paper").replace(
-        seeds={"training_start": 999_990, "training_count": 20}
-    )
+    # training seeds 999990-1000009 overlap the evaluation seeds 1000000-1000099 on purpose;
+    # load_scenario refuses that, so the scenario is built past it: the wrapper still excludes them
+    paper = load_scenario("paper")
+    seeds = dataclasses.replace(paper.seeds, training_start=999_990, training_count=20)
+    scenario = dataclasses.replace(paper, seeds=seeds)
     inner = _SeedRecorder()
     wrapper = TrainingSeeds(inner, scenario, seed=0)
     for i in range(100):
@@ -215,3 +217,45 @@ def test_deterministic_predict_shortcut_equals_sb3_predict(algorithm):
                 np.testing.assert_array_equal(action, expected)
     finally:
         env.close()
+
+
+def test_the_three_seed_ranges_are_disjoint_and_an_overlap_is_refused(tmp_path):
+    for name in list_scenarios():
+        s = load_scenario(name)
+        train_seeds, evaluation, validation = (
+            set(s.training_seeds),
+            set(s.evaluation_seeds),
+            set(s.validation_seeds),
+        )
+        assert len(validation) == 1000 and min(validation) == max(evaluation) + 1, name
+        assert not (train_seeds & evaluation or train_seeds & validation), name
+    bad = tmp_path / "overlap.yaml"
+    bad.write_text("seeds:\n  evaluation_start: 999950\n")  # training is 0-999999
+    with pytest.raises(ConfigError, match=r"key 'seeds': the training seeds 0-999999 overlap"):
+        load_scenario(bad)
+    with pytest.raises(ConfigError, match="validation seeds"):
+        check_training_seed(load_scenario("paper").validation_seeds[0], load_scenario("paper"))
+
+
+def test_training_time_evaluation_uses_validation_seeds_only(tmp_path, monkeypatch):
+    """A tiny run with the periodic evaluation on: every episode any env of the run resets to is
+    a training seed or, for the evaluation, one of the first validation seeds; none is published."""
+    from capture_bench.envs.capture_env import CaptureEnv
+
+    seen: list[int | None] = []
+    reset = CaptureEnv.reset
+
+    def recording_reset(self, *, seed=None, options=None):
+        seen.append(seed)
+        return reset(self, seed=seed, options=options)
+
+    monkeypatch.setattr(CaptureEnv, "reset", recording_reset)
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY + "eval_freq: 32\neval_episodes: 2\n")
+    argv = ["--algo", "ppo", "--scenario", "paper", "--config", str(config)]
+    assert train.main([*argv, "--run-dir", str(tmp_path / "run")]) == 0
+    paper = load_scenario("paper")
+    validation = [s for s in seen if s in paper.validation_seeds]
+    assert set(validation) == set(paper.validation_seeds[:2]) and len(validation) == 4  # 2 evals
+    assert all(s in paper.training_seeds for s in seen if s not in paper.validation_seeds)
+    assert not set(seen) & set(paper.evaluation_seeds)

@@ -104,6 +104,12 @@ class SeedConfig:
     )
     training_start: int = _f(0, "first seed training may draw from", NON_NEGATIVE)
     training_count: int = _f(1_000_000, "number of training seeds", POSITIVE)
+    validation_count: int = _f(
+        1_000,
+        "number of validation seeds, right after the evaluation seeds: training-time evaluation,"
+        " model selection and tuning use these, never an evaluation seed",
+        (0, 100_000, False),
+    )
 
 
 @dataclass(frozen=True)
@@ -140,9 +146,17 @@ class Scenario:
 
     @property
     def training_seeds(self) -> range:
+        """The seeds ``train.py`` draws training episodes from."""
         return range(
             self.seeds.training_start, self.seeds.training_start + self.seeds.training_count
         )
+
+    @property
+    def validation_seeds(self) -> range:
+        """The ``validation_count`` seeds right after the published evaluation seeds: for
+        training-time evaluation, best-model selection and tuning (DESIGN.md's third range)."""
+        start = self.seeds.evaluation_start + self.seeds.evaluation_count
+        return range(start, start + self.seeds.validation_count)
 
     def estimator_settings(self) -> dict[str, float]:
         """What the estimator assumes (pixel noise, process noise), as the keyword arguments of
@@ -162,7 +176,9 @@ class Scenario:
                 data[key].update(value)
             else:
                 data[key] = value
-        return _build(Scenario, data, source="<override>", prefix="")
+        return _checked_seed_ranges(
+            _build(Scenario, data, source="<override>", prefix=""), "<override>"
+        )
 
 
 def scenario_files() -> list[Path]:
@@ -206,7 +222,21 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         raise ConfigError(f"{path}: no such scenario file")
     data, _ = read_mapping(path, "scenario keys")
     data.setdefault("name", path.stem)
-    scenario = _build(Scenario, data, source=str(path), prefix="")
+    scenario = _checked_seed_ranges(_build(Scenario, data, source=str(path), prefix=""), str(path))
+    return scenario
+
+
+def _checked_seed_ranges(scenario: Scenario, source: str) -> Scenario:
+    """``scenario``, or ``ConfigError`` if its training seeds overlap its evaluation or
+    validation seeds (the evaluation and validation ranges are adjacent by construction)."""
+    train = scenario.training_seeds
+    held_out = range(scenario.seeds.evaluation_start, scenario.validation_seeds.stop)
+    if train.start < held_out.stop and held_out.start < train.stop:
+        raise ConfigError(
+            f"{source}: key 'seeds': the training seeds {train.start}-{train.stop - 1} overlap the "
+            f"evaluation and validation seeds {held_out.start}-{held_out.stop - 1}; move "
+            "seeds.training_start or seeds.evaluation_start so that the ranges are disjoint"
+        )
     return scenario
 
 

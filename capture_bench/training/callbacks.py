@@ -60,9 +60,9 @@ class Progress(BaseCallback):
     """Print a progress line about 20 times a run and evaluate every ``eval_freq`` steps.
 
     Evaluation runs ``eval_episodes`` deterministic episodes on the first of the scenario's
-    evaluation seeds (the same seeds every time, for a comparable curve; nothing is learned from
-    them and no "best model" is kept) and logs ``eval/capture_rate``, ``eval/mean_reward`` and
-    ``eval/median_capture_time`` (s) to TensorBoard.
+    validation seeds (``Scenario.validation_seeds``: never a published evaluation seed; the same
+    seeds every time, for a comparable curve; nothing is learned from them) and logs
+    ``eval/capture_rate``, ``eval/mean_reward`` and ``eval/median_capture_time`` (s) to TensorBoard.
 
     Args:
         config: the run's :class:`~capture_bench.training.options.TrainConfig`.
@@ -123,7 +123,7 @@ class Progress(BaseCallback):
             )
         stats = self.model.get_vec_normalize_env()
         captures, rewards, times = [], [], []
-        for seed in scenario.evaluation_seeds[: self.hp["eval_episodes"]]:
+        for seed in scenario.validation_seeds[: self.hp["eval_episodes"]]:
             obs, _ = self._env.reset(seed=seed)
             total, done, info = 0.0, False, {}
             while not done:
@@ -145,7 +145,7 @@ class Progress(BaseCallback):
         for key, value in result.items():
             self.logger.record(f"eval/{key}", value)
         print(
-            f"eval at {self.num_timesteps} steps on {len(captures)} evaluation seeds: capture "
+            f"eval at {self.num_timesteps} steps on {len(captures)} validation seeds: capture "
             f"rate {result['capture_rate']:.2f}, mean reward {result['mean_reward']:.2f}",
             flush=True,
         )

@@ -1,4 +1,5 @@
-"""Training draws episodes only from a scenario's training seeds, never an evaluation seed."""
+"""Training draws episodes only from a scenario's training seeds, never an evaluation or a
+validation seed (``load_scenario`` refuses a scenario whose ranges overlap)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,16 @@ from capture_bench.task.scenarios import ConfigError, Scenario
 
 
 def check_training_seed(seed: int, scenario: Scenario) -> None:
-    """Raise :class:`ConfigError` unless ``seed`` is a training seed (never an evaluation seed)."""
+    """Raise :class:`ConfigError` unless ``seed`` is a training seed (never an evaluation or a
+    validation seed)."""
     train, evaluation = scenario.training_seeds, scenario.evaluation_seeds
+    validation = scenario.validation_seeds
+    if seed in validation:
+        raise ConfigError(
+            f"seed {seed} is one of scenario {scenario.name!r}'s validation seeds "
+            f"({validation.start}-{validation.stop - 1}); training may use seeds "
+            f"{train.start}-{train.stop - 1}"
+        )
     if seed in set(evaluation):
         raise ConfigError(
             f"seed {seed} is one of scenario {scenario.name!r}'s evaluation seeds "
@@ -42,7 +51,7 @@ class TrainingSeeds(gym.Wrapper):
     def __init__(self, env: gym.Env, scenario: Scenario, seed: int) -> None:
         super().__init__(env)
         self._range = scenario.training_seeds
-        self._excluded = set(scenario.evaluation_seeds)
+        self._excluded = set(scenario.evaluation_seeds) | set(scenario.validation_seeds)
         self._rng = np.random.default_rng(seed)
         self.episode_seed: int | None = None
 
