@@ -35,6 +35,34 @@ def check_training_seed(seed: int, scenario: Scenario) -> None:
         )
 
 
+class TrainingSeedDraw:
+    """A stream of episode seeds drawn uniformly from ``scenario.training_seeds``, skipping any
+    evaluation or validation seed; one per sub-env, shared by :class:`TrainingSeeds` and
+    :class:`capture_bench.training.sb3_vec_env.CaptureSB3VecEnv` so that both draw the same
+    episodes.
+
+    Args:
+        scenario: the scenario (for the seed ranges).
+        seed: seeds the draw's generator (``numpy.random.default_rng``).
+    """
+
+    def __init__(self, scenario: Scenario, seed: int) -> None:
+        self._range = scenario.training_seeds
+        self._excluded = set(scenario.evaluation_seeds) | set(scenario.validation_seeds)
+        self._rng = np.random.default_rng(seed)
+
+    def reseed(self, seed: int) -> None:
+        """Restart the draw from ``seed``."""
+        self._rng = np.random.default_rng(seed)
+
+    def next(self) -> int:
+        """The next episode seed, a training seed."""
+        while True:
+            episode_seed = int(self._rng.integers(self._range.start, self._range.stop))
+            if episode_seed not in self._excluded:
+                return episode_seed
+
+
 class TrainingSeeds(gym.Wrapper):
     """Give every episode an explicit seed drawn from the scenario's training seeds.
 
@@ -50,17 +78,11 @@ class TrainingSeeds(gym.Wrapper):
 
     def __init__(self, env: gym.Env, scenario: Scenario, seed: int) -> None:
         super().__init__(env)
-        self._range = scenario.training_seeds
-        self._excluded = set(scenario.evaluation_seeds) | set(scenario.validation_seeds)
-        self._rng = np.random.default_rng(seed)
+        self._draw = TrainingSeedDraw(scenario, seed)
         self.episode_seed: int | None = None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> Any:
         if seed is not None:
-            self._rng = np.random.default_rng(seed)
-        while True:
-            episode_seed = int(self._rng.integers(self._range.start, self._range.stop))
-            if episode_seed not in self._excluded:
-                break
-        self.episode_seed = episode_seed
-        return self.env.reset(seed=episode_seed, options=options)
+            self._draw.reseed(seed)
+        self.episode_seed = self._draw.next()
+        return self.env.reset(seed=self.episode_seed, options=options)

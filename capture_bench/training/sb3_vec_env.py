@@ -1,0 +1,180 @@
+"""``CaptureSB3VecEnv``: Stable-Baselines3's ``VecEnv`` contract over the batched
+:class:`~capture_bench.envs.vector_env.CaptureVectorEnv`.
+
+SB3 cannot take a gymnasium ``VectorEnv``; this adapter gives it the batched env with SB3's
+semantics, those of ``DummyVecEnv`` over ``TrainingSeeds(CaptureEnv(..., reuse_target_side=True))``
+single envs (``tests/test_sb3_vec_env.py`` checks every transition equal):
+
+* same-step reset: when sub-env i's episode ends, row i of the returned observations is the new
+  episode's first observation, ``infos[i]["terminal_observation"]`` the final one, and
+  ``infos[i]["TimeLimit.truncated"]`` is ``truncated and not terminated``; ``dones`` is
+  ``terminated | truncated``; rewards are float32 (as ``DummyVecEnv``'s buffer);
+* ``infos`` is a list of per-env dicts with the single env's keys and Python values (None where
+  ``CaptureEnv`` gives None), the new episode's reset ``info`` in ``reset_infos[i]``;
+* every episode's seed is drawn from the scenario's training seeds by a
+  :class:`~capture_bench.training.seeds.TrainingSeedDraw` per sub-env, seeded
+  ``seed * 1000 + i`` as ``train.py``'s ``make_env`` seeds rank i; :meth:`seed` (SB3 calls it
+  with the model's seed) re-seeds draw i with ``seed + i`` at the next :meth:`reset`, exactly as
+  ``DummyVecEnv`` passes ``seed + i`` to ``TrainingSeeds.reset``. No evaluation or validation
+  seed is ever used.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from numpy.typing import NDArray
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+
+from capture_bench.envs.vector_env import CaptureVectorEnv
+from capture_bench.task.scenarios import Scenario
+from capture_bench.task.step_rule import OPTIONAL_KEYS
+from capture_bench.training.seeds import TrainingSeedDraw
+
+
+class CaptureSB3VecEnv(VecEnv):
+    """N capture episodes stepped together, as an SB3 ``VecEnv`` (see the module docstring).
+
+    Args:
+        n_envs: number of sub-envs N.
+        scenario: a shipped name, a YAML path or a ``Scenario``.
+        seed: seeds the episode draws: sub-env i's with ``seed * 1000 + i``.
+        observation_source: ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the
+            scenario's).
+        reward: ``"dense"`` or ``"sparse"``.
+
+    Observations: float32, (N, *single observation shape); actions: (N, 3) in [-1, 1] (as
+    ``CaptureEnv``). ``get_attr``/``set_attr``/``env_method`` reach the batched env's attributes,
+    the same for every sub-env, plus ``episode_seed`` (per sub-env, as ``TrainingSeeds``'s);
+    ``env_is_wrapped`` is False (no gymnasium wrapper inside).
+    """
+
+    def __init__(
+        self,
+        n_envs: int,
+        scenario: str | Path | Scenario = "paper",
+        *,
+        seed: int = 0,
+        observation_source: str | None = None,
+        reward: str = "dense",
+    ) -> None:
+        self.venv = CaptureVectorEnv(
+            n_envs, scenario, observation_source=observation_source, reward=reward
+        )
+        self._draws = [TrainingSeedDraw(self.venv.scenario, seed * 1000 + i) for i in range(n_envs)]
+        self.episode_seeds: list[int | None] = [None] * n_envs
+        self._actions: NDArray | None = None
+        super().__init__(n_envs, self.venv.single_observation_space, self.venv.single_action_space)
+
+    # -- SB3 VecEnv API -------------------------------------------------------------------------
+    def reset(self) -> NDArray[np.float32]:
+        """Reset every sub-env on its next training seed; the observations, (N, ...)."""
+        if any(self._options):
+            raise ValueError(f"CaptureSB3VecEnv.reset takes no options, got {self._options!r}")
+        for draw, seed in zip(self._draws, self._seeds, strict=True):
+            if seed is not None:
+                draw.reseed(seed)
+        obs, info = self.venv.reset(seed=self._next_seeds(np.ones(self.num_envs, dtype=bool)))
+        for i in range(self.num_envs):
+            self.reset_infos[i] = _env_info(info, i)
+        self._reset_seeds()
+        self._reset_options()
+        return obs.copy()
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("CaptureSB3VecEnv.step_wait() called without step_async()")
+        actions, self._actions = self._actions, None
+        # Finished sub-envs are reset below, so the batched env's own next-step autoreset
+        # never fires: every sub-env steps.
+        obs, rewards, terminated, truncated, info = self.venv.step(actions)
+        dones = terminated | truncated
+        infos = [_env_info(info, i) for i in range(self.num_envs)]
+        for i in range(self.num_envs):
+            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        if dones.any():
+            ended = np.flatnonzero(dones)
+            for i in ended.tolist():
+                infos[i]["terminal_observation"] = obs[i].copy()
+            new_obs, reset_info = self.venv.reset(
+                seed=self._next_seeds(dones), options={"reset_mask": dones}
+            )
+            obs = np.where(dones[:, None], new_obs, obs)
+            for i in ended.tolist():
+                self.reset_infos[i] = _env_info(reset_info, i)
+        return obs.copy(), rewards.astype(np.float32), dones, infos
+
+    def seed(self, seed: int | None = None) -> Sequence[int | None]:
+        """Re-seed draw i with ``seed + i`` at the next :meth:`reset` (SB3's rule; a random
+        ``seed`` when None)."""
+        return super().seed(seed)
+
+    def close(self) -> None:
+        """Close the batched env (its pybullet world); safe twice."""
+        self.venv.close()
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """The attribute for each sub-env in ``indices``: ``episode_seed`` per sub-env, any
+        other the batched env's (one value shared by all, e.g. ``render_mode`` None)."""
+        targets = list(self._get_indices(indices))
+        if attr_name == "episode_seed":
+            return [self.episode_seeds[i] for i in targets]
+        value = getattr(self.venv, attr_name)
+        return [value for _ in targets]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Set an attribute of the batched env; only for every sub-env at once (they share
+        it)."""
+        if sorted(self._get_indices(indices)) != list(range(self.num_envs)):
+            raise ValueError(
+                f"CaptureSB3VecEnv.set_attr({attr_name!r}) sets the batched env's attribute, "
+                "shared by every sub-env: pass indices=None"
+            )
+        setattr(self.venv, attr_name, value)
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs
+    ) -> list[Any]:
+        """Call a method of the batched env once; its result, repeated for each sub-env in
+        ``indices``."""
+        result = getattr(self.venv, method_name)(*method_args, **method_kwargs)
+        return [result for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(
+        self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None
+    ) -> list[bool]:
+        """False for every sub-env: the batched env holds no gymnasium wrapper (SB3 asks
+        whether a ``Monitor`` is inside; wrap this VecEnv in ``VecMonitor`` instead)."""
+        return [False for _ in self._get_indices(indices)]
+
+    # -- seeds ----------------------------------------------------------------------------------
+    def _next_seeds(self, mask: NDArray[np.bool_]) -> list[int | None]:
+        """The next training seed of each sub-env in ``mask`` (None elsewhere), recorded in
+        ``episode_seeds``."""
+        seeds: list[int | None] = [None] * self.num_envs
+        for i in np.flatnonzero(mask).tolist():
+            seeds[i] = self.episode_seeds[i] = self._draws[i].next()
+        return seeds
+
+
+def _env_info(info: dict[str, Any], i: int) -> dict[str, Any]:
+    """Sub-env i's entries of a gymnasium vector ``info`` (``_key`` masks), as the single env
+    gives them: Python scalars, None for the :data:`OPTIONAL_KEYS` where NaN (and for no
+    failure)."""
+    out: dict[str, Any] = {}
+    for key, values in info.items():
+        if key.startswith("_") or not info[f"_{key}"][i]:
+            continue
+        value = values[i]
+        value = value.item() if isinstance(value, np.generic) else value
+        if key in OPTIONAL_KEYS and value != value:  # NaN
+            value = None
+        out[key] = value
+    return out
