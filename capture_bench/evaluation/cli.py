@@ -24,8 +24,8 @@ import argparse
 import shlex
 import sys
 from pathlib import Path
-from typing import Any, NoReturn
 
+from capture_bench.argparsing import OneLineParser
 from capture_bench.evaluation.backends import BACKENDS
 from capture_bench.evaluation.pipeline import (
     INPUT_ERRORS,
@@ -43,25 +43,11 @@ from capture_bench.task.scenarios import invalid_scenarios
 PROG = "evaluate.py"
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports a bad option in one line (and exit code 2)."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{PROG}: error: {message} (see --help)\n")
-
-    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
-        """argparse's, but ``--workers=--`` is an error: argparse (3.11) makes its value ``[]``."""
-        parsed, extras = super().parse_known_args(args, namespace)
-        for action in self._actions:
-            if action.nargs is None and getattr(parsed, action.dest, None) == []:
-                self.error(f"argument {action.option_strings[0]}: expected one argument")
-        return parsed, extras
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command-line options (each maps to a field of ``EvaluationConfig``)."""
-    parser = _Parser(
+    parser = OneLineParser(
         prog=PROG,
+        hint=" (see --help)",
         description=__doc__.splitlines()[0],
         epilog="List the scenarios (and any invalid scenario file, with its error), suites and "
         "algorithms: python -m capture_bench list",

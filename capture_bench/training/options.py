@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 from dataclasses import dataclass, field
 from typing import Any
 
+from capture_bench.argparsing import OneLineParser
 from capture_bench.task.scenarios import OBSERVATION_SOURCES
 from capture_bench.training.hyperparameters import ALGORITHMS
 
@@ -46,24 +46,9 @@ class TrainConfig:
 RESUMABLE_OPTIONS = ("total_timesteps", "vec_env", "device")
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
-        """One line on stderr and exit status 2 (argparse's own also prints the usage)."""
-        print(f"{self.prog}: error: {message}", file=sys.stderr)
-        raise SystemExit(2)
-
-    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
-        """argparse's, but ``--workers=--`` is an error: argparse (3.11) makes its value ``[]``."""
-        parsed, extras = super().parse_known_args(args, namespace)
-        for action in self._actions:
-            if action.nargs is None and getattr(parsed, action.dest, None) == []:
-                self.error(f"argument {action.option_strings[0]}: expected one argument")
-        return parsed, extras
-
-
 def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
     """An argument parser generated from :class:`TrainConfig` (each field's doc is its help)."""
-    parser = _Parser(prog=prog, description="Train a Stable-Baselines3 policy on a scenario.")
+    parser = OneLineParser(prog=prog, description="Train a Stable-Baselines3 policy on a scenario.")
     for f in dataclasses.fields(TrainConfig):
         base = str if f.name in ("algo", "scenario") else f.type
         kind = int if "int" in str(base) else str
