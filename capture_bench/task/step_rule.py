@@ -431,11 +431,11 @@ class StepRule:
             t0, dt: the step's start and real period, s, (M,).
             trajectory: the j-th episode's true trajectory.
         """
-        s = _first_entry_fractions(d0, d1, self.tolerance)
-        sag = _arc_sag_bounds(applied)
+        s = first_entry_fractions(d0, d1, self.tolerance)
+        sag = arc_sag_bounds(applied)
         arc = sag > ARC_RESOLUTION
         if arc.any():
-            near = arc & ~(_closest_approaches(d0, d1) > self.tolerance_radius + sag)
+            near = arc & ~(closest_approaches(d0, d1) > self.tolerance_radius + sag)
             s[arc & ~near] = np.nan  # the arc stays within `sag` of the chord: no capture
             for j in np.flatnonzero(near).tolist():  # along the true arc (rare: near the target)
                 traj, start, step = trajectory(j), float(t0[j]), float(dt[j])
@@ -453,7 +453,7 @@ class StepRule:
         pending &= before["estimate_valid"] & after["estimate_valid"]
         if not pending.any():
             return
-        s_est = _first_entry_fractions(
+        s_est = first_entry_fractions(
             (x_e0 - before["estimate_position"])[pending],
             (x_e - after["estimate_position"])[pending],
             self.tolerance,
@@ -502,27 +502,6 @@ class StepRule:
             now["dt"],
             self.control_period,
         )
-
-
-# One episode (the single env) takes the scalar twins of capture.py's batched tests, which
-# capture's tests check equal: at M = 1 numpy's per-call overhead is most of a step's rule.
-def _first_entry_fractions(d0: FloatArray, d1: FloatArray, tolerance: FloatArray) -> FloatArray:
-    if d0.shape[0] != 1:
-        return first_entry_fractions(d0, d1, tolerance)
-    s = first_entry_fraction(d0[0], d1[0], tolerance)
-    return np.array([np.nan if s is None else s])
-
-
-def _arc_sag_bounds(applied: FloatArray) -> FloatArray:
-    if applied.shape[0] != 1:
-        return arc_sag_bounds(applied)
-    return np.array([arc_sag_bound(applied[0])])
-
-
-def _closest_approaches(d0: FloatArray, d1: FloatArray) -> FloatArray:
-    if d0.shape[0] != 1:
-        return closest_approaches(d0, d1)
-    return np.array([closest_approach(d0[0], d1[0])])
 
 
 def scalar_info(values: Mapping[str, NDArray], j: int = 0) -> dict[str, Any]:
