@@ -126,7 +126,7 @@ def test_bad_algo_unknown_key_and_bad_value_are_one_line_exit_2(capsys, tmp_path
     bad = tmp_path / "bad.yaml"
     bad.write_text(TINY + "gamma: 1.5\n")
     one_line_error(capsys, ["--config", str(bad)], str(bad), "gamma", "1.5", "[0, 1]")
-    one_line_error(capsys, ["--vec-env", "ray"], "dummy", "subproc")
+    one_line_error(capsys, ["--vec-env", "ray"], "batched", "dummy", "subproc")
 
 
 def test_shipped_algo_files_are_valid():

@@ -26,7 +26,10 @@ class TrainConfig:
     total_timesteps: int | None = _opt(None, "environment steps to train for, in total (all envs)")
     n_envs: int | None = _opt(None, "parallel environments (default: the YAML's n_envs)")
     vec_env: str = _opt(
-        "dummy", "vectorisation: dummy (one process) or subproc", ("dummy", "subproc")
+        "batched",
+        "vectorisation: batched (the batched env, one process), or SB3's dummy (single envs, "
+        "one process) or subproc (single envs, one process each)",
+        ("batched", "dummy", "subproc"),
     )
     seed: int | None = _opt(
         None, "seed; must be one of the scenario's training seeds (default: the first)"

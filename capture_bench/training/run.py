@@ -254,9 +254,11 @@ def make_env(config: TrainConfig, reward: str, rank: int, subprocess: bool) -> A
     return thunk
 
 
-def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
-    """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
-    import stable_baselines3
+def build_venv(config: TrainConfig, hp: dict) -> Any:
+    """The training envs of ``config.vec_env`` in a ``VecMonitor`` (and ``VecNormalize`` where
+    ``hp["normalize"]``): ``batched`` (:class:`~capture_bench.training.sb3_vec_env.
+    CaptureSB3VecEnv`, one process), or SB3's ``dummy`` / ``subproc`` vector envs of single
+    ``CaptureEnv``s; all draw the same training-seed episodes."""
     from stable_baselines3.common.vec_env import (
         DummyVecEnv,
         SubprocVecEnv,
@@ -264,21 +266,47 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
         VecNormalize,
     )
 
-    from capture_bench.training.callbacks import Checkpointer, Progress
+    n_envs = config.n_envs or 1
+    venv: Any
+    if config.vec_env == "batched":
+        from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
 
-    algo = config.algo
-    subprocess = config.vec_env == "subproc"
-    fns = [make_env(config, hp["reward"], i, subprocess) for i in range(config.n_envs or 1)]
-    venv: Any = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
+        venv = CaptureSB3VecEnv(
+            n_envs,
+            config.scenario,
+            seed=config.seed or 0,
+            observation_source=config.observation_source,
+            reward=hp["reward"],
+        )
+    else:
+        subprocess = config.vec_env == "subproc"
+        fns = [make_env(config, hp["reward"], i, subprocess) for i in range(n_envs)]
+        venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
     venv = VecMonitor(venv)
     if hp["normalize"]:
         venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99))
-    algorithm = getattr(stable_baselines3, algo.upper())
-    tb = str(run_dir / "tb")
-    model = algorithm(
-        hp["policy"], venv, seed=config.seed, device=config.device, tensorboard_log=tb,
-        **sb3_kwargs(hp, algo),
+    return venv
+
+
+def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str | None) -> Any:
+    """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``hp``."""
+    import stable_baselines3
+
+    algorithm = getattr(stable_baselines3, config.algo.upper())
+    return algorithm(
+        hp["policy"], venv, seed=config.seed, device=config.device,
+        tensorboard_log=tensorboard_log, **sb3_kwargs(hp, config.algo),
     )  # fmt: skip
+
+
+def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
+    """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
+    from capture_bench.training.callbacks import Checkpointer, Progress
+
+    algo = config.algo
+    venv = build_venv(config, hp)
+    tb = str(run_dir / "tb")
+    model = build_model(config, hp, venv, tb)
     seed_note = f"seed {config.seed}"
     if checkpoint is not None:
         try:
