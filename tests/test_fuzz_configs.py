@@ -462,6 +462,9 @@ def _rule_values(rule: Rule) -> dict[str, Any]:
     if rule.kind == "float":
         outside = [_real(-1e6, low - 1e-3)] if math.isfinite(rule.low) else []
         outside += [_real(high + 1e-3, 1e7)] if math.isfinite(rule.high) else []
+        if not rule.low_inclusive:  # (low, high]: low itself is invalid
+            outside.append(st.just(low))
+            return _kind(_real(low + 1e-6, high), st.one_of(*outside, NON_FINITE, NON_NUMBERS))
         return _kind(_real(low, high), st.one_of(*outside, NON_FINITE, HUGE_INT, NON_NUMBERS))
     if rule.kind == "optional_float":
         return _kind(
@@ -494,10 +497,14 @@ def _rule_values(rule: Rule) -> dict[str, Any]:
 
 
 LAYERS = st.lists(st.integers(1, 512), min_size=1, max_size=3)
-NET_ARCH = _kind(
-    st.one_of(LAYERS, st.dictionaries(st.sampled_from(["pi", "vf", "qf"]), LAYERS, min_size=1)),
+
+
+def _net_arch(heads: tuple[str, ...]) -> dict[str, Any]:
+    """Valid and invalid ``net_arch`` values for a policy whose heads are ``heads``."""
+    return _kind(
+    st.one_of(LAYERS, st.dictionaries(st.sampled_from(heads), LAYERS, min_size=1)),
     st.one_of(st.lists(st.one_of(st.integers(-5, 0), st.booleans(), JUNK_TEXT), min_size=1, max_size=3), st.just({}), st.dictionaries(st.sampled_from(["actor", "x"]), LAYERS, min_size=1), JUNK_TEXT, st.integers()),
-)  # fmt: skip
+    )  # fmt: skip
 
 
 def _algo_spec(algo: str) -> dict[str, Any]:
@@ -506,7 +513,10 @@ def _algo_spec(algo: str) -> dict[str, Any]:
         for k, r in {**TRAINING_KEYS, **ALGO_KEYS[algo]}.items()
         if r.kind != "mapping"
     }
-    sub = {k: NET_ARCH if k == "net_arch" else _rule_values(r) for k, r in POLICY_KWARGS.items()}
+    sub = {
+        k: _net_arch(r.choices) if k == "net_arch" else _rule_values(r)
+        for k, r in POLICY_KWARGS[algo].items()
+    }
     return spec | {f"policy_kwargs.{k}": v for k, v in sub.items()}  # fmt: skip
 
 
@@ -541,7 +551,7 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
             )
         )
         if how == "unknown_sub" and isinstance(data.get("policy_kwargs", {}), dict):
-            sub = draw(UNKNOWN_KEYS.filter(lambda k: k not in POLICY_KWARGS))
+            sub = draw(UNKNOWN_KEYS.filter(lambda k: k not in POLICY_KWARGS[algo]))
             data.setdefault("policy_kwargs", {})[sub] = 1
             key = f"policy_kwargs.{sub}"
         elif how == "unknown_sub":

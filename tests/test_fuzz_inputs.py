@@ -35,6 +35,7 @@ from capture_bench.evaluation.backends import BACKENDS
 from capture_bench.evaluation.report import ReportData
 from capture_bench.task.scenarios import CONFIG_DIR, list_scenarios
 from capture_bench.training import run as training_run
+from capture_bench.training.hyperparameters import ALGORITHMS
 
 FUZZ = settings(
     deadline=None,
@@ -251,12 +252,14 @@ EVALUATE_OPTIONS = [
     _option("--trust-model", st.just(FLAG_VALUE), st.just(FLAG_VALUE)),
 ]  # fmt: skip
 TRAIN_OPTIONS = [
-    _option("--algo", st.sampled_from(["ppo", "sac", "td3", "PPO"]), st.just("a2c") | JUNK),
+    _option("--algo", st.sampled_from([*ALGORITHMS, "PPO"]), st.just("dqn") | JUNK),
+    _option("--set", st.sampled_from(["gamma=0.9", "policy_kwargs.net_arch=[8]", "learning_rate=lin_1e-3", "n_envs=2"]), st.sampled_from(["gamma", "=", "gamma=", "gamma=[", "gama=1", "a.b=1", "n_critics=2"]) | JUNK),
+    _option("--reward", st.sampled_from(["dense", "sparse"]), JUNK),
     _option("--scenario", SCENARIO_NAMES, BAD_SCENARIOS),
     _option("--config", st.just(f"{TMP}/ppo.yaml"), st.sampled_from([str(CONFIG_DIR / "algos" / "sac.yaml"), f"{TMP}/broken.yaml", f"{TMP}/empty_dir", f"{TMP}/none.yaml"]) | JUNK),
     _option("--total-timesteps", st.integers(1, 10**7).map(str), NUMBERS),
     _option("--n-envs", st.integers(1, 16).map(str), st.just("100000") | NUMBERS),
-    _option("--vec-env", st.sampled_from(["dummy", "subproc"]), JUNK),
+    _option("--vec-env", st.sampled_from(["batched", "dummy", "subproc"]), JUNK),
     _option("--seed", st.integers(0, 999).map(str), st.sampled_from(["1000000", "-1"]) | NUMBERS),
     _option("--observation-source", st.sampled_from(["ekf", "photogrammetry", "truth"]), JUNK),
     _option("--run-dir", st.just(f"{TMP}/fresh"), PATHS),

@@ -117,7 +117,7 @@ def test_an_evaluation_seed_is_refused(capsys, tmp_path):
 
 
 def test_bad_algo_unknown_key_and_bad_value_are_one_line_exit_2(capsys, tmp_path):
-    one_line_error(capsys, ["--algo", "dqn"], "dqn", "ppo, sac, td3")
+    one_line_error(capsys, ["--algo", "dqn"], "dqn", "ppo, a2c, sac, td3, ddpg, tqc")
     unknown = tmp_path / "unknown.yaml"
     unknown.write_text(TINY + "learning_rat: 0.001\n")
     one_line_error(
@@ -130,7 +130,10 @@ def test_bad_algo_unknown_key_and_bad_value_are_one_line_exit_2(capsys, tmp_path
 
 
 def test_shipped_algo_files_are_valid():
-    for algo in ("ppo", "sac", "td3"):
+    from capture_bench.training.hyperparameters import ALGO_DIR, ALGORITHMS
+
+    assert sorted(p.stem for p in ALGO_DIR.glob("*.yaml")) == sorted(ALGORITHMS)
+    for algo in ALGORITHMS:
         hp, _ = load_hyperparameters(algo)
         assert hp["n_envs"] >= 1 and hp["total_timesteps"] >= 1
 

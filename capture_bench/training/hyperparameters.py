@@ -7,17 +7,38 @@ SB3 algorithm's constructor arguments. No SB3 or torch import happens at module 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
-from capture_bench.task.scenarios import CONFIG_DIR
-from capture_bench.validation import ConfigError, Rule, Schema, check_mapping, is_file, read_mapping
+from capture_bench.task.scenarios import CONFIG_DIR, Scenario
+from capture_bench.validation import (
+    YAML_ERRORS,
+    ConfigError,
+    Rule,
+    Schema,
+    check_mapping,
+    is_file,
+    read_mapping,
+)
 
 ALGO_DIR = CONFIG_DIR / "algos"
-ALGORITHMS = ("ppo", "sac", "td3")
-OFF_POLICY = ("sac", "td3")
+#: The algorithms train.py trains: SB3's, and TQC from sb3-contrib.
+ALGORITHMS = ("ppo", "a2c", "sac", "td3", "ddpg", "tqc")
+#: Those that learn from a replay buffer (checkpoints keep it; ``learning_starts`` applies).
+OFF_POLICY = ("sac", "td3", "ddpg", "tqc")
+#: Where each algorithm's class lives.
+ALGORITHM_CLASSES = {
+    "ppo": ("stable_baselines3", "PPO"),
+    "a2c": ("stable_baselines3", "A2C"),
+    "sac": ("stable_baselines3", "SAC"),
+    "td3": ("stable_baselines3", "TD3"),
+    "ddpg": ("stable_baselines3", "DDPG"),
+    "tqc": ("sb3_contrib", "TQC"),
+}
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
 
@@ -36,58 +57,84 @@ TRAINING_KEYS = {
     "eval_freq": NONNEG_INT,
     "eval_episodes": POS_INT,
 }
-_COMMON = {"learning_rate": Rule("schedule"), "gamma": UNIT, "batch_size": POS_INT}
-_OFF = {
-    **_COMMON,
+_SDE = {"use_sde": Rule("bool"), "sde_sample_freq": Rule("int", -1)}
+_ON = {  # PPO and A2C (OnPolicyAlgorithm)
+    "learning_rate": Rule("schedule"),
+    "gamma": UNIT,
+    "n_steps": Rule("int", 2),
+    "gae_lambda": UNIT,
+    "ent_coef": NONNEG,
+    "vf_coef": NONNEG,
+    "max_grad_norm": NONNEG,
+    "normalize_advantage": Rule("bool"),
+    **_SDE,
+}
+_OFF = {  # OffPolicyAlgorithm
+    "learning_rate": Rule("schedule"),
+    "gamma": UNIT,
+    "batch_size": POS_INT,
     "buffer_size": POS_INT,
     "learning_starts": NONNEG_INT,
     "tau": UNIT,
     "train_freq": POS_INT,
     "gradient_steps": Rule("int", -1),
 }
+_ENTROPY = {  # SAC and TQC: entropy-regularised, squashed Gaussian actor
+    "ent_coef": Rule("float_or_auto"),
+    "target_update_interval": POS_INT,
+    "target_entropy": Rule("float_or_auto"),
+    **_SDE,
+    "use_sde_at_warmup": Rule("bool"),
+}
+_DETERMINISTIC = {  # TD3 and DDPG: deterministic actor, Gaussian exploration noise
+    "action_noise_std": NONNEG,  # in action units (Box(-1, 1))
+}
 ALGO_KEYS: dict[str, dict[str, Rule]] = {
     "ppo": {
-        **_COMMON,
-        "n_steps": Rule("int", 2),
+        **_ON,
+        "batch_size": POS_INT,
         "n_epochs": POS_INT,
-        "gae_lambda": UNIT,
         "clip_range": Rule("schedule"),
-        "ent_coef": NONNEG,
-        "vf_coef": NONNEG,
-        "max_grad_norm": NONNEG,
-        "use_sde": Rule("bool"),
-        "sde_sample_freq": Rule("int", -1),
         "target_kl": Rule("optional_float", 0.0),
-        "normalize_advantage": Rule("bool"),
     },
-    "sac": {
-        **_OFF,
-        "ent_coef": Rule("float_or_auto"),
-        "target_update_interval": POS_INT,
-        "target_entropy": Rule("float_or_auto"),
-        "use_sde": Rule("bool"),
-        "sde_sample_freq": Rule("int", -1),
-        "use_sde_at_warmup": Rule("bool"),
+    "a2c": {
+        **_ON,
+        "rms_prop_eps": Rule("float", 0.0, low_inclusive=False),
+        "use_rms_prop": Rule("bool"),
     },
+    "sac": {**_OFF, **_ENTROPY},
     "td3": {
         **_OFF,
+        **_DETERMINISTIC,
         "policy_delay": POS_INT,
         "target_policy_noise": NONNEG,
         "target_noise_clip": NONNEG,
-        "action_noise_std": NONNEG,  # Gaussian exploration noise, in action units (Box(-1, 1))
     },
+    "ddpg": {**_OFF, **_DETERMINISTIC},
+    "tqc": {**_OFF, **_ENTROPY, "top_quantiles_to_drop_per_net": NONNEG_INT},
 }
-POLICY_KWARGS = {
-    "net_arch": Rule("layers", choices=("pi", "vf", "qf")),  # qf for sac/td3
-    "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
-    "log_std_init": Rule("float"),
-    "ortho_init": Rule("bool"),
-    "n_critics": POS_INT,
+_NET = {"activation_fn": Rule("choice", choices=tuple(ACTIVATIONS))}
+_ACTOR_CRITIC = {"net_arch": Rule("layers", choices=("pi", "vf")), **_NET}
+_Q = {"net_arch": Rule("layers", choices=("pi", "qf")), **_NET, "n_critics": POS_INT}
+#: ``policy_kwargs`` each algorithm's SB3 policy accepts (of those the safe policy format
+#: declares: :mod:`agents.policy_file`).
+POLICY_KWARGS: dict[str, dict[str, Rule]] = {
+    "ppo": {**_ACTOR_CRITIC, "log_std_init": Rule("float"), "ortho_init": Rule("bool")},
+    "a2c": {**_ACTOR_CRITIC, "log_std_init": Rule("float"), "ortho_init": Rule("bool")},
+    "sac": {**_Q, "log_std_init": Rule("float")},
+    "td3": _Q,
+    "ddpg": _Q,
+    "tqc": {**_Q, "log_std_init": Rule("float"), "n_quantiles": POS_INT},
 }
+
+
+def _schema(algo: str) -> Schema:
+    return {**TRAINING_KEYS, **ALGO_KEYS[algo], "policy_kwargs": POLICY_KWARGS[algo]}
 
 
 def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any]:
-    """Check a hyper-parameter mapping for ``algo``; return it with numbers in canonical form.
+    """Check a complete hyper-parameter mapping for ``algo`` (no scenario sections); return it
+    with numbers in canonical form and the defaults filled in.
 
     Raises:
         ConfigError: not a mapping, an unknown key, or a bad value (the message names
@@ -95,9 +142,8 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
     """
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping of hyper-parameters, got {data!r}")
-    schema: Schema = {**TRAINING_KEYS, **ALGO_KEYS[algo], "policy_kwargs": POLICY_KWARGS}
     required = dict.fromkeys(("n_envs", "total_timesteps"), POS_INT.describe())
-    out = check_mapping(data, schema, source, required=required)
+    out = check_mapping(data, _schema(algo), source, required=required)
     out.setdefault("policy", "MlpPolicy")
     out.setdefault("policy_kwargs", {})
     out.setdefault("normalize", False)
@@ -109,21 +155,133 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
 
 
 def load_hyperparameters(algo: str, path: str | Path | None = None) -> tuple[dict[str, Any], Path]:
-    """Read and validate ``configs/algos/<algo>.yaml`` (or ``path``); return it and its path."""
+    """Read and validate ``configs/algos/<algo>.yaml`` (or ``path``) without a scenario section
+    applied; return it and its path (see :func:`resolve_hyperparameters`)."""
+    hp, file, _ = resolve_hyperparameters(algo, None, path)
+    return hp, file
+
+
+def resolve_hyperparameters(
+    algo: str,
+    scenario: Scenario | None,
+    path: str | Path | None = None,
+    overrides: Sequence[str] = (),
+) -> tuple[dict[str, Any], Path, dict[str, Any]]:
+    """The hyper-parameters of a run of ``algo`` on ``scenario``, validated.
+
+    Three layers, each checked on its own so that a message names where the bad value came from:
+
+    1. the file's top-level keys (every scenario);
+    2. the file's section for the scenario, if any: a top-level key that is a scenario's name
+       or env ID (``paper:`` or ``CaptureBench/Paper-v0:``, RL Zoo style) holding a mapping of
+       hyper-parameters;
+    3. ``overrides``, ``KEY=VALUE`` strings (``--set``): VALUE is YAML, a dotted KEY reaches
+       into ``policy_kwargs`` (``policy_kwargs.net_arch=[64,64]``).
+
+    A later layer replaces an earlier one key by key (``policy_kwargs`` entry by entry).
+
+    Returns:
+        The validated mapping, the file it came from, and where each layer came from
+        (``{"file": ..., "section": name or None, "overrides": [...]}``).
+
+    Raises:
+        ConfigError: an unknown algorithm, file, key or section, or a bad value.
+    """
     if algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
     file = Path(path) if path is not None else ALGO_DIR / f"{algo}.yaml"
     if not is_file(file):
         raise ConfigError(f"{file}: no such hyper-parameter file")
     data, _ = read_mapping(file, "hyper-parameters")
-    return validate_hyperparameters(data, algo, str(file)), file
+    schema = _schema(algo)
+    flat = {k: v for k, v in data.items() if k in schema}
+    sections = {k: v for k, v in data.items() if k not in schema}
+    names = _section_names(scenario)
+    for key, section in sections.items():
+        if not (isinstance(key, str) and key in names and isinstance(section, dict)):
+            raise ConfigError(
+                f"{file}: unknown key {str(key)!r}; valid keys: {', '.join(schema)}, or a "
+                f"scenario section ({', '.join(sorted(n for n in names if '/' not in n))} or "
+                "an env ID) holding a mapping of hyper-parameters"
+            )
+        check_mapping(section, schema, str(file), prefix=f"{key}.")
+    chosen = (
+        [] if scenario is None else [k for k in sections if k in (scenario.name, scenario.env_id)]
+    )
+    if len(chosen) > 1:
+        assert scenario is not None
+        raise ConfigError(
+            f"{file}: two sections for scenario {scenario.name!r} ({chosen[0]!r} and "
+            f"{chosen[1]!r}); keep one"
+        )
+    merged = check_mapping(flat, schema, str(file))
+    if chosen:
+        merged = _overlay(merged, sections[chosen[0]])
+    for item in overrides:
+        merged = _overlay(merged, parse_override(item, algo))
+    hp = validate_hyperparameters(merged, algo, str(file) + (f" ({chosen[0]})" if chosen else ""))
+    origin = {
+        "file": str(file),
+        "section": chosen[0] if chosen else None,
+        "overrides": list(overrides),
+    }
+    return hp, file, origin
+
+
+def parse_override(item: Any, algo: str) -> dict[str, Any]:
+    """One ``--set KEY=VALUE`` as a mapping checked like the file (``{"gamma": 0.98}``,
+    ``{"policy_kwargs": {"net_arch": [64, 64]}}``).
+
+    Raises:
+        ConfigError: not KEY=VALUE, VALUE not YAML, an unknown key or a bad value; the
+            message names the ``--set`` and what is valid.
+    """
+    source = f"--set {item}"
+    if not isinstance(item, str) or "=" not in item or not item.split("=", 1)[0].strip():
+        raise ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set learning_rate=1.0e-3")
+    key, text = (part.strip() for part in item.split("=", 1))
+    try:
+        value = yaml.safe_load(text) if text else None
+    except YAML_ERRORS as exc:
+        first = " ".join(str(exc).split()) or type(exc).__name__
+        raise ConfigError(f"{source}: the value is not valid YAML ({first})") from None
+    if value is None:
+        raise ConfigError(f"{source}: no value; expected KEY=VALUE, e.g. --set gamma=0.98")
+    parts = key.split(".")
+    if len(parts) > 2 or (len(parts) == 2 and parts[0] != "policy_kwargs"):
+        raise ConfigError(
+            f"{source}: key {key!r} is not valid; only policy_kwargs.<name> may be dotted"
+        )
+    data: dict[str, Any] = {parts[0]: value} if len(parts) == 1 else {parts[0]: {parts[1]: value}}
+    return check_mapping(data, _schema(algo), source)
+
+
+def _overlay(base: dict[str, Any], layer: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``layer``'s keys replacing its own; ``policy_kwargs`` merged entry by entry."""
+    out = {**base, **layer}
+    if isinstance(layer.get("policy_kwargs"), dict):
+        out["policy_kwargs"] = {**base.get("policy_kwargs", {}), **layer["policy_kwargs"]}
+    return out
+
+
+def _section_names(scenario: Scenario | None) -> set[str]:
+    """What a scenario section may be called: a shipped scenario's name or env ID, or the
+    run's own scenario's."""
+    from capture_bench.task.scenarios import list_scenarios, load_scenario
+
+    names: set[str] = set()
+    for name in list_scenarios():
+        names |= {name, load_scenario(name).env_id}
+    if scenario is not None:
+        names |= {scenario.name, scenario.env_id}
+    return names
 
 
 def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
     """The validated hyper-parameters as keyword arguments of the SB3 algorithm's constructor.
 
     ``lin_<x>`` becomes a linear schedule from x to 0; ``activation_fn`` a torch module class;
-    ``action_noise_std`` (TD3) a :class:`NormalActionNoise` on the 3 joints.
+    ``action_noise_std`` (TD3, DDPG) a :class:`NormalActionNoise` on the 3 joints.
     """
     kwargs = {k: v for k, v in hp.items() if k in ALGO_KEYS[algo] and k != "action_noise_std"}
     for key in ("learning_rate", "clip_range"):
@@ -150,3 +308,24 @@ def _linear(initial: float) -> Any:
         return progress_remaining * initial
 
     return schedule
+
+
+def algorithm_class(algo: str) -> Any:
+    """The SB3 (or sb3-contrib) class of ``algo``.
+
+    Raises:
+        ConfigError: ``algo`` is unknown, or its package (sb3-contrib for TQC) is not installed.
+    """
+    if algo not in ALGORITHM_CLASSES:
+        raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
+    module_name, name = ALGORITHM_CLASSES[algo]
+    import importlib
+
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError:
+        package = module_name.replace("_", "-")
+        raise ConfigError(
+            f"algorithm {algo} needs the package {package}: pip install {package}"
+        ) from None
+    return getattr(module, name)

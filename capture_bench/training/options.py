@@ -31,6 +31,14 @@ class TrainConfig:
         "one process) or subproc (single envs, one process each)",
         ("batched", "dummy", "subproc"),
     )
+    overrides: list[str] | None = _opt(
+        None,
+        "override one hyper-parameter, KEY=VALUE (VALUE in YAML; dotted keys reach into "
+        "policy_kwargs: policy_kwargs.net_arch=[64,64]); repeat for more; checked like the file",
+    )
+    reward: str | None = _opt(
+        None, "reward: dense or sparse (default: the YAML's)", ("dense", "sparse")
+    )
     seed: int | None = _opt(
         None, "seed; must be one of the scenario's training seeds (default: the first)"
     )
@@ -49,15 +57,52 @@ class TrainConfig:
 RESUMABLE_OPTIONS = ("total_timesteps", "vec_env", "device")
 
 
+#: Options whose command-line name is not the field's.
+FLAGS = {"overrides": "--set"}
+
+EXAMPLES = """\
+examples:
+  python train.py --algo ppo --scenario paper
+  python train.py --algo sac --scenario tumbling --total-timesteps 200000
+  python train.py --algo tqc --set learning_rate=1.0e-3 --set policy_kwargs.net_arch=[64,64]
+  python train.py --algo ppo --config runs/tune-paper-ppo/best.yaml --reward sparse
+  python train.py --resume runs/paper-ppo-0 --total-timesteps 2000000
+  tensorboard --logdir runs
+
+algorithms: {algorithms} (configs/algos/<algo>.yaml; TQC from sb3-contrib)
+scenarios:  {scenarios} (configs/scenarios/<name>.yaml, or a YAML path)
+
+A hyper-parameter YAML holds keys for every scenario and, optionally, per-scenario sections
+(RL Zoo style) keyed by scenario name or env ID that override them; --set overrides both. The
+resolved hyper-parameters are saved in the run as hyperparameters.yaml (a --config file).
+"""
+
+
 def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
-    """An argument parser generated from :class:`TrainConfig` (each field's doc is its help)."""
-    parser = OneLineParser(prog=prog, description="Train a Stable-Baselines3 policy on a scenario.")
+    """An argument parser generated from :class:`TrainConfig` (each field's doc is its help),
+    with examples and the valid algorithms and scenarios after the options."""
+    from capture_bench.task.scenarios import list_scenarios
+
+    parser = OneLineParser(
+        prog=prog,
+        description="Train a Stable-Baselines3 policy on a scenario.",
+        epilog=EXAMPLES.format(
+            algorithms=", ".join(ALGORITHMS), scenarios=", ".join(list_scenarios())
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     for f in dataclasses.fields(TrainConfig):
+        flag = FLAGS.get(f.name, "--" + f.name.replace("_", "-"))
+        if f.name == "overrides":
+            parser.add_argument(
+                flag, action="append", dest=f.name, help=f.metadata["doc"], metavar="KEY=VALUE"
+            )
+            continue
         base = str if f.name in ("algo", "scenario") else f.type
         kind = int if "int" in str(base) else str
         doc = f.metadata["doc"] + (f" (default: {f.default})" if f.default is not None else "")
         parser.add_argument(
-            "--" + f.name.replace("_", "-"),
+            flag,
             type=kind,
             default=None,  # None = not given, so --resume can tell what was asked for
             choices=f.metadata["choices"],
@@ -65,6 +110,19 @@ def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
             metavar=f.name.upper(),
         )
     return parser
+
+
+def command_line(config: TrainConfig) -> str:
+    """The ``train.py`` command that starts this run afresh (for model cards)."""
+    words = ["python", "train.py"]
+    for key, value in vars(config).items():
+        if value is None or key in ("resume", "run_dir"):
+            continue
+        if key == "overrides":
+            words += [f"--set {item}" for item in value]
+        else:
+            words.append(f"--{key.replace('_', '-')} {value}")
+    return " ".join(words)
 
 
 def parse_args(argv: list[str] | None) -> tuple[TrainConfig, set[str]]:

@@ -35,16 +35,26 @@ from capture_bench.training.checkpoint import (
 from capture_bench.training.hyperparameters import (
     ALGORITHMS,
     OFF_POLICY,
-    load_hyperparameters,
+    algorithm_class,
+    resolve_hyperparameters,
     sb3_kwargs,
     validate_hyperparameters,
 )
-from capture_bench.training.options import RESUMABLE_OPTIONS, TrainConfig, parse_args
+from capture_bench.training.options import (
+    FLAGS,
+    RESUMABLE_OPTIONS,
+    TrainConfig,
+    command_line,
+    parse_args,
+)
 from capture_bench.training.seeds import TrainingSeeds, check_training_seed
 
 #: Memory one training environment holds (a pybullet world, the estimator, the recordings):
 #: measured ~30 MB per CaptureEnv on the 2-core machine; the check leaves a margin.
 ENV_MEMORY_BYTES = 40 * 2**20
+#: The same for one sub-env of the batched env, which shares one pybullet world: measured
+#: ~0.5 MB per sub-env beyond ~40 MB for the env itself (16 vs 128 sub-envs, 250 steps).
+BATCHED_ENV_MEMORY_BYTES = 2 * 2**20
 #: Share of the available memory the environments may take.
 MEMORY_SHARE = 0.8
 
@@ -125,9 +135,10 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         data, old = _read_run_config(run_dir)
         extra = sorted(given - set(RESUMABLE_OPTIONS) - {"resume"})
         if extra:
+            flag = FLAGS.get(extra[0], "--" + extra[0].replace("_", "-"))
             raise ConfigError(
                 f"--resume reuses the run's saved config; only --total-timesteps, --vec-env and "
-                f"--device may be given with it, not --{extra[0].replace('_', '-')}"
+                f"--device may be given with it, not {flag}"
             )
         config = TrainConfig(
             **{**data["config"], **{k: getattr(config, k) for k in given if k != "resume"}}
@@ -154,20 +165,22 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         return config, hp, run_dir, checkpoint
 
     config.algo = config.algo.lower()
-    hp, _ = load_hyperparameters(config.algo, config.config)
     scenario = load_scenario(config.scenario)
+    for key in ("total_timesteps", "n_envs"):
+        if getattr(config, key) is not None and getattr(config, key) < 1:
+            raise ConfigError(f"--{key.replace('_', '-')} must be >= 1, got {getattr(config, key)}")
+    hp, _, origin = resolve_hyperparameters(
+        config.algo, scenario, config.config, config.overrides or ()
+    )
+    algorithm_class(config.algo)  # its package is installed (sb3-contrib for TQC)
     if config.seed is None:
         config.seed = scenario.training_seeds.start
     check_training_seed(config.seed, scenario)
-    for key in ("total_timesteps", "n_envs"):
+    for key in ("total_timesteps", "n_envs", "reward"):  # the options win over the file
         if getattr(config, key) is not None:
-            if getattr(config, key) < 1:
-                raise ConfigError(
-                    f"--{key.replace('_', '-')} must be >= 1, got {getattr(config, key)}"
-                )
             hp[key] = getattr(config, key)
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
-    _check_env_count(config.n_envs)
+    _check_env_count(config.n_envs, config.vec_env)
     config.observation_source = config.observation_source or scenario.estimator.source
     run_dir = Path(config.run_dir or f"runs/{scenario.name}-{config.algo}-{config.seed}")
     if (run_dir / "config.json").exists():
@@ -178,9 +191,26 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     _note_rounding(config.algo, hp, hp["total_timesteps"])
     config.run_dir = str(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    payload = {"config": vars(config) | {"resume": None}, "hyperparameters": hp}
+    payload = {"config": vars(config) | {"resume": None}, "hyperparameters": hp, "origin": origin}
+    atomic_write(run_dir / "hyperparameters.yaml", resolved_yaml(config, hp, origin).encode())
     atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
     return config, hp, run_dir, None
+
+
+def resolved_yaml(config: TrainConfig, hp: dict, origin: dict) -> str:
+    """The run's resolved hyper-parameters as a YAML file that ``--config`` reads back."""
+    import yaml
+
+    layers = [f"  file: {origin['file']}"]
+    if origin["section"]:
+        layers.append(f"  section: {origin['section']}")
+    layers += [f"  --set {item}" for item in origin["overrides"]]
+    header = (
+        f"# The resolved hyper-parameters of {config.algo.upper()} on {config.scenario}, from\n"
+        + "".join(f"#{line}\n" for line in layers)
+        + f"# Train again with: python train.py --algo {config.algo} --config <this file>\n"
+    )
+    return header + yaml.safe_dump(hp, sort_keys=False)
 
 
 def _check_device(device: str) -> None:
@@ -208,16 +238,17 @@ def _available_memory() -> int | None:
     return None
 
 
-def _check_env_count(n_envs: int) -> None:
+def _check_env_count(n_envs: int, vec_env: str) -> None:
     """Refuse more environments than the memory available can hold (they would swap or hang)."""
     available = _available_memory()
     if available is None:
         return
-    most = max(1, int(available * MEMORY_SHARE // ENV_MEMORY_BYTES))
+    each = BATCHED_ENV_MEMORY_BYTES if vec_env == "batched" else ENV_MEMORY_BYTES
+    most = max(1, int(available * MEMORY_SHARE // each))
     if n_envs > most:
         raise ConfigError(
-            f"--n-envs {n_envs}: at most {most} environments fit in the "
-            f"{available / 2**30:.1f} GiB of memory available (~{ENV_MEMORY_BYTES >> 20} MB each)"
+            f"--n-envs {n_envs}: at most {most} {vec_env} environments fit in the "
+            f"{available / 2**30:.1f} GiB of memory available (~{each >> 20} MB each)"
         )
 
 
@@ -290,9 +321,7 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
 
 def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str | None) -> Any:
     """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``hp``."""
-    import stable_baselines3
-
-    algorithm = getattr(stable_baselines3, config.algo.upper())
+    algorithm = algorithm_class(config.algo)
     return algorithm(
         hp["policy"], venv, seed=config.seed, device=config.device,
         tensorboard_log=tensorboard_log, **sb3_kwargs(hp, config.algo),
@@ -414,10 +443,7 @@ def save_final(
         "git": git_state(),
         "packages": package_versions(),
         "hyperparameters": hp,
-        "command": "python train.py " + " ".join(
-            f"--{k.replace('_', '-')} {v}" for k, v in vars(config).items()
-            if v is not None and k not in ("resume", "config", "run_dir")
-        ),
-    }  # fmt: skip
+        "command": command_line(config),
+    }
     normalizer = None if env is None else ObservationNormalizer.from_vecnormalize(env)
     save_policy(run_dir, config.algo, model.policy, normalizer, extra=metadata)

@@ -1,0 +1,228 @@
+"""train.py's algorithms and configs (issue 12 points 2, 3, 7): a tiny run of every algorithm,
+per-scenario sections, ``--set``, ``--reward``, the saved resolved config, ``--help``, and each
+bad input as one line with exit status 2 and nothing written."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+import train
+from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
+from capture_bench.training.hyperparameters import (
+    ALGORITHMS,
+    OFF_POLICY,
+    parse_override,
+    resolve_hyperparameters,
+)
+
+#: A few hundred steps of each algorithm with a 16-unit network, set with --set only.
+TINY = {
+    "on": ["n_envs=2", "total_timesteps=128", "n_steps=32", "policy_kwargs.net_arch=[16]"],
+    "off": [
+        "n_envs=2", "total_timesteps=200", "learning_starts=64", "batch_size=32",
+        "buffer_size=1000", "gradient_steps=1", "policy_kwargs.net_arch=[16]",
+    ],
+}  # fmt: skip
+RUN_FILES = {
+    "config.json",
+    "hyperparameters.yaml",
+    "wall_time.json",
+    "model.zip",
+    "policy.pt",
+    "metadata.json",
+}
+
+
+def _tiny(algo: str) -> list[str]:
+    extra = ["batch_size=32", "n_epochs=1"] if algo == "ppo" else []
+    return [f"--set={item}" for item in TINY["off" if algo in OFF_POLICY else "on"] + extra]
+
+
+@pytest.mark.parametrize("algo", ALGORITHMS)
+def test_a_tiny_run_of_each_algorithm_writes_a_complete_run_directory(tmp_path, algo):
+    from agents.sb3_policy import load_sb3_policy
+    from capture_bench.envs.capture_env import CaptureEnv
+
+    run_dir = tmp_path / "run"
+    argv = ["--algo", algo, *_tiny(algo), "--set", "checkpoint_freq=64", "--run-dir", str(run_dir)]
+    assert train.main(argv) == 0
+    assert RUN_FILES <= {p.name for p in run_dir.iterdir()}
+    assert list((run_dir / "tb").rglob("events.out.tfevents.*"))
+    assert list((run_dir / "checkpoints").glob("step_*"))
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    assert meta["algorithm"] == algo.upper()
+    assert meta["hyperparameters"]["policy_kwargs"]["net_arch"] == [16]
+    assert "--set n_envs=2" in meta["command"] and f"--algo {algo}" in meta["command"]
+    env = CaptureEnv("paper")
+    try:  # the safe policy loads and acts
+        agent = load_sb3_policy(run_dir, env)
+        obs, _ = env.reset(seed=load_scenario("paper").validation_seeds[0])
+        action, _ = agent.predict(obs, deterministic=True)
+        assert env.action_space.contains(action)
+    finally:
+        env.close()
+
+
+def test_the_saved_resolved_config_trains_the_same_hyperparameters(tmp_path):
+    first = tmp_path / "first"
+    argv = ["--algo", "ppo", *_tiny("ppo"), "--set", "gamma=0.97", "--reward", "sparse"]
+    assert train.main([*argv, "--run-dir", str(first), "--set", "total_timesteps=64"]) == 0
+    saved = json.loads((first / "config.json").read_text())
+    hp = saved["hyperparameters"]
+    assert hp["gamma"] == 0.97 and hp["reward"] == "sparse" and hp["n_steps"] == 32
+    assert saved["origin"]["overrides"][-1] == "total_timesteps=64"
+    resolved = first / "hyperparameters.yaml"
+    assert "--set gamma=0.97" in resolved.read_text()  # the header says where it came from
+    again, _, origin = resolve_hyperparameters("ppo", load_scenario("paper"), resolved)
+    assert again == hp and origin["section"] is None
+    second = tmp_path / "second"
+    assert train.main(["--config", str(resolved), "--run-dir", str(second)]) == 0
+    assert json.loads((second / "config.json").read_text())["hyperparameters"] == hp
+    assert json.loads((second / "metadata.json").read_text())["reward"] == "sparse"
+
+
+SECTIONS = """\
+n_envs: 4
+total_timesteps: 1000
+gamma: 0.99
+policy_kwargs: {net_arch: [32], log_std_init: -1.0}
+tumbling:
+  gamma: 0.95
+  policy_kwargs: {net_arch: [64]}
+CaptureBench/Drift-v0:
+  n_envs: 8
+"""
+
+
+def test_a_scenario_section_overrides_the_top_level_keys_and_set_overrides_both(tmp_path):
+    path = tmp_path / "ppo.yaml"
+    path.write_text(SECTIONS)
+    hp, _, origin = resolve_hyperparameters("ppo", load_scenario("tumbling"), path)
+    assert hp["gamma"] == 0.95 and hp["n_envs"] == 4 and origin["section"] == "tumbling"
+    assert hp["policy_kwargs"] == {"net_arch": [64], "log_std_init": -1.0}  # merged by entry
+    hp, _, origin = resolve_hyperparameters("ppo", load_scenario("drift"), path)
+    assert (
+        hp["n_envs"] == 8 and hp["gamma"] == 0.99 and origin["section"] == "CaptureBench/Drift-v0"
+    )
+    hp, _, origin = resolve_hyperparameters(
+        "ppo", load_scenario("paper"), path, ["gamma=0.9", "policy_kwargs.net_arch=[8, 8]"]
+    )
+    assert hp["gamma"] == 0.9 and hp["policy_kwargs"]["net_arch"] == [8, 8]
+    assert origin["section"] is None and hp["n_envs"] == 4
+    # train.py reads the section of the scenario it trains on
+    run_dir = tmp_path / "run"
+    argv = ["--config", str(path), "--scenario", "tumbling", "--set", "total_timesteps=64"]
+    tiny = ["--set=n_steps=32", "--set=batch_size=32", "--set=n_epochs=1", "--n-envs", "2"]
+    assert train.main([*argv, *tiny, "--run-dir", str(run_dir)]) == 0
+    hp = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
+    assert hp["gamma"] == 0.95 and hp["n_envs"] == 2  # --n-envs wins over the file
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (
+            SECTIONS + "tumbling_x:\n  gamma: 0.9\n",
+            ("unknown key 'tumbling_x'", "scenario section"),
+        ),
+        (SECTIONS + "tumbling_x: 3\n", ("unknown key 'tumbling_x'",)),
+        (SECTIONS + "paper: 3\n", ("unknown key 'paper'", "holding a mapping")),
+        (SECTIONS + "paper:\n  gama: 0.9\n", ("unknown key 'paper.gama'", "valid keys")),
+        (SECTIONS + "paper:\n  gamma: 2\n", ("key 'paper.gamma'", "[0, 1]")),
+        (SECTIONS + "CaptureBench/Tumbling-v0:\n  gamma: 0.9\n", ("two sections",)),
+    ],
+)
+def test_a_bad_scenario_section_names_the_file_and_key(tmp_path, text, expected):
+    path = tmp_path / "ppo.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as raised:
+        resolve_hyperparameters("ppo", load_scenario("tumbling"), path)
+    assert str(path) in str(raised.value)
+    for part in expected:
+        assert part in str(raised.value)
+
+
+def test_overrides_parse_as_yaml_and_are_checked_like_the_file():
+    assert parse_override("learning_rate=1e-3", "sac") == {"learning_rate": 1e-3}
+    assert parse_override("learning_rate=lin_3e-4", "ppo") == {"learning_rate": "lin_3e-4"}
+    assert parse_override("policy_kwargs.net_arch={pi: [8], qf: [8]}", "tqc") == {
+        "policy_kwargs": {"net_arch": {"pi": [8], "qf": [8]}}
+    }
+    assert parse_override(" gamma = 0.5 ", "a2c") == {"gamma": 0.5}
+
+
+def one_line_error(capsys, argv: list[str], *expected: str) -> str:
+    assert train.main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith("train.py: error: ") and "Traceback" not in err
+    for text in expected:
+        assert text in err, err
+    return err
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--algo", "dqn"], ("'dqn'", ", ".join(ALGORITHMS))),
+        (["--set", "gamma"], ("--set 'gamma'", "KEY=VALUE")),
+        (["--set", "=1"], ("KEY=VALUE",)),
+        (["--set", "gamma="], ("no value",)),
+        (["--set", "gama=0.9"], ("--set gama=0.9", "unknown key 'gama'", "valid keys", "gamma")),
+        (["--set", "gamma=1.5"], ("--set gamma=1.5", "key 'gamma'", "1.5", "[0, 1]")),
+        (["--set", "gamma=[1"], ("--set gamma=[1", "not valid YAML")),
+        (["--set", "n_critics=2"], ("unknown key 'n_critics'",)),  # PPO has no critics
+        (["--set", "policy_kwargs.n_critics=2"], ("unknown key 'policy_kwargs.n_critics'",)),
+        (["--set", "gamma.x=1"], ("only policy_kwargs.<name> may be dotted",)),
+        (
+            ["--algo", "td3", "--set", "policy_kwargs.ortho_init=true"],
+            ("policy_kwargs.ortho_init",),
+        ),
+        (["--algo", "sac", "--set", "policy_kwargs.net_arch={vf: [8]}"], ("pi: [...], qf: [...]",)),
+        (["--reward", "shaped"], ("--reward", "dense", "sparse")),
+        (["--n-envs", "0"], ("--n-envs must be >= 1",)),
+        (["--n-envs", "100000000"], ("--n-envs 100000000", "at most", "batched")),
+    ],
+)
+def test_each_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, capsys, argv, expected):
+    run_dir = tmp_path / "run"
+    one_line_error(capsys, [*argv, "--run-dir", str(run_dir)], *expected)
+    assert not run_dir.exists()
+
+
+def test_set_is_refused_with_resume_and_nothing_changes(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    assert train.main(["--algo", "a2c", *_tiny("a2c"), "--run-dir", str(run_dir)]) == 0
+    before = (run_dir / "config.json").read_bytes()
+    one_line_error(capsys, ["--resume", str(run_dir), "--set", "gamma=0.5"], "--set")
+    assert (run_dir / "config.json").read_bytes() == before
+
+
+def test_an_existing_run_is_never_overwritten(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    assert train.main(["--algo", "a2c", *_tiny("a2c"), "--run-dir", str(run_dir)]) == 0
+    before = {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()}
+    one_line_error(capsys, ["--algo", "ppo", "--run-dir", str(run_dir)], "already holds a run")
+    assert {p: p.read_bytes() for p in run_dir.rglob("*") if p.is_file()} == before
+
+
+def test_help_lists_algorithms_scenarios_and_examples(capsys):
+    assert train.main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert "examples:" in out and "--set" in out and "--reward" in out
+    assert ", ".join(ALGORITHMS) in out
+    for name in list_scenarios():
+        assert name in out
+
+
+def test_shipped_configs_resolve_for_every_scenario():
+    for algo in ALGORITHMS:
+        for name in list_scenarios():
+            hp, path, _ = resolve_hyperparameters(algo, load_scenario(name))
+            assert path.name == f"{algo}.yaml" and hp["n_envs"] >= 1
+            yaml.safe_dump(hp)  # plain data: what hyperparameters.yaml holds
+    assert Path(path).is_file()
