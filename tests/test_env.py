@@ -341,7 +341,7 @@ def test_unknown_scenario_and_bad_options_name_what_is_valid():
     with pytest.raises(ConfigError, match="expected one of ekf, photogrammetry, truth"):
         CaptureEnv("paper", observation_source="lidar")
     with pytest.raises(ValueError, match="reward must be one of"):
-        CaptureEnv("paper", reward="shaped")
+        CaptureEnv("paper", reward="potential")
 
 
 def test_rgb_array_render_shows_something(make_env):

@@ -140,6 +140,7 @@ def test_an_env_given_its_own_episode_cache_keeps_recordings_there_and_clear_emp
         ("jitter", None, "dense"),
         ("noisy", None, "sparse"),
         ("tumbling", "truth", "dense"),
+        ("circular", None, "shaped"),
     ],
 )
 def test_the_single_envs_scalar_step_equals_the_batched_rule(scenario, source, reward):

@@ -183,8 +183,9 @@ def one_line_error(capsys, argv: list[str], *expected: str) -> str:
             ("policy_kwargs.ortho_init",),
         ),
         (["--algo", "sac", "--set", "policy_kwargs.net_arch={vf: [8]}"], ("pi: [...], qf: [...]",)),
-        (["--reward", "shaped"], ("--reward", "dense", "sparse")),
+        (["--reward", "potential"], ("--reward", "dense", "sparse", "shaped")),
         (["--n-envs", "0"], ("--n-envs must be >= 1",)),
+        (["--reward", "shaped", "--set", "gamma=0.9"], ("shaped", "gamma 0.99", "gamma is 0.9")),
         (["--n-envs", "100000000"], ("--n-envs 100000000", "at most", "batched")),
     ],
 )

@@ -157,7 +157,7 @@ def test_seeding_reset_mask_and_autoreset_contract():
     ):
         env.step(np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match="reward must be one of"):
-        CaptureVectorEnv(2, "paper", reward="shaped")
+        CaptureVectorEnv(2, "paper", reward="potential")
     with pytest.raises(ValueError, match="num_envs must be a positive integer"):
         CaptureVectorEnv(0, "paper")
     with pytest.raises(ValueError, match="does not render"):

@@ -132,8 +132,10 @@ class CaptureEnv(gym.Env):
     ## Rewards
     ``reward="dense"`` (default): ``reward_progress = 10 (d_prev − d)`` (d: true distance, m),
     ``reward_time = −0.01`` per step, ``reward_capture = +5`` on capture, ``reward_failure = −5`` on
-    collision, target_lost or unreachable. ``reward="sparse"``: 1 on capture, else 0. Each term is
-    in ``info``.
+    collision, target_lost or unreachable. ``reward="sparse"``: 1 on capture, else 0.
+    ``reward="shaped"``: dense with ``reward_progress`` replaced by potential-based shaping,
+    ``reward_shaping = 0.99 Φ(d) − Φ(d_prev)`` with ``Φ(d) = −ln(1 + d / 1 mm)``, which resolves
+    the last millimetre (``capture_bench/task/rewards.py``). Each term is in ``info``.
 
     ## Starting State
     Home pose. The capture point starts ``target.initial_offset`` m from the home end-effector in a
@@ -164,7 +166,7 @@ class CaptureEnv(gym.Env):
     ## Arguments
     ``scenario``: a shipped name (``capture_bench.task.scenarios.list_scenarios()``), a YAML path
     or a ``Scenario``. ``observation_source``: ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
-    (default: the scenario's). ``reward``: ``"dense"`` or ``"sparse"``. ``render_mode``:
+    (default: the scenario's). ``reward``: ``"dense"``, ``"sparse"`` or ``"shaped"``. ``render_mode``:
     ``"rgb_array"`` or ``"human"``. ``reuse_target_side``: when True, ``reset(seed=s)`` records
     the target's side of the whole episode up to the time limit at once (trajectory, control
     periods, camera frames, estimates: a

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from capture_bench.task.rewards import REWARD_MODES
 from capture_bench.task.scenarios import CONFIG_DIR, Scenario
 from capture_bench.validation import (
     YAML_ERRORS,
@@ -52,7 +53,7 @@ TRAINING_KEYS = {
     "policy": Rule("choice", choices=("MlpPolicy",)),
     "policy_kwargs": Rule("mapping"),
     "normalize": Rule("bool"),
-    "reward": Rule("choice", choices=("dense", "sparse")),
+    "reward": Rule("choice", choices=REWARD_MODES),
     "checkpoint_freq": NONNEG_INT,
     "eval_freq": NONNEG_INT,
     "eval_episodes": POS_INT,

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from capture_bench.argparsing import OneLineParser
+from capture_bench.task.rewards import REWARD_MODES
 from capture_bench.task.scenarios import OBSERVATION_SOURCES
 from capture_bench.training.hyperparameters import ALGORITHMS
 
@@ -37,7 +38,7 @@ class TrainConfig:
         "policy_kwargs: policy_kwargs.net_arch=[64,64]); repeat for more; checked like the file",
     )
     reward: str | None = _opt(
-        None, "reward: dense or sparse (default: the YAML's)", ("dense", "sparse")
+        None, f"reward: {', '.join(REWARD_MODES)} (default: the YAML's)", REWARD_MODES
     )
     seed: int | None = _opt(
         None, "seed; must be one of the scenario's training seeds (default: the first)"

@@ -179,6 +179,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     for key in ("total_timesteps", "n_envs", "reward"):  # the options win over the file
         if getattr(config, key) is not None:
             hp[key] = getattr(config, key)
+    _check_shaping(hp)
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
     config.observation_source = config.observation_source or scenario.estimator.source
@@ -195,6 +196,19 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     atomic_write(run_dir / "hyperparameters.yaml", resolved_yaml(config, hp, origin).encode())
     atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
     return config, hp, run_dir, None
+
+
+def _check_shaping(hp: dict) -> None:
+    """``reward: shaped`` is potential-based only for the discount it assumes."""
+    from capture_bench.task.rewards import SHAPING_GAMMA
+
+    gamma = hp.get("gamma", 0.99)  # SB3's default for every algorithm
+    if hp["reward"] == "shaped" and gamma != SHAPING_GAMMA:
+        raise ConfigError(
+            f"reward shaped is potential-based shaping for gamma {SHAPING_GAMMA} "
+            f"(capture_bench/task/rewards.py), but gamma is {gamma}; set gamma={SHAPING_GAMMA} "
+            "or use reward dense"
+        )
 
 
 def resolved_yaml(config: TrainConfig, hp: dict, origin: dict) -> str:
