@@ -166,20 +166,20 @@ class CaptureEnv(gym.Env):
     ## Arguments
     ``scenario``: a shipped name (``capture_bench.task.scenarios.list_scenarios()``), a YAML path
     or a ``Scenario``. ``observation_source``: ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
-    (default: the scenario's). ``reward``: ``"dense"``, ``"sparse"`` or ``"shaped"``. ``render_mode``:
-    ``"rgb_array"`` or ``"human"``. ``reuse_target_side``: when True, ``reset(seed=s)`` records
-    the target's side of the whole episode up to the time limit at once (trajectory, control
-    periods, camera frames, estimates: a
+    (default: the scenario's). ``reward``: ``"dense"``, ``"sparse"`` or ``"shaped"``.
+    ``render_mode``: ``"rgb_array"`` or ``"human"``. ``reuse_target_side``: when True,
+    ``reset(seed=s)`` records the target's side of the whole episode up to the time limit at once
+    (trajectory, control periods, camera frames, estimates: a
     :class:`~capture_bench.task.recording.RecordedEpisode`, none of which depends on the actions)
-    and keeps it in ``episode_cache`` by (scenario, s); a later ``reset(seed=s)`` replays it
-    instead of computing it again. Every observation, reward and ``info`` is identical to a run
-    without it; an evaluation that runs many agents on the same seeds saves the camera and
-    estimator work of all but the first. An unseeded reset is recorded the same way but not kept.
-    After any reset ``np_random`` stands where the recording left it (the time limit), so the
-    episodes that follow a seeded reset are the same whatever the actions, though after the
-    first they are not the ones a plain env gives (it advances ``np_random`` by the steps actually
-    taken); :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` gives exactly these episodes.
-    Default False: each reset pays for the whole horizon. ``episode_cache``: the
+    and keeps it in ``episode_cache`` by (scenario, s); a later ``reset(seed=s)`` replays it instead
+    of computing it again. Every observation, reward and ``info`` is identical to a run without it;
+    an evaluation that runs many agents on the same seeds saves the camera and estimator work of all
+    but the first. An unseeded reset is recorded the same way but not kept. After any reset
+    ``np_random`` stands where the recording left it (the time limit), so the episodes that follow a
+    seeded reset are the same whatever the actions, though after the first they are not the ones a
+    plain env gives (it advances ``np_random`` by the steps actually taken);
+    :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` gives exactly these episodes. Default
+    False: each reset pays for the whole horizon. ``episode_cache``: the
     :class:`~capture_bench.task.target_side.EpisodeCache` that keeps recorded target sides and
     physical-limit bounds by (scenario, seed); default the process-wide
     ``capture_bench.task.target_side.DEFAULT_EPISODE_CACHE`` (``clear()`` empties it).
