@@ -82,10 +82,18 @@ _BOOL_KWARGS = (
 _FLOAT_KWARGS = ("log_std_init", "clip_mean")
 _INT_KWARGS = ("n_critics", "n_quantiles")
 #: Every policy keyword argument a metadata file may declare; anything else is refused.
-POLICY_KWARGS = ("net_arch", "activation_fn", *_BOOL_KWARGS, *_FLOAT_KWARGS, *_INT_KWARGS)
+#: ``features_extractor`` names a class of ``capture_bench.training.features.FEATURE_EXTRACTORS``
+#: (SB3's ``features_extractor_class``; omitted: SB3's default, the raw observation).
+POLICY_KWARGS = (
+    "net_arch",
+    "activation_fn",
+    "features_extractor",
+    *_BOOL_KWARGS,
+    *_FLOAT_KWARGS,
+    *_INT_KWARGS,
+)
 #: Constructor arguments that must hold their SB3 default to be exported (not declarable).
 _DEFAULT_ONLY = {
-    "features_extractor_class": "FlattenExtractor",
     "features_extractor_kwargs": None,
 }
 
@@ -209,6 +217,8 @@ def _check_policy_kwargs(kwargs: Any, algorithm: str, where: str) -> dict[str, A
             _check_net_arch(value, where)
         elif key == "activation_fn" and value not in ACTIVATIONS:
             raise _fail(where, name, value, ", ".join(ACTIVATIONS))
+        elif key == "features_extractor" and value not in _feature_extractors():
+            raise _fail(where, name, value, ", ".join(_feature_extractors()))
         elif key in _BOOL_KWARGS and not isinstance(value, bool):
             raise _fail(where, name, value, "true or false")
         elif key in _FLOAT_KWARGS and not _is_number(value):
@@ -216,6 +226,7 @@ def _check_policy_kwargs(kwargs: Any, algorithm: str, where: str) -> dict[str, A
         elif key in _INT_KWARGS and not (_is_int(value) and 1 <= value <= 1000):
             raise _fail(where, name, value, "an integer in 1..1000")
     accepted = set(inspect.signature(_policy_class(algorithm, where).__init__).parameters)
+    accepted.add("features_extractor")  # declared by name, built as features_extractor_class
     for key in kwargs:
         if key not in accepted:
             valid = ", ".join(k for k in POLICY_KWARGS if k in accepted)
@@ -297,6 +308,13 @@ def parse_declaration(data: dict[str, Any], where: str) -> PolicyDeclaration:
 # --------------------------------------------------------------------------- building
 
 
+def _feature_extractors() -> dict[str, Any]:
+    """Declared name -> features extractor class (imported only when a policy is built)."""
+    from capture_bench.training.features import FEATURE_EXTRACTORS
+
+    return FEATURE_EXTRACTORS
+
+
 def _policy_class(algorithm: str, where: str) -> Any:
     module_name, class_name = POLICY_CLASSES[algorithm]
     try:
@@ -332,6 +350,8 @@ def build_policy(declaration: PolicyDeclaration, where: str) -> Any:
     kwargs = dict(declaration.policy_kwargs)
     if "activation_fn" in kwargs:
         kwargs["activation_fn"] = getattr(nn, ACTIVATIONS[kwargs["activation_fn"]])
+    if "features_extractor" in kwargs:
+        kwargs["features_extractor_class"] = _feature_extractors()[kwargs.pop("features_extractor")]
     policy_class = _policy_class(declaration.algorithm, where)
     with torch.random.fork_rng(devices=[]):
         try:
@@ -433,13 +453,22 @@ def declare(algorithm: str, policy: Any, normalizer: ObservationNormalizer | Non
     if algorithm not in POLICY_CLASSES:
         raise PolicyLoadError(f"algorithm {algorithm!r}; valid: {', '.join(POLICY_CLASSES)}")
     params = policy._get_constructor_parameters()
+    kwargs: dict[str, Any] = {}
+    names = {cls: name for name, cls in _feature_extractors().items()}
+    extractor = params.get("features_extractor_class")
+    if extractor not in names:
+        valid = ", ".join(cls.__name__ for cls in names)
+        raise PolicyLoadError(
+            f"policy features_extractor_class={extractor!r} cannot be declared (only {valid})"
+        )
+    if names[extractor] != "flatten":
+        kwargs["features_extractor"] = names[extractor]
     for key, default in _DEFAULT_ONLY.items():
         value = params.get(key)
         if (getattr(value, "__name__", value) or None) != default:
             raise PolicyLoadError(f"policy {key}={value!r} cannot be declared (only {default})")
-    kwargs: dict[str, Any] = {}
     for key in POLICY_KWARGS:
-        if key not in params:
+        if key not in params or key == "features_extractor":
             continue
         value = params[key]
         if key == "activation_fn":

@@ -579,6 +579,10 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
         bad.add(key)
     if "policy_kwargs" in bad:
         bad = {k for k in bad if not str(k).startswith("policy_kwargs.")}
+    kwargs = data.get("policy_kwargs")
+    features = kwargs.get("features_extractor", "flatten") if isinstance(kwargs, dict) else None
+    if not bad and data.get("normalize") is True and features not in (None, "flatten"):
+        bad.add("policy_kwargs.features_extractor")  # reads the raw observation
     return algo, data, bad
 
 
@@ -595,6 +599,14 @@ def _same_number(got: Any, want: Any) -> bool:
     case=("ppo", {"n_envs": 1, "total_timesteps": 1, "learning_rate": "lin_nan"}, {"learning_rate"})
 )
 @example(case=("sac", {"n_envs": 1, "total_timesteps": 1, "ent_coef": "auto_inf"}, {"ent_coef"}))
+@example(
+    case=(
+        "tqc",
+        {"n_envs": 1, "total_timesteps": 1, "normalize": True,
+         "policy_kwargs": {"features_extractor": "relative_log_distance"}},
+        {"policy_kwargs.features_extractor"},
+    )
+)  # fmt: skip
 @example(
     case=(
         "ppo",

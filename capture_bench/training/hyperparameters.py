@@ -114,7 +114,12 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
     "ddpg": {**_OFF, **_DETERMINISTIC},
     "tqc": {**_OFF, **_ENTROPY, "top_quantiles_to_drop_per_net": NONNEG_INT},
 }
-_NET = {"activation_fn": Rule("choice", choices=tuple(ACTIVATIONS))}
+#: Features the network computes from the observation (capture_bench/training/features.py).
+FEATURES = ("flatten", "relative_log_distance")
+_NET = {
+    "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
+    "features_extractor": Rule("choice", choices=FEATURES),
+}
 _ACTOR_CRITIC = {"net_arch": Rule("layers", choices=("pi", "vf")), **_NET}
 _Q = {"net_arch": Rule("layers", choices=("pi", "qf")), **_NET, "n_critics": POS_INT}
 #: ``policy_kwargs`` each algorithm's SB3 policy accepts (of those the safe policy format
@@ -145,6 +150,12 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
         raise ConfigError(f"{source}: expected a mapping of hyper-parameters, got {data!r}")
     required = dict.fromkeys(("n_envs", "total_timesteps"), POS_INT.describe())
     out = check_mapping(data, _schema(algo), source, required=required)
+    features = out.get("policy_kwargs", {}).get("features_extractor", "flatten")
+    if features != "flatten" and out.get("normalize"):
+        raise ConfigError(
+            f"{source}: key 'policy_kwargs.features_extractor': {features!r} reads the raw "
+            "observation and cannot be combined with normalize: true; set normalize: false"
+        )
     out.setdefault("policy", "MlpPolicy")
     out.setdefault("policy_kwargs", {})
     out.setdefault("normalize", False)
@@ -282,6 +293,7 @@ def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
     """The validated hyper-parameters as keyword arguments of the SB3 algorithm's constructor.
 
     ``lin_<x>`` becomes a linear schedule from x to 0; ``activation_fn`` a torch module class;
+    ``features_extractor`` SB3's ``features_extractor_class``;
     ``action_noise_std`` (TD3, DDPG) a :class:`NormalActionNoise` on the 3 joints.
     """
     kwargs = {k: v for k, v in hp.items() if k in ALGO_KEYS[algo] and k != "action_noise_std"}
@@ -295,6 +307,11 @@ def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
         policy_kwargs["activation_fn"] = getattr(
             torch.nn, ACTIVATIONS[policy_kwargs["activation_fn"]]
         )
+    if "features_extractor" in policy_kwargs:
+        from capture_bench.training.features import FEATURE_EXTRACTORS
+
+        name = policy_kwargs.pop("features_extractor")
+        policy_kwargs["features_extractor_class"] = FEATURE_EXTRACTORS[name]
     kwargs["policy_kwargs"] = policy_kwargs
     if hp.get("action_noise_std"):
         from stable_baselines3.common.noise import NormalActionNoise
