@@ -79,7 +79,8 @@ def list_everything() -> list[str]:
         s = load_scenario(name)
         lines.append(
             f"  {name:<10} {s.env_id:<28} evaluation seeds "
-            f"{_seeds(s.seeds.evaluation_start, s.seeds.evaluation_count)}, training seeds "
+            f"{_seeds(s.seeds.evaluation_start, s.seeds.evaluation_count)}, validation seeds "
+            f"{_seeds(s.validation_seeds.start, len(s.validation_seeds))}, training seeds "
             f"{_seeds(s.seeds.training_start, s.seeds.training_count)}"
         )
     invalid = invalid_scenarios()
