@@ -242,17 +242,26 @@ def test_the_three_seed_ranges_are_disjoint_and_an_overlap_is_refused(tmp_path):
 
 def test_training_time_evaluation_uses_validation_seeds_only(tmp_path, monkeypatch):
     """A tiny run with the periodic evaluation on: every episode any env of the run resets to is
-    a training seed or, for the evaluation, one of the first validation seeds; none is published."""
+    a training seed or, for the evaluation, one of the first validation seeds; none is published.
+    Resets of single envs and of batched envs (training's default and the validation's) count."""
     from capture_bench.envs.capture_env import CaptureEnv
+    from capture_bench.envs.vector_env import CaptureVectorEnv
 
     seen: list[int | None] = []
-    reset = CaptureEnv.reset
+    reset, vector_reset = CaptureEnv.reset, CaptureVectorEnv.reset
 
     def recording_reset(self, *, seed=None, options=None):
         seen.append(seed)
         return reset(self, seed=seed, options=options)
 
+    def recording_vector_reset(self, *, seed=None, options=None):
+        assert isinstance(seed, list)  # one seed per sub-env (an int would seed s, s + 1, ...)
+        mask = (options or {}).get("reset_mask", [True] * len(seed))
+        seen.extend(s for s, reset_here in zip(seed, mask) if reset_here)
+        return vector_reset(self, seed=seed, options=options)
+
     monkeypatch.setattr(CaptureEnv, "reset", recording_reset)
+    monkeypatch.setattr(CaptureVectorEnv, "reset", recording_vector_reset)
     config = tmp_path / "tiny.yaml"
     config.write_text(TINY + "eval_freq: 32\neval_episodes: 2\n")
     argv = ["--algo", "ppo", "--scenario", "paper", "--config", str(config)]

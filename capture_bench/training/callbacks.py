@@ -1,4 +1,18 @@
-"""SB3 callbacks of ``train.py``: atomic checkpoints, progress lines and periodic evaluation.
+"""SB3 callbacks of ``train.py``: atomic checkpoints, the task's statistics of the training
+episodes, progress lines and periodic validation (which keeps the best model).
+
+TensorBoard scalars written beside SB3's own (the statistics of
+:mod:`capture_bench.training.episode_stats`, NaN ones left out):
+
+* ``rollout/capture_rate``, ``rollout/median_capture_time`` (s), ``rollout/median_ratio_to_limit``,
+  ``rollout/failure/<reason>`` (each of ``timeout``, ``collision``, ``target_lost``,
+  ``unreachable``), ``rollout/estimate_position_error_m`` (m): over the training episodes that
+  ended since the logger last wrote (:class:`RolloutMetrics`; SB3 writes after every rollout for
+  PPO and A2C, every ``log_interval`` episodes for SAC and TD3). SB3's ``rollout/success_rate`` is
+  instead over the last 100 episodes.
+* ``eval/capture_rate``, ``eval/mean_reward``, ``eval/median_capture_time`` (s),
+  ``eval/median_ratio_to_limit``, ``eval/failure/<reason>``, ``eval/estimate_position_error_m``
+  (m): over the periodic validation's episodes (:class:`Progress`).
 
 Imports Stable-Baselines3 at module level: import this module only where SB3 is needed.
 """
@@ -14,6 +28,13 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.training.checkpoint import BUFFER_FILE, list_checkpoints, save_checkpoint
+from capture_bench.training.episode_stats import (
+    EpisodeStats,
+    EpisodeTracker,
+    finite_items,
+    summarize,
+)
+from capture_bench.training.policy_export import BestModel, policy_metadata, recorded_wall_time
 
 
 class Checkpointer(BaseCallback):
@@ -56,21 +77,65 @@ class Checkpointer(BaseCallback):
         return path
 
 
-class Progress(BaseCallback):
-    """Print a progress line about 20 times a run and evaluate every ``eval_freq`` steps.
+class RolloutMetrics(BaseCallback):
+    """Log the task's statistics of the training episodes (``rollout/...``, module docstring).
 
-    Evaluation runs ``eval_episodes`` deterministic episodes on the first of the scenario's
+    Each step's ``infos`` and ``dones`` (SB3 passes them for every VecEnv kind) feed an
+    :class:`~capture_bench.training.episode_stats.EpisodeTracker`; at each step where episodes end,
+    the statistics over every episode ended since the logger last wrote are recorded (the
+    recorded values stand until the logger writes them). That the logger has written is seen by
+    its recorded values having been cleared, which works whenever SB3 writes: after the rollout
+    (on-policy) or in the middle of one, at the step an episode ends (off-policy).
+    """
+
+    PREFIX = "rollout/"
+    _SENTINEL = "rollout/capture_rate"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._tracker: EpisodeTracker | None = None
+        self._episodes: list[EpisodeStats] = []
+
+    def _on_training_start(self) -> None:
+        self._tracker = EpisodeTracker(self.training_env.num_envs)
+        self._episodes = []
+
+    def _on_step(self) -> bool:
+        assert self._tracker is not None  # set at training start
+        ended = self._tracker.step(self.locals["infos"], self.locals["dones"])
+        if ended:
+            if self._SENTINEL not in self.logger.name_to_value:  # written since: a new window
+                self._episodes = []
+            self._episodes.extend(stats for _, stats in ended)
+            for key, value in finite_items(summarize(self._episodes)).items():
+                self.logger.record(self.PREFIX + key, value)
+        return True
+
+
+class Progress(BaseCallback):
+    """Print a progress line about 20 times a run, validate every ``eval_freq`` steps and keep the
+    best model.
+
+    Validation plays ``eval_episodes`` deterministic episodes on the first of the scenario's
     validation seeds (``Scenario.validation_seeds``: never a published evaluation seed; the same
-    seeds every time, for a comparable curve; nothing is learned from them) and logs
-    ``eval/capture_rate``, ``eval/mean_reward`` and ``eval/median_capture_time`` (s) to TensorBoard.
+    seeds every time, for a comparable curve; nothing is learned from them), one per sub-env of a
+    batched :class:`~capture_bench.envs.vector_env.CaptureVectorEnv`
+    (:func:`~capture_bench.training.validation_run.run_validation`), and logs ``eval/...`` (module
+    docstring) to TensorBoard. A validation better than every earlier one of the run (higher
+    capture rate, then lower median ratio to the physical limit:
+    :func:`~capture_bench.training.policy_export.is_better`) writes ``run_dir/best/``
+    (:class:`~capture_bench.training.policy_export.BestModel`).
 
     Args:
         config: the run's :class:`~capture_bench.training.options.TrainConfig`.
         hp: its validated hyper-parameters.
         target: total environment steps of the run.
+        keep_best: write ``best/`` under ``config.run_dir`` (nothing where it is None).
     """
 
-    def __init__(self, config: Any, hp: dict[str, Any], target: int) -> None:
+    def __init__(
+        self, config: Any, hp: dict[str, Any], target: int, *, keep_best: bool = True
+    ) -> None:
         super().__init__()
         self.config, self.hp, self.target = config, hp, target
         self.print_every = max(min(target // 20, 50_000), 1000)
@@ -79,12 +144,17 @@ class Progress(BaseCallback):
         self._env: Any = None
         self._clock = time.perf_counter()
         self._clock_steps = 0
+        self._session_start = time.perf_counter()
+        run_dir = getattr(config, "run_dir", None)
+        self.run_dir = Path(run_dir) if run_dir else None
+        self.best = BestModel(self.run_dir) if keep_best and self.run_dir else None
 
     def _on_training_start(self) -> None:
         self._next_print = (self.num_timesteps // self.print_every + 1) * self.print_every
         every = self.hp["eval_freq"]
         self._next_eval = (self.num_timesteps // every + 1) * every if every else 0
         self._clock, self._clock_steps = time.perf_counter(), self.num_timesteps
+        self._session_start = self._clock
 
     def _on_step(self) -> bool:
         if self._next_eval and self.num_timesteps >= self._next_eval:
@@ -111,44 +181,43 @@ class Progress(BaseCallback):
         print(line, flush=True)
 
     def evaluate(self) -> dict[str, float]:
-        """Run the evaluation episodes now; log and return their statistics."""
-        from capture_bench.envs.capture_env import CaptureEnv
+        """Run the validation episodes now; log and return their statistics.
+
+        Returns:
+            :func:`~capture_bench.training.episode_stats.summarize`'s statistics of the episodes:
+            ``capture_rate``, ``mean_reward``, ``median_capture_time`` (s),
+            ``median_ratio_to_limit`` (NaN if nothing captured), ``failure/<reason>``,
+            ``estimate_position_error_m`` (m).
+        """
+        from capture_bench.envs.vector_env import CaptureVectorEnv
+        from capture_bench.training.validation_run import run_validation
 
         scenario = load_scenario(self.config.scenario)
+        seeds = list(scenario.validation_seeds[: self.hp["eval_episodes"]])
         if self._env is None:
-            self._env = CaptureEnv(
+            self._env = CaptureVectorEnv(
+                len(seeds),
                 scenario,
                 observation_source=self.config.observation_source,
                 reward=self.hp["reward"],
             )
         stats = self.model.get_vec_normalize_env()
-        captures, rewards, times = [], [], []
-        for seed in scenario.validation_seeds[: self.hp["eval_episodes"]]:
-            obs, _ = self._env.reset(seed=seed)
-            total, done, info = 0.0, False, {}
-            while not done:
-                if stats is not None:
-                    obs = stats.normalize_obs(obs)
-                action, _ = self.model.predict(obs, deterministic=True)
-                obs, reward, terminated, truncated, info = self._env.step(action)
-                total += float(reward)
-                done = terminated or truncated
-            captures.append(bool(info.get("is_success")))
-            rewards.append(total)
-            if info.get("capture_time") is not None:
-                times.append(info["capture_time"])
-        result = {
-            "capture_rate": float(np.mean(captures)),
-            "mean_reward": float(np.mean(rewards)),
-            "median_capture_time": float(np.median(times)) if times else float("nan"),
-        }
-        for key, value in result.items():
+        normalize = None if stats is None else stats.normalize_obs
+        result = summarize(run_validation(self.model, self._env, seeds, normalize))
+        for key, value in finite_items(result).items():
             self.logger.record(f"eval/{key}", value)
-        print(
-            f"eval at {self.num_timesteps} steps on {len(captures)} validation seeds: capture "
-            f"rate {result['capture_rate']:.2f}, mean reward {result['mean_reward']:.2f}",
-            flush=True,
+        line = (
+            f"eval at {self.num_timesteps} steps on {len(seeds)} validation seeds: capture "
+            f"rate {result['capture_rate']:.2f}, mean reward {result['mean_reward']:.2f}"
         )
+        if not np.isnan(result["median_ratio_to_limit"]):
+            line += f", median ratio to the physical limit {result['median_ratio_to_limit']:.2f}"
+        if self.best is not None and self.run_dir is not None:
+            wall = recorded_wall_time(self.run_dir) + time.perf_counter() - self._session_start
+            metadata = policy_metadata(self.model, self.config, self.hp, wall, sb3_files=False)
+            if self.best.offer(self.model, result, seeds, metadata):
+                line += f"; best so far -> {self.best.directory}"
+        print(line, flush=True)
         return result
 
     def close(self) -> None:

@@ -6,11 +6,13 @@ Hyper-parameters come from ``configs/algos/<algo>.yaml`` (or ``--config``), vali
 needed to resume), ``tb/`` (TensorBoard), ``checkpoints/step_<N>/``
 (:mod:`capture_bench.training.checkpoint`: parameters, optimiser state, counters, replay buffer
 and VecNormalize statistics, written under a temporary name and renamed, and read back without
-unpickling anything), and at the end the policy in the safe form ``policy.pt`` +
-``metadata.json`` (:mod:`agents.policy_file`), beside SB3's own ``model.zip``. Ctrl-C (SIGINT) or
-SIGTERM saves a checkpoint and exits with status 130 or 143. A user's mistake is one line on
-stderr and exit 2, found before any environment is built. PPO and A2C train in whole rollouts of
-``n_steps x n_envs`` steps: a budget that is not a multiple is rounded up, with a note saying so.
+unpickling anything), ``best/`` (the policy of the best periodic validation so far, in the safe
+form: :mod:`capture_bench.training.policy_export`), and at the end the policy in the safe form
+``policy.pt`` + ``metadata.json`` (:mod:`agents.policy_file`), beside SB3's own ``model.zip``.
+Ctrl-C (SIGINT) or SIGTERM saves a checkpoint and exits with status 130 or 143. A user's mistake
+is one line on stderr and exit 2, found before any environment is built. PPO and A2C train in
+whole rollouts of ``n_steps x n_envs`` steps: a budget that is not a multiple is rounded up, with
+a note saying so.
 """
 
 from __future__ import annotations
@@ -44,7 +46,6 @@ from capture_bench.training.options import (
     FLAGS,
     RESUMABLE_OPTIONS,
     TrainConfig,
-    command_line,
     parse_args,
 )
 from capture_bench.training.seeds import TrainingSeeds, check_training_seed
@@ -344,7 +345,7 @@ def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str |
 
 def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
     """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
-    from capture_bench.training.callbacks import Checkpointer, Progress
+    from capture_bench.training.callbacks import Checkpointer, Progress, RolloutMetrics
 
     algo = config.algo
     venv = build_venv(config, hp)
@@ -372,7 +373,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     try:
         model.learn(
             total_timesteps=max(target - model.num_timesteps, 0),
-            callback=[checkpointer, progress],
+            callback=[checkpointer, RolloutMetrics(), progress],
             reset_num_timesteps=checkpoint is None,
             tb_log_name="run",
         )
@@ -415,9 +416,10 @@ def close_envs(venv: Any, interrupted: bool) -> None:
 
 def add_wall_time(run_dir: Path, seconds: float) -> float:
     """Add a session's training time to ``run_dir/wall_time.json``; return the total, s."""
-    path = run_dir / "wall_time.json"
-    total = json.loads(path.read_text())["wall_time_s"] if path.is_file() else 0.0
-    total += seconds
+    from capture_bench.training.policy_export import WALL_TIME_FILE, recorded_wall_time
+
+    path = run_dir / WALL_TIME_FILE
+    total = recorded_wall_time(run_dir) + seconds
     atomic_write(path, json.dumps({"wall_time_s": round(total, 1)}).encode())
     return total
 
@@ -432,32 +434,11 @@ def save_final(
     """Write the policy in the safe form (``policy.pt`` + declared ``metadata.json``, loaded
     without unpickling: :mod:`agents.policy_file`), and SB3's own ``model.zip`` (+
     ``vecnormalize.pkl``) for SB3 users who trust the run."""
-    from agents.policy_file import ObservationNormalizer, save_policy
-    from capture_bench.evaluation.provenance import git_state, package_versions
+    from capture_bench.training.policy_export import export_policy, policy_metadata
 
     atomic_write(run_dir / "model.zip", writer=model.save)
     env = model.get_vec_normalize_env()
     if env is not None:
         atomic_write(run_dir / "vecnormalize.pkl", writer=env.save)
-    scenario = load_scenario(config.scenario)
-    metadata = {
-        "algorithm": config.algo.upper(),
-        "scenario": scenario.name,
-        "env_id": scenario.env_id,
-        "model": "model.zip",
-        "observation_source": config.observation_source,
-        "reward": hp["reward"],
-        "vecnormalize": "vecnormalize.pkl" if env is not None else None,
-        "total_timesteps": int(model.num_timesteps),
-        "seed": config.seed,
-        "n_envs": config.n_envs,
-        "device": str(model.device),
-        "wall_time_s": round(total_wall, 1),  # training time over all sessions of the run
-        "steps_per_second": round(model.num_timesteps / total_wall, 1) if total_wall else None,
-        "git": git_state(),
-        "packages": package_versions(),
-        "hyperparameters": hp,
-        "command": command_line(config),
-    }
-    normalizer = None if env is None else ObservationNormalizer.from_vecnormalize(env)
-    save_policy(run_dir, config.algo, model.policy, normalizer, extra=metadata)
+    metadata = policy_metadata(model, config, hp, total_wall, sb3_files=True)
+    export_policy(run_dir, model, metadata)

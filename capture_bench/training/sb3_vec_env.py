@@ -80,7 +80,7 @@ class CaptureSB3VecEnv(VecEnv):
                 draw.reseed(seed)
         obs, info = self.venv.reset(seed=self._next_seeds(np.ones(self.num_envs, dtype=bool)))
         for i in range(self.num_envs):
-            self.reset_infos[i] = _env_info(info, i)
+            self.reset_infos[i] = env_info(info, i)
         self._reset_seeds()
         self._reset_options()
         return obs.copy()
@@ -96,7 +96,7 @@ class CaptureSB3VecEnv(VecEnv):
         # never fires: every sub-env steps.
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
-        infos = [_env_info(info, i) for i in range(self.num_envs)]
+        infos = [env_info(info, i) for i in range(self.num_envs)]
         for i in range(self.num_envs):
             infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         if dones.any():
@@ -108,7 +108,7 @@ class CaptureSB3VecEnv(VecEnv):
             )
             obs = np.where(dones[:, None], new_obs, obs)
             for i in ended.tolist():
-                self.reset_infos[i] = _env_info(reset_info, i)
+                self.reset_infos[i] = env_info(reset_info, i)
         return obs.copy(), rewards.astype(np.float32), dones, infos
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
@@ -164,7 +164,7 @@ class CaptureSB3VecEnv(VecEnv):
         return seeds
 
 
-def _env_info(info: dict[str, Any], i: int) -> dict[str, Any]:
+def env_info(info: dict[str, Any], i: int) -> dict[str, Any]:
     """Sub-env i's entries of a gymnasium vector ``info`` (``_key`` masks), as the single env
     gives them: Python scalars, None for the :data:`OPTIONAL_KEYS` where NaN (and for no
     failure)."""
