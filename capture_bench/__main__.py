@@ -31,7 +31,8 @@ DELEGATED = {
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
-        description="capture-bench: evaluate agents, train policies, list what is installed.",
+        description="capture-bench: evaluate agents, train and tune policies, list what is "
+        "installed.",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, what in DELEGATED.items():
