@@ -1,8 +1,9 @@
 """``python -m capture_bench``: the package's commands.
 
-``python -m capture_bench evaluate ...`` and ``python -m capture_bench train ...`` run the same
-``main`` as ``python evaluate.py`` / ``python train.py`` and the console scripts
-``capture-bench-evaluate`` / ``capture-bench-train``, with the same options.
+``python -m capture_bench evaluate ...``, ``python -m capture_bench train ...`` and
+``python -m capture_bench tune ...`` run the same ``main`` as ``python evaluate.py`` /
+``python train.py`` / ``python tune.py`` and the console scripts ``capture-bench-evaluate`` /
+``capture-bench-train`` / ``capture-bench-tune``, with the same options.
 
 ``python -m capture_bench list``: what is installed, and what is broken, in one screen. It prints
 the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges), the
@@ -23,13 +24,15 @@ PROG = "python -m capture_bench"
 DELEGATED = {
     "evaluate": "evaluate agents on a suite and write the leaderboard report",
     "train": "train a Stable-Baselines3 policy on a scenario",
+    "tune": "tune an algorithm's hyper-parameters with Optuna (needs the tune extra)",
 }
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG,
-        description="capture-bench: evaluate agents, train policies, list what is installed.",
+        description="capture-bench: evaluate agents, train and tune policies, list what is "
+        "installed.",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, what in DELEGATED.items():
@@ -121,6 +124,10 @@ def main(argv: list[str] | None = None) -> int:
         from capture_bench.training.run import main as train
 
         return train(args[1:])
+    if args and args[0] == "tune":
+        from capture_bench.training.tune import main as tune
+
+        return tune(args[1:])
     try:
         build_parser().parse_args(args)
     except SystemExit as exc:  # --help (0) or a bad command (2, already printed in one line)

@@ -1,0 +1,347 @@
+"""What ``tune.py`` does: search an algorithm's hyper-parameters with Optuna, as the RL Zoo does
+(``rl_zoo3/exp_manager.py``: a seeded multivariate TPE sampler, a median pruner on the periodic
+validations inside each trial), for the validation capture rate.
+
+    python tune.py --algo sac --scenario paper --trials 50 --n-timesteps 100000
+    python tune.py --algo sac --scenario paper --trials 50   # again: 50 more trials, same study
+
+Each trial trains ``--n-timesteps`` steps on training seeds only, with the hyper-parameters it
+samples (:mod:`capture_bench.training.search_spaces`) merged over the algorithm's YAML (or
+``--config``) and validated like any config file, and is validated ``--n-evaluations`` times on
+the first ``--eval-episodes`` validation seeds (never a published evaluation seed). The score of
+a validation (:func:`objective_value`) ranks the capture rate first and, among equal capture
+rates, the median ratio of capture time to the physical limit (lower is better). Trials are
+stored in ``--storage`` (default ``sqlite:///<output>/study.db``); a study with the same name is
+resumed. At the end (also after Ctrl-C) ``--output`` gets ``best.yaml`` (for
+``train.py --config``), ``trials.csv``, ``optimization_history.png`` and
+``param_importances.png``, each written atomically. A user's mistake is one line on stderr and
+exit 2, found before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from capture_bench.argparsing import OneLineParser
+from capture_bench.files import check_writable
+from capture_bench.interrupts import exit_status, sigterm_as_interrupt
+from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
+from capture_bench.training.hyperparameters import ALGORITHMS, OFF_POLICY, load_hyperparameters
+from capture_bench.training.search_spaces import SAMPLERS, Choice
+from capture_bench.training.seeds import check_training_seed
+from capture_bench.training.tune_outputs import OUTPUT_FILES, redacted, write_outputs
+
+PROG = "tune.py"
+INSTALL_HINT = "pip install 'capture-bench[tune]' (or: pip install 'optuna>=3.4')"
+
+
+def _opt(default: Any, doc: str, choices: tuple[str, ...] | None = None) -> Any:
+    return field(default=default, metadata={"doc": doc, "choices": choices})
+
+
+@dataclass
+class TuneConfig:
+    """The options of ``tune.py`` (None: from the base YAML, the scenario or the other options)."""
+
+    algo: str = _opt("ppo", f"SB3 algorithm, one of {', '.join(ALGORITHMS)}")
+    scenario: str = _opt("paper", "scenario name (configs/scenarios/<name>.yaml) or YAML path")
+    config: str | None = _opt(
+        None, "base hyper-parameter YAML the samples override (default: configs/algos/<algo>.yaml)"
+    )
+    trials: int = _opt(20, "trials to run now, added to the study (0: only rewrite the outputs)")
+    n_timesteps: int | None = _opt(
+        None, "training budget of each trial, environment steps (default: the YAML's total)"
+    )
+    n_evaluations: int = _opt(5, "validations per trial, evenly spaced; each is reported to Optuna")
+    eval_episodes: int | None = _opt(
+        None, "validation episodes (the scenario's first validation seeds; default: the YAML's)"
+    )
+    seed: int | None = _opt(
+        None, "training seed of every trial, one of the scenario's training seeds (default: the "
+        "first); the sampler's seed is this plus the number of trials already in the study"
+    )  # fmt: skip
+    n_startup_trials: int = _opt(
+        5, "trials sampled at random before TPE models the results, and completed before the "
+        "median pruner prunes"
+    )  # fmt: skip
+    keep: str | None = _opt(
+        None, "comma-separated sampled parameters to keep at the base YAML's value instead "
+        "(e.g. net_arch,batch_size)"
+    )  # fmt: skip
+    study_name: str | None = _opt(None, "Optuna study name (default: <scenario>-<algo>)")
+    storage: str | None = _opt(
+        None, "Optuna storage URL, any database URL Optuna accepts (default: "
+        "sqlite:///<output>/study.db)"
+    )  # fmt: skip
+    output: str | None = _opt(None, "output directory (default: runs/tune-<scenario>-<algo>)")
+    vec_env: str = _opt(
+        "batched",
+        "vectorisation of the training envs (as train.py)",
+        ("batched", "dummy", "subproc"),
+    )
+
+
+@dataclass
+class Setup:
+    """A checked :class:`TuneConfig`, resolved: what every trial uses."""
+
+    config: TuneConfig
+    scenario: Scenario
+    base: dict[str, Any]  # the validated base hyper-parameters
+    base_path: Path
+    budget: int  # environment steps per trial, all envs together
+    every: int  # environment steps between validations
+    eval_episodes: int
+    keep: tuple[str, ...]
+    study_name: str
+    storage: str
+    output: Path
+    command: str = ""
+
+
+def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
+    """An argument parser generated from :class:`TuneConfig` (each field's doc is its help)."""
+    parser = OneLineParser(
+        prog=prog, description="Tune an algorithm's hyper-parameters with Optuna."
+    )
+    for f in dataclasses.fields(TuneConfig):
+        kind = int if "int" in str(f.type) else str
+        doc = f.metadata["doc"] + (f" (default: {f.default})" if f.default is not None else "")
+        parser.add_argument(
+            "--" + f.name.replace("_", "-"),
+            type=kind,
+            default=f.default,
+            choices=f.metadata["choices"],
+            help=doc,
+            metavar=f.name.upper(),
+        )
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> TuneConfig:
+    """The options as a :class:`TuneConfig` (argparse exits 2 on a bad one, in one line)."""
+    return TuneConfig(**vars(build_parser().parse_args(argv)))
+
+
+def objective_value(capture_rate: float, ratio: float, n_episodes: int) -> float:
+    """The one number Optuna maximises: capture rate first, then the median ratio to the limit.
+
+        score = capture_rate - f(ratio) / (2 n),   f(r) = 1 - 1/max(r, 1) for finite r >= 0,
+                                                   f(r) = 1 where r is NaN or infinite,
+
+    with ``n`` the validation episodes. The capture rate moves in steps of 1/n (one episode);
+    ``f`` lies in [0, 1] and increases with the ratio, so the tie-break is at most 1/(2n) < 1/n:
+    one more captured episode always outranks any ratio, and at equal capture rates a lower ratio
+    scores higher (no capture, ratio NaN, gets the worst tie-break).
+
+    Args:
+        capture_rate: share of the ``n_episodes`` validation episodes captured, in [0, 1].
+        ratio: median over captured episodes of capture time / physical-limit time (>= 1 up to
+            tolerance; NaN where none was captured).
+        n_episodes: validation episodes (>= 1).
+    """
+    tie_break = 1.0 - 1.0 / max(ratio, 1.0) if math.isfinite(ratio) else 1.0
+    return capture_rate - tie_break / (2 * n_episodes)
+
+
+def report_validation(trial: Any, result: dict[str, float], step: int, n_episodes: int) -> bool:
+    """Report validation ``step`` (1, 2, ...) of ``trial`` to Optuna and keep its raw numbers as
+    user attributes (``capture_rate``, ``median_ratio_to_limit``: those of the latest
+    validation); return whether the pruner says to stop the trial."""
+    ratio = float(result.get("median_ratio_to_limit", float("nan")))
+    capture_rate = float(result["capture_rate"])
+    trial.report(objective_value(capture_rate, ratio, n_episodes), step)
+    trial.set_user_attr("capture_rate", capture_rate)
+    trial.set_user_attr("median_ratio_to_limit", ratio if math.isfinite(ratio) else None)
+    return bool(trial.should_prune())
+
+
+def _positive(value: int | None, option: str, low: int = 1) -> None:
+    if value is not None and value < low:
+        raise ConfigError(f"--{option} must be >= {low}, got {value}")
+
+
+def prepare(config: TuneConfig) -> Setup:
+    """Check and resolve every option before any work; writes nothing. Raises
+    :class:`ConfigError` naming what is wrong."""
+    config.algo = config.algo.lower()
+    base, base_path = load_hyperparameters(config.algo, config.config)
+    if config.algo not in SAMPLERS:
+        raise ConfigError(
+            f"--algo {config.algo}: no search space for it in capture_bench/training/"
+            f"search_spaces.py (SAMPLERS); algorithms with one: {', '.join(SAMPLERS)}"
+        )
+    scenario = load_scenario(config.scenario)
+    if config.seed is None:
+        config.seed = scenario.training_seeds.start
+    check_training_seed(config.seed, scenario)
+    for option in ("n_timesteps", "n_evaluations", "eval_episodes"):
+        _positive(getattr(config, option), option.replace("_", "-"))
+    _positive(config.trials, "trials", low=0)
+    _positive(config.n_startup_trials, "n-startup-trials", low=0)
+    budget = config.n_timesteps or base["total_timesteps"]
+    n_envs = base["n_envs"]
+    every = budget // config.n_evaluations
+    if every < n_envs:
+        raise ConfigError(
+            f"--n-timesteps {budget} is too small for --n-evaluations {config.n_evaluations}: "
+            f"a validation follows at least one step of all {n_envs} envs, so the budget must "
+            f"be >= {config.n_evaluations * n_envs}"
+        )
+    episodes = config.eval_episodes or base["eval_episodes"]
+    available = len(scenario.validation_seeds)
+    if episodes > available:
+        raise ConfigError(
+            f"--eval-episodes {episodes}: scenario {scenario.name!r} has {available} validation "
+            f"seeds; use at most {available}"
+        )
+    space = SAMPLERS[config.algo]
+    keep = tuple(name for name in (config.keep or "").split(",") if name)
+    unknown = [name for name in keep if name not in space]
+    if unknown:
+        raise ConfigError(
+            f"--keep {unknown[0]}: not a sampled parameter of {config.algo}; valid: "
+            f"{', '.join(space)}"
+        )
+    output = Path(config.output or f"runs/tune-{scenario.name}-{config.algo}")
+    check_writable(output, "--output")
+    for name in OUTPUT_FILES:
+        if (output / name).is_dir():
+            raise ConfigError(f"--output {output}: {output / name} is a folder, not a file")
+    setup = Setup(
+        config=config,
+        scenario=scenario,
+        base=base,
+        base_path=base_path,
+        budget=budget,
+        every=every,
+        eval_episodes=episodes,
+        keep=keep,
+        study_name=config.study_name or f"{scenario.name}-{config.algo}",
+        storage=config.storage or f"sqlite:///{output / 'study.db'}",
+        output=output,
+    )
+    setup.command = "python tune.py " + " ".join(
+        f"--{k.replace('_', '-')} {v}" for k, v in vars(config).items() if v is not None
+    )
+    _note_rollouts(setup)
+    return setup
+
+
+def _note_rollouts(setup: Setup) -> None:
+    """Say where an on-policy trial can validate before its first update: PPO learns after
+    whole rollouts of ``n_steps x n_envs`` steps, which may exceed the validation spacing."""
+    if setup.config.algo in OFF_POLICY:
+        return
+    param = SAMPLERS[setup.config.algo].get("n_steps")
+    if param is not None and "n_steps" not in setup.keep and isinstance(param.space, Choice):
+        n_steps = max(param.space.values)
+    else:
+        n_steps = setup.base.get("n_steps", 2048)  # SB3's default
+    rollout = n_steps * setup.base["n_envs"]
+    if rollout > setup.every:
+        print(
+            f"note: {setup.config.algo.upper()} updates after whole rollouts of up to "
+            f"{rollout} steps (n_steps {n_steps} x {setup.base['n_envs']} envs), more than the "
+            f"{setup.every} steps between validations: such trials validate before they learn; "
+            "raise --n-timesteps, or --keep n_steps with a smaller one in --config"
+        )
+
+
+def open_study(setup: Setup) -> Any:
+    """Create the study in ``setup.storage``, or load the one of that name (then its algorithm and
+    scenario must match). TPE is seeded with ``--seed`` plus the trials already stored, so a
+    resumed study does not repeat its first samples."""
+    import optuna
+
+    config = setup.config
+    pruner = optuna.pruners.MedianPruner(
+        n_startup_trials=config.n_startup_trials, n_warmup_steps=config.n_evaluations // 3
+    )
+    try:
+        study = optuna.create_study(
+            storage=setup.storage,
+            study_name=setup.study_name,
+            direction="maximize",
+            pruner=pruner,
+            load_if_exists=True,
+        )
+    except Exception as exc:  # Optuna and SQLAlchemy raise many kinds on a bad URL
+        raise ConfigError(f"--storage {redacted(setup.storage)}: {exc}") from None
+    found = {key: study.user_attrs.get(key) for key in ("algo", "scenario")}
+    wanted = {"algo": config.algo, "scenario": setup.scenario.name}
+    if all(value is None for value in found.values()):
+        for key, value in wanted.items():
+            study.set_user_attr(key, value)
+    elif found != wanted:
+        raise ConfigError(
+            f"--study-name {setup.study_name}: the study in {redacted(setup.storage)} tunes "
+            f"{found['algo']} on {found['scenario']}, not {config.algo} on {setup.scenario.name}; "
+            "choose another --study-name"
+        )
+    study.sampler = optuna.samplers.TPESampler(
+        n_startup_trials=config.n_startup_trials,
+        seed=(config.seed or 0) + len(study.trials),
+        multivariate=True,
+    )
+    return study
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``tune.py`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
+    try:
+        config = parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a bad option (2, already printed)
+        return int(exc.code or 0)
+    try:
+        import optuna  # noqa: F401  (only to say how to install it)
+    except ImportError:
+        print(f"{PROG}: error: tuning needs Optuna; install it: {INSTALL_HINT}", file=sys.stderr)
+        return 2
+    try:
+        setup = prepare(config)
+        setup.output.mkdir(parents=True, exist_ok=True)
+        study = open_study(setup)
+    except (ConfigError, OSError) as exc:
+        print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    from capture_bench.training.tune_trial import run_trial
+
+    status = 0
+    print(
+        f"tuning {setup.config.algo.upper()} on {setup.scenario.name}: study {setup.study_name!r} "
+        f"({len(study.trials)} trials so far), {setup.config.trials} more of {setup.budget} steps, "
+        f"{setup.config.n_evaluations} validations of {setup.eval_episodes} episodes each "
+        f"-> {setup.output}"
+    )
+    interrupts: list[KeyboardInterrupt] = []
+
+    def objective(trial: Any) -> float:
+        try:
+            return run_trial(trial, setup)
+        except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM in training (almost always)
+            interrupts.append(exc)
+            trial.set_user_attr("interrupted", True)
+            study.stop()
+            return math.nan  # Optuna records the trial as failed, without a traceback
+
+    with sigterm_as_interrupt():
+        try:
+            study.optimize(objective, n_trials=setup.config.trials)
+        except KeyboardInterrupt as exc:  # in Optuna's own code, between trials
+            interrupts.append(exc)
+        if interrupts:
+            status = exit_status(interrupts[0])
+            print("\ninterrupted: the running trial is recorded as failed; writing the results "
+                  "of the finished trials", file=sys.stderr)  # fmt: skip
+        try:
+            write_outputs(study, setup)
+        except KeyboardInterrupt as exc:  # a second Ctrl-C: each file is whole or absent
+            return exit_status(exc)
+    return status

@@ -1,0 +1,118 @@
+"""One Optuna trial of ``tune.py``: sample, train on training seeds, validate periodically on
+validation seeds, report each validation and stop where the pruner says.
+
+Imports Stable-Baselines3 at module level: import this module only where training happens.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import optuna
+from stable_baselines3.common.callbacks import BaseCallback
+
+from capture_bench.training.callbacks import Progress
+from capture_bench.training.hyperparameters import validate_hyperparameters
+from capture_bench.training.options import TrainConfig
+from capture_bench.training.run import build_model, build_venv, close_envs
+from capture_bench.training.search_spaces import merge, sample
+from capture_bench.training.tune import Setup, objective_value, report_validation
+
+
+class TrialValidation(BaseCallback):
+    """Validate every ``every`` environment steps (at most ``n_evaluations`` times) with
+    ``progress.evaluate()``, report each to the trial, and stop training when it is pruned.
+
+    Args:
+        trial: the Optuna trial.
+        progress: the run's :class:`~capture_bench.training.callbacks.Progress` (its own periodic
+            evaluation off); its ``evaluate()`` runs the validation episodes.
+        every: environment steps (all envs together) between validations.
+        n_evaluations: validations at most.
+        n_episodes: validation episodes per validation.
+    """
+
+    def __init__(
+        self, trial: Any, progress: Any, every: int, n_evaluations: int, n_episodes: int
+    ) -> None:
+        super().__init__()
+        self.trial, self.progress = trial, progress
+        self.every, self.n_evaluations, self.n_episodes = every, n_evaluations, n_episodes
+        self.validations = 0
+        self.pruned = False
+        self.score = math.nan  # of the latest validation
+
+    def _on_step(self) -> bool:
+        due = (self.validations + 1) * self.every
+        if self.validations >= self.n_evaluations or self.num_timesteps < due:
+            return True
+        self.validations += 1
+        result = self.progress.evaluate()
+        ratio = result.get("median_ratio_to_limit", float("nan"))
+        self.score = objective_value(result["capture_rate"], ratio, self.n_episodes)
+        self.pruned = report_validation(self.trial, result, self.validations, self.n_episodes)
+        return not self.pruned
+
+
+def trial_hyperparameters(trial: Any, setup: Setup) -> dict[str, Any]:
+    """The ``trial``'s sample merged over the base hyper-parameters, with the tuning budget and
+    validation schedule, validated like a config file."""
+    base = {
+        **setup.base,
+        "total_timesteps": setup.budget,
+        "eval_freq": setup.every,
+        "eval_episodes": setup.eval_episodes,
+        "checkpoint_freq": 0,
+    }
+    sampled = sample(trial, setup.config.algo, setup.budget, setup.keep)
+    source = f"trial {trial.number} of study {setup.study_name!r}"
+    return validate_hyperparameters(merge(base, sampled), setup.config.algo, source)
+
+
+def run_trial(trial: Any, setup: Setup) -> float:
+    """Train and validate one trial; return the score of its last validation.
+
+    Raises:
+        optuna.TrialPruned: the median pruner stopped it, or training diverged (SB3 raises
+            ValueError on NaN actions, as the Zoo prunes those too).
+    """
+    hp = trial_hyperparameters(trial, setup)
+    for key, value in (
+        ("hyperparameters", hp),
+        ("n_timesteps", setup.budget),
+        ("eval_episodes", setup.eval_episodes),
+    ):
+        trial.set_user_attr(key, value)
+    config = TrainConfig(
+        algo=setup.config.algo,
+        scenario=setup.config.scenario,
+        total_timesteps=setup.budget,
+        n_envs=hp["n_envs"],
+        vec_env=setup.config.vec_env,
+        seed=setup.config.seed,
+        observation_source=setup.scenario.estimator.source,
+    )
+    venv = build_venv(config, hp)
+    progress = Progress(config, {**hp, "eval_freq": 0}, setup.budget)
+    validation = TrialValidation(
+        trial, progress, setup.every, setup.config.n_evaluations, setup.eval_episodes
+    )
+    interrupted = False
+    try:
+        model = build_model(config, hp, venv, tensorboard_log=None)
+        model.learn(total_timesteps=setup.budget, callback=[progress, validation])
+    except KeyboardInterrupt:  # Optuna records the trial as failed and re-raises it
+        interrupted = True
+        raise
+    except (AssertionError, ValueError) as exc:
+        message = " ".join(str(exc).split())
+        trial.set_user_attr("error", message)
+        print(f"trial {trial.number}: training failed ({message}); pruned")
+        raise optuna.TrialPruned(message) from None
+    finally:
+        progress.close()
+        close_envs(venv, interrupted)
+    if validation.pruned:
+        raise optuna.TrialPruned(f"pruned after validation {validation.validations}")
+    return validation.score
