@@ -218,7 +218,7 @@ def test_bad_input_is_one_line_exit_2_and_overwrites_nothing(capsys, tmp_path):
     evaluation_seed = str(load_scenario("paper").evaluation_seeds[0])
     validation_count = len(load_scenario("paper").validation_seeds)
     cases = [
-        (["--algo", "dqn"], ["dqn", "ppo, sac, td3"]),
+        (["--algo", "dqn"], ["dqn", "ppo, a2c, sac, td3, ddpg, tqc"]),
         (["--trials", "-1"], ["--trials", ">= 0"]),
         (["--n-timesteps", "0"], ["--n-timesteps", ">= 1"]),
         (["--n-timesteps", "ten"], ["--n-timesteps", "ten"]),
@@ -252,7 +252,10 @@ def test_a_study_of_another_algorithm_is_refused(capsys, tmp_path):
 def test_an_algorithm_without_a_search_space_is_one_line(capsys, monkeypatch, tmp_path):
     monkeypatch.delitem(SAMPLERS, "td3")
     one_line_error(
-        capsys, ["--algo", "td3", "--output", str(tmp_path)], "no search space", "ppo, sac"
+        capsys,
+        ["--algo", "td3", "--output", str(tmp_path)],
+        "no search space",
+        "ppo, a2c, sac, ddpg, tqc",
     )
 
 

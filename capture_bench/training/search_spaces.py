@@ -10,7 +10,9 @@ algorithm is adding an entry here. No Optuna import happens here: the table is p
 Differences from the Zoo, and why: ``learning_starts`` is sampled as a share of the per-trial
 budget (the Zoo's fixed 0-20000 steps would leave a short trial nothing to learn from); the
 off-policy learning rate stops at 1e-2 (the Zoo's upper bound 1 only diverges); TD3's exploration
-noise is Gaussian (``action_noise_std``, 0 = none), the only kind our configs declare.
+noise is Gaussian (``action_noise_std``, 0 = none), the only kind our configs declare; A2C's
+and TQC's are the Zoo's ``sample_a2c_params`` / ``sample_tqc_params`` less the learning-rate
+schedule; DDPG samples TD3's space.
 """
 
 from __future__ import annotations
@@ -114,8 +116,30 @@ SAMPLERS: dict[str, dict[str, Param]] = {
         "net_arch": Param(Choice(tuple(PPO_NETS)), "policy_kwargs.net_arch", _networks(PPO_NETS)),
         "activation_fn": Param(Choice(("tanh", "relu")), "policy_kwargs.activation_fn"),
     },
+    "a2c": {
+        "n_steps": Param(Choice((8, 16, 32, 64, 128, 256, 512)), "n_steps"),
+        "one_minus_gamma": Param(Uniform(1e-4, 0.03, log=True), "gamma", _one_minus),
+        "one_minus_gae_lambda": Param(Uniform(1e-4, 0.1, log=True), "gae_lambda", _one_minus),
+        "learning_rate": Param(Uniform(1e-5, 2e-3, log=True), "learning_rate"),
+        "ent_coef": Param(Uniform(1e-8, 0.1, log=True), "ent_coef"),
+        "vf_coef": Param(Uniform(0.0, 1.0), "vf_coef"),
+        "max_grad_norm": Param(Uniform(0.3, 5.0), "max_grad_norm"),
+        "normalize_advantage": Param(Choice((False, True)), "normalize_advantage"),
+        "use_rms_prop": Param(Choice((False, True)), "use_rms_prop"),
+        "ortho_init": Param(Choice((False, True)), "policy_kwargs.ortho_init"),
+        "net_arch": Param(Choice(tuple(PPO_NETS)), "policy_kwargs.net_arch", _networks(PPO_NETS)),
+        "activation_fn": Param(Choice(("tanh", "relu")), "policy_kwargs.activation_fn"),
+    },
     "sac": dict(_OFF_POLICY),
     "td3": {**_OFF_POLICY, "action_noise_std": Param(Uniform(0.0, 1.0), "action_noise_std")},
+    "ddpg": {**_OFF_POLICY, "action_noise_std": Param(Uniform(0.0, 1.0), "action_noise_std")},
+    "tqc": {
+        **_OFF_POLICY,
+        "top_quantiles_to_drop_per_net": Param(
+            Choice((0, 1, 2, 3, 4, 5)), "top_quantiles_to_drop_per_net"
+        ),
+        "n_quantiles": Param(Choice((5, 10, 25, 50)), "policy_kwargs.n_quantiles"),
+    },
 }
 
 
