@@ -77,6 +77,9 @@ class ModelMetadata:
         declaration: the safe form's validated network declaration, or None.
         model_file: the SB3 ``.zip``, or None (the safe form only).
         vecnormalize_file: the ``.zip``'s VecNormalize statistics, or None.
+        residual: ``(base, scale)`` where the policy is a residual on an analytic controller
+            (key ``residual: {base: incremental_ik, scale: 0.5}``; :mod:`agents.residual`), or
+            None.
     """
 
     directory: Path
@@ -88,6 +91,7 @@ class ModelMetadata:
     declaration: PolicyDeclaration | None = None
     model_file: Path | None = None
     vecnormalize_file: Path | None = None
+    residual: tuple[str, float] | None = None
 
     @property
     def files(self) -> list[Path]:
@@ -98,10 +102,23 @@ class ModelMetadata:
 
 @dataclass(frozen=True)
 class LoadedPolicy:
-    """A loaded policy: the SB3 policy network and its frozen observation statistics."""
+    """A loaded policy: the SB3 policy network, its frozen observation statistics, and the
+    analytic controller it is a residual on (``(base, scale)``, or None)."""
 
     policy: Any
     normalizer: ObservationNormalizer | None
+    residual: tuple[str, float] | None = None
+
+    def agent(self, name: str, description: Any) -> Any:
+        """The policy as an agent labelled ``name``: :class:`SB3Policy`, or, for a residual,
+        :class:`agents.residual.ResidualAgent` over the base built from ``description``."""
+        learned = SB3Policy(self.policy, name, self.normalizer)
+        if self.residual is None:
+            return learned
+        from agents.residual import ResidualAgent, make_base
+
+        base, scale = self.residual
+        return ResidualAgent(make_base(base, description), learned, scale, name)
 
 
 def find_metadata_file(directory: Path) -> Path | None:
@@ -173,6 +190,7 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
         "metadata_file": meta_file,
         "scenario": str(data.get("scenario") or ""),
         "observation_source": str(data.get("observation_source") or ""),
+        "residual": _residual(data.get("residual"), meta_file),
     }
     vecnormalize = data.get("vecnormalize")
     vecnormalize_file = directory / str(vecnormalize) if vecnormalize else None
@@ -199,6 +217,25 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
     return ModelMetadata(**common, model_file=model_file, vecnormalize_file=vecnormalize_file)
 
 
+def _residual(value: Any, meta_file: Path) -> tuple[str, float] | None:
+    """The metadata's ``residual`` entry, checked: None, or ``{base: <name>, scale: (0, 1]}``."""
+    from agents.residual import RESIDUAL_BASES
+
+    if value is None:
+        return None
+    valid = f"null or {{base: one of {', '.join(RESIDUAL_BASES)}, scale: a number in (0, 1]}}"
+    if not (
+        isinstance(value, dict)
+        and set(value) == {"base", "scale"}
+        and value["base"] in RESIDUAL_BASES
+        and isinstance(value["scale"], (int, float))
+        and not isinstance(value["scale"], bool)
+        and 0 < value["scale"] <= 1
+    ):
+        raise PolicyLoadError(f"{meta_file}: key 'residual' is {value!r}; valid: {valid}")
+    return str(value["base"]), float(value["scale"])
+
+
 def load_policy(metadata: ModelMetadata, trust_model: bool = False) -> LoadedPolicy:
     """Load the model of ``metadata`` on the CPU.
 
@@ -212,7 +249,7 @@ def load_policy(metadata: ModelMetadata, trust_model: bool = False) -> LoadedPol
         where = str(metadata.weights_file)
         policy = build_policy(metadata.declaration, str(metadata.metadata_file))
         load_weights(policy, read_weights(metadata.weights_file), where, metadata.algorithm)
-        return LoadedPolicy(policy, metadata.declaration.normalization)
+        return LoadedPolicy(policy, metadata.declaration.normalization, metadata.residual)
     if not trust_model:
         raise PolicyLoadError(
             f"{metadata.directory}: refused to load its SB3 .zip (there is no safe policy.pt): "
@@ -287,7 +324,7 @@ def load_trusted(metadata: ModelMetadata) -> LoadedPolicy:
             f"{metadata.model_file}: not a loadable {metadata.algorithm} model ({reason})"
         ) from None
     model.policy.set_training_mode(False)
-    return LoadedPolicy(model.policy, _load_vecnormalize(metadata))
+    return LoadedPolicy(model.policy, _load_vecnormalize(metadata), metadata.residual)
 
 
 def _load_vecnormalize(metadata: ModelMetadata) -> ObservationNormalizer | None:
@@ -415,8 +452,9 @@ class SB3Policy:
 
 def load_sb3_policy(
     directory: str | Path, env: Any, name: str | None = None, trust_model: bool = False
-) -> SB3Policy:
-    """Load the model in ``directory`` (safely; see :func:`load_policy`) and check it fits ``env``.
+) -> Any:
+    """Load the model in ``directory`` (safely; see :func:`load_policy`) and check it fits
+    ``env``; an :class:`SB3Policy`, or a :class:`agents.residual.ResidualAgent` for a residual.
 
     Args:
         directory: the model directory.
@@ -431,4 +469,4 @@ def load_sb3_policy(
     loaded = load_policy(metadata, trust_model=trust_model)
     label = name or metadata.directory.name
     check_spaces(loaded.policy, env.observation_space, env.action_space, str(metadata.directory))
-    return SB3Policy(loaded.policy, label, loaded.normalizer)
+    return loaded.agent(label, env.unwrapped.description)

@@ -176,10 +176,9 @@ def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
         extra = {"seed": seed} if spec.target in SEEDED_BUILTINS else {}
         return make_agent(spec.target, env, **extra)
     if spec.kind == "model":
-        from agents.sb3_policy import SB3Policy
-
-        loaded = _model(spec)
-        return SB3Policy(loaded.policy, spec.label, loaded.normalizer)
+        loaded = _model(spec)  # a residual's base is built from the env's public description
+        description = env.unwrapped.description if loaded.residual is not None else None
+        return loaded.agent(spec.label, description)
     return _call_user_factory(spec, env.unwrapped.description)
 
 

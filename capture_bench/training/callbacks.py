@@ -37,6 +37,18 @@ from capture_bench.training.episode_stats import (
 from capture_bench.training.policy_export import BestModel, policy_metadata, recorded_wall_time
 
 
+class _Normalized:
+    """``model.predict`` on observations normalised first (or not, where ``normalize`` is
+    None)."""
+
+    def __init__(self, model: Any, normalize: Any) -> None:
+        self.model, self.normalize = model, normalize
+
+    def predict(self, observation: Any, **kwargs: Any) -> Any:
+        obs = observation if self.normalize is None else self.normalize(observation)
+        return self.model.predict(obs, **kwargs)
+
+
 class Checkpointer(BaseCallback):
     """Save a checkpoint every ``every`` environment steps (0: only when asked).
 
@@ -203,7 +215,14 @@ class Progress(BaseCallback):
             )
         stats = self.model.get_vec_normalize_env()
         normalize = None if stats is None else stats.normalize_obs
-        result = summarize(run_validation(self.model, self._env, seeds, normalize))
+        predictor: Any = self.model
+        if self.hp["residual"] != "none":  # the base sees the raw observation, the model its own
+            from agents.residual import ResidualAgent, make_base
+
+            learned = _Normalized(self.model, normalize)
+            base = make_base(self.hp["residual"], self._env.description)
+            predictor, normalize = ResidualAgent(base, learned, self.hp["residual_scale"]), None
+        result = summarize(run_validation(predictor, self._env, seeds, normalize))
         for key, value in finite_items(result).items():
             self.logger.record(f"eval/{key}", value)
         line = (

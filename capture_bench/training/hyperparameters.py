@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from agents.residual import RESIDUAL_BASES
 from capture_bench.task.rewards import REWARD_MODES
 from capture_bench.task.scenarios import CONFIG_DIR, Scenario
 from capture_bench.validation import (
@@ -57,6 +58,9 @@ TRAINING_KEYS = {
     "checkpoint_freq": NONNEG_INT,
     "eval_freq": NONNEG_INT,
     "eval_episodes": POS_INT,
+    # a hybrid (agents/residual.py): the policy learns a residual on this analytic controller
+    "residual": Rule("choice", choices=("none", *RESIDUAL_BASES)),
+    "residual_scale": Rule("float", 0.0, 1.0, low_inclusive=False),  # alpha
 }
 _SDE = {"use_sde": Rule("bool"), "sde_sample_freq": Rule("int", -1)}
 _ON = {  # PPO and A2C (OnPolicyAlgorithm)
@@ -163,6 +167,9 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
     out.setdefault("checkpoint_freq", 0)
     out.setdefault("eval_freq", 0)
     out.setdefault("eval_episodes", 5)
+    out.setdefault("residual", "none")
+    if out["residual"] != "none":
+        out.setdefault("residual_scale", 0.5)
     return out
 
 

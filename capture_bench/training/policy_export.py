@@ -78,6 +78,9 @@ def policy_metadata(
         "packages": package_versions(),
         "hyperparameters": hp,
         "command": command_line(config),
+        "residual": None
+        if hp["residual"] == "none"
+        else {"base": hp["residual"], "scale": hp["residual_scale"]},
     }
 
 

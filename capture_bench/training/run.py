@@ -184,7 +184,8 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
     config.observation_source = config.observation_source or scenario.estimator.source
-    run_dir = Path(config.run_dir or f"runs/{scenario.name}-{config.algo}-{config.seed}")
+    kind = config.algo if hp["residual"] == "none" else f"{config.algo}-residual"
+    run_dir = Path(config.run_dir or f"runs/{scenario.name}-{kind}-{config.seed}")
     if (run_dir / "config.json").exists():
         raise ConfigError(
             f"{run_dir}: already holds a run; use --resume {run_dir} or another --run-dir"
@@ -329,6 +330,12 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
         fns = [make_env(config, hp["reward"], i, subprocess) for i in range(n_envs)]
         venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
     venv = VecMonitor(venv)
+    if hp["residual"] != "none":  # a hybrid: the policy's action is a residual on the base
+        from capture_bench.envs.capture_env import describe_task, resolve_scenario
+        from capture_bench.training.residual_vec_env import ResidualVecEnv
+
+        description = describe_task(resolve_scenario(config.scenario, config.observation_source))
+        venv = ResidualVecEnv(venv, hp["residual"], hp["residual_scale"], description)
     if hp["normalize"]:
         venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99))
     return venv

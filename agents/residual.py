@@ -1,0 +1,79 @@
+"""A hybrid agent: a learned residual on top of an analytic controller (issue 14 point 6),
+
+    a = clip(a_base(s) + alpha * pi(s), -1, 1),
+
+the direction that asks whether learning can improve the paper's controller rather than replace
+it. ``train.py`` trains pi this way with ``residual: incremental_ik`` (and ``residual_scale``
+alpha; :class:`capture_bench.training.residual_vec_env.ResidualVecEnv` applies the sum inside the
+training envs), the model's metadata declares ``residual: {base, scale}``, and evaluation rebuilds
+the same sum (:func:`residual_agent`). The leaderboard labels such a row a hybrid: it is not a
+learned controller on its own.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agents.base import safe_action
+from capture_bench.task.observation import TaskDescription
+
+#: The analytic controllers a residual may sit on: deterministic, acting from the observation
+#: alone (built from the task's public description).
+RESIDUAL_BASES = ("incremental_ik", "incremental_ik_uncapped", "pure_pursuit", "intercept", "dls")
+
+
+def make_base(name: str, description: TaskDescription) -> Any:
+    """The analytic controller ``name`` of :data:`RESIDUAL_BASES`, built from ``description``."""
+    from agents import make_agent
+
+    if name not in RESIDUAL_BASES:
+        raise ValueError(f"residual base {name!r}; valid: {', '.join(RESIDUAL_BASES)}")
+    return make_agent(name, SimpleNamespace(unwrapped=SimpleNamespace(description=description)))
+
+
+def combine(base_action: NDArray, residual: NDArray, scale: float) -> NDArray[np.float32]:
+    """clip(a_base + scale * residual) to the action space, row by row for a batch."""
+    total = np.asarray(base_action, dtype=float) + scale * np.asarray(residual, dtype=float)
+    return safe_action(total)
+
+
+class ResidualAgent:
+    """``base`` plus ``scale`` times ``learned``'s action (module docstring), as an
+    :class:`agents.protocol.Agent`.
+
+    Args:
+        base: an analytic controller (``predict`` on one observation or a batch).
+        learned: anything with SB3's ``predict`` (an SB3 model, :class:`agents.sb3_policy.
+            SB3Policy`); it sees the observation the base sees.
+        scale: alpha.
+        name: label for reports.
+    """
+
+    privileged = False
+
+    def __init__(self, base: Any, learned: Any, scale: float, name: str = "residual") -> None:
+        self.base, self.learned, self.scale, self.name = base, learned, float(scale), name
+
+    def predict(
+        self,
+        observation: NDArray,
+        state: Any = None,
+        episode_start: NDArray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[NDArray[np.float32], Any]:
+        """SB3-style predict, one observation (16,) or a batch (N, 16)."""
+        base, _ = self.base.predict(observation)
+        residual, state = self.learned.predict(
+            observation, state=state, episode_start=episode_start, deterministic=deterministic
+        )
+        return combine(base, residual, self.scale), state
+
+    def reset(self) -> None:
+        """Start of an episode for both parts."""
+        self.base.reset()
+        if hasattr(self.learned, "reset"):
+            self.learned.reset()
