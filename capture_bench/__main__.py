@@ -5,6 +5,9 @@
 ``python train.py`` / ``python tune.py`` and the console scripts ``capture-bench-evaluate`` /
 ``capture-bench-train`` / ``capture-bench-tune``, with the same options.
 
+``python -m capture_bench curves ...``: learning curves from several training seeds
+(:mod:`capture_bench.training.curves`).
+
 ``python -m capture_bench list``: what is installed, and what is broken, in one screen. It prints
 the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges), the
 invalid scenario files with their error (file, key, what is valid), the suites and the algorithm
@@ -25,6 +28,7 @@ DELEGATED = {
     "evaluate": "evaluate agents on a suite and write the leaderboard report",
     "train": "train a Stable-Baselines3 policy on a scenario",
     "tune": "tune an algorithm's hyper-parameters with Optuna (needs the tune extra)",
+    "curves": "learning curves of several algorithms and training seeds against incremental_ik",
 }
 
 
@@ -36,7 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, what in DELEGATED.items():
-        commands.add_parser(name, help=f"{what} (the options of {name}.py: {PROG} {name} --help)")
+        where = f"the options of {name}.py: " if name != "curves" else ""
+        commands.add_parser(name, help=f"{what} ({where}{PROG} {name} --help)")
     commands.add_parser(
         "list",
         help="list the valid scenarios (name, env ID, seed ranges), invalid scenario files with "
@@ -128,6 +133,10 @@ def main(argv: list[str] | None = None) -> int:
         from capture_bench.training.tune import main as tune
 
         return tune(args[1:])
+    if args and args[0] == "curves":
+        from capture_bench.training.curves import main as curves
+
+        return curves(args[1:])
     try:
         build_parser().parse_args(args)
     except SystemExit as exc:  # --help (0) or a bad command (2, already printed in one line)

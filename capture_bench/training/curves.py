@@ -1,0 +1,461 @@
+"""Learning curves (issue 14 point 4): ``python -m capture_bench curves``.
+
+Trains (with ``--train``) or reads runs of each algorithm on one scenario from several training
+seeds, and writes one report page, ``learning_curves.md`` and a self-contained
+``learning_curves.html``, with ``learning_curves.png`` and the numbers in ``curves.json``:
+
+* validation capture rate and median ratio to the physical limit against environment steps and
+  against wall-clock training time, the mean over seeds with a 95% interval (Student's t over
+  the seeds: mean +- t(0.975, n-1) s / sqrt(n)), and ``incremental_ik``'s level on the same
+  validation seeds drawn as a line;
+* "time to baseline": per algorithm, the environment steps and the wall-clock time at which each
+  seed's validation capture rate first reached ``incremental_ik``'s (median over the seeds that
+  did, and how many did);
+* the machine the runs were measured on.
+
+Every number comes from the runs' ``validations.csv`` (written by train.py's periodic
+validation: :data:`capture_bench.training.callbacks.VALIDATIONS_FILE`), so the page is
+regenerated without training again. Validation seeds only: nothing here reads a published
+evaluation seed. Wall-clock time is the run's training time including its validations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import csv
+import io
+import json
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from capture_bench.argparsing import OneLineParser
+from capture_bench.files import atomic_write, check_writable
+from capture_bench.task.scenarios import ConfigError, load_scenario
+
+VALIDATIONS_FILE = "validations.csv"  # capture_bench.training.callbacks.VALIDATIONS_FILE
+METRICS = (
+    ("capture_rate", "validation capture rate"),
+    ("median_ratio_to_limit", "median ratio to the physical limit"),
+)
+REPORT = "learning_curves"
+
+
+@dataclass
+class Curve:
+    """One run's validations: steps, wall-clock s, and each metric (NaN where undefined)."""
+
+    algo: str
+    seed: int
+    steps: np.ndarray
+    wall: np.ndarray
+    values: dict[str, np.ndarray]
+    episodes: int
+
+
+def read_curve(run_dir: Path, algo: str, seed: int) -> Curve:
+    """A run's ``validations.csv`` (the last row of a step repeated by a resume wins).
+
+    Raises:
+        ConfigError: no such file, or one without validations or the columns it needs.
+    """
+    path = run_dir / VALIDATIONS_FILE
+    try:
+        rows = list(csv.DictReader(path.open()))
+    except OSError as exc:
+        raise ConfigError(
+            f"{path}: cannot be read ({exc.strerror or exc}); train the run first (--train) "
+            "with eval_freq > 0"
+        ) from None
+    need = {"step", "wall_time_s", *(m for m, _ in METRICS)}
+    if not rows or not need <= set(rows[0]):
+        raise ConfigError(f"{path}: no validation rows with columns {', '.join(sorted(need))}")
+    by_step = {int(r["step"]): r for r in rows}
+    steps = sorted(by_step)
+
+    def column(name: str) -> np.ndarray:
+        return np.array([_number(by_step[s][name]) for s in steps])
+
+    saved = json.loads((run_dir / "config.json").read_text())
+    episodes = int(saved["hyperparameters"]["eval_episodes"])
+    return Curve(
+        algo,
+        seed,
+        np.array(steps),
+        column("wall_time_s"),
+        {m: column(m) for m, _ in METRICS},
+        episodes,
+    )
+
+
+def _number(text: str | None) -> float:
+    try:
+        return float(text) if text not in (None, "") else math.nan
+    except ValueError:
+        return math.nan
+
+
+def mean_interval(samples: np.ndarray) -> tuple[float, float, float, int]:
+    """(mean, low, high, n) of the finite samples: Student's t 95% interval over them (the
+    interval is the mean itself for one sample; NaNs for none)."""
+    from scipy import stats
+
+    x = samples[np.isfinite(samples)]
+    n = int(x.size)
+    if n == 0:
+        return math.nan, math.nan, math.nan, 0
+    mean = float(x.mean())
+    if n == 1:
+        return mean, mean, mean, 1
+    half = float(stats.t.ppf(0.975, n - 1) * x.std(ddof=1) / math.sqrt(n))
+    return mean, mean - half, mean + half, n
+
+
+def baseline_level(scenario: str, episodes: int) -> dict[str, float]:
+    """``incremental_ik``'s validation statistics on the first ``episodes`` validation seeds of
+    ``scenario``, as train.py's validation computes them."""
+    from agents.incremental_ik import IncrementalIK
+    from capture_bench.envs.vector_env import CaptureVectorEnv
+    from capture_bench.training.episode_stats import summarize
+    from capture_bench.training.validation_run import run_validation
+
+    sc = load_scenario(scenario)
+    seeds = list(sc.validation_seeds[:episodes])
+    env = CaptureVectorEnv(len(seeds), sc)
+    try:
+        return summarize(run_validation(IncrementalIK(env.description), env, seeds))
+    finally:
+        env.close()
+
+
+def time_to_baseline(curve: Curve, level: float) -> tuple[int, float] | None:
+    """(steps, wall-clock s) of the first validation whose capture rate reached ``level``."""
+    reached = np.flatnonzero(curve.values["capture_rate"] >= level - 1e-12)
+    if not reached.size:
+        return None
+    i = int(reached[0])
+    return int(curve.steps[i]), float(curve.wall[i])
+
+
+def aggregate(curves: list[Curve]) -> dict[str, Any]:
+    """Per validation step common to every seed: mean and interval of each metric, and the mean
+    wall-clock time."""
+    common = sorted(set.intersection(*(set(c.steps.tolist()) for c in curves)))
+    out: dict[str, Any] = {"steps": common, "wall_s": []}
+    for metric, _ in METRICS:
+        out[metric] = {"mean": [], "low": [], "high": [], "n": []}
+    for step in common:
+        rows = [int(np.flatnonzero(c.steps == step)[0]) for c in curves]
+        out["wall_s"].append(float(np.mean([c.wall[i] for c, i in zip(curves, rows)])))
+        for metric, _ in METRICS:
+            mean, low, high, n = mean_interval(
+                np.array([c.values[metric][i] for c, i in zip(curves, rows)])
+            )
+            if metric == "capture_rate" and n:
+                low, high = max(low, 0.0), min(high, 1.0)
+            for key, value in zip(("mean", "low", "high", "n"), (mean, low, high, n)):
+                out[metric][key].append(value)
+    return out
+
+
+def figure(
+    curves: dict[str, list[Curve]], summary: dict[str, Any], baseline: dict[str, float]
+) -> bytes:
+    """The 2 x 2 plot (metric x steps / wall-clock) as PNG bytes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.5), constrained_layout=True)
+    colours = plt.get_cmap("tab10")
+    for row, (metric, label) in enumerate(METRICS):
+        for col, (axis_key, xlabel) in enumerate(
+            (("steps", "environment steps"), ("wall_s", "wall-clock training time, s"))
+        ):
+            ax = axes[row][col]
+            for k, algo in enumerate(curves):
+                agg = summary[algo]
+                x = np.array(agg[axis_key], dtype=float)
+                m = agg[metric]
+                mean, low, high = (np.array(m[key], dtype=float) for key in ("mean", "low", "high"))
+                n = len(curves[algo])
+                ax.plot(x, mean, color=colours(k), label=f"{algo.upper()} ({n} seeds)")
+                ax.fill_between(x, low, high, color=colours(k), alpha=0.2, linewidth=0)
+            level = baseline[metric]
+            if math.isfinite(level):
+                ax.axhline(
+                    level,
+                    color="black",
+                    linestyle="--",
+                    linewidth=1,
+                    label=f"incremental_ik ({level:.2f})",
+                )
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(label)
+            if metric == "median_ratio_to_limit":
+                ax.set_yscale("log")
+            else:
+                ax.set_ylim(-0.02, 1.02)
+            ax.grid(alpha=0.3)
+    axes[0][0].legend(loc="lower right", fontsize=8)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def _format_time(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+
+
+def report(
+    runs: Path, out: Path, scenario: str, algos: list[str], seeds: list[int], command: str
+) -> Path:
+    """Write the report page from the runs in ``runs``; return the markdown file."""
+    from capture_bench.evaluation.provenance import git_state, machine
+
+    curves = {a: [read_curve(run_path(runs, scenario, a, s), a, s) for s in seeds] for a in algos}
+    episodes = {c.episodes for cs in curves.values() for c in cs}
+    if len(episodes) != 1:
+        raise ConfigError(
+            f"{runs}: the runs validate on different numbers of seeds {sorted(episodes)}"
+        )
+    (n_episodes,) = episodes
+    baseline = baseline_level(scenario, n_episodes)
+    summary = {a: aggregate(cs) for a, cs in curves.items()}
+    level = baseline["capture_rate"]
+    table = [
+        "| algorithm | seeds reaching it | steps (median) | wall-clock (median) | per seed |",
+        "|---|---|---|---|---|",
+    ]
+    times: dict[str, Any] = {}
+    for algo, cs in curves.items():
+        hits = {c.seed: time_to_baseline(c, level) for c in cs}
+        reached = [h for h in hits.values() if h is not None]
+        times[algo] = {
+            str(s): (None if h is None else {"steps": h[0], "wall_s": h[1]})
+            for s, h in hits.items()
+        }
+        per_seed = ", ".join(
+            f"seed {s}: "
+            + ("not reached" if h is None else f"{h[0]:,} steps / {_format_time(h[1])}")
+            for s, h in hits.items()
+        )
+        if reached:
+            steps = int(np.median([h[0] for h in reached]))
+            wall = _format_time(float(np.median([h[1] for h in reached])))
+            table.append(
+                f"| {algo.upper()} | {len(reached)} of {len(cs)} | {steps:,} | {wall} "
+                f"| {per_seed} |"
+            )
+        else:
+            table.append(f"| {algo.upper()} | 0 of {len(cs)} | - | - | {per_seed} |")
+    png = figure(curves, summary, baseline)
+    host = machine()
+    ratio = baseline["median_ratio_to_limit"]
+    lines = [
+        f"# Learning curves on `{scenario}`",
+        "",
+        f"Validation on the first {n_episodes} validation seeds of `{scenario}` (never a published "
+        "evaluation seed), deterministic actions, every `eval_freq` steps of each run; mean over "
+        f"the training seeds {', '.join(map(str, seeds))} with a 95% interval (Student's t over "
+        "the seeds). The dashed line is `incremental_ik` on the same seeds: capture rate "
+        f"{level:.2f}, median ratio to the physical limit {ratio:.2f}. Wall-clock is each run's "
+        "training time, validations included.",
+        "",
+        f"![learning curves]({REPORT}.png)",
+        "",
+        f"## Time to `incremental_ik`'s validation capture rate ({level:.2f})",
+        "",
+        *table,
+        "",
+        "## Provenance",
+        "",
+        f"- command: `{command}`",
+        f"- runs: `{runs}` ({', '.join(f'{a}: {len(cs)} seeds' for a, cs in curves.items())})",
+        f"- machine: {host}",
+        f"- git: {git_state()}",
+        "",
+    ]
+    markdown = "\n".join(lines)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write(out / f"{REPORT}.png", png)
+    atomic_write(out / f"{REPORT}.md", markdown.encode())
+    atomic_write(out / f"{REPORT}.html", _html(markdown, png).encode())
+    numbers = {
+        "scenario": scenario,
+        "validation_episodes": n_episodes,
+        "baseline": baseline,
+        "curves": summary,
+        "time_to_baseline": times,
+        "machine": host,
+    }
+    atomic_write(out / "curves.json", json.dumps(numbers, indent=2, default=_json).encode())
+    return out / f"{REPORT}.md"
+
+
+def _json(value: Any) -> Any:
+    return float(value) if isinstance(value, np.floating) else int(value)
+
+
+def _html(markdown: str, png: bytes) -> str:
+    """The page as one self-contained HTML file (the plot embedded)."""
+    import html
+
+    body = []
+    in_table = False
+    for line in markdown.splitlines():
+        if line.startswith("|"):
+            cells = [html.escape(c.strip()) for c in line.strip("|").split("|")]
+            if set("".join(cells)) <= set("-"):
+                continue
+            tag = "th" if not in_table else "td"
+            body.append(
+                ("<table>" if not in_table else "")
+                + "<tr>"
+                + "".join(f"<{tag}>{c}</{tag}>" for c in cells)
+                + "</tr>"
+            )
+            in_table = True
+            continue
+        if in_table:
+            body.append("</table>")
+            in_table = False
+        if line.startswith("!["):
+            data = base64.b64encode(png).decode()
+            body.append(f'<img alt="learning curves" src="data:image/png;base64,{data}">')
+        elif line.startswith("## "):
+            body.append(f"<h2>{html.escape(line[3:])}</h2>")
+        elif line.startswith("# "):
+            body.append(f"<h1>{html.escape(line[2:])}</h1>")
+        elif line.startswith("- "):
+            body.append(f"<li>{html.escape(line[2:])}</li>")
+        elif line:
+            body.append(f"<p>{html.escape(line)}</p>")
+    if in_table:
+        body.append("</table>")
+    style = (
+        "body{font-family:sans-serif;max-width:1100px;margin:2em auto}"
+        "td,th{border:1px solid #ccc;padding:4px 8px}table{border-collapse:collapse}"
+        "img{max-width:100%}"
+    )
+    head = f"<meta charset='utf-8'><title>learning curves</title><style>{style}</style>"
+    return f"<!DOCTYPE html><html><head>{head}</head><body>{''.join(body)}</body></html>\n"
+
+
+def run_path(runs: Path, scenario: str, algo: str, seed: int) -> Path:
+    return runs / f"{scenario}-{algo}-{seed}"
+
+
+def train_runs(
+    runs: Path, scenario: str, algos: list[str], seeds: list[int], extra: list[str]
+) -> int:
+    """Train (or resume) every run that has not finished; the first non-zero exit status."""
+    from capture_bench.training.run import main as train_main
+
+    for algo in algos:
+        for seed in seeds:
+            run_dir = run_path(runs, scenario, algo, seed)
+            if (run_dir / "metadata.json").is_file():
+                print(f"{run_dir}: finished; kept")
+                continue
+            if (run_dir / "config.json").is_file():
+                argv = ["--resume", str(run_dir)]
+            else:
+                argv = [
+                    "--algo",
+                    algo,
+                    "--scenario",
+                    scenario,
+                    "--seed",
+                    str(seed),
+                    "--run-dir",
+                    str(run_dir),
+                    *extra,
+                ]
+            status = train_main(argv)
+            if status:
+                return status
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from capture_bench.training.hyperparameters import ALGORITHMS
+
+    parser = OneLineParser(
+        prog="python -m capture_bench curves",
+        description="Learning curves of train.py's algorithms on a scenario from several "
+        "training seeds, against incremental_ik's level (markdown + HTML report).",
+        epilog="example: python -m capture_bench curves --train --algos ppo sac --seeds 0 1 2",
+    )
+    parser.add_argument(
+        "--algos",
+        nargs="+",
+        default=["ppo", "sac"],
+        choices=ALGORITHMS,
+        metavar="ALGO",
+        help=f"algorithms (default: ppo sac; valid: {', '.join(ALGORITHMS)})",
+    )
+    parser.add_argument(
+        "--seeds",
+        nargs="+",
+        type=int,
+        default=[0, 1, 2],
+        metavar="SEED",
+        help="training seeds (default: 0 1 2)",
+    )
+    parser.add_argument("--scenario", default="paper", help="scenario (default: paper)")
+    parser.add_argument(
+        "--runs", default="runs/curves", help="run directories (default: runs/curves)"
+    )
+    parser.add_argument("--out", default="reports/learning_curves", help="report folder")
+    parser.add_argument(
+        "--train", action="store_true", help="train or resume the unfinished runs first"
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        dest="overrides",
+        metavar="KEY=VALUE",
+        help="passed to train.py for new runs (e.g. --set total_timesteps=1000000)",
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m capture_bench curves``; the exit status."""
+    args_list = sys.argv[1:] if argv is None else argv
+    try:
+        args = build_parser().parse_args(args_list)
+        load_scenario(args.scenario)
+        for seed in args.seeds:
+            from capture_bench.training.seeds import check_training_seed
+
+            check_training_seed(seed, load_scenario(args.scenario))
+        runs, out = Path(args.runs), Path(args.out)
+        check_writable(out, "--out")
+        if args.train:
+            check_writable(runs, "--runs")
+            extra = [f"--set={item}" for item in args.overrides or []]
+            status = train_runs(runs, args.scenario, list(args.algos), list(args.seeds), extra)
+            if status:
+                return status
+        command = "python -m capture_bench curves " + " ".join(args_list)
+        page = report(runs, out, args.scenario, list(args.algos), list(args.seeds), command)
+    except ConfigError as exc:
+        print(f"curves: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    print(f"learning curves: {page} (and .html)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

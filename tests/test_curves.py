@@ -1,0 +1,99 @@
+"""The learning-curves page (issue 14 point 4): tiny runs of two algorithms from two training
+seeds, trained by the command, give a markdown and a self-contained HTML page whose numbers are
+those of the runs' validations.csv, with incremental_ik's level on the same validation seeds."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from capture_bench.training.curves import main, mean_interval, time_to_baseline
+
+TINY = ["n_envs=2", "total_timesteps=128", "eval_freq=64", "eval_episodes=3",
+        "policy_kwargs.net_arch=[8]", "n_steps=32", "checkpoint_freq=0"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def page(tmp_path_factory):
+    root = tmp_path_factory.mktemp("curves")
+    argv = ["--train", "--algos", "ppo", "a2c", "--seeds", "0", "1",
+            "--runs", str(root / "runs"), "--out", str(root / "out")]  # fmt: skip
+    argv += [f"--set={item}" for item in TINY]
+    assert main(argv) == 0
+    return root
+
+
+def test_the_command_trains_the_runs_and_writes_the_page(page):
+    out = page / "out"
+    for name in (
+        "learning_curves.md",
+        "learning_curves.html",
+        "learning_curves.png",
+        "curves.json",
+    ):
+        assert (out / name).is_file(), name
+    assert {p.name for p in (page / "runs").iterdir()} == {
+        "paper-ppo-0", "paper-ppo-1", "paper-a2c-0", "paper-a2c-1"
+    }  # fmt: skip
+    html = (out / "learning_curves.html").read_text()
+    assert "data:image/png;base64," in html and "<table>" in html and 'src="http' not in html
+    md = (out / "learning_curves.md").read_text()
+    assert "Time to `incremental_ik`" in md and "| PPO |" in md and "| A2C |" in md
+    assert "machine" in md
+
+
+def test_the_numbers_are_the_runs_validations(page):
+    numbers = json.loads((page / "out" / "curves.json").read_text())
+    rates = []
+    for seed in (0, 1):
+        with open(page / "runs" / f"paper-ppo-{seed}" / "validations.csv") as handle:
+            rows = list(csv.DictReader(handle))
+        assert [int(r["step"]) for r in rows] == [64, 128]
+        rates.append([float(r["capture_rate"]) for r in rows])
+    ppo = numbers["curves"]["ppo"]
+    assert ppo["steps"] == [64, 128]
+    np.testing.assert_allclose(ppo["capture_rate"]["mean"], np.mean(rates, axis=0))
+    assert numbers["validation_episodes"] == 3
+    assert 0.0 <= numbers["baseline"]["capture_rate"] <= 1.0
+
+
+def test_an_existing_finished_run_is_kept_and_the_page_regenerates_without_training(page, capsys):
+    before = (page / "runs" / "paper-ppo-0" / "metadata.json").read_bytes()
+    argv = ["--algos", "ppo", "--seeds", "0", "1", "--runs", str(page / "runs"),
+            "--out", str(page / "again")]  # fmt: skip
+    assert main(argv) == 0
+    assert (page / "runs" / "paper-ppo-0" / "metadata.json").read_bytes() == before
+    assert (page / "again" / "learning_curves.md").is_file()
+
+
+def test_the_interval_and_the_time_to_baseline():
+    mean, low, high, n = mean_interval(np.array([0.5, 0.7, 0.6, np.nan]))
+    assert n == 3 and mean == pytest.approx(0.6)
+    assert high - mean == pytest.approx(4.302653 * 0.1 / np.sqrt(3), rel=1e-5)  # t(0.975, 2)
+    assert mean_interval(np.array([np.nan]))[3] == 0
+
+    class C:
+        steps = np.array([10, 20, 30])
+        wall = np.array([1.0, 2.0, 3.0])
+        values = {"capture_rate": np.array([0.2, 0.9, 1.0])}
+
+    assert time_to_baseline(C, 0.9) == (20, 2.0)
+    assert time_to_baseline(C, 1.01) is None
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--algos", "dqn"], "invalid choice"),
+        (["--seeds", "1000000"], "evaluation seeds"),
+        (["--runs", "/nonexistent/runs"], "validations.csv"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, expected):
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and expected in err, err
+    assert not (tmp_path / "out" / "learning_curves.md").exists()
