@@ -20,7 +20,16 @@ Plan, per episode:
    commands exactly that, which captures at ``t + dt``. Because the bound's onset falls
    inside a control period, this is what makes the capture land within one period of T rather
    than the target drifting away from ``theta*`` while the arm waits there.
-3. *Fallback.* If the bound is infinite (the target is never reachable within the horizon), or the
+3. *Track (with a hold).* Where the scenario asks eq. 20 to hold for ``hold`` s, the bound is the
+   arrival ``T`` plus ``hold``. From the step that ends at or after ``T`` (or once every joint
+   is at ``theta*``), where no exact one-step solution exists, it moves to the joint vector
+   within one step (and the joint limits) whose end-effector is nearest ``X_T(t + dt)``
+   (``nearest_in_box`` of the bound's own search, started from ``theta*`` the first time),
+   ``mode = "track"``, and never returns to ``theta*``: ``theta*`` is only within ``|epsilon|``
+   of the capture point at ``T``, the bound's sphere, not yet inside eq. 20's cube. The exact
+   one-step solution of 2. then keeps the end-effector on the capture point at every step's
+   end. (Without a hold the episode ends at the entry, and the oracle goes on as before: 4.)
+4. *Fallback.* If the bound is infinite (the target is never reachable within the horizon), or the
    plan is spent without a capture, it runs the paper's incremental IK step (eqs. 13-19, capped)
    on the true position one period ahead, ``X_T(t + t_s)``, and reports ``mode = "fallback"``.
 """
@@ -36,6 +45,7 @@ from agents.base import predict_each, safe_action
 from agents.incremental_ik import incremental_step
 from capture_bench.sim.kinematics import inverse_kinematics, within_limits
 from capture_bench.task.observation import TaskDescription, decode_observation
+from capture_bench.task.physical_limit import nearest_in_box
 
 
 class Oracle:
@@ -54,6 +64,9 @@ class Oracle:
         self.description: TaskDescription = self.world.description
         self.theta_star: NDArray[np.float64] | None = None
         self.bound_time: float | None = None
+        self.hold = 0.0
+        self.arrival = np.inf
+        self.tracking = False
         self.mode = "plan"
         self._last_time = -np.inf
 
@@ -61,12 +74,17 @@ class Oracle:
         """Forget the plan; the next ``predict`` asks the environment for the new bound."""
         self.theta_star = None
         self.bound_time = None
+        self.hold = 0.0
+        self.arrival = np.inf
+        self.tracking = False
         self.mode = "plan"
         self._last_time = -np.inf
 
     def _plan(self) -> None:
         limit = self.world.physical_limit()
         self.bound_time = float(limit.time)
+        self.hold = float(getattr(limit, "hold", 0.0))
+        self.arrival = self.bound_time - self.hold  # when eq. 20 can first hold, s
         finite = np.isfinite(self.bound_time) and limit.theta is not None
         self.theta_star = np.asarray(limit.theta, dtype=float) if finite else None
         self.mode = "bound" if finite else "fallback"
@@ -93,6 +111,17 @@ class Oracle:
         scaled = (candidates - theta) / reach
         return candidates[int(np.argmin(np.max(np.abs(scaled), axis=1)))]
 
+    def _nearest_in_one_step(
+        self, theta: NDArray, goal: NDArray, dt: float, start: NDArray
+    ) -> NDArray[np.float64]:
+        """The joint vector within one step of ``dt`` s of ``theta`` and the joint limits whose
+        end-effector is nearest ``goal`` (local search from ``start`` clipped to that box)."""
+        arm = self.description.arm
+        reach = arm.joint_rate_limits * min(dt, self.description.control_period) * (1.0 - 1e-9)
+        lo = np.maximum(arm.joint_lower, theta - reach)
+        hi = np.minimum(arm.joint_upper, theta + reach)
+        return nearest_in_box(start[None], goal[None], lo[None], hi[None])[0]
+
     def act(self, observation: NDArray) -> NDArray[np.float32]:
         """Action for one observation, shape (3,), float32, in [-1, 1]."""
         t = float(self.world.time)
@@ -107,8 +136,19 @@ class Oracle:
         direct = self._one_step_solution(theta, goal, dt)
         if direct is not None:  # capture at the end of this step
             return safe_action((direct - theta) / scale)
-        if self.theta_star is not None and np.any(np.abs(self.theta_star - theta) > 1e-6):
-            return safe_action((self.theta_star - theta) / scale)  # full rate toward theta*
+        star = self.theta_star
+        away = star is not None and bool(np.any(np.abs(star - theta) > 1e-6))
+        if (
+            star is not None
+            and self.hold > 0.0
+            and (self.tracking or not away or t + dt >= self.arrival)
+        ):
+            start = theta if self.tracking else star
+            self.tracking = True  # from now on: track
+            self.mode = "track"
+            return safe_action((self._nearest_in_one_step(theta, goal, dt, start) - theta) / scale)
+        if star is not None and away:
+            return safe_action((star - theta) / scale)  # full rate toward theta*
         self.mode = "fallback"
         step = incremental_step(theta, goal, np.zeros(3), desc, cap=True)
         return safe_action(desc.increment_to_action(step.increment))

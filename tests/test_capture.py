@@ -1,6 +1,9 @@
-"""Eq. 20 over a whole step, against hand cases and a dense brute force."""
+"""Eq. 20 over a whole step, against hand cases and a dense brute force; the hold."""
+
+import math
 
 import numpy as np
+import pytest
 
 from capture_bench.sim.kinematics import forward_kinematics
 from capture_bench.task.capture import (
@@ -8,6 +11,10 @@ from capture_bench.task.capture import (
     closest_approach,
     first_entry_along_arc,
     first_entry_fraction,
+    held_capture,
+    inside_interval,
+    inside_intervals,
+    inside_intervals_along_arc,
     within_tolerance,
 )
 
@@ -69,3 +76,111 @@ def test_closest_approach_against_sampling():
         d0, d1 = rng.normal(size=(2, 3))
         dense = np.linalg.norm(d0 + s[:, None] * (d1 - d0), axis=1).min()
         assert abs(closest_approach(d0, d1) - dense) < 1e-6
+
+
+# --- a hold: eq. 20 without a break for `hold` s (issue 13) ------------------------------------
+
+DT = 0.05
+
+
+def _held(relative: list[list[float]], hold: float, tolerance=EPS) -> float | None:
+    """Walk steps of a hand-built relative vector (its values at the step ends, m) through
+    held_capture as the step rule does; the capture time or None."""
+    since = math.nan
+    for k in range(1, len(relative)):
+        t0 = (k - 1) * DT
+        interval = inside_interval(relative[k - 1], relative[k], tolerance)
+        if interval is None:
+            since = math.nan
+            continue
+        done, since = held_capture([interval], since, t0, DT, hold)
+        if done is not None:
+            return done
+    return None
+
+
+def _mm(*xs: float) -> list[list[float]]:
+    return [[x * 1e-3, 0.0, 0.0] for x in xs]
+
+
+def test_entering_and_leaving_before_the_hold_completes_is_not_a_capture():
+    # Through the 1 mm box in step 0 (inside for s in (0.4, 0.6): 0.02-0.03 s) and back in step 1.
+    fly_through = _mm(-5, 5, -5)
+    assert _held(fly_through, hold=0.0) == pytest.approx(0.02)  # eq. 20 alone: it captures
+    assert _held(fly_through, hold=0.02) is None  # two stays of 0.01 s each
+    # In from s = 0.8 of step 0 (0.04 s) to s = 0.2 of step 2 (0.11 s): a stay of 0.07 s.
+    visit = _mm(-5, 0, 0, -5, -5)
+    assert _held(visit, hold=0.0) == pytest.approx(0.04)
+    assert _held(visit, hold=0.08) is None
+    assert _held(visit, hold=0.06) == pytest.approx(0.10)
+
+
+def test_staying_is_a_capture_at_entry_plus_hold_possibly_mid_step():
+    path = _mm(-5, 0, 0, 0, 0, 0, 0)  # entry at s = 0.8 of step 0: t = 0.04 s, then stays
+    for hold in (0.0, 0.01, 0.05, 0.1, 0.137, 0.25):
+        assert _held(path, hold) == pytest.approx(0.04 + hold, abs=1e-12), hold
+    assert _held(path, hold=0.27) is None  # the trajectory ends at 0.3 s
+
+
+def test_reentry_restarts_the_clock():
+    # In from 0.04 s, out at 0.11 s (step 2), in again at 0.19 s (step 3) and stays to 0.35 s.
+    path = _mm(-5, 0, 0, 5, 0, 0, 0, 0)
+    assert _held(path, hold=0.05) == pytest.approx(0.09)  # the first stay lasts long enough
+    assert _held(path, hold=0.1) == pytest.approx(0.19 + 0.1)  # it does not: the second counts
+    assert _held(path, hold=0.0) == pytest.approx(0.04)
+
+
+def test_held_capture_of_a_stay_that_began_steps_ago_and_the_stay_at_the_end():
+    # Already inside since t = 0.01 s at this step's start (t0 = 0.1 s).
+    assert held_capture([(0.0, 1.0)], 0.01, 0.1, DT, 0.12) == (pytest.approx(0.13), 0.01)
+    done, since = held_capture([(0.0, 1.0)], 0.01, 0.1, DT, 0.2)
+    assert done is None and since == 0.01  # still inside: the stay goes on
+    done, since = held_capture([(0.0, 0.5)], 0.01, 0.1, DT, 0.2)
+    assert done is None and math.isnan(since)  # left at s = 0.5
+    # Left, then entered again in the same step: the clock restarts at the second entry.
+    done, since = held_capture([(0.0, 0.2), (0.6, 1.0)], 0.01, 0.1, DT, 0.2)
+    assert done is None and since == pytest.approx(0.13)
+    assert held_capture([], 0.01, 0.1, DT, 0.2)[0] is None
+
+
+def test_inside_interval_agrees_with_dense_sampling():
+    rng = np.random.default_rng(2)
+    s_grid = np.linspace(0, 1, 20001)
+    for _ in range(300):
+        d0, d1 = rng.uniform(-4e-3, 4e-3, (2, 3))
+        inside = np.all(np.abs(d0 + s_grid[:, None] * (d1 - d0)) < EPS, axis=1)
+        interval = inside_interval(d0, d1, EPS)
+        if inside.any():
+            assert interval is not None
+            assert abs(interval[0] - s_grid[inside][0]) < 1e-4
+            assert abs(interval[1] - s_grid[inside][-1]) < 1e-4
+        elif interval is not None:
+            assert interval[1] - interval[0] < 1e-4
+    batched = inside_intervals(
+        rng.uniform(-4e-3, 4e-3, (50, 3)), rng.uniform(-4e-3, 4e-3, (50, 3)), EPS
+    )
+    assert batched[0].shape == batched[1].shape == (50,)
+
+
+def test_leaving_along_the_arc_mid_step_is_seen_where_the_chord_stays_inside():
+    """Joint 1 swings 0.5 rad while the target follows the chord: the chord test stays inside the
+    box, the arc sags ~1.8 cm away mid-step and comes back: two stays, an exit and an entry."""
+    theta0 = np.array([-0.25, 1.2, 0.1])
+    delta = np.array([0.5, 0.0, 0.0])
+    a, b = forward_kinematics(theta0), forward_kinematics(theta0 + delta)
+
+    def on_chord(s):
+        return a + np.asarray(s)[:, None] * (b - a)
+
+    stays = inside_intervals_along_arc(theta0, delta, on_chord, EPS)
+    assert len(stays) == 2 and stays[0][0] == 0.0 and stays[1][1] == 1.0
+    assert 0.0 < stays[0][1] < 0.5 < stays[1][0] < 1.0
+    # Dense check of the exit and the entry along the arc.
+    s = np.linspace(0, 1, 200001)
+    inside = np.all(np.abs(forward_kinematics(theta0 + s[:, None] * delta) - on_chord(s)) < EPS, 1)
+    assert abs(stays[0][1] - s[np.argmin(inside)]) < 1e-4
+    assert abs(stays[1][0] - s[len(s) - np.argmin(inside[::-1])]) < 1e-4
+    # A stay that began before the step is broken at the exit; the clock restarts at the entry.
+    done, since = held_capture(stays, 0.98, 1.0, DT, 0.5)
+    assert done is None and since == pytest.approx(1.0 + stays[1][0] * DT)
+    assert first_entry_along_arc(theta0, delta, on_chord, EPS) == 0.0

@@ -43,7 +43,7 @@ def test_gymnasium_and_sb3_checkers_pass(env_id, make_env):
 
 
 def test_required_ids_are_registered():
-    for name in ("Paper", "Drift", "Circular", "Tumbling", "Jitter", "Noisy"):
+    for name in ("Paper", "Drift", "Circular", "Tumbling", "Jitter", "Noisy", "Grasp"):
         assert f"CaptureBench/{name}-v0" in gym.registry
 
 
@@ -64,7 +64,13 @@ def rollout(env, seed, steps=60):
 
 
 @pytest.mark.parametrize(
-    "env_id", ["CaptureBench/Paper-v0", "CaptureBench/Noisy-v0", "CaptureBench/Jitter-v0"]
+    "env_id",
+    [
+        "CaptureBench/Paper-v0",
+        "CaptureBench/Noisy-v0",
+        "CaptureBench/Jitter-v0",
+        "CaptureBench/Grasp-v0",
+    ],
 )
 def test_same_seed_gives_the_identical_rollout(env_id, make_env):
     a, b = make_env(env_id), make_env(env_id)
@@ -126,14 +132,19 @@ def knowing_policy(env):
         "CaptureBench/Circular-v0",
         "CaptureBench/Tumbling-v0",
         "CaptureBench/Jitter-v0",  # the bound counts what the varying periods let joints move
+        "CaptureBench/Grasp-v0",  # the bound is the arrival plus the hold
     ],
 )
 def test_bound_never_exceeds_the_capture_time_of_a_policy_that_knows_the_trajectory(
     env_id, make_env
 ):
+    """With a hold (Grasp) the bound is the arrival plus the hold, and only its lower-bound half
+    is tested here: this reference does not track the target after arriving (it returns to the
+    bound's theta*), the oracle does (tests/test_agents.py)."""
     env = make_env(env_id, observation_source="truth")
     control = env.unwrapped.scenario.control
     longest_step = control.period * (1.0 + control.period_jitter)
+    hold = env.unwrapped.scenario.capture.hold
     captured = 0
     for seed in range(6):
         env.reset(seed=seed)
@@ -146,10 +157,10 @@ def test_bound_never_exceeds_the_capture_time_of_a_policy_that_knows_the_traject
             captured += 1
             assert info["physical_limit_time"] == bound
             assert bound <= info["capture_time"] + 1e-9
-            assert info["capture_time"] <= bound + longest_step + 1e-9
+            assert hold > 0 or info["capture_time"] <= bound + longest_step + 1e-9
         else:
             assert info["failure"] in FAILURES
-    assert captured >= 4
+    assert captured >= (4 if hold == 0 else 2)  # without tracking, some holds break
 
 
 def test_travel_time_under_jitter_is_what_full_rate_steps_move(make_env):

@@ -206,6 +206,7 @@ def test_terminal_shows_a_progress_bar_with_eta_and_the_summary_table(tmp_path, 
     assert "custom-" in err and "2/2" in err and "ETA" in err  # the final bar
     flat = " ".join(out.split())  # the table wraps to the (narrow) captured console
     assert "capture rate, % of episodes" in flat and "incremental_ik" in flat
+    assert "speed: mean over scenarios of the median relative speed at capture, mm/s" in flat
     assert f"report: {tmp_path / 'custom-'}" in flat and not (tmp_path / "quick").exists()
 
 

@@ -170,6 +170,32 @@ def test_ranking_ties_on_capture_rate_are_broken_by_the_ratio():
     assert [r.agent for r in ranking] == ["quick", "slow"]
 
 
+def test_the_overall_table_shows_the_median_relative_speed_at_capture():
+    """Mean over scenarios (with a capture) of the median relative speed at capture: a column of
+    the ranking table in every output, not part of the ranking."""
+    from capture_bench.evaluation.report import RANKING_HEADER, markdown, ranking_cells
+
+    recs = [record("slow", s, 3.0) for s in range(5)]  # 10 mm/s on paper
+    recs += [
+        record("slow", s, 3.0, scenario="drift", relative_speed_at_capture=0.05 + 0.01 * s)
+        for s in range(3)
+    ]  # fmt: skip  (median 60 mm/s on drift)
+    recs += [record("quick", s, 1.5, relative_speed_at_capture=0.2) for s in range(5)]
+    recs += [record("quick", s, None, scenario="drift") for s in range(3)]  # no capture there
+    ranking = rank_agents(summarise_all(recs, reference_agent="slow"))
+    assert [r.agent for r in ranking] == ["slow", "quick"]  # by capture rate, not by speed
+    assert [r.mean_relative_speed_median for r in ranking] == pytest.approx([0.035, 0.2])
+    assert RANKING_HEADER[4] == "mean median rel. speed at capture, mm/s"
+    assert all(len(ranking_cells(r)) == len(RANKING_HEADER) for r in ranking)
+    assert [ranking_cells(r)[4] for r in ranking] == ["35", "200"]
+    nowhere = rank_agents(summarise_all([record("hold", s, None) for s in range(3)]))
+    assert math.isnan(nowhere[0].mean_relative_speed_median)
+    assert ranking_cells(nowhere[0])[4] == "—"
+    data = _report_data()
+    header = "| " + " | ".join(RANKING_HEADER) + " |"
+    assert header in markdown(data).splitlines()
+
+
 def test_summarise_refuses_an_empty_cell():
     from capture_bench.evaluation.aggregate import summarise
 

@@ -4,7 +4,7 @@ import pytest
 
 from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
 
-REQUIRED = {"paper", "drift", "circular", "tumbling", "jitter", "noisy"}
+REQUIRED = {"paper", "drift", "circular", "tumbling", "jitter", "noisy", "grasp"}
 
 
 def test_all_required_scenarios_ship_and_validate():
@@ -37,6 +37,15 @@ def test_unknown_scenario_lists_the_valid_ones():
         ),
         ("control:\n  period: fast\n", "'fast' is not valid; expected a number > 0"),
         ("- just\n- a list\n", "expected a mapping"),
+        (
+            "capture:\n  hold: -0.1\n",
+            r"key 'capture.hold': -0.1 is not valid; expected a number >= 0",
+        ),
+        (
+            "capture:\n  hold: 10.0\n",
+            r"key 'capture.hold': 10.0 is not valid; expected a number >= 0 and less than "
+            r"control.episode_limit \(10.0 s\)",
+        ),
     ],
 )
 def test_bad_files_name_file_key_value_and_valid_choices(tmp_path, text, pattern):

@@ -99,7 +99,10 @@ class CaptureEnv(gym.Env):
     sees the target: a fixed camera (eq. 2) images four feature points, and photogrammetry
     initialises an extended Kalman filter (eqs. 3–7) whose estimate, in the global frame
     (eqs. 11–12), is observed. Capture is eq. 20 on the *true* target position, tested over the
-    whole step.
+    whole step along the end-effector's arc. A scenario with ``capture.hold`` = h > 0 s (``grasp``)
+    asks for more: eq. 20 must hold without a break for h s (a gripper closing), and the capture
+    is when the hold completes, entry + h, possibly mid-step; leaving the tolerance box before
+    (also within a step, along the arc) restarts the clock at the next entry.
 
     ## Action Space
     ``Box(-1, 1, (3,), float32)``: ``ΔΘ_i = a_i · θ̇_max,i · t_s`` rad, θ̇_max = (10.304, 0.412,
@@ -145,7 +148,8 @@ class CaptureEnv(gym.Env):
     ``self.np_random``, then the real control period of every step (``period_jitter``).
 
     ## Episode End
-    Terminates on capture (``info["is_success"]``) or a failure: ``collision`` (arm with floor,
+    Terminates on capture (``info["is_success"]``; with a hold, when the hold completes) or a
+    failure (also during a hold that has not completed): ``collision`` (arm with floor,
     base or itself), ``target_lost`` (no usable frame for ``lost_after`` s: out of view, behind the
     lens, dropped, or the estimator diverged; never with the ``truth`` source), ``unreachable``
     (the capture point outside the arm's joint-limited reach for ``lost_after`` s). Truncates at
@@ -154,14 +158,15 @@ class CaptureEnv(gym.Env):
     varies in some scenarios.
 
     ## Info
-    Every step: ``is_success``, ``failure`` (None or one of ``FAILURES``), ``capture_time`` (s),
-    ``capture_time_estimated`` (s: first time eq. 20 held on the *estimated* position, as the
-    paper's hardware could only judge), ``time``, ``dt``, ``distance``, ``relative_speed``,
-    ``estimate_position_error``, ``estimate_velocity_error``, ``estimate_nees``, ``saturated``,
-    ``clipped``, ``path_length``, ``target_visible``, ``estimator_status``, ``reward_*``. At the
-    end:
-    ``physical_limit_time`` (s; ``inf`` when the target cannot be reached before the time limit,
-    or leaves the arm's reach for longer than ``lost_after`` before it can be).
+    Every step: ``is_success``, ``failure`` (None or one of ``FAILURES``), ``capture_time`` (s:
+    when the capture completed), ``capture_time_estimated`` (s: first time the same test, hold
+    included, completed on the *estimated* position, as the paper's hardware could only judge),
+    ``time``, ``dt``, ``distance``, ``relative_speed``, ``estimate_position_error``,
+    ``estimate_velocity_error``, ``estimate_nees``, ``saturated``, ``clipped``, ``path_length``,
+    ``target_visible``, ``estimator_status``, ``reward_*``. At the end:
+    ``physical_limit_time`` (s; the earliest time eq. 20 can hold plus the hold; ``inf`` when that
+    is after the time limit, or the target leaves the arm's reach for longer than ``lost_after``
+    before it).
 
     ## Arguments
     ``scenario``: a shipped name (``capture_bench.task.scenarios.list_scenarios()``), a YAML path

@@ -21,6 +21,7 @@ Models load without unpickling anything (``--trust-model`` to allow an SB3 ``.zi
 from __future__ import annotations
 
 import argparse
+import math
 import shlex
 import sys
 from pathlib import Path
@@ -136,11 +137,12 @@ def _summary_table(data: ReportData, target: Path) -> None:
     rate = {(s.agent, s.scenario): s.capture_rate.value for s in data.summaries}
     table = Table(
         title=f"capture-bench · {data.suite} · capture rate, % of episodes",
-        caption="ratio: mean over scenarios of the median capture time / physical limit",
+        caption="ratio: mean over scenarios of the median capture time / physical limit; "
+        "speed: mean over scenarios of the median relative speed at capture, mm/s",
     )
     table.add_column("rank", justify="right")
     table.add_column("agent", no_wrap=True)
-    for column in ("mean", *scenarios, "ratio"):
+    for column in ("mean", *scenarios, "ratio", "speed"):
         table.add_column(column, justify="right")
     for row in data.ranking:
         table.add_row(
@@ -149,6 +151,9 @@ def _summary_table(data: ReportData, target: Path) -> None:
             f"{100 * row.mean_capture_rate:.0f}",
             *(f"{100 * rate.get((row.agent, s), float('nan')):.0f}" for s in scenarios),
             f"{row.mean_ratio_median:.2f}",
+            "—"
+            if math.isnan(row.mean_relative_speed_median)
+            else f"{1e3 * row.mean_relative_speed_median:.0f}",
         )
     console = Console()
     console.print(table)

@@ -158,11 +158,19 @@ def ranking_cells(r: RankingRow) -> list[str]:
         name,
         f"{r.mean_capture_rate:.3f}",
         _fmt(r.mean_ratio_median),
+        _fmt(r.mean_relative_speed_median * 1e3, 0),
         str(r.scenarios),
     ]
 
 
-RANKING_HEADER = ("rank", "agent", "mean capture rate", "mean median ratio", "scenarios")
+RANKING_HEADER = (
+    "rank",
+    "agent",
+    "mean capture rate",
+    "mean median ratio",
+    "mean median rel. speed at capture, mm/s",
+    "scenarios",
+)
 NOTES = (
     "Intervals are 95%: Wilson for the capture rate, percentile bootstrap (scipy.stats.bootstrap, "
     "fixed seed) otherwise. Times and ratios are over captured episodes; the KM median treats "

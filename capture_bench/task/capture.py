@@ -9,6 +9,15 @@ arc sags from its chord by at most ``(l1 + l2) (sum |dtheta_i|)^2 / 8`` (every s
 of f is bounded by l1 + l2); where that exceeds ``ARC_RESOLUTION``, the step is cut into enough
 pieces that each piece's chord is within ``ARC_RESOLUTION`` of the arc
 (:func:`first_entry_along_arc`). Joint 1 turns up to 0.5 rad per step, so this matters.
+
+A hold (``capture.hold`` of a scenario, seconds): the capture requires eq. 20 to hold
+*continuously* for ``hold`` s. Each chord's stay inside the tolerance box is an open interval of
+s (:func:`inside_interval`), so the stays of a whole step along the arc are the chords' intervals,
+joined where one chord's stay reaches its end and the next one's starts at its beginning
+(:func:`inside_intervals_along_arc`): the step's entries *and* exits, to ``ARC_RESOLUTION``.
+:func:`held_capture` walks them carrying when the stay in progress began from one step to the
+next: the capture completes at entry + hold, and leaving the box before restarts the clock at the
+next entry. With ``hold = 0`` it is the first entry, exactly as :func:`first_entry_fraction`.
 """
 
 from __future__ import annotations
@@ -25,9 +34,11 @@ from capture_bench.sim.kinematics import L1, L2, forward_kinematics
 ARC_RESOLUTION = 1e-5  # m: largest allowed gap between the end-effector's arc and a test chord
 
 
-def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> float | None:
-    """Earliest fraction s of the step at which ``|d0 + s (d1 - d0)| < tolerance`` in every
-    component, or None if the relative vector never enters the tolerance box.
+def inside_interval(
+    d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike
+) -> tuple[float, float] | None:
+    """The fractions ``(lo, hi)`` of the step, ``0 <= lo < hi <= 1``, between which
+    ``|d0 + s (d1 - d0)| < tolerance`` in every component, or None if never.
 
     Args:
         d0: X_E - X_T at the start of the step, m, shape (3,).
@@ -35,8 +46,9 @@ def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> 
         tolerance: epsilon, m, shape (3,) (or a scalar).
 
     Returns:
-        s in [0, 1], or None. Each component is inside its box on an open interval of s; the box
-        is entered where all intervals overlap.
+        The open interval of s inside the box, clipped to [0, 1] (``hi == 1``: still inside at
+        the step's end, ``lo == 0``: already inside at its start), or None. Each component is
+        inside its box on an open interval of s; the box is inside where all of them overlap.
     """
     lo, hi = 0.0, 1.0
     for a, b, e in zip(_floats(d0), _floats(d1), _tolerances(tolerance)):
@@ -51,7 +63,53 @@ def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> 
         if lo >= hi:
             # The intervals are open, so touching ends (lo == hi) is not an entry.
             return None
-    return lo
+    return lo, hi
+
+
+def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> float | None:
+    """Earliest fraction s of the step at which ``|d0 + s (d1 - d0)| < tolerance`` in every
+    component, or None if the relative vector never enters the tolerance box: the start of
+    :func:`inside_interval`.
+
+    Args:
+        d0: X_E - X_T at the start of the step, m, shape (3,).
+        d1: X_E - X_T at the end of the step, m, shape (3,).
+        tolerance: epsilon, m, shape (3,) (or a scalar).
+
+    Returns:
+        s in [0, 1], or None.
+    """
+    interval = inside_interval(d0, d1, tolerance)
+    return None if interval is None else interval[0]
+
+
+def held_capture(
+    intervals: Iterable[tuple[float, float]], since: float, t0: float, dt: float, hold: float
+) -> tuple[float | None, float]:
+    """Eq. 20 held for ``hold`` s: when the capture completes in this step, if it does.
+
+    Args:
+        intervals: the step's stays inside the tolerance box, fractions ``(lo, hi)`` of the step
+            in increasing order (:func:`inside_interval`, :func:`inside_intervals_along_arc`).
+        since: when the stay in progress at the step's start began, s (NaN: outside then).
+        t0, dt: the step's start and real period, s.
+        hold: how long eq. 20 must hold without a break, s (0: the first entry captures).
+
+    Returns:
+        ``(capture_time, since)``: the time the hold completes (entry + hold, s; None if not in
+        this step) and when the stay in progress at the step's end began (NaN: outside then; on
+        a capture, the captured stay's entry). A stay that starts at the step's start continues
+        ``since``; any other entry starts the clock again.
+    """
+    start = math.nan
+    for lo, hi in intervals:
+        start = since if lo == 0.0 and not math.isnan(since) else t0 + lo * dt
+        done = start + hold
+        if done <= t0 + hi * dt:
+            return done, start
+        if hi < 1.0:
+            start = math.nan  # left the box inside the step
+    return None, start
 
 
 def arc_sag_bound(delta_theta: ArrayLike) -> float:
@@ -64,13 +122,13 @@ def arc_sag_bound(delta_theta: ArrayLike) -> float:
     return (L1 + L2) * total * total / 8.0
 
 
-def first_entry_along_arc(
+def inside_intervals_along_arc(
     theta0: ArrayLike,
     delta_theta: ArrayLike,
     target_at: Callable[[NDArray[np.float64]], NDArray[np.float64]],
     tolerance: ArrayLike,
-) -> float | None:
-    """Earliest fraction s of the step at which eq. 20 holds along the end-effector's true arc.
+) -> list[tuple[float, float]]:
+    """The fractions of the step during which eq. 20 holds along the end-effector's true arc.
 
     Args:
         theta0: joint angles at the start of the step, rad, (3,).
@@ -79,18 +137,48 @@ def first_entry_along_arc(
         tolerance: epsilon, m, (3,) or scalar.
 
     Returns:
-        s in [0, 1] or None, exact to ``ARC_RESOLUTION`` along the arc.
+        Open intervals ``(lo, hi)`` of s in [0, 1], in order and disjoint, exact to
+        ``ARC_RESOLUTION`` along the arc: the arc is cut into chords within ``ARC_RESOLUTION`` of
+        it (see the module docstring), each chord's stay is :func:`inside_interval`, and a stay
+        that reaches a chord's end joins the next chord's stay that starts there.
     """
     sag = arc_sag_bound(delta_theta)
     pieces = max(1, math.ceil(math.sqrt(sag / ARC_RESOLUTION)))
     s = np.linspace(0.0, 1.0, pieces + 1)
     ee = forward_kinematics(np.asarray(theta0, float) + s[:, None] * np.asarray(delta_theta, float))
     relative = ee - target_at(s)
+    intervals: list[tuple[float, float]] = []
+    joins = False  # the previous chord's stay reached its end
     for k in range(pieces):
-        entry = first_entry_fraction(relative[k], relative[k + 1], tolerance)
-        if entry is not None:
-            return (k + entry) / pieces
-    return None
+        interval = inside_interval(relative[k], relative[k + 1], tolerance)
+        if interval is None:
+            joins = False
+            continue
+        lo, hi = interval
+        if joins and lo == 0.0:
+            intervals[-1] = (intervals[-1][0], (k + hi) / pieces)
+        else:
+            intervals.append(((k + lo) / pieces, (k + hi) / pieces))
+        joins = hi == 1.0
+    if intervals and joins:
+        intervals[-1] = (intervals[-1][0], 1.0)  # (pieces - 1 + 1) / pieces may round below 1
+    return intervals
+
+
+def first_entry_along_arc(
+    theta0: ArrayLike,
+    delta_theta: ArrayLike,
+    target_at: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    tolerance: ArrayLike,
+) -> float | None:
+    """Earliest fraction s of the step at which eq. 20 holds along the end-effector's true arc:
+    the start of the first of :func:`inside_intervals_along_arc` (arguments as there).
+
+    Returns:
+        s in [0, 1] or None, exact to ``ARC_RESOLUTION`` along the arc.
+    """
+    intervals = inside_intervals_along_arc(theta0, delta_theta, target_at, tolerance)
+    return intervals[0][0] if intervals else None
 
 
 def closest_approach(d0: ArrayLike, d1: ArrayLike) -> float:
@@ -126,8 +214,11 @@ def _tolerances(tolerance: ArrayLike) -> list[float]:
     return _floats(tolerance)
 
 
-def first_entry_fractions(d0: NDArray, d1: NDArray, tolerance: ArrayLike) -> NDArray[np.float64]:
-    """:func:`first_entry_fraction` for M steps at once: (M, 3), (M, 3) -> (M,), NaN for None."""
+def inside_intervals(
+    d0: NDArray, d1: NDArray, tolerance: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`inside_interval` for M steps at once: (M, 3), (M, 3) -> ``(lo, hi)``, (M,) each,
+    NaN for None."""
     e = np.broadcast_to(np.asarray(tolerance, dtype=float), (3,))
     slope = d1 - d0
     flat = slope == 0.0
@@ -136,7 +227,12 @@ def first_entry_fractions(d0: NDArray, d1: NDArray, tolerance: ArrayLike) -> NDA
     lo = np.maximum(np.where(flat, -np.inf, np.minimum(s_a, s_b)).max(axis=1), 0.0)
     hi = np.minimum(np.where(flat, np.inf, np.maximum(s_a, s_b)).min(axis=1), 1.0)
     never = (flat & (np.abs(d0) >= e)).any(axis=1) | (lo >= hi)  # open intervals: lo == hi misses
-    return np.where(never, np.nan, lo)
+    return np.where(never, np.nan, lo), np.where(never, np.nan, hi)
+
+
+def first_entry_fractions(d0: NDArray, d1: NDArray, tolerance: ArrayLike) -> NDArray[np.float64]:
+    """:func:`first_entry_fraction` for M steps at once: (M, 3), (M, 3) -> (M,), NaN for None."""
+    return inside_intervals(d0, d1, tolerance)[0]
 
 
 def arc_sag_bounds(delta_theta: NDArray) -> NDArray[np.float64]:

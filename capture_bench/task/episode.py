@@ -168,9 +168,10 @@ class EpisodePlan:
 def episode_bounds(
     plans: Sequence[EpisodePlan], description: TaskDescription
 ) -> list[PhysicalLimit]:
-    """The physical-limit bound of each episode (DESIGN.md), computed together: ``inf`` when the
-    target cannot be reached before the episode's last step ends, or leaves the arm's reach for
-    longer than ``lost_after`` before it can be."""
+    """The physical-limit bound of each episode (DESIGN.md), computed together: the earliest
+    time eq. 20 can hold plus the scenario's ``capture.hold`` (see
+    :mod:`capture_bench.task.physical_limit`); ``inf`` when that is after the episode's last step
+    ends, or when the target leaves the arm's reach for longer than ``lost_after`` before it."""
     if not plans:
         return []
     arm = description.arm
@@ -187,9 +188,12 @@ def episode_bounds(
         period=control.period,
         travel_times=[plan.travel_time if control.period_jitter else None for plan in plans],
     )
+    hold = plans[0].scenario.capture.hold
     out = []
     for plan, end, limit in zip(plans, ends, limits, strict=True):
-        if limit.time > end or plan.leaves_reach_before(limit.time):
-            limit = PhysicalLimit(math.inf, None)
-        out.append(limit)
+        time = limit.time + hold  # inf stays inf
+        if time > end or plan.leaves_reach_before(time):
+            out.append(PhysicalLimit(math.inf, None, hold))
+        else:
+            out.append(PhysicalLimit(time, limit.theta, hold))
     return out

@@ -30,6 +30,12 @@ every time with :func:`feasible_solutions` would. :func:`physical_limits` runs t
 many episodes at once (one evaluation per round for all of them); :func:`physical_limit` is its
 one-episode case.
 
+With a hold (``capture.hold`` = h s), a capture needs eq. 20 to hold from some entry t_e to
+t_e + h; eq. 20 cannot hold before the arrival bound T, so t_e >= T and every capture completes at
+or after T + h: the bound is ``T + h`` (:func:`capture_bench.task.episode.episode_bounds`), still
+a lower bound. It is attainable where the arm can follow the capture point for h after arriving
+(the targets move centimetres per second, the joints far faster), which the oracle shows.
+
 Why one file of ~510 lines: the bound's search, its pruning bound and its brute-force reference
 (:func:`feasible_solutions`, the test's definition of the answer) belong together.
 """
@@ -64,13 +70,21 @@ class PhysicalLimit:
     """The episode's bound.
 
     Attributes:
-        time: earliest feasible capture time, s; ``inf`` if the target is never reachable in time.
+        time: earliest feasible capture time, s: the earliest time eq. 20 can hold (the arrival)
+            plus the capture's ``hold``; ``inf`` if the target is never reachable in time.
         theta: a joint vector, rad, (3,), whose end-effector is within ``|epsilon|`` of the capture
-            point at ``time`` (None if inf).
+            point at the arrival (None if inf).
+        hold: the scenario's ``capture.hold``, s (0: eq. 20 at one instant, ``time`` the arrival).
     """
 
     time: float
     theta: FloatArray | None
+    hold: float = 0.0
+
+    @property
+    def arrival(self) -> float:
+        """The earliest time eq. 20 can hold at all, s (``time - hold``; ``inf`` if none)."""
+        return self.time - self.hold
 
 
 def feasible_solutions(

@@ -97,6 +97,16 @@ class TargetConfig:
 
 
 @dataclass(frozen=True)
+class CaptureConfig:
+    hold: float = _f(
+        0.0,
+        "how long eq. 20 must hold without a break for a capture, s (0: the paper's eq. 20, the"
+        " first instant it holds; less than control.episode_limit)",
+        NON_NEGATIVE,
+    )
+
+
+@dataclass(frozen=True)
 class SeedConfig:
     evaluation_start: int = _f(1_000_000, "first published evaluation seed", NON_NEGATIVE)
     evaluation_count: int = _f(
@@ -124,6 +134,7 @@ class Scenario:
         "seconds without a usable frame, or with the target out of reach, before failing",
         POSITIVE,
     )
+    capture: CaptureConfig = field(default_factory=CaptureConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
@@ -176,9 +187,7 @@ class Scenario:
                 data[key].update(value)
             else:
                 data[key] = value
-        return _checked_seed_ranges(
-            _build(Scenario, data, source="<override>", prefix=""), "<override>"
-        )
+        return _checked(_build(Scenario, data, source="<override>", prefix=""), "<override>")
 
 
 def scenario_files() -> list[Path]:
@@ -222,13 +231,20 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         raise ConfigError(f"{path}: no such scenario file")
     data, _ = read_mapping(path, "scenario keys")
     data.setdefault("name", path.stem)
-    scenario = _checked_seed_ranges(_build(Scenario, data, source=str(path), prefix=""), str(path))
+    scenario = _checked(_build(Scenario, data, source=str(path), prefix=""), str(path))
     return scenario
 
 
-def _checked_seed_ranges(scenario: Scenario, source: str) -> Scenario:
+def _checked(scenario: Scenario, source: str) -> Scenario:
     """``scenario``, or ``ConfigError`` if its training seeds overlap its evaluation or
-    validation seeds (the evaluation and validation ranges are adjacent by construction)."""
+    validation seeds (the evaluation and validation ranges are adjacent by construction), or if
+    its hold is not shorter than its episode limit (no capture could complete)."""
+    hold, limit = scenario.capture.hold, scenario.control.episode_limit
+    if hold >= limit:
+        raise ConfigError(
+            f"{source}: key 'capture.hold': {hold!r} is not valid; expected a number >= 0 and "
+            f"less than control.episode_limit ({limit!r} s), or no capture could complete"
+        )
     train = scenario.training_seeds
     held_out = range(scenario.seeds.evaluation_start, scenario.validation_seeds.stop)
     if train.start < held_out.stop and held_out.start < train.stop:

@@ -8,9 +8,12 @@ read the target's half from a :class:`~capture_bench.task.recording.RecordedEpis
 :meth:`StepRule.step` applies the rules:
 
 * capture (eq. 20, ``|X_E - X_T| < epsilon`` component-wise) on the *true* target, tested along
-  the end-effector's arc over the whole step (:mod:`capture_bench.task.capture`);
-* the same test on the *estimated* target, the first time it holds (``capture_time_estimated``:
-  what the paper's hardware could judge);
+  the end-effector's arc over the whole step (:mod:`capture_bench.task.capture`); with a hold
+  (``capture.hold`` s of the scenario) eq. 20 must hold without a break for that long, and the
+  capture is when the hold completes (:func:`~capture_bench.task.capture.held_capture`; the
+  stay in progress is carried in :class:`ArmState`);
+* the same test (and hold) on the *estimated* target, the first time it completes
+  (``capture_time_estimated``: what the paper's hardware could judge);
 * the failure, in this order: ``collision``, ``unreachable``, ``target_lost`` (each only if the
   step did not capture), then ``timeout`` at the time limit (a truncation);
 * the reward terms (:mod:`capture_bench.task.rewards`);
@@ -46,9 +49,10 @@ from capture_bench.task.capture import (
     arc_sag_bounds,
     closest_approach,
     closest_approaches,
-    first_entry_along_arc,
-    first_entry_fraction,
-    first_entry_fractions,
+    held_capture,
+    inside_interval,
+    inside_intervals,
+    inside_intervals_along_arc,
     segment_length,
 )
 from capture_bench.task.episode import TIME_SLACK, time_limit
@@ -85,10 +89,10 @@ _STATUS_NAMES = np.array(STATUSES, dtype=object)
 
 #: ``info`` of every step, in this order (the reward terms of the mode follow).
 INFO_KEYS = (
-    "is_success",  # eq. 20 held on the true target during the step
+    "is_success",  # the capture completed during the step (eq. 20 on the true target, held)
     "failure",  # None or one of FAILURES
-    "capture_time",  # s, when eq. 20 first held (None / NaN: no capture)
-    "capture_time_estimated",  # s, first time eq. 20 held on the estimate (None / NaN: not yet)
+    "capture_time",  # s, when the capture completed (None / NaN: no capture)
+    "capture_time_estimated",  # s, the same test first completed on the estimate (None / NaN)
     "time",  # s since reset
     "dt",  # the step's real control period, s
     "distance",  # true ||X_E - X_T|| after the step, m
@@ -127,7 +131,10 @@ class ArmState:
         path_length: end-effector path since reset, m, (N,).
         since_frame: time without a usable frame, s, (N,).
         unreachable_for: time with X_T outside the arm's reach, s, (N,).
-        capture_time_estimated: s, NaN until eq. 20 holds on the estimate, (N,).
+        capture_time_estimated: s, NaN until the capture test completes on the estimate, (N,).
+        inside_since: when the stay inside eq. 20's box (true target) in progress at the last
+            step's end began, s; NaN if outside then, (N,).
+        estimate_inside_since: the same for the estimated target, (N,).
     """
 
     theta: FloatArray
@@ -137,6 +144,8 @@ class ArmState:
     since_frame: FloatArray
     unreachable_for: FloatArray
     capture_time_estimated: FloatArray
+    inside_since: FloatArray
+    estimate_inside_since: FloatArray
 
     @classmethod
     def empty(cls, n: int) -> ArmState:
@@ -149,6 +158,8 @@ class ArmState:
             zeros.copy(),
             zeros.copy(),
             zeros,
+            np.full(n, np.nan),
+            np.full(n, np.nan),
             np.full(n, np.nan),
         )
 
@@ -173,7 +184,8 @@ class StepRule:
     """The rules of a step of ``scenario``'s task, for any number of episodes.
 
     Args:
-        scenario: lost_after, the time limit, the control period and the estimator's source.
+        scenario: lost_after, the time limit, the control period, the capture's hold and the
+            estimator's source.
         description: the task (arm, t_s, capture tolerance epsilon).
         reward_mode: one of :data:`capture_bench.task.rewards.REWARD_MODES`.
     """
@@ -185,6 +197,7 @@ class StepRule:
         self.info_keys = info_keys(reward_mode)
         self.tolerance = description.capture_tolerance
         self.tolerance_radius = float(np.linalg.norm(self.tolerance))
+        self.hold = scenario.capture.hold  # s
         self.control_period = description.control_period
         self.home = description.arm.home
         self.lost_after = scenario.lost_after + TIME_SLACK
@@ -199,6 +212,7 @@ class StepRule:
         state.x_e[rows] = x_e
         state.path_length[rows] = state.since_frame[rows] = state.unreachable_for[rows] = 0.0
         state.capture_time_estimated[rows] = np.nan
+        state.inside_since[rows] = state.estimate_inside_since[rows] = np.nan
         distance = np.linalg.norm(x_e - target_position, axis=1)
         state.distance[rows] = distance
         return {"time": np.zeros(distance.size), "distance": distance}
@@ -237,10 +251,17 @@ class StepRule:
         state.path_length[rows] += np.linalg.norm(x_e - x_e0, axis=1)
         t0 = time - dt
 
-        s = self.capture_fractions(
-            theta0, theta - theta0, x_e0 - before["position"], x_e - x_t, t0, dt, trajectory
+        capture_time, state.inside_since[rows] = self.capture_times(
+            theta0,
+            theta - theta0,
+            x_e0 - before["position"],
+            x_e - x_t,
+            t0,
+            dt,
+            trajectory,
+            state.inside_since[rows],
         )
-        captured = ~np.isnan(s)
+        captured = ~np.isnan(capture_time)
         self._estimated_capture(state, rows, before, after, x_e0, x_e, t0, dt)
         failure = self.failures(state, rows, after, captured, collides)
         ended = captured | (failure != 0)
@@ -255,7 +276,7 @@ class StepRule:
         info: dict[str, NDArray] = {
             "is_success": captured,
             "failure": FAILURE_NAMES[failure],
-            "capture_time": t0 + s * dt,
+            "capture_time": capture_time,
             "capture_time_estimated": state.capture_time_estimated[rows].copy(),
             "time": time,
             "dt": dt,
@@ -311,19 +332,29 @@ class StepRule:
         state.path_length[0] = path_length
         t0 = time - dt
 
-        s = self.capture_fraction_scalar(theta0, theta - theta0, x_e0 - x_t0, x_e - x_t, t0, dt,
-                                         trajectory)  # fmt: skip
-        captured = s is not None
+        capture_time, since = self.capture_time_scalar(
+            theta0, theta - theta0, x_e0 - x_t0, x_e - x_t, t0, dt, trajectory,
+            float(state.inside_since[0]),
+        )  # fmt: skip
+        state.inside_since[0] = since
+        captured = capture_time is not None
         estimated = float(state.capture_time_estimated[0])
-        if math.isnan(estimated) and episode.estimate_valid[k - 1] and episode.estimate_valid[k]:
-            s_est = first_entry_fraction(
-                x_e0 - episode.estimate_position[k - 1],
-                x_e - episode.estimate_position[k],
-                self.tolerance,
-            )
-            if s_est is not None:
-                estimated = t0 + s_est * dt
-                state.capture_time_estimated[0] = estimated
+        if math.isnan(estimated):
+            since = math.nan
+            if episode.estimate_valid[k - 1] and episode.estimate_valid[k]:
+                interval = inside_interval(
+                    x_e0 - episode.estimate_position[k - 1],
+                    x_e - episode.estimate_position[k],
+                    self.tolerance,
+                )
+                if interval is not None:
+                    done, since = held_capture(
+                        (interval,), float(state.estimate_inside_since[0]), t0, dt, self.hold
+                    )
+                    if done is not None:
+                        estimated = done
+                        state.capture_time_estimated[0] = estimated
+            state.estimate_inside_since[0] = since
         failure = self.failure_scalar(state, episode, k, captured, collides)
         ended = captured or failure != 0
         timeout = not ended and time >= self.time_limit
@@ -336,7 +367,7 @@ class StepRule:
         info: dict[str, Any] = {
             "is_success": captured,
             "failure": FAILURE_NAMES[failure],
-            "capture_time": None if s is None else t0 + s * dt,
+            "capture_time": capture_time,
             "capture_time_estimated": None if math.isnan(estimated) else estimated,
             "time": time,
             "dt": dt,
@@ -354,7 +385,7 @@ class StepRule:
         }
         return float(total_reward(terms)), ended, timeout, info
 
-    def capture_fraction_scalar(
+    def capture_time_scalar(
         self,
         theta0: FloatArray,
         applied: FloatArray,
@@ -363,17 +394,24 @@ class StepRule:
         t0: float,
         dt: float,
         trajectory: TargetTrajectory,
-    ) -> float | None:
-        """:meth:`capture_fractions` for one step, with the scalar tests of ``capture.py``;
-        None where eq. 20 did not hold."""
+        since: float,
+    ) -> tuple[float | None, float]:
+        """:meth:`capture_times` for one step, with the scalar tests of ``capture.py``: the
+        capture time (None where the capture did not complete) and the stay's start at the
+        step's end (NaN: outside)."""
         sag = arc_sag_bound(applied)
         if sag <= ARC_RESOLUTION:
-            return first_entry_fraction(d0, d1, self.tolerance)
-        if closest_approach(d0, d1) > self.tolerance_radius + sag:
-            return None  # the arc stays within `sag` of the chord: no capture possible
-        return first_entry_along_arc(
-            theta0, applied, lambda f: trajectory.position(t0 + f * dt), self.tolerance
-        )
+            interval = inside_interval(d0, d1, self.tolerance)
+            intervals = [] if interval is None else [interval]
+        elif closest_approach(d0, d1) > self.tolerance_radius + sag:
+            return None, math.nan  # the arc stays within `sag` of the chord: never inside
+        else:
+            intervals = inside_intervals_along_arc(
+                theta0, applied, lambda f: trajectory.position(t0 + f * dt), self.tolerance
+            )
+        if not intervals:
+            return None, math.nan
+        return held_capture(intervals, since, t0, dt, self.hold)
 
     def failure_scalar(
         self,
@@ -411,7 +449,7 @@ class StepRule:
             position, velocity, x_e, state.theta[0], float(episode.dt[k]), self.control_period
         )
 
-    def capture_fractions(
+    def capture_times(
         self,
         theta0: FloatArray,
         applied: FloatArray,
@@ -420,47 +458,75 @@ class StepRule:
         t0: FloatArray,
         dt: FloatArray,
         trajectory: Callable[[int], TargetTrajectory],
-    ) -> FloatArray:
-        """Fraction of each step at which eq. 20 first held on the true target, NaN where it did
-        not (:mod:`capture_bench.task.capture`): on the chord where the arc sags by at most
-        ``ARC_RESOLUTION``, else along the arc where the chord passes near enough.
+        since: FloatArray,
+    ) -> tuple[FloatArray, FloatArray]:
+        """When each step's capture completed (NaN where it did not) and when the stay inside
+        eq. 20's box in progress at its end began (NaN: outside), on the true target
+        (:mod:`capture_bench.task.capture`): the stays are tested on the chord where the arc sags
+        by at most ``ARC_RESOLUTION``, else along the arc where the chord passes near enough;
+        :func:`~capture_bench.task.capture.held_capture` then applies the hold.
 
         Args:
             theta0, applied: joint angles at the start and the increment, rad, (M, 3).
             d0, d1: X_E - X_T at the start and the end, m, (M, 3).
             t0, dt: the step's start and real period, s, (M,).
             trajectory: the j-th episode's true trajectory.
+            since: when the stay in progress at the step's start began, s, NaN if none, (M,).
         """
-        s = first_entry_fractions(d0, d1, self.tolerance)
+        lo, hi = inside_intervals(d0, d1, self.tolerance)
         sag = arc_sag_bounds(applied)
         arc = sag > ARC_RESOLUTION
-        if arc.any():
-            near = arc & ~(closest_approaches(d0, d1) > self.tolerance_radius + sag)
-            s[arc & ~near] = np.nan  # the arc stays within `sag` of the chord: no capture
-            for j in np.flatnonzero(near).tolist():  # along the true arc (rare: near the target)
+        near = arc & ~(closest_approaches(d0, d1) > self.tolerance_radius + sag)
+        capture_time = np.full(lo.size, np.nan)
+        since_after = np.full(lo.size, np.nan)
+        # Only steps that are inside the box at some time (rare: near the target) need the walk.
+        for j in np.flatnonzero((~arc & ~np.isnan(lo)) | near).tolist():
+            if arc[j]:  # along the true arc
                 traj, start, step = trajectory(j), float(t0[j]), float(dt[j])
 
                 def target_at(f: FloatArray, traj=traj, start=start, step=step) -> FloatArray:
                     return traj.position(start + f * step)
 
-                entry = first_entry_along_arc(theta0[j], applied[j], target_at, self.tolerance)
-                s[j] = np.nan if entry is None else entry
-        return s
+                intervals = inside_intervals_along_arc(
+                    theta0[j], applied[j], target_at, self.tolerance
+                )
+            else:
+                intervals = [(float(lo[j]), float(hi[j]))]
+            done, since_after[j] = held_capture(
+                intervals, float(since[j]), float(t0[j]), float(dt[j]), self.hold
+            )
+            if done is not None:
+                capture_time[j] = done
+        return capture_time, since_after
 
     def _estimated_capture(self, state, rows, before, after, x_e0, x_e, t0, dt) -> None:
-        """Record the first time eq. 20 held on the estimated target (both ends valid)."""
+        """Record the first time the capture test (and its hold) completed on the estimated
+        target, along the chord between the step's estimates (both ends valid; a step without
+        them breaks the stay)."""
         pending = np.isnan(state.capture_time_estimated[rows])
-        pending &= before["estimate_valid"] & after["estimate_valid"]
-        if not pending.any():
+        where = np.arange(state.distance.size)[rows][pending]
+        since = state.estimate_inside_since[where].copy()
+        state.estimate_inside_since[where] = np.nan
+        valid = (before["estimate_valid"] & after["estimate_valid"])[pending]
+        if not valid.any():
             return
-        s_est = first_entry_fractions(
-            (x_e0 - before["estimate_position"])[pending],
-            (x_e - after["estimate_position"])[pending],
+        lo, hi = inside_intervals(
+            (x_e0 - before["estimate_position"])[pending][valid],
+            (x_e - after["estimate_position"])[pending][valid],
             self.tolerance,
         )
-        found = ~np.isnan(s_est)
-        where = np.arange(state.distance.size)[rows][pending][found]
-        state.capture_time_estimated[where] = (t0[pending] + s_est * dt[pending])[found]
+        start, step = t0[pending][valid], dt[pending][valid]
+        rows_valid, since_valid = where[valid], since[valid]
+        for j in np.flatnonzero(~np.isnan(lo)).tolist():
+            done, state.estimate_inside_since[rows_valid[j]] = held_capture(
+                [(float(lo[j]), float(hi[j]))],
+                float(since_valid[j]),
+                float(start[j]),
+                float(step[j]),
+                self.hold,
+            )
+            if done is not None:
+                state.capture_time_estimated[rows_valid[j]] = done
 
     def failures(
         self,
