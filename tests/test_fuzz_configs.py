@@ -583,6 +583,8 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
     features = kwargs.get("features_extractor", "flatten") if isinstance(kwargs, dict) else None
     if not bad and data.get("normalize") is True and features not in (None, "flatten"):
         bad.add("policy_kwargs.features_extractor")  # reads the raw observation
+    if not bad and "curriculum_steps" in data and "curriculum_tolerance" not in data:
+        bad.add("curriculum_steps")  # a curriculum needs its starting tolerance
     return algo, data, bad
 
 

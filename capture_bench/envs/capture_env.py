@@ -355,6 +355,13 @@ class CaptureEnv(gym.Env):
             info,
         )
 
+    def set_capture_tolerance(self, tolerance: Any) -> None:
+        """Count a capture at ``tolerance`` (m, a number or (3,)) instead of the scenario's
+        epsilon from the next step on: a training curriculum's lever
+        (:class:`capture_bench.training.callbacks.ToleranceCurriculum`), never an evaluation's.
+        The recorded physical limit stays the scenario's."""
+        self.rule.set_tolerance(tolerance)
+
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode is None or self._world is None:
             return None

@@ -209,6 +209,13 @@ class CaptureVectorEnv(VectorEnv):
         self._ended[stepping] = terminated[stepping] | truncated[stepping]
         return obs, rewards, terminated, truncated, info
 
+    def set_capture_tolerance(self, tolerance: Any) -> None:
+        """Count a capture at ``tolerance`` (m, a number or (3,)) instead of the scenario's
+        epsilon from the next step on: a training curriculum's lever
+        (:class:`capture_bench.training.callbacks.ToleranceCurriculum`), never an evaluation's.
+        The recorded physical limit stays the scenario's."""
+        self.rule.set_tolerance(tolerance)
+
     def close_extras(self, **kwargs: Any) -> None:
         if self._world is not None:
             self._world.close()

@@ -195,14 +195,23 @@ class StepRule:
             raise ValueError(f"reward must be one of {REWARD_MODES}, got {reward_mode!r}")
         self.reward_mode = reward_mode
         self.info_keys = info_keys(reward_mode)
-        self.tolerance = description.capture_tolerance
-        self.tolerance_radius = float(np.linalg.norm(self.tolerance))
+        self.set_tolerance(description.capture_tolerance)
         self.hold = scenario.capture.hold  # s
         self.control_period = description.control_period
         self.home = description.arm.home
         self.lost_after = scenario.lost_after + TIME_SLACK
         self.time_limit = time_limit(scenario.control)
         self.frames_matter = scenario.estimator.source != "truth"  # target_lost needs a camera
+
+    def set_tolerance(self, tolerance: Any) -> None:
+        """Test eq. 20 with ``tolerance`` (m, a number or (3,)) from the next step on. Only a
+        training curriculum does this (:class:`capture_bench.training.callbacks.
+        ToleranceCurriculum`); an env built from its scenario tests the scenario's epsilon."""
+        eps = np.broadcast_to(np.asarray(tolerance, dtype=float), (3,)).copy()
+        if not (np.isfinite(eps).all() and (eps > 0).all()):
+            raise ValueError(f"capture tolerance must be finite and > 0, got {tolerance!r}")
+        self.tolerance = eps
+        self.tolerance_radius = float(np.linalg.norm(eps))
 
     def start(self, state: ArmState, rows: Rows, target_position: FloatArray) -> dict[str, NDArray]:
         """Begin episodes ``rows`` at the home pose; ``target_position`` X_T at reset, (M, 3).

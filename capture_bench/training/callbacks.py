@@ -57,6 +57,40 @@ def append_validation(
         writer.writerow({"step": step, "wall_time_s": round(wall_time_s, 2), **stats})
 
 
+class ToleranceCurriculum(BaseCallback):
+    """Training-only tolerance curriculum: the training envs count a capture at a tolerance
+    that shrinks geometrically from ``start`` (m) to the scenario's epsilon over ``steps``
+    environment steps, eps(t) = start^(1-p) eps^p with p = min(t / steps, 1), set at the start
+    of every rollout (so a resumed run continues where it was). The validation, and everything
+    evaluated, tests the scenario's epsilon; the recorded physical limit stays the scenario's.
+
+    Args:
+        start: starting tolerance, m (each component).
+        final: the scenario's epsilon, m, (3,).
+        steps: environment steps to reach it.
+    """
+
+    def __init__(self, start: float, final: Any, steps: int) -> None:
+        super().__init__()
+        self.start, self.final, self.steps = float(start), np.asarray(final, float), int(steps)
+
+    def tolerance(self, step: int) -> np.ndarray:
+        """eps at environment step ``step``, m, (3,)."""
+        p = min(step / self.steps, 1.0)
+        return self.start ** (1.0 - p) * self.final**p
+
+    def _on_training_start(self) -> None:
+        self._on_rollout_start()
+
+    def _on_rollout_start(self) -> None:
+        eps = self.tolerance(self.num_timesteps)
+        self.training_env.env_method("set_capture_tolerance", eps)
+        self.logger.record("train/capture_tolerance_m", float(eps.max()))
+
+    def _on_step(self) -> bool:
+        return True
+
+
 class _Normalized:
     """``model.predict`` on observations normalised first (or not, where ``normalize`` is
     None)."""

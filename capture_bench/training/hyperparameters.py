@@ -61,6 +61,10 @@ TRAINING_KEYS = {
     # a hybrid (agents/residual.py): the policy learns a residual on this analytic controller
     "residual": Rule("choice", choices=("none", *RESIDUAL_BASES)),
     "residual_scale": Rule("float", 0.0, 1.0, low_inclusive=False),  # alpha
+    # a tolerance curriculum, training only: eq. 20 counts a capture at curriculum_tolerance (m)
+    # at first, shrinking geometrically to the scenario's epsilon over curriculum_steps
+    "curriculum_tolerance": Rule("float", 0.0, 1.0, low_inclusive=False),
+    "curriculum_steps": POS_INT,
 }
 _SDE = {"use_sde": Rule("bool"), "sde_sample_freq": Rule("int", -1)}
 _ON = {  # PPO and A2C (OnPolicyAlgorithm)
@@ -167,6 +171,13 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
     out.setdefault("checkpoint_freq", 0)
     out.setdefault("eval_freq", 0)
     out.setdefault("eval_episodes", 5)
+    if "curriculum_steps" in out and "curriculum_tolerance" not in out:
+        raise ConfigError(
+            f"{source}: key 'curriculum_steps' needs curriculum_tolerance (the starting "
+            "tolerance, m) beside it"
+        )
+    if "curriculum_tolerance" in out:
+        out.setdefault("curriculum_steps", max(1, out["total_timesteps"] // 2))
     out.setdefault("residual", "none")
     if out["residual"] != "none":
         out.setdefault("residual_scale", 0.5)

@@ -352,7 +352,12 @@ def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str |
 
 def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
     """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
-    from capture_bench.training.callbacks import Checkpointer, Progress, RolloutMetrics
+    from capture_bench.training.callbacks import (
+        Checkpointer,
+        Progress,
+        RolloutMetrics,
+        ToleranceCurriculum,
+    )
 
     algo = config.algo
     venv = build_venv(config, hp)
@@ -375,12 +380,20 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     print(f"TensorBoard: tensorboard --logdir {tb}")
     checkpointer = Checkpointer(run_dir / "checkpoints", hp["checkpoint_freq"], algo in OFF_POLICY)
     progress = Progress(config, hp, target)
+    callbacks = [checkpointer, RolloutMetrics(), progress]
+    if "curriculum_tolerance" in hp:  # training only: validation tests the scenario's epsilon
+        from capture_bench.envs.capture_env import describe_task
+
+        final = describe_task(load_scenario(config.scenario)).capture_tolerance
+        callbacks.append(
+            ToleranceCurriculum(hp["curriculum_tolerance"], final, hp["curriculum_steps"])
+        )
     start = time.perf_counter()
     status = 0
     try:
         model.learn(
             total_timesteps=max(target - model.num_timesteps, 0),
-            callback=[checkpointer, RolloutMetrics(), progress],
+            callback=callbacks,
             reset_num_timesteps=checkpoint is None,
             tb_log_name="run",
         )

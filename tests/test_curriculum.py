@@ -1,0 +1,77 @@
+"""The tolerance curriculum (issue 14 point 1, training only): the training envs count a capture
+at a tolerance that shrinks geometrically to the scenario's epsilon; what is measured (the
+validation, every evaluation) keeps the scenario's epsilon."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_training_metrics import scalars
+
+import train
+from agents import make_agent
+from capture_bench.envs.capture_env import CaptureEnv
+from capture_bench.envs.vector_env import CaptureVectorEnv
+from capture_bench.task.scenarios import load_scenario
+from capture_bench.training.callbacks import ToleranceCurriculum
+
+SEED = load_scenario("paper").validation_seeds[2]
+
+
+def _capture_time(env) -> float | None:
+    agent = make_agent("incremental_ik", env)
+    obs, _ = env.reset(seed=SEED)
+    while True:
+        obs, _, terminated, truncated, info = env.step(agent.predict(obs)[0])
+        if terminated or truncated:
+            return info["capture_time"]
+
+
+def test_a_looser_tolerance_captures_earlier_in_both_envs():
+    exact, loose = CaptureEnv("paper"), CaptureEnv("paper")
+    try:
+        loose.set_capture_tolerance(0.02)
+        t_exact, t_loose = _capture_time(exact), _capture_time(loose)
+        assert t_exact is not None and t_loose is not None and t_loose < t_exact
+        vector = CaptureVectorEnv(1, "paper")
+        vector.set_capture_tolerance(0.02)
+        agent = make_agent("incremental_ik", exact)
+        obs, _ = vector.reset(seed=[SEED])
+        for _ in range(400):
+            obs, _, terminated, truncated, info = vector.step(agent.predict(obs)[0])
+            if terminated[0] or truncated[0]:
+                break
+        assert info["capture_time"][0] == pytest.approx(t_loose, rel=1e-9)
+        vector.close()
+    finally:
+        exact.close()
+        loose.close()
+    with pytest.raises(ValueError, match="finite and > 0"):
+        exact.rule.set_tolerance(-1.0)
+
+
+def test_the_schedule_is_geometric_from_the_start_to_the_scenarios_epsilon():
+    final = np.full(3, 1e-3)
+    schedule = ToleranceCurriculum(0.05, final, 1000)
+    np.testing.assert_allclose(schedule.tolerance(0), 0.05)
+    np.testing.assert_allclose(schedule.tolerance(500), np.sqrt(0.05 * 1e-3))
+    np.testing.assert_allclose(schedule.tolerance(1000), final)
+    np.testing.assert_allclose(schedule.tolerance(5000), final)
+
+
+def test_a_run_with_a_curriculum_sets_the_training_tolerance_and_validates_at_epsilon(tmp_path):
+    run_dir = tmp_path / "run"
+    sets = ["curriculum_tolerance=0.05", "curriculum_steps=96", "n_envs=2", "n_steps=32",
+            "batch_size=32", "n_epochs=1", "policy_kwargs.net_arch=[8]", "total_timesteps=128",
+            "eval_freq=128", "eval_episodes=2"]  # fmt: skip
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) == 0
+    tolerance = [v for _, v in scalars(run_dir / "tb")["train/capture_tolerance_m"]]
+    assert tolerance[0] == pytest.approx(0.05) and tolerance == sorted(tolerance, reverse=True)
+    assert tolerance[-1] < 0.05 / 4
+
+
+def test_curriculum_steps_alone_is_one_line(tmp_path, capsys):
+    argv = ["--set", "curriculum_steps=100", "--run-dir", str(tmp_path / "r")]
+    assert train.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "curriculum_tolerance" in err and len(err.strip().splitlines()) == 1
