@@ -80,6 +80,9 @@ class ModelMetadata:
         residual: ``(base, scale)`` where the policy is a residual on an analytic controller
             (key ``residual: {base: incremental_ik, scale: 0.5}``; :mod:`agents.residual`), or
             None.
+        actions: ``deterministic`` (the leaderboard's rule, the default) or ``sampled`` (key
+            ``actions``: the model card declares that the policy acts with sampled actions,
+            seeded per episode by evaluation).
     """
 
     directory: Path
@@ -92,6 +95,7 @@ class ModelMetadata:
     model_file: Path | None = None
     vecnormalize_file: Path | None = None
     residual: tuple[str, float] | None = None
+    actions: str = "deterministic"
 
     @property
     def files(self) -> list[Path]:
@@ -108,11 +112,12 @@ class LoadedPolicy:
     policy: Any
     normalizer: ObservationNormalizer | None
     residual: tuple[str, float] | None = None
+    sampled: bool = False
 
     def agent(self, name: str, description: Any) -> Any:
         """The policy as an agent labelled ``name``: :class:`SB3Policy`, or, for a residual,
         :class:`agents.residual.ResidualAgent` over the base built from ``description``."""
-        learned = SB3Policy(self.policy, name, self.normalizer)
+        learned = SB3Policy(self.policy, name, self.normalizer, sampled=self.sampled)
         if self.residual is None:
             return learned
         from agents.residual import ResidualAgent, make_base
@@ -191,6 +196,7 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
         "scenario": str(data.get("scenario") or ""),
         "observation_source": str(data.get("observation_source") or ""),
         "residual": _residual(data.get("residual"), meta_file),
+        "actions": _actions(data.get("actions", "deterministic"), meta_file),
     }
     vecnormalize = data.get("vecnormalize")
     vecnormalize_file = directory / str(vecnormalize) if vecnormalize else None
@@ -215,6 +221,17 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
     if vecnormalize_file is not None and not vecnormalize_file.is_file():
         raise PolicyLoadError(f"{vecnormalize_file}: VecNormalize statistics file is missing")
     return ModelMetadata(**common, model_file=model_file, vecnormalize_file=vecnormalize_file)
+
+
+ACTION_RULES = ("deterministic", "sampled")
+
+
+def _actions(value: Any, meta_file: Path) -> str:
+    if value not in ACTION_RULES:
+        raise PolicyLoadError(
+            f"{meta_file}: key 'actions' is {value!r}; valid: {', '.join(ACTION_RULES)}"
+        )
+    return str(value)
 
 
 def _residual(value: Any, meta_file: Path) -> tuple[str, float] | None:
@@ -249,7 +266,12 @@ def load_policy(metadata: ModelMetadata, trust_model: bool = False) -> LoadedPol
         where = str(metadata.weights_file)
         policy = build_policy(metadata.declaration, str(metadata.metadata_file))
         load_weights(policy, read_weights(metadata.weights_file), where, metadata.algorithm)
-        return LoadedPolicy(policy, metadata.declaration.normalization, metadata.residual)
+        return LoadedPolicy(
+            policy,
+            metadata.declaration.normalization,
+            metadata.residual,
+            metadata.actions == "sampled",
+        )
     if not trust_model:
         raise PolicyLoadError(
             f"{metadata.directory}: refused to load its SB3 .zip (there is no safe policy.pt): "
@@ -324,7 +346,9 @@ def load_trusted(metadata: ModelMetadata) -> LoadedPolicy:
             f"{metadata.model_file}: not a loadable {metadata.algorithm} model ({reason})"
         ) from None
     model.policy.set_training_mode(False)
-    return LoadedPolicy(model.policy, _load_vecnormalize(metadata), metadata.residual)
+    return LoadedPolicy(
+        model.policy, _load_vecnormalize(metadata), metadata.residual, metadata.actions == "sampled"
+    )
 
 
 def _load_vecnormalize(metadata: ModelMetadata) -> ObservationNormalizer | None:
@@ -385,12 +409,19 @@ class SB3Policy:
             ``predict`` does the work, exactly as ``model.predict`` would.
         name: label for reports.
         normalizer: frozen observation statistics applied to observations first, or None.
+        sampled: act with sampled actions whatever ``predict`` is asked (a model card that
+            declares ``actions: sampled``; torch's generator, which evaluation seeds per
+            episode).
     """
 
     privileged = False
 
     def __init__(
-        self, policy: Any, name: str = "sb3", normalizer: ObservationNormalizer | None = None
+        self,
+        policy: Any,
+        name: str = "sb3",
+        normalizer: ObservationNormalizer | None = None,
+        sampled: bool = False,
     ) -> None:
         from stable_baselines3.common.distributions import DiagGaussianDistribution
         from stable_baselines3.common.policies import ActorCriticPolicy
@@ -398,6 +429,7 @@ class SB3Policy:
         self.policy = policy
         self.name = name
         self.normalizer = normalizer
+        self.sampled = sampled
         # Whether the deterministic action is the action net's output (the Gaussian's mean).
         self._mean_is_action = isinstance(policy, ActorCriticPolicy) and (
             type(policy.action_dist) is DiagGaussianDistribution
@@ -411,6 +443,7 @@ class SB3Policy:
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
         """SB3's ``predict``: observation (16,) -> ``(action (3,), state)``."""
+        deterministic = deterministic and not self.sampled
         if self.normalizer is not None:
             observation = self.normalizer.normalize_obs(observation)
         obs = np.asarray(observation)

@@ -106,6 +106,7 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
             label = candidate.resolve().name
             if label in builtin_names():
                 label = f"model:{label}"
+            label += _model_kind(candidate)
             return AgentSpec(spec, label, "model", str(candidate.resolve()), False, trust_model)
         if candidate.suffix == ".zip" and candidate.is_file():
             raise AgentSpecError(
@@ -125,6 +126,22 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
             raise AgentSpecError(f"agent {spec!r}: module {module_name!r} has no class {attr!r}")
         return AgentSpec(spec, spec, "python", spec, bool(getattr(factory, "privileged", False)))
     raise AgentSpecError(f"unknown agent {spec!r}; {_valid_specs()}")
+
+
+def _model_kind(directory: Path) -> str:
+    """What a model row says beside its name: `` (hybrid)`` for a residual on an analytic
+    controller, `` (sampled)`` for a model card declaring sampled actions (nothing for the
+    leaderboard's rule, deterministic actions); a bad metadata file is reported later."""
+    from agents.policy_file import PolicyLoadError
+    from agents.sb3_policy import read_metadata
+
+    try:
+        metadata = read_metadata(directory)
+    except PolicyLoadError:
+        return ""
+    return (" (hybrid)" if metadata.residual else "") + (
+        " (sampled)" if metadata.actions == "sampled" else ""
+    )
 
 
 def _python_factory(target: str) -> Any:
@@ -178,6 +195,10 @@ def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
     if spec.kind == "model":
         loaded = _model(spec)  # a residual's base is built from the env's public description
         description = env.unwrapped.description if loaded.residual is not None else None
+        if loaded.sampled:  # declared sampled actions: reproducible, seeded per episode
+            import torch
+
+            torch.manual_seed(seed)
         return loaded.agent(spec.label, description)
     return _call_user_factory(spec, env.unwrapped.description)
 
