@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from capture_bench.task.scenarios import load_scenario
 from capture_bench.training.checkpoint import BUFFER_FILE, list_checkpoints, save_checkpoint
 from capture_bench.training.episode_stats import (
     EpisodeStats,
@@ -207,7 +206,7 @@ class Progress(BaseCallback):
         self.print_every = max(min(target // 20, 50_000), 1000)
         self._next_print = 0
         self._next_eval = 0
-        self._env: Any = None
+        self._envs: dict[str, Any] = {}  # scenario name -> its validation env
         self._clock = time.perf_counter()
         self._clock_steps = 0
         self._session_start = time.perf_counter()
@@ -256,27 +255,40 @@ class Progress(BaseCallback):
             ``estimate_position_error_m`` (m).
         """
         from capture_bench.envs.vector_env import CaptureVectorEnv
+        from capture_bench.training.mixture import mixture_scenarios
         from capture_bench.training.validation_run import run_validation
 
-        scenario = load_scenario(self.config.scenario)
-        seeds = list(scenario.validation_seeds[: self.hp["eval_episodes"]])
-        if self._env is None:
-            self._env = CaptureVectorEnv(
-                len(seeds),
-                scenario,
-                observation_source=self.config.observation_source,
-                reward=self.hp["reward"],
-            )
         stats = self.model.get_vec_normalize_env()
         normalize = None if stats is None else stats.normalize_obs
-        predictor: Any = self.model
-        if self.hp["residual"] != "none":  # the base sees the raw observation, the model its own
-            from agents.residual import ResidualAgent, make_base
+        scenarios = mixture_scenarios(self.config.scenario)  # one, or a mixture's
+        episodes, seeds = [], []
+        for scenario in scenarios:
+            chosen = list(scenario.validation_seeds[: self.hp["eval_episodes"]])
+            if scenario.name not in self._envs:
+                self._envs[scenario.name] = CaptureVectorEnv(
+                    len(chosen),
+                    scenario,
+                    observation_source=self.config.observation_source,
+                    reward=self.hp["reward"],
+                )
+            env = self._envs[scenario.name]
+            predictor: Any = self.model
+            scaled = normalize
+            if self.hp["residual"] != "none":  # the base sees the raw observation
+                from agents.residual import ResidualAgent, make_base
 
-            learned = _Normalized(self.model, normalize)
-            base = make_base(self.hp["residual"], self._env.description)
-            predictor, normalize = ResidualAgent(base, learned, self.hp["residual_scale"]), None
-        result = summarize(run_validation(predictor, self._env, seeds, normalize))
+                learned = _Normalized(self.model, normalize)
+                base = make_base(self.hp["residual"], env.description)
+                predictor, scaled = ResidualAgent(base, learned, self.hp["residual_scale"]), None
+            played = run_validation(predictor, env, chosen, scaled)
+            if len(scenarios) > 1:  # a mixture: each scenario's own figures too
+                own = summarize(played)
+                for key in ("capture_rate", "median_ratio_to_limit"):
+                    if np.isfinite(own[key]):
+                        self.logger.record(f"eval/{scenario.name}/{key}", own[key])
+            episodes += played
+            seeds += chosen
+        result = summarize(episodes)  # pooled: each scenario weighs the same
         for key, value in finite_items(result).items():
             self.logger.record(f"eval/{key}", value)
         line = (
@@ -297,6 +309,6 @@ class Progress(BaseCallback):
 
     def close(self) -> None:
         """Close the evaluation environment (safe to call twice)."""
-        if self._env is not None:
-            self._env.close()
-            self._env = None
+        for env in self._envs.values():
+            env.close()
+        self._envs = {}

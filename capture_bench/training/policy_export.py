@@ -56,14 +56,16 @@ def policy_metadata(
             observations are normalised), named in ``model`` and ``vecnormalize``.
     """
     from capture_bench.evaluation.provenance import git_state, package_versions
+    from capture_bench.training.mixture import is_mixture, mixture_name
 
-    scenario = load_scenario(config.scenario)
+    mixed = is_mixture(config.scenario)
+    scenario = None if mixed else load_scenario(config.scenario)
     normalized = model.get_vec_normalize_env() is not None
     steps = int(model.num_timesteps)
     return {
         "algorithm": config.algo.upper(),
-        "scenario": scenario.name,
-        "env_id": scenario.env_id,
+        "scenario": mixture_name(config.scenario) if scenario is None else scenario.name,
+        "env_id": None if scenario is None else scenario.env_id,  # a mixture: one per scenario
         "model": "model.zip" if sb3_files else None,
         "observation_source": config.observation_source,
         "reward": hp["reward"],

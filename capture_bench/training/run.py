@@ -42,6 +42,12 @@ from capture_bench.training.hyperparameters import (
     sb3_kwargs,
     validate_hyperparameters,
 )
+from capture_bench.training.mixture import (
+    MixtureVecEnv,
+    is_mixture,
+    mixture_name,
+    mixture_scenarios,
+)
 from capture_bench.training.options import (
     FLAGS,
     RESUMABLE_OPTIONS,
@@ -166,26 +172,33 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         return config, hp, run_dir, checkpoint
 
     config.algo = config.algo.lower()
-    scenario = load_scenario(config.scenario)
+    scenarios = mixture_scenarios(config.scenario)  # one, or a mixture (``all``, a,b,c)
+    scenario = scenarios[0]
+    mixed = is_mixture(config.scenario)
     for key in ("total_timesteps", "n_envs"):
         if getattr(config, key) is not None and getattr(config, key) < 1:
             raise ConfigError(f"--{key.replace('_', '-')} must be >= 1, got {getattr(config, key)}")
-    hp, _, origin = resolve_hyperparameters(
-        config.algo, scenario, config.config, config.overrides or ()
+    hp, _, origin = resolve_hyperparameters(  # a mixture reads no scenario section
+        config.algo, None if mixed else scenario, config.config, config.overrides or ()
     )
     algorithm_class(config.algo)  # its package is installed (sb3-contrib for TQC)
     if config.seed is None:
         config.seed = scenario.training_seeds.start
-    check_training_seed(config.seed, scenario)
+    for each in scenarios:
+        check_training_seed(config.seed, each)
     for key in ("total_timesteps", "n_envs", "reward"):  # the options win over the file
         if getattr(config, key) is not None:
             hp[key] = getattr(config, key)
     _check_shaping(hp)
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
-    config.observation_source = config.observation_source or scenario.estimator.source
+    if mixed:
+        _check_mixture(config, hp, len(scenarios))
+    else:
+        config.observation_source = config.observation_source or scenario.estimator.source
     kind = config.algo if hp["residual"] == "none" else f"{config.algo}-residual"
-    run_dir = Path(config.run_dir or f"runs/{scenario.name}-{kind}-{config.seed}")
+    name = mixture_name(config.scenario) if mixed else scenario.name
+    run_dir = Path(config.run_dir or f"runs/{name}-{kind}-{config.seed}")
     if (run_dir / "config.json").exists():
         raise ConfigError(
             f"{run_dir}: already holds a run; use --resume {run_dir} or another --run-dir"
@@ -198,6 +211,28 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     atomic_write(run_dir / "hyperparameters.yaml", resolved_yaml(config, hp, origin).encode())
     atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
     return config, hp, run_dir, None
+
+
+def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
+    """What a mixture of ``count`` scenarios needs: the batched env, ``n_envs`` a multiple of
+    ``count`` (an equal share each), and no setting that depends on one scenario's task."""
+    if config.vec_env != "batched":
+        raise ConfigError(
+            f"--scenario {config.scenario}: a mixture trains on --vec-env batched, not "
+            f"{config.vec_env}"
+        )
+    if hp["n_envs"] % count:
+        up = count * -(-hp["n_envs"] // count)
+        raise ConfigError(
+            f"--scenario {config.scenario}: n_envs {hp['n_envs']} does not split evenly between "
+            f"{count} scenarios; use a multiple of {count} (e.g. --n-envs {up})"
+        )
+    for key in ("residual", "curriculum_tolerance"):
+        if hp.get(key, "none") != "none":
+            raise ConfigError(
+                f"--scenario {config.scenario}: {key} depends on one scenario's task; train it "
+                "on a single scenario"
+            )
 
 
 def _check_shaping(hp: dict) -> None:
@@ -315,7 +350,16 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
 
     n_envs = config.n_envs or 1
     venv: Any
-    if config.vec_env == "batched":
+    if is_mixture(config.scenario):  # an equal share of the sub-envs for each scenario
+        from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+
+        scenarios = mixture_scenarios(config.scenario)
+        share = n_envs // len(scenarios)
+        venv = MixtureVecEnv([
+            CaptureSB3VecEnv(share, sc, seed=(config.seed or 0) * 1000 + k, reward=hp["reward"])
+            for k, sc in enumerate(scenarios)
+        ])  # fmt: skip
+    elif config.vec_env == "batched":
         from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
 
         venv = CaptureSB3VecEnv(
@@ -373,8 +417,9 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
         model.set_random_seed((config.seed or 0) + model.num_timesteps)  # fresh episode draws
         seed_note = f"resuming {checkpoint.name}"
     target = hp["total_timesteps"]
+    source = config.observation_source or "each scenario's own estimate"
     print(
-        f"training {algo.upper()} on {config.scenario} ({config.observation_source}), "
+        f"training {algo.upper()} on {config.scenario} ({source}), "
         f"{config.n_envs} {config.vec_env} envs, {seed_note}, {target} steps -> {run_dir}"
     )
     print(f"TensorBoard: tensorboard --logdir {tb}")

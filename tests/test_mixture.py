@@ -1,0 +1,116 @@
+"""Training on a mixture of scenarios (issue 14 point 3): the mixture's transitions are its parts'
+side by side, seeded by SB3's rule across the parts; the spec names every or some scenarios."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capture_bench.task.scenarios import ConfigError, list_scenarios
+from capture_bench.training.mixture import (
+    MixtureVecEnv,
+    is_mixture,
+    mixture_name,
+    mixture_scenarios,
+)
+from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+
+
+def test_the_mixture_steps_as_its_parts_side_by_side():
+    parts = [CaptureSB3VecEnv(2, "paper", seed=3), CaptureSB3VecEnv(3, "tumbling", seed=3)]
+    mix = MixtureVecEnv(
+        [CaptureSB3VecEnv(2, "paper", seed=3), CaptureSB3VecEnv(3, "tumbling", seed=3)]
+    )
+    rng = np.random.default_rng(0)
+    try:
+        assert mix.num_envs == 5
+        mix.seed(11)
+        parts[0].seed(11)
+        parts[1].seed(13)  # SB3's rule: sub-env i gets seed + i, here i = 2 for tumbling's first
+        obs = mix.reset()
+        np.testing.assert_array_equal(obs, np.concatenate([p.reset() for p in parts]))
+        for _ in range(220):  # past the end of the first episodes
+            actions = rng.uniform(-1, 1, (5, 3)).astype(np.float32)
+            mix.step_async(actions)
+            got = mix.step_wait()
+            parts[0].step_async(actions[:2])
+            parts[1].step_async(actions[2:])
+            want = [p.step_wait() for p in parts]
+            for j in range(3):
+                np.testing.assert_array_equal(got[j], np.concatenate([w[j] for w in want]))
+            assert [i.get("terminal_observation") is None for i in got[3]] == [
+                i.get("terminal_observation") is None for w in want for i in w[3]
+            ]
+        assert mix.get_attr("episode_seed") == [
+            s for p in parts for s in p.get_attr("episode_seed")
+        ]
+        assert mix.get_attr("reward_mode", indices=[4]) == ["dense"]
+    finally:
+        mix.close()
+        for p in parts:
+            p.close()
+
+
+def test_the_spec_names_every_or_some_scenarios():
+    assert [s.name for s in mixture_scenarios("all")] == list_scenarios()
+    assert [s.name for s in mixture_scenarios("paper, grasp")] == ["paper", "grasp"]
+    assert is_mixture("all") and is_mixture("paper,grasp") and not is_mixture("paper")
+    assert mixture_name("paper,grasp") == "paper+grasp" and mixture_name("all") == "all"
+    with pytest.raises(ConfigError, match="named twice"):
+        mixture_scenarios("paper,paper")
+    with pytest.raises(ConfigError, match="empty name"):
+        mixture_scenarios("paper,")
+    with pytest.raises(ConfigError, match="unknown scenario 'moon'"):
+        mixture_scenarios("paper,moon")
+
+
+TINY = ["n_steps=32", "batch_size=32", "n_epochs=1", "policy_kwargs.net_arch=[8]",
+        "total_timesteps=128", "eval_freq=128", "eval_episodes=2"]  # fmt: skip
+
+
+def test_a_tiny_mixture_run_trains_validates_each_scenario_and_loads(tmp_path, monkeypatch):
+    import json
+
+    from test_training_metrics import scalars
+
+    import train
+    from agents.sb3_policy import load_sb3_policy
+    from capture_bench.envs.capture_env import CaptureEnv
+
+    monkeypatch.chdir(tmp_path)
+    argv = ["--scenario", "paper,grasp", "--n-envs", "4", *(f"--set={s}" for s in TINY)]
+    assert train.main(argv) == 0
+    run_dir = tmp_path / "runs" / "paper+grasp-ppo-0"
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    assert meta["scenario"] == "paper+grasp" and meta["env_id"] is None
+    tags = scalars(run_dir / "tb")
+    assert {"eval/paper/capture_rate", "eval/grasp/capture_rate", "eval/capture_rate"} <= set(tags)
+    validation = json.loads((run_dir / "best" / "validation.json").read_text())
+    assert len(validation["seeds"]) == 4  # 2 validation seeds of each scenario
+    for name in ("paper", "grasp"):
+        env = CaptureEnv(name)
+        try:
+            agent = load_sb3_policy(run_dir, env)
+            obs, _ = env.reset(seed=0)
+            assert env.action_space.contains(agent.predict(obs)[0])
+        finally:
+            env.close()
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--n-envs", "3"], "does not split evenly between 2 scenarios"),
+        (["--vec-env", "dummy"], "a mixture trains on --vec-env batched"),
+        (["--set", "residual=incremental_ik"], "residual depends on one scenario"),
+        (["--set", "curriculum_tolerance=0.01"], "curriculum_tolerance depends on one scenario"),
+    ],
+)
+def test_what_a_mixture_cannot_take_is_one_line(tmp_path, capsys, argv, expected):
+    import train
+
+    run_dir = tmp_path / "run"
+    assert train.main(["--scenario", "paper,grasp", *argv, "--run-dir", str(run_dir)]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and len(err.strip().splitlines()) == 1, err
+    assert not run_dir.exists()
