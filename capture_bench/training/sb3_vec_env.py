@@ -17,6 +17,11 @@ single envs (``tests/test_sb3_vec_env.py`` checks every transition equal):
   with the model's seed) re-seeds draw i with ``seed + i`` at the next :meth:`reset`, exactly as
   ``DummyVecEnv`` passes ``seed + i`` to ``TrainingSeeds.reset``. No evaluation or validation
   seed is ever used.
+
+How it stays fast with every episode seeded: the draws are the batched env's seed sources
+(:meth:`CaptureVectorEnv.set_episode_seeds`), so the batched env draws each sub-env's next seeds
+as it records their episodes ahead, many at once; a re-seed hands it the re-seeded draws again,
+which discards what was recorded from the old ones.
 """
 
 from __future__ import annotations
@@ -66,7 +71,7 @@ class CaptureSB3VecEnv(VecEnv):
             n_envs, scenario, observation_source=observation_source, reward=reward
         )
         self._draws = [TrainingSeedDraw(self.venv.scenario, seed * 1000 + i) for i in range(n_envs)]
-        self.episode_seeds: list[int | None] = [None] * n_envs
+        self.venv.set_episode_seeds(self._draws)
         self._actions: NDArray | None = None
         super().__init__(n_envs, self.venv.single_observation_space, self.venv.single_action_space)
 
@@ -75,10 +80,12 @@ class CaptureSB3VecEnv(VecEnv):
         """Reset every sub-env on its next training seed; the observations, (N, ...)."""
         if any(self._options):
             raise ValueError(f"CaptureSB3VecEnv.reset takes no options, got {self._options!r}")
-        for draw, seed in zip(self._draws, self._seeds, strict=True):
-            if seed is not None:
-                draw.reseed(seed)
-        obs, info = self.venv.reset(seed=self._next_seeds(np.ones(self.num_envs, dtype=bool)))
+        if any(seed is not None for seed in self._seeds):
+            for draw, seed in zip(self._draws, self._seeds, strict=True):
+                if seed is not None:
+                    draw.reseed(seed)
+            self.venv.set_episode_seeds(self._draws)  # discards what the old draws recorded
+        obs, info = self.venv.reset()
         for i in range(self.num_envs):
             self.reset_infos[i] = _env_info(info, i)
         self._reset_seeds()
@@ -103,9 +110,7 @@ class CaptureSB3VecEnv(VecEnv):
             ended = np.flatnonzero(dones)
             for i in ended.tolist():
                 infos[i]["terminal_observation"] = obs[i].copy()
-            new_obs, reset_info = self.venv.reset(
-                seed=self._next_seeds(dones), options={"reset_mask": dones}
-            )
+            new_obs, reset_info = self.venv.reset(options={"reset_mask": dones})
             obs = np.where(dones[:, None], new_obs, obs)
             for i in ended.tolist():
                 self.reset_infos[i] = _env_info(reset_info, i)
@@ -154,14 +159,10 @@ class CaptureSB3VecEnv(VecEnv):
         whether a ``Monitor`` is inside; wrap this VecEnv in ``VecMonitor`` instead)."""
         return [False for _ in self._get_indices(indices)]
 
-    # -- seeds ----------------------------------------------------------------------------------
-    def _next_seeds(self, mask: NDArray[np.bool_]) -> list[int | None]:
-        """The next training seed of each sub-env in ``mask`` (None elsewhere), recorded in
-        ``episode_seeds``."""
-        seeds: list[int | None] = [None] * self.num_envs
-        for i in np.flatnonzero(mask).tolist():
-            seeds[i] = self.episode_seeds[i] = self._draws[i].next()
-        return seeds
+    @property
+    def episode_seeds(self) -> list[int | None]:
+        """The training seed of each sub-env's current episode (None before :meth:`reset`)."""
+        return self.venv.episode_seeds
 
 
 def _env_info(info: dict[str, Any], i: int) -> dict[str, Any]:
