@@ -86,8 +86,7 @@ class CaptureSB3VecEnv(VecEnv):
                     draw.reseed(seed)
             self.venv.set_episode_seeds(self._draws)  # discards what the old draws recorded
         obs, info = self.venv.reset()
-        for i in range(self.num_envs):
-            self.reset_infos[i] = _env_info(info, i)
+        self.reset_infos = _env_infos(info, self.num_envs)
         self._reset_seeds()
         self._reset_options()
         return obs.copy()
@@ -103,17 +102,18 @@ class CaptureSB3VecEnv(VecEnv):
         # never fires: every sub-env steps.
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
-        infos = [_env_info(info, i) for i in range(self.num_envs)]
-        for i in range(self.num_envs):
-            infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
+        infos = _env_infos(info, self.num_envs)
+        for env_info, limit in zip(infos, (truncated & ~terminated).tolist(), strict=True):
+            env_info["TimeLimit.truncated"] = limit
         if dones.any():
             ended = np.flatnonzero(dones)
             for i in ended.tolist():
                 infos[i]["terminal_observation"] = obs[i].copy()
             new_obs, reset_info = self.venv.reset(options={"reset_mask": dones})
             obs = np.where(dones[:, None], new_obs, obs)
+            new_infos = _env_infos(reset_info, self.num_envs)
             for i in ended.tolist():
-                self.reset_infos[i] = _env_info(reset_info, i)
+                self.reset_infos[i] = new_infos[i]
         return obs.copy(), rewards.astype(np.float32), dones, infos
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
@@ -165,17 +165,19 @@ class CaptureSB3VecEnv(VecEnv):
         return self.venv.episode_seeds
 
 
-def _env_info(info: dict[str, Any], i: int) -> dict[str, Any]:
-    """Sub-env i's entries of a gymnasium vector ``info`` (``_key`` masks), as the single env
-    gives them: Python scalars, None for the :data:`OPTIONAL_KEYS` where NaN (and for no
-    failure)."""
-    out: dict[str, Any] = {}
+def _env_infos(info: dict[str, Any], n: int) -> list[dict[str, Any]]:
+    """The n sub-envs' entries of a gymnasium vector ``info`` (``_key`` masks), as the single
+    env gives them: Python scalars, None for the :data:`OPTIONAL_KEYS` where NaN (and for no
+    failure). One ``tolist()`` per key: element by element took 390 us a step at 16 sub-envs
+    on the 2-core machine, this 58 us (``timeit`` on one paper step's info)."""
+    out: list[dict[str, Any]] = [{} for _ in range(n)]
     for key, values in info.items():
-        if key.startswith("_") or not info[f"_{key}"][i]:
+        if key.startswith("_"):
             continue
-        value = values[i]
-        value = value.item() if isinstance(value, np.generic) else value
-        if key in OPTIONAL_KEYS and value != value:  # NaN
-            value = None
-        out[key] = value
+        optional = key in OPTIONAL_KEYS
+        for env_info, marked, value in zip(
+            out, info[f"_{key}"].tolist(), values.tolist(), strict=True
+        ):
+            if marked:
+                env_info[key] = None if optional and value != value else value  # NaN: None
     return out
