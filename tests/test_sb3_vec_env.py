@@ -150,3 +150,56 @@ def test_a_tiny_ppo_learns_on_it(short_scenario):
     model.learn(64)
     assert model.num_timesteps == 64
     env.close()
+
+
+def _assert_same_run(ref: DummyVecEnv, got: CaptureSB3VecEnv, steps: int, where: str) -> int:
+    """Reset both, step both with the same random actions; how many episodes ended."""
+    np.testing.assert_allclose(got.reset(), ref.reset(), rtol=1e-6, atol=1e-7, err_msg=where)
+    rng = np.random.default_rng(1)
+    ended = 0
+    for t in range(steps):
+        actions = rng.uniform(-1, 1, (N, 3)).astype(np.float32)
+        obs, rewards, dones, _ = ref.step(actions)
+        obs_b, rewards_b, dones_b, _ = got.step(actions)
+        np.testing.assert_array_equal(dones_b, dones, err_msg=f"{where}, step {t}")
+        np.testing.assert_allclose(obs_b, obs, rtol=1e-6, atol=1e-7, err_msg=f"{where}, step {t}")
+        np.testing.assert_allclose(rewards_b, rewards, rtol=1e-6, atol=1e-9)
+        assert got.get_attr("episode_seed") == ref.get_attr("episode_seed"), (where, t)
+        ended += int(dones.sum())
+    return ended
+
+
+def test_a_reseed_discards_the_episodes_recorded_ahead(short_scenario):
+    """After SB3's ``seed()`` + ``reset()`` mid-run, the episodes are those of a fresh
+    ``DummyVecEnv`` seeded the same, not the ones recorded ahead from the old draws."""
+    got = CaptureSB3VecEnv(N, short_scenario, seed=SEED)
+    assert _assert_same_run(_reference(short_scenario), got, 50, "first run") >= N
+    ref = _reference(short_scenario)
+    assert got.seed(21) == ref.seed(21)
+    assert _assert_same_run(ref, got, 50, "after seed(21)") >= N
+    ref.close()
+    got.close()
+
+
+def test_episodes_are_recorded_in_batches(short_scenario, monkeypatch):
+    """Every training episode is explicitly seeded, yet recorded many at a time (a spy on
+    ``record_episodes``; not a timing)."""
+    from capture_bench.envs import vector_env
+
+    sizes: list[int] = []
+    original = vector_env.record_episodes
+
+    def spy(*args):
+        sizes.append(len(args[-1]))
+        return original(*args)
+
+    monkeypatch.setattr(vector_env, "record_episodes", spy)
+    env = CaptureSB3VecEnv(N, short_scenario, seed=SEED)
+    env.reset()
+    started = N
+    for _ in range(130):
+        started += int(env.step(np.ones((N, 3), dtype=np.float32))[2].sum())
+    assert started >= 3 * N
+    assert sum(sizes) >= started and min(sizes) >= N, sizes
+    assert len(sizes) <= started / (2 * N), sizes
+    env.close()

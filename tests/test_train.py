@@ -255,10 +255,15 @@ def test_training_time_evaluation_uses_validation_seeds_only(tmp_path, monkeypat
         return reset(self, seed=seed, options=options)
 
     def recording_vector_reset(self, *, seed=None, options=None):
-        assert isinstance(seed, list)  # one seed per sub-env (an int would seed s, s + 1, ...)
-        mask = (options or {}).get("reset_mask", [True] * len(seed))
-        seen.extend(s for s, reset_here in zip(seed, mask) if reset_here)
-        return vector_reset(self, seed=seed, options=options)
+        # one explicit seed per sub-env (the validation) or none (training: each sub-env's
+        # seed source, CaptureVectorEnv.set_episode_seeds); an int would seed s, s + 1, ...
+        assert seed is None or isinstance(seed, list)
+        out = vector_reset(self, seed=seed, options=options)
+        mask = (options or {}).get("reset_mask", [True] * self.num_envs)
+        played = self.episode_seeds  # the seed of the episode each sub-env now plays
+        assert all(s is not None for s, here in zip(played, mask) if here)
+        seen.extend(s for s, here in zip(played, mask) if here)
+        return out
 
     monkeypatch.setattr(CaptureEnv, "reset", recording_reset)
     monkeypatch.setattr(CaptureVectorEnv, "reset", recording_vector_reset)

@@ -228,3 +228,43 @@ def test_joint_limits_and_collision_screen_agree_with_the_world():
     assert collides.sum() > 300 and clear.sum() > 1000
     assert not np.any(clear & collides)
     world.close()
+
+
+class _Counter:
+    """A seed source: start, start + 1, ..."""
+
+    def __init__(self, start: int) -> None:
+        self.value = start - 1
+
+    def next(self) -> int:
+        self.value += 1
+        return self.value
+
+
+def test_seed_sources_seed_every_episode():
+    """With ``set_episode_seeds``, episode k of sub-env i is the source's k-th seed's episode;
+    an explicit seed plays once and the stream goes on; None restores gymnasium's rule."""
+    env = CaptureVectorEnv(2, "paper")
+    env.set_episode_seeds([_Counter(10), _Counter(20)])
+    obs, _ = env.reset()
+    assert env.episode_seeds == [10, 20]
+    reference = CaptureVectorEnv(2, "paper")
+    np.testing.assert_array_equal(obs, reference.reset(seed=[10, 20])[0])
+    obs, _ = env.reset(seed=[5, None])
+    assert env.episode_seeds == [5, 21]
+    np.testing.assert_array_equal(obs, reference.reset(seed=[5, 21])[0])
+    env.reset(options={"reset_mask": [True, False]})
+    assert env.episode_seeds == [11, 21]
+    env.set_episode_seeds([_Counter(30), _Counter(40)])  # what was recorded ahead is dropped
+    env.reset()
+    assert env.episode_seeds == [30, 40]
+    env.set_episode_seeds(None)
+    obs, _ = env.reset(seed=7)
+    assert env.episode_seeds == [7, 8]
+    np.testing.assert_array_equal(obs, reference.reset(seed=7)[0])
+    env.reset()
+    assert env.episode_seeds == [None, None]  # continuing each sub-env's generator
+    with pytest.raises(ValueError, match="2 seed sources"):
+        env.set_episode_seeds([_Counter(0)])
+    env.close()
+    reference.close()

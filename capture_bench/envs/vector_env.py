@@ -28,9 +28,11 @@ Differences from N single envs, all in the format only:
 
 from __future__ import annotations
 
+import math
 from collections import deque
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from gymnasium import spaces
@@ -53,6 +55,19 @@ from capture_bench.task.target_side import scenario_camera
 
 FloatArray = NDArray[np.float64]
 RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs episodes)
+#: With seed sources, each sub-env's queue is topped up to ``ceil(RECORD_BATCH / num_envs)``
+#: episodes (at least ``RECORD_AHEAD``), so that a batch holds ~``RECORD_BATCH / 2`` episodes or
+#: more even with few sub-envs: the batched EKF costs 17.5 us per episode-step at 16 episodes and
+#: 9.7 us at 64 (README, ``bench_estimator_batch.py``). Memory: ~100 kB per recorded episode.
+RECORD_BATCH = 64
+
+
+class EpisodeSeedSource(Protocol):
+    """A stream of episode seeds (e.g. :class:`capture_bench.training.seeds.TrainingSeedDraw`)."""
+
+    def next(self) -> int:
+        """The seed of the next episode."""
+        ...
 
 
 class CaptureVectorEnv(VectorEnv):
@@ -73,6 +88,10 @@ class CaptureVectorEnv(VectorEnv):
     see the module docstring for the format of ``info``. Autoreset: next step
     (``metadata["autoreset_mode"]``): the step after a sub-env's episode ends resets it and
     returns its first observation, reward 0 and no termination.
+
+    Episodes come from each sub-env's own generator, as gymnasium seeds them, unless
+    :meth:`set_episode_seeds` gives each sub-env a stream of episode seeds (what SB3 training
+    wants: every episode explicitly seeded, yet recorded ahead in batches).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
@@ -115,7 +134,12 @@ class CaptureVectorEnv(VectorEnv):
         # sub-env would cost ~28 MB each): the joints are set before each query.
         self._world: World | None = World(self._features)
         self._rngs: list[np.random.Generator | None] = [None] * n
-        self._queues: list[deque[RecordedEpisode]] = [deque() for _ in range(n)]
+        # The seed of the generator's first episode, until it is recorded (None: unseeded).
+        self._generator_seeds: list[int | None] = [None] * n
+        self._sources: list[EpisodeSeedSource] | None = None
+        # (episode seed or None, episode) recorded ahead, in the order each sub-env plays them
+        self._queues: list[deque[tuple[int | None, RecordedEpisode]]] = [deque() for _ in range(n)]
+        self._episode_seeds: list[int | None] = [None] * n
         # Row i holds sub-env i's episode, step by step (an episode has at most one step more
         # than it has control periods).
         steps = period_count(sc.control) + 1
@@ -140,7 +164,10 @@ class CaptureVectorEnv(VectorEnv):
         """Reset the sub-envs (``options["reset_mask"]``: only those marked).
 
         ``seed``: an int s seeds sub-env i with s + i, as ``SyncVectorEnv`` does; a list gives
-        one seed (or None) per sub-env. An unseeded sub-env continues its own generator.
+        one seed (or None) per sub-env. An unseeded sub-env continues its own generator (what
+        was recorded ahead from an old generator is discarded), or, after
+        :meth:`set_episode_seeds`, plays the next episode of its seed source; there an explicit
+        seed plays that seed's episode once, and the source's stream continues after it.
         """
         n = self.num_envs
         mask = np.ones(n, dtype=bool)
@@ -158,16 +185,23 @@ class CaptureVectorEnv(VectorEnv):
                 raise ValueError(f"seed must be an int, None or a list of {n} seeds, got {seed!r}")
         if not self._started and not mask.all():
             raise ValueError("the first reset() must reset every sub-env (no reset_mask)")
-        fresh = {  # every new generator first, so that a bad seed changes nothing
-            i: seeding.np_random(seeds[i])[0]
-            for i in np.flatnonzero(mask).tolist()
-            if seeds[i] is not None or self._rngs[i] is None
-        }
-        for i, rng in fresh.items():
-            self._rngs[i] = rng
-            self._queues[i].clear()  # recorded from the old generator
         envs = np.flatnonzero(mask)
-        self._start(envs)
+        explicit: dict[int, int] = {}  # with seed sources: sub-env -> the seed it plays now
+        if self._sources is not None:
+            explicit = {i: s for i in envs.tolist() if (s := seeds[i]) is not None}
+            for s in explicit.values():
+                seeding.np_random(s)  # a bad seed raises before anything changes
+        else:
+            fresh = {  # every new generator first, so that a bad seed changes nothing
+                i: seeding.np_random(seeds[i])[0]
+                for i in envs.tolist()
+                if seeds[i] is not None or self._rngs[i] is None
+            }
+            for i, rng in fresh.items():
+                self._rngs[i] = rng
+                self._generator_seeds[i] = seeds[i]
+                self._queues[i].clear()  # recorded from the old generator
+        self._start(envs, explicit)
         self._ended[envs] = False
         self._started = True
         return self._observe(), self._reset_info(envs)
@@ -193,7 +227,7 @@ class CaptureVectorEnv(VectorEnv):
         resetting = np.flatnonzero(self._ended)
         stepping = np.flatnonzero(~self._ended)
         if resetting.size:
-            self._start(resetting)
+            self._start(resetting, {})
         rewards = np.zeros(n)
         terminated = np.zeros(n, dtype=bool)
         truncated = np.zeros(n, dtype=bool)
@@ -216,39 +250,100 @@ class CaptureVectorEnv(VectorEnv):
         The recorded physical limit stays the scenario's."""
         self.rule.set_tolerance(tolerance)
 
+    def set_episode_seeds(self, sources: Sequence[EpisodeSeedSource] | None) -> None:
+        """Seed every later episode of sub-env i with ``sources[i].next()`` (None: back to each
+        sub-env's own generator, gymnasium's rule).
+
+        The seeds are drawn when the episodes are recorded, ahead and in batches, and sub-env i
+        plays them in the order drawn, so its episodes are those of single envs reset with
+        those seeds one by one (``CaptureEnv.reset(seed=s)``). Everything recorded ahead is
+        discarded (it came from the old streams): call this again after re-seeding a source.
+        Takes effect at each sub-env's next reset; :attr:`episode_seeds` tells the seed of
+        each sub-env's current episode.
+        """
+        if sources is not None:
+            sources = list(sources)
+            usable = all(callable(getattr(source, "next", None)) for source in sources)
+            if len(sources) != self.num_envs or not usable:
+                raise ValueError(
+                    f"set_episode_seeds takes None or {self.num_envs} seed sources (objects "
+                    f"with next() -> int), got {sources!r}"
+                )
+        else:  # every sub-env needs a generator again (unseeded where it never had one)
+            for i, rng in enumerate(self._rngs):
+                if rng is None:
+                    self._rngs[i] = seeding.np_random(None)[0]
+                    self._generator_seeds[i] = None
+        self._sources = sources
+        for queue in self._queues:
+            queue.clear()
+
+    @property
+    def episode_seeds(self) -> list[int | None]:
+        """The seed of each sub-env's current episode: the explicit or the source's seed it
+        was reset with, None where the episode continues its sub-env's generator."""
+        return list(self._episode_seeds)
+
     def close_extras(self, **kwargs: Any) -> None:
         if self._world is not None:
             self._world.close()
             self._world = None
 
     # -- episodes -------------------------------------------------------------------------------
-    def _start(self, envs: NDArray[np.intp]) -> None:
-        """Begin the next recorded episode of each sub-env in ``envs`` (recording a batch for
+    def _start(self, envs: NDArray[np.intp], explicit: dict[int, int]) -> None:
+        """Begin the next episode of each sub-env in ``envs``: that of the seed ``explicit[i]``
+        where given (seed sources only), else the next recorded one (recording a batch for
         every sub-env short of episodes when one of them has none)."""
-        if any(not self._queues[i] for i in envs.tolist()):
-            short = [
-                i
-                for i, (queue, rng) in enumerate(zip(self._queues, self._rngs, strict=True))
-                if len(queue) < RECORD_AHEAD and rng is not None
-            ]
-            rngs = [self._rngs[i] for i in short]
-            recorded = record_episodes(
+        ahead: list[tuple[int, int | None, np.random.Generator]] = []
+        if any(i not in explicit and not self._queues[i] for i in envs.tolist()):
+            ahead = self._to_record()
+        now = [(i, s, seeding.np_random(s)[0]) for i, s in explicit.items()]
+        jobs = now + ahead
+        recorded = (
+            record_episodes(
                 self.scenario,
                 self._camera,
                 self._features,
                 self.description,
-                rngs,  # type: ignore[arg-type]  # not None in `short`
+                [rng for _, _, rng in jobs],
             )
-            for i, episode in zip(short, recorded, strict=True):
-                self._queues[i].append(episode)
+            if jobs
+            else []
+        )
+        for (i, seed, _), episode in zip(ahead, recorded[len(now) :], strict=True):
+            self._queues[i].append((seed, episode))
+        played = {
+            i: (seed, episode)
+            for (i, seed, _), episode in zip(now, recorded[: len(now)], strict=True)
+        }
         for i in envs.tolist():
-            episode = self._queues[i].popleft()
+            seed, episode = played[i] if i in played else self._queues[i].popleft()
             assert episode.bound is not None  # record_episodes computes it
             self._episodes[i] = episode
+            self._episode_seeds[i] = seed
             self._load_tracks(i, episode)
             self._bound[i] = episode.bound.time
         self._steps[envs] = 0
         self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
+
+    def _to_record(self) -> list[tuple[int, int | None, np.random.Generator]]:
+        """The episodes to record ahead now, (sub-env, seed, generator) in each sub-env's
+        playing order: one for every sub-env short of ``RECORD_AHEAD`` (its own generator
+        advances through them), or with seed sources every queue topped up (see
+        :data:`RECORD_BATCH`)."""
+        jobs: list[tuple[int, int | None, np.random.Generator]] = []
+        if self._sources is None:
+            for i, (queue, rng) in enumerate(zip(self._queues, self._rngs, strict=True)):
+                if len(queue) < RECORD_AHEAD and rng is not None:
+                    jobs.append((i, self._generator_seeds[i], rng))
+                    self._generator_seeds[i] = None  # its later episodes continue the generator
+            return jobs
+        depth = max(RECORD_AHEAD, math.ceil(RECORD_BATCH / self.num_envs))
+        for i, (queue, source) in enumerate(zip(self._queues, self._sources, strict=True)):
+            for _ in range(depth - len(queue)):
+                seed = int(source.next())
+                jobs.append((i, seed, seeding.np_random(seed)[0]))
+        return jobs
 
     def _load_tracks(self, i: int, episode: RecordedEpisode) -> None:
         """Copy an episode's per-step arrays into row i of the stacked tracks."""

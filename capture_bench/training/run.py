@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import signal
 import sys
 import time
@@ -64,6 +65,11 @@ ENV_MEMORY_BYTES = 40 * 2**20
 BATCHED_ENV_MEMORY_BYTES = 2 * 2**20
 #: Share of the available memory the environments may take.
 MEMORY_SHARE = 0.8
+#: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
+#: number it read from there). One: the networks are small (a few 256-wide layers, batches of
+#: <= 1024), so a second thread saves little in the update and costs a spin-waiting core that
+#: the env side (the same process) and other processes need; see README, "Training speed".
+TORCH_THREADS = 1
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -385,8 +391,20 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
     return venv
 
 
+def set_torch_threads() -> int:
+    """Give torch :data:`TORCH_THREADS` intra-op threads, unless the user chose a number with
+    ``OMP_NUM_THREADS``; return the number torch uses."""
+    import torch
+
+    if not os.environ.get("OMP_NUM_THREADS"):
+        torch.set_num_threads(TORCH_THREADS)
+    return torch.get_num_threads()
+
+
 def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str | None) -> Any:
-    """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``hp``."""
+    """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``hp`` (torch
+    threads: :func:`set_torch_threads`)."""
+    set_torch_threads()
     algorithm = algorithm_class(config.algo)
     return algorithm(
         hp["policy"], venv, seed=config.seed, device=config.device,
