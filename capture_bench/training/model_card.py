@@ -1,0 +1,172 @@
+"""Ship a trained policy: ``python -m capture_bench.training.model_card RUN_DIR --name NAME``.
+
+Copies a finished run's safe policy (``policy.pt`` + ``metadata.json``, and SB3's ``model.zip``
+for SB3 users) to ``models/NAME/``, plays its validation episodes (the first ``--episodes``
+validation seeds of each scenario it was trained on, deterministic actions; never a published
+evaluation seed) and writes the model card: the ``model_card`` entry of ``metadata.json`` and a
+``README.md`` saying how it was trained (the command, steps, wall-clock, hardware, training seed)
+and what it achieved on validation, episode by episode, so that ``tests/test_model_cards.py``
+can replay a few episodes and check the card. ``evaluate.py`` then picks the model up in the
+default leaderboard (``models/*``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from capture_bench.files import atomic_write
+from capture_bench.paths import models_dir
+from capture_bench.task.scenarios import ConfigError
+
+#: The fields every model card has (``metadata.json`` key ``model_card``).
+CARD_FIELDS = ("command", "total_timesteps", "wall_time_s", "hardware", "training_seed",
+               "scenarios", "actions", "validation")  # fmt: skip
+COPIED = ("policy.pt", "metadata.json", "model.zip")
+
+
+def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[str, Any]:
+    """The policy in ``model_dir`` on ``seeds`` of ``scenario``, as train.py validates: one
+    deterministic episode per seed in the batched env; per episode and summarised."""
+    from agents.sb3_policy import load_policy, read_metadata
+    from capture_bench.envs.vector_env import CaptureVectorEnv
+    from capture_bench.training.episode_stats import summarize
+    from capture_bench.training.validation_run import run_validation
+
+    loaded = load_policy(read_metadata(model_dir))
+    env = CaptureVectorEnv(len(seeds), scenario)
+    try:
+        agent = loaded.agent("card", env.description)
+        played = run_validation(agent, env, seeds)
+    finally:
+        env.close()
+    summary = summarize(played)
+    return {
+        "seeds": seeds,
+        "episodes": [
+            {
+                "seed": seed,
+                "captured": bool(e.captured),
+                "capture_time": e.capture_time if e.captured else None,
+            }
+            for seed, e in zip(seeds, played)
+        ],  # fmt: skip
+        **{k: summary[k] for k in ("capture_rate", "median_ratio_to_limit", "median_capture_time")},
+    }
+
+
+def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Path:
+    """Copy the run to ``models/<name>/`` with its model card; return the directory."""
+    from capture_bench.evaluation.provenance import machine
+    from capture_bench.training.mixture import mixture_scenarios
+
+    run_dir = Path(run_dir)
+    meta_file = run_dir / "metadata.json"
+    if not meta_file.is_file() or not (run_dir / "policy.pt").is_file():
+        raise ConfigError(f"{run_dir}: not a finished run (no policy.pt + metadata.json)")
+    meta = json.loads(meta_file.read_text())
+    config = json.loads((run_dir / "config.json").read_text())["config"]
+    target = (out or models_dir()) / name
+    if target.exists():
+        raise ConfigError(f"{target}: already exists; remove it or choose another --name")
+    tmp = target.with_name(f".tmp-{name}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for file in COPIED:
+        if (run_dir / file).is_file():
+            shutil.copy2(run_dir / file, tmp / file)
+    scenarios = [s.name for s in mixture_scenarios(config["scenario"])]
+    validation = {}
+    for scenario in scenarios:
+        from capture_bench.task.scenarios import load_scenario
+
+        seeds = list(load_scenario(scenario).validation_seeds[:episodes])
+        validation[scenario] = validate_policy(tmp, scenario, seeds)
+    card = {
+        "command": meta.get("command"),
+        "total_timesteps": meta.get("total_timesteps"),
+        "wall_time_s": meta.get("wall_time_s"),
+        "hardware": machine(),
+        "training_seed": meta.get("seed"),
+        "scenarios": scenarios,
+        "actions": meta.get("actions", "deterministic"),
+        "validation": validation,
+    }
+    meta["model_card"] = card
+    atomic_write(tmp / "metadata.json", json.dumps(meta, indent=2).encode())
+    atomic_write(tmp / "README.md", _readme(name, meta, card).encode())
+    tmp.rename(target)
+    return target
+
+
+def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
+    hp = meta.get("hyperparameters", {})
+    hardware = card["hardware"]
+    rows = [
+        f"| {scenario} | {v['capture_rate']:.2f} | "
+        + ("-" if v["median_ratio_to_limit"] != v["median_ratio_to_limit"]
+           else f"{v['median_ratio_to_limit']:.2f}")
+        + f" | {len(v['seeds'])} ({v['seeds'][0]}-{v['seeds'][-1]}) |"
+        for scenario, v in card["validation"].items()
+    ]  # fmt: skip
+    residual = meta.get("residual")
+    kind = (
+        f"a hybrid: a residual on `{residual['base']}` scaled by {residual['scale']}"
+        if residual
+        else "a learned controller on its own"
+    )
+    return "\n".join([
+        f"# {name}",
+        "",
+        f"{meta.get('algorithm')} trained by `train.py` on "
+        f"{', '.join(f'`{s}`' for s in card['scenarios'])} ({kind}); "
+        f"{card['actions']} actions on the leaderboard.",
+        "",
+        "## How it was trained",
+        "",
+        f"- command: `{card['command']}`",
+        f"- environment steps: {card['total_timesteps']:,}",
+        f"- training wall-clock: {card['wall_time_s']:.0f} s "
+        f"({meta.get('steps_per_second')} steps/s, validations included)",
+        f"- hardware: {hardware['cpu']}, {hardware['cores']} cores ({hardware['system']}); "
+        f"torch on {meta.get('device')}",
+        f"- training seed: {card['training_seed']} (training seeds only)",
+        f"- git: {meta.get('git')}",
+        f"- hyper-parameters: reward {hp.get('reward')}, n_envs {hp.get('n_envs')}, "
+        f"policy_kwargs {hp.get('policy_kwargs')}",
+        "",
+        "## Validation (deterministic actions, validation seeds, never a published one)",
+        "",
+        "| scenario | capture rate | median ratio to the physical limit | seeds |",
+        "|---|---|---|---|",
+        *rows,
+        "",
+        "Each episode is in `metadata.json` (`model_card.validation`); "
+        "`tests/test_model_cards.py` replays a few of them. The leaderboard's figures on the "
+        "published evaluation seeds are in `reports/default`.",
+        "",
+    ])  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m capture_bench.training.model_card",
+                                     description=__doc__.splitlines()[0])  # fmt: skip
+    parser.add_argument("run_dir")
+    parser.add_argument("--name", required=True, help="models/<name>/")
+    parser.add_argument("--episodes", type=int, default=20, help="validation seeds per scenario")
+    args = parser.parse_args(argv)
+    try:
+        target = ship(Path(args.run_dir), args.name, args.episodes)
+    except ConfigError as exc:
+        print(f"model_card: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"shipped {target}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
