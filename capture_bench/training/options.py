@@ -13,8 +13,12 @@ from capture_bench.task.scenarios import OBSERVATION_SOURCES
 from capture_bench.training.hyperparameters import ALGORITHMS
 
 
-def _opt(default: Any, doc: str, choices: tuple[str, ...] | None = None) -> Any:
+def option(default: Any, doc: str, choices: tuple[str, ...] | None = None) -> Any:
+    """A dataclass field that is a command-line option: ``doc`` is its ``--help``."""
     return field(default=default, metadata={"doc": doc, "choices": choices})
+
+
+_opt = option
 
 
 @dataclass

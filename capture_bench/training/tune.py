@@ -24,7 +24,7 @@ import argparse
 import dataclasses
 import math
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,16 +33,13 @@ from capture_bench.files import check_writable
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
 from capture_bench.training.hyperparameters import ALGORITHMS, OFF_POLICY, load_hyperparameters
+from capture_bench.training.options import option as _opt
 from capture_bench.training.search_spaces import SAMPLERS, Choice
 from capture_bench.training.seeds import check_training_seed
 from capture_bench.training.tune_outputs import OUTPUT_FILES, redacted, write_outputs
 
 PROG = "tune.py"
 INSTALL_HINT = "pip install 'capture-bench[tune]' (or: pip install 'optuna>=3.4')"
-
-
-def _opt(default: Any, doc: str, choices: tuple[str, ...] | None = None) -> Any:
-    return field(default=default, metadata={"doc": doc, "choices": choices})
 
 
 @dataclass
