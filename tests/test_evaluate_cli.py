@@ -307,3 +307,17 @@ def test_bad_input_is_one_line_exit_2_and_no_report(argv, expected, tmp_path, ca
     assert len(err.splitlines()) == 1, err
     assert expected in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_help_teaches_the_valid_agents_scenarios_suites_algorithms_and_examples(capsys):
+    from capture_bench.evaluation.agents_loading import builtin_names
+    from capture_bench.evaluation.suites import list_suites
+    from capture_bench.task.scenarios import list_scenarios
+    from capture_bench.training.hyperparameters import ALGORITHMS
+
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert "examples:" in out and "python evaluate.py --agents" in out
+    for name in [*builtin_names(), *list_scenarios(), *list_suites(), *ALGORITHMS]:
+        assert name in out, name
+    assert "models/ppo-paper" in out

@@ -44,14 +44,45 @@ from capture_bench.task.scenarios import invalid_scenarios
 PROG = "evaluate.py"
 
 
+def _epilog() -> str:
+    """Examples, and what is valid: the built-in agents, shipped models, scenarios, suites and
+    the algorithms train.py trains (a broken file is left out here; ``python -m capture_bench
+    list`` names it and its error)."""
+    from capture_bench.evaluation.agents_loading import builtin_names
+    from capture_bench.evaluation.suites import list_suites
+    from capture_bench.paths import models_dir
+    from capture_bench.task.scenarios import list_scenarios
+    from capture_bench.training.hyperparameters import ALGORITHMS
+
+    models = sorted(
+        f"models/{p.name}" for p in models_dir().glob("*") if (p / "metadata.json").is_file()
+    )
+    return "\n".join([
+        "examples:",
+        "  python evaluate.py                                   # the default leaderboard",
+        "  python evaluate.py --suite quick                     # a smoke run",
+        "  python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper",
+        "  python evaluate.py --agents runs/paper-ppo-0/best --episodes 20 --workers 2",
+        "  python evaluate.py --agents my_agents:MyController   # your own class",
+        "",
+        f"built-in agents: {', '.join(builtin_names())}",
+        f"shipped models:  {', '.join(models) or 'none'}",
+        f"scenarios:       {', '.join(list_scenarios())}",
+        f"suites:          {', '.join(list_suites())}",
+        f"algorithms (train.py): {', '.join(ALGORITHMS)}",
+        "",
+        "Everything installed, and any broken file with its error: python -m capture_bench list",
+    ])  # fmt: skip
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command-line options (each maps to a field of ``EvaluationConfig``)."""
     parser = OneLineParser(
         prog=PROG,
         hint=" (see --help)",
         description=__doc__.splitlines()[0],
-        epilog="List the scenarios (and any invalid scenario file, with its error), suites and "
-        "algorithms: python -m capture_bench list",
+        epilog=_epilog(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
         "--suite",

@@ -75,7 +75,10 @@ examples:
   tensorboard --logdir runs
 
 algorithms: {algorithms} (configs/algos/<algo>.yaml; TQC from sb3-contrib)
-scenarios:  {scenarios} (configs/scenarios/<name>.yaml, or a YAML path)
+scenarios:  {scenarios} (configs/scenarios/<name>.yaml, or a YAML path;
+            all, or a,b,c: one policy on a mixture)
+evaluate a run beside the built-in agents ({agents}) or a suite ({suites}):
+  python evaluate.py --agents incremental_ik runs/paper-ppo-0 --scenarios paper
 
 A hyper-parameter YAML holds keys for every scenario and, optionally, per-scenario sections
 (RL Zoo style) keyed by scenario name or env ID that override them; --set overrides both. The
@@ -86,13 +89,18 @@ resolved hyper-parameters are saved in the run as hyperparameters.yaml (a --conf
 def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
     """An argument parser generated from :class:`TrainConfig` (each field's doc is its help),
     with examples and the valid algorithms and scenarios after the options."""
+    from capture_bench.evaluation.agents_loading import builtin_names
+    from capture_bench.evaluation.suites import list_suites
     from capture_bench.task.scenarios import list_scenarios
 
     parser = OneLineParser(
         prog=prog,
         description="Train a Stable-Baselines3 policy on a scenario.",
         epilog=EXAMPLES.format(
-            algorithms=", ".join(ALGORITHMS), scenarios=", ".join(list_scenarios())
+            algorithms=", ".join(ALGORITHMS),
+            scenarios=", ".join(list_scenarios()),
+            agents=", ".join(builtin_names()),
+            suites=", ".join(list_suites()),
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
