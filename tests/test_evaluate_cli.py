@@ -127,7 +127,7 @@ def test_quick_suite_writes_every_file_with_consistent_aggregates(quick_report):
     parser = Images()
     parser.feed((quick_report / "leaderboard.html").read_text())
     parser.close()
-    assert len(parser.sources) == 4
+    assert len(parser.sources) == 7  # 3 summary figures, 2 survival, failures, ratio
     assert all(s.startswith("data:image/png;base64,") for s in parser.sources)
 
 

@@ -260,7 +260,7 @@ def test_report_files_from_records(tmp_path):
 
     parser = Images()
     parser.feed((target / "leaderboard.html").read_text())
-    assert len(parser.sources) == 4
+    assert len(parser.sources) == 7  # 3 summary figures, 2 survival, failures, ratio
     assert all(s.startswith("data:image/png;base64,iVBOR") for s in parser.sources)
 
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from capture_bench.evaluation import plots
+from capture_bench.evaluation import plots, summary
 from capture_bench.evaluation.aggregate import (
     RANKING_RULE,
     RankingRow,
@@ -210,6 +210,12 @@ def markdown(data: ReportData) -> str:
         "",
         data.description,
         "",
+        "## Summary",
+        "",
+        *(f"![{name}]({name})" for name in SUMMARY_FIGURES),
+        "",
+        summary_text(data),
+        "",
         "## Overall ranking",
         "",
         RANKING_RULE,
@@ -227,24 +233,58 @@ def markdown(data: ReportData) -> str:
     return "\n".join(lines)
 
 
+SUMMARY_FIGURES = ("summary_heatmap.png", "summary_ranking.png", "summary_improvement.png")
+
+
+def _agents(data: ReportData) -> list[str]:
+    """Every agent in ranking order (privileged last)."""
+    return [r.agent for r in data.ranking]
+
+
+def summary_text(data: ReportData) -> str:
+    """One sentence on which ranked neighbours the seeds cannot tell apart."""
+    rows = summary.ranking_intervals(data.records, data.ranking)
+    ties = [
+        f"{rows[k - 1].agent} and {r.agent}" for k, r in enumerate(rows) if r.tied_with_previous
+    ]
+    if not ties:
+        return "Every agent is distinguishable from its neighbour in the ranking."
+    return (
+        "Not distinguishable from the neighbour ranked above (the 95% paired bootstrap interval "
+        f"of the difference in mean capture rate contains 0): {'; '.join(ties)}."
+    )
+
+
 def figure_names(data: ReportData) -> list[str]:
-    """File names of the figures, in display order."""
+    """File names of the figures, in display order (the summary's first)."""
     survival = [f"survival_{scenario}.png" for scenario in _scenarios(data)]
-    return [*survival, "failures_by_reason.png", "ratio_to_limit.png"]
+    return [*SUMMARY_FIGURES, *survival, "failures_by_reason.png", "ratio_to_limit.png"]
 
 
 def figures(data: ReportData) -> dict[str, bytes]:
-    """Render every figure: file name -> PNG bytes."""
+    """Render every figure: file name -> PNG bytes; one colour per agent throughout."""
+    agents = _agents(data)
+    colours = plots.agent_colours(agents, data.reference)
+    scenarios = _scenarios(data)
+    rate, ratio = summary.heatmap_cells(data.summaries, agents, scenarios)
     out = {
-        f"survival_{scenario}.png": plots.survival_figure(
-            scenario, [s for s in data.summaries if s.scenario == scenario]
-        )
-        for scenario in _scenarios(data)
+        "summary_heatmap.png": plots.heatmap_figure(rate, ratio, agents, scenarios),
+        "summary_ranking.png": plots.ranking_figure(
+            summary.ranking_intervals(data.records, data.ranking), colours
+        ),
+        "summary_improvement.png": plots.improvement_figure(
+            summary.probability_of_improvement(data.records, agents), agents
+        ),
     }
+    for scenario in scenarios:
+        cells = [s for s in data.summaries if s.scenario == scenario]
+        out[f"survival_{scenario}.png"] = plots.survival_figure(
+            scenario, cells, colours, data.reference
+        )
     out["failures_by_reason.png"] = plots.failures_figure(
         data.summaries, failure_reasons(data.summaries)
     )
-    out["ratio_to_limit.png"] = plots.ratio_figure(data.records)
+    out["ratio_to_limit.png"] = plots.ratio_figure(data.records, colours, data.reference)
     return out
 
 
@@ -264,6 +304,15 @@ STYLE = (
 )
 
 
+def _img(name: str, png: bytes) -> str:
+    """A figure embedded as base64 (the page stays one file)."""
+    encoded = base64.b64encode(png).decode("ascii")
+    return (
+        f'<figure><img alt="{html.escape(name)}" src="data:image/png;base64,{encoded}">'
+        f"<figcaption>{html.escape(name)}</figcaption></figure>"
+    )
+
+
 def html_page(data: ReportData, images: dict[str, bytes]) -> str:
     """The leaderboard as one self-contained HTML page (images inlined as base64)."""
     esc = html.escape
@@ -274,6 +323,9 @@ def html_page(data: ReportData, images: dict[str, bytes]) -> str:
         f"<h1>capture-bench leaderboard: {esc(_title(data, ''))}</h1>",
         f"<p>Regenerate with:</p><pre><code>{esc(data.command)}</code></pre>",
         f"<p>{esc(data.description)}</p>",
+        "<h2>Summary</h2>",
+        *(_img(name, images[name]) for name in SUMMARY_FIGURES),
+        f"<p>{esc(summary_text(data))}</p>",
         f"<h2>Overall ranking</h2><p>{esc(RANKING_RULE)}</p>",
         _html_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
         f"<p>{esc(NOTES)}</p>",
@@ -284,12 +336,9 @@ def html_page(data: ReportData, images: dict[str, bytes]) -> str:
         parts.append(_html_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells]))
         parts.append(_html_table(DETAIL_HEADER, [detail_cells(s) for s in cells]))
     parts.append("<h2>Figures</h2>")
-    for name in figure_names(data):
-        encoded = base64.b64encode(images[name]).decode("ascii")
-        parts.append(
-            f'<figure><img alt="{esc(name)}" src="data:image/png;base64,{encoded}">'
-            f"<figcaption>{esc(name)}</figcaption></figure>"
-        )
+    parts += [
+        _img(name, images[name]) for name in figure_names(data) if name not in SUMMARY_FIGURES
+    ]
     parts.append("</body></html>")
     return "\n".join(parts)
 

@@ -1,0 +1,137 @@
+"""The report's summary, taken in at a glance (issue 15 point 1): what the heatmap, the ranking
+plot and the probability-of-improvement matrix at the top of the HTML show, as numbers.
+
+* **heatmap**: agent x scenario, the capture rate and the median ratio to the physical limit of
+  each cell (the same :class:`~capture_bench.evaluation.aggregate.Summary` figures as the
+  tables);
+* **ranking with intervals**: each agent's mean capture rate over scenarios (the ranking's
+  number) with a 95% percentile-bootstrap interval, resampling the published seeds within each
+  scenario, the same resample for every agent (paired); two neighbours in the ranking are
+  *indistinguishable* when the interval of their paired difference contains 0;
+* **probability of improvement** P(X > Y), rliable's definition (Agarwal et al. 2021): per
+  scenario, the Mann-Whitney U statistic of X's episode scores against Y's over n * m (ties count
+  1/2; ``scipy.stats.mannwhitneyu``), averaged over scenarios. An episode's score is
+  physical limit / capture time, in (0, 1], and 0 for a failure, so a capture beats a failure and
+  a faster capture a slower one.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from capture_bench.evaluation.aggregate import RankingRow, Summary
+from capture_bench.evaluation.rollout import EpisodeRecord
+
+BOOTSTRAP_RESAMPLES = 2000
+BOOTSTRAP_SEED = 0
+
+
+@dataclass(frozen=True)
+class RankedInterval:
+    """One ranked agent: the mean capture rate over scenarios and its 95% interval; whether it
+    is indistinguishable from the agent ranked just above it (None for the first)."""
+
+    agent: str
+    mean_capture_rate: float
+    low: float
+    high: float
+    tied_with_previous: bool | None
+
+
+def _by_cell(records: Sequence[EpisodeRecord]) -> dict[tuple[str, str], dict[int, EpisodeRecord]]:
+    cells: dict[tuple[str, str], dict[int, EpisodeRecord]] = {}
+    for r in records:
+        cells.setdefault((r.agent, r.scenario), {})[r.seed] = r
+    return cells
+
+
+def score(record: EpisodeRecord) -> float:
+    """physical limit / capture time for a capture with a finite positive bound (1 where the
+    bound is not finite: a capture the bound says is impossible counts as fastest), 0 for a
+    failure."""
+    if record.outcome != "captured":
+        return 0.0
+    ratio = record.ratio
+    return 1.0 / ratio if math.isfinite(ratio) and ratio > 0 else 1.0
+
+
+def ranking_intervals(
+    records: Sequence[EpisodeRecord], ranking: Sequence[RankingRow]
+) -> list[RankedInterval]:
+    """The ranked (not privileged) agents, in ranking order, with bootstrap intervals of their
+    mean capture rate over scenarios and the neighbour test (module docstring)."""
+    ranked = [r.agent for r in ranking if not r.privileged]
+    cells = _by_cell(records)
+    scenarios = sorted({s for (_, s) in cells})
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    # captured[agent] -> per scenario an array over that scenario's seeds (sorted)
+    captured: dict[str, list[np.ndarray]] = {a: [] for a in ranked}
+    draws = []
+    for scenario in scenarios:
+        # every seed any agent played here; a seed an agent did not play counts as a failure
+        seeds = sorted({seed for a in ranked for seed in cells.get((a, scenario), {})})
+        for agent in ranked:
+            row = cells.get((agent, scenario), {})
+            played = [s in row and row[s].outcome == "captured" for s in seeds]
+            captured[agent].append(np.array(played, float))
+        draws.append(rng.integers(0, len(seeds), (BOOTSTRAP_RESAMPLES, len(seeds))))
+    boot = {
+        agent: np.mean([c[d].mean(axis=1) for c, d in zip(captured[agent], draws)], axis=0)
+        for agent in ranked
+    }
+    out = []
+    for i, agent in enumerate(ranked):
+        mean = float(np.mean([c.mean() for c in captured[agent]]))
+        low, high = np.percentile(boot[agent], [2.5, 97.5])
+        tied = None
+        if i:
+            diff = boot[ranked[i - 1]] - boot[agent]
+            d_low, d_high = np.percentile(diff, [2.5, 97.5])
+            tied = bool(d_low <= 0.0 <= d_high)
+        out.append(RankedInterval(agent, mean, float(low), float(high), tied))
+    return out
+
+
+def probability_of_improvement(
+    records: Sequence[EpisodeRecord], agents: Sequence[str]
+) -> np.ndarray:
+    """P[i, j] = P(agents[i] > agents[j]) (module docstring); the diagonal is 1/2."""
+    from scipy.stats import mannwhitneyu
+
+    cells = _by_cell(records)
+    scenarios = sorted({s for (_, s) in cells})
+    n = len(agents)
+    out = np.full((n, n), 0.5)
+    for i in range(n):
+        for j in range(n):
+            if i == j:
+                continue
+            values = []
+            for scenario in scenarios:
+                x = [score(r) for r in cells.get((agents[i], scenario), {}).values()]
+                y = [score(r) for r in cells.get((agents[j], scenario), {}).values()]
+                if x and y:
+                    u = mannwhitneyu(x, y, alternative="two-sided").statistic
+                    values.append(float(u) / (len(x) * len(y)))
+            out[i, j] = float(np.mean(values)) if values else math.nan
+    return out
+
+
+def heatmap_cells(
+    summaries: Sequence[Summary], agents: Sequence[str], scenarios: Sequence[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(capture rate, median ratio to the limit) per agent x scenario; NaN where absent."""
+    rate = np.full((len(agents), len(scenarios)), math.nan)
+    ratio = np.full_like(rate, math.nan)
+    index = {(s.agent, s.scenario): s for s in summaries}
+    for i, agent in enumerate(agents):
+        for j, scenario in enumerate(scenarios):
+            s = index.get((agent, scenario))
+            if s is not None:
+                rate[i, j] = s.capture_rate.value
+                ratio[i, j] = s.figures["ratio_median"].value
+    return rate, ratio

@@ -1,0 +1,105 @@
+"""The report's summary (issue 15 point 1): its numbers equal the tables' (ranking, intervals,
+heatmap cells), the probability of improvement is rliable's definition (checked by brute force),
+and every summary plot is written and embedded in the one-file HTML."""
+
+from __future__ import annotations
+
+import base64
+import math
+
+import numpy as np
+import pytest
+
+from capture_bench.evaluation import pipeline
+from capture_bench.evaluation.cli import main
+from capture_bench.evaluation.report import SUMMARY_FIGURES, summary_text
+from capture_bench.evaluation.summary import (
+    heatmap_cells,
+    probability_of_improvement,
+    ranking_intervals,
+    score,
+)
+
+AGENTS = "incremental_ik,pure_pursuit,intercept,hold"
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    """4 agents x 2 scenarios x 6 seeds, serial; the ReportData and the report folder."""
+    out = tmp_path_factory.mktemp("summary")
+    seen = {}
+    original = pipeline.write_report
+
+    def keep(data, root):
+        seen["data"] = data
+        return original(data, root)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(pipeline, "write_report", keep)
+    try:
+        argv = ["--agents", AGENTS, "--scenarios", "paper,tumbling", "--episodes", "6",
+                "--workers", "1", "--out", str(out)]  # fmt: skip
+        assert main(argv) == 0
+    finally:
+        mp.undo()
+    (folder,) = [p for p in out.iterdir() if p.is_dir()]
+    return seen["data"], folder
+
+
+def test_the_ranking_plot_has_the_rankings_numbers_and_intervals_around_them(report):
+    data, _ = report
+    rows = ranking_intervals(data.records, data.ranking)
+    ranked = [r for r in data.ranking if not r.privileged]
+    assert [r.agent for r in rows] == [r.agent for r in ranked]
+    for row, line in zip(rows, ranked):
+        assert row.mean_capture_rate == pytest.approx(line.mean_capture_rate, abs=1e-12)
+        assert row.low <= row.mean_capture_rate <= row.high
+    assert rows[0].tied_with_previous is None
+    assert rows[-1].agent == "hold" and rows[-1].high == 0.0  # hold never captures
+    assert rows[-1].tied_with_previous is False  # 0 against a captured share: distinguishable
+
+
+def test_the_heatmap_cells_are_the_tables(report):
+    data, _ = report
+    agents = [r.agent for r in data.ranking]
+    scenarios = ["paper", "tumbling"]
+    rate, ratio = heatmap_cells(data.summaries, agents, scenarios)
+    for s in data.summaries:
+        i, j = agents.index(s.agent), scenarios.index(s.scenario)
+        assert rate[i, j] == s.capture_rate.value
+        want = s.figures["ratio_median"].value
+        assert ratio[i, j] == want or (math.isnan(ratio[i, j]) and math.isnan(want))
+
+
+def test_probability_of_improvement_is_rliables_definition_by_brute_force(report):
+    data, _ = report
+    agents = [r.agent for r in data.ranking]
+    matrix = probability_of_improvement(data.records, agents)
+    for i, a in enumerate(agents):
+        for j, b in enumerate(agents):
+            if i == j:
+                assert matrix[i, j] == 0.5
+                continue
+            per = []
+            for scenario in ("paper", "tumbling"):
+                x = [score(r) for r in data.records if r.agent == a and r.scenario == scenario]
+                y = [score(r) for r in data.records if r.agent == b and r.scenario == scenario]
+                per.append(np.mean([(u > v) + 0.5 * (u == v) for u in x for v in y]))
+            assert matrix[i, j] == pytest.approx(np.mean(per), abs=1e-12)
+            assert matrix[i, j] + matrix[j, i] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_every_summary_plot_is_written_and_embedded_first(report):
+    data, folder = report
+    html = (folder / "leaderboard.html").read_text()
+    md = (folder / "leaderboard.md").read_text()
+    positions = []
+    for name in SUMMARY_FIGURES:
+        png = (folder / name).read_bytes()
+        assert png.startswith(b"\x89PNG")
+        encoded = base64.b64encode(png).decode("ascii")
+        assert encoded in html
+        positions.append(html.index(encoded))
+        assert f"![{name}]({name})" in md
+    assert max(positions) < html.index("<h2>Overall ranking</h2>")  # the summary comes first
+    assert summary_text(data) in html and 'src="http' not in html
