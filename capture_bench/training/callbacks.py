@@ -33,27 +33,12 @@ from capture_bench.training.episode_stats import (
     finite_items,
     summarize,
 )
-from capture_bench.training.policy_export import BestModel, policy_metadata, recorded_wall_time
-
-#: Every validation of a run, one row each: ``step``, ``wall_time_s`` (training time of the run
-#: so far, validations included), then the statistics. Read by :mod:`capture_bench.training.curves`.
-VALIDATIONS_FILE = "validations.csv"
-
-
-def append_validation(
-    run_dir: Path, step: int, wall_time_s: float, stats: dict[str, float]
-) -> None:
-    """Append one validation's row to ``run_dir/validations.csv`` (header on first write)."""
-    import csv
-
-    path = Path(run_dir) / VALIDATIONS_FILE
-    fields = ["step", "wall_time_s", *stats]
-    new = not path.is_file()
-    with open(path, "a", newline="") as handle:
-        writer = csv.DictWriter(handle, fields)
-        if new:
-            writer.writeheader()
-        writer.writerow({"step": step, "wall_time_s": round(wall_time_s, 2), **stats})
+from capture_bench.training.policy_export import (
+    BestModel,
+    append_validation,
+    policy_metadata,
+    recorded_wall_time,
+)
 
 
 class ToleranceCurriculum(BaseCallback):
@@ -300,10 +285,10 @@ class Progress(BaseCallback):
         if self.run_dir is not None:
             wall = recorded_wall_time(self.run_dir) + time.perf_counter() - self._session_start
             append_validation(self.run_dir, self.num_timesteps, wall, result)
-        if self.best is not None and self.run_dir is not None:
-            metadata = policy_metadata(self.model, self.config, self.hp, wall, sb3_files=False)
-            if self.best.offer(self.model, result, seeds, metadata):
-                line += f"; best so far -> {self.best.directory}"
+            if self.best is not None:
+                metadata = policy_metadata(self.model, self.config, self.hp, wall, sb3_files=False)
+                if self.best.offer(self.model, result, seeds, metadata):
+                    line += f"; best so far -> {self.best.directory}"
         print(line, flush=True)
         return result
 

@@ -14,7 +14,7 @@ seeds, and writes one report page, ``learning_curves.md`` and a self-contained
 * the machine the runs were measured on.
 
 Every number comes from the runs' ``validations.csv`` (written by train.py's periodic
-validation: :data:`capture_bench.training.callbacks.VALIDATIONS_FILE`), so the page is
+validation: :data:`capture_bench.training.policy_export.VALIDATIONS_FILE`), so the page is
 regenerated without training again. Validation seeds only: nothing here reads a published
 evaluation seed. Wall-clock time is the run's training time including its validations.
 """
@@ -37,8 +37,8 @@ import numpy as np
 from capture_bench.argparsing import OneLineParser
 from capture_bench.files import atomic_write, check_writable
 from capture_bench.task.scenarios import ConfigError, load_scenario
+from capture_bench.training.policy_export import VALIDATIONS_FILE
 
-VALIDATIONS_FILE = "validations.csv"  # capture_bench.training.callbacks.VALIDATIONS_FILE
 METRICS = (
     ("capture_rate", "validation capture rate"),
     ("median_ratio_to_limit", "median ratio to the physical limit"),

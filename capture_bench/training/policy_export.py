@@ -35,6 +35,27 @@ SELECTION_RULE = (
 )
 
 
+#: Every validation of a run, one row each: ``step``, ``wall_time_s`` (training time of the run
+#: so far, validations included), then the statistics. Read by :mod:`capture_bench.training.curves`.
+VALIDATIONS_FILE = "validations.csv"
+
+
+def append_validation(
+    run_dir: Path, step: int, wall_time_s: float, stats: dict[str, float]
+) -> None:
+    """Append one validation's row to ``run_dir/validations.csv`` (header on first write)."""
+    import csv
+
+    path = Path(run_dir) / VALIDATIONS_FILE
+    fields = ["step", "wall_time_s", *stats]
+    new = not path.is_file()
+    with open(path, "a", newline="") as handle:
+        writer = csv.DictWriter(handle, fields)
+        if new:
+            writer.writeheader()
+        writer.writerow({"step": step, "wall_time_s": round(wall_time_s, 2), **stats})
+
+
 def recorded_wall_time(run_dir: Path) -> float:
     """Training time of the run's finished sessions (``wall_time.json``), s; 0 if none."""
     path = Path(run_dir) / WALL_TIME_FILE
