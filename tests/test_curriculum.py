@@ -75,3 +75,16 @@ def test_curriculum_steps_alone_is_one_line(tmp_path, capsys):
     assert train.main(argv) == 2
     err = capsys.readouterr().err
     assert "curriculum_tolerance" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_default_curriculum_is_half_the_runs_budget_after_the_options(tmp_path, monkeypatch):
+    import json
+
+    from capture_bench.training import run as training_run
+
+    monkeypatch.setattr(training_run, "train", lambda *args: 0)  # resolve and save only
+    run_dir = tmp_path / "run"
+    argv = ["--set", "curriculum_tolerance=0.05", "--total-timesteps", "8192"]
+    assert train.main([*argv, "--run-dir", str(run_dir)]) == 0
+    hp = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
+    assert hp["curriculum_steps"] == 4096  # not half of ppo.yaml's 3,000,000

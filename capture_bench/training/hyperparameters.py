@@ -176,8 +176,6 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
             f"{source}: key 'curriculum_steps' needs curriculum_tolerance (the starting "
             "tolerance, m) beside it"
         )
-    if "curriculum_tolerance" in out:
-        out.setdefault("curriculum_steps", max(1, out["total_timesteps"] // 2))
     out.setdefault("residual", "none")
     if out["residual"] != "none":
         out.setdefault("residual_scale", 0.5)

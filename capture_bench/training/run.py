@@ -196,6 +196,8 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         if getattr(config, key) is not None:
             hp[key] = getattr(config, key)
     _check_shaping(hp)
+    if "curriculum_tolerance" in hp:  # default: half the run's budget, after the options
+        hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
     if mixed:
