@@ -122,7 +122,8 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
     "ddpg": {**_OFF, **_DETERMINISTIC},
     "tqc": {**_OFF, **_ENTROPY, "top_quantiles_to_drop_per_net": NONNEG_INT},
 }
-#: Features the network computes from the observation (capture_bench/training/features.py).
+#: Features the network computes from the observation: the keys of
+#: capture_bench.training.features.FEATURE_EXTRACTORS (which imports torch; tests check they agree).
 FEATURES = ("flatten", "relative_log_distance")
 _NET = {
     "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),

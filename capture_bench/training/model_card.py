@@ -21,7 +21,7 @@ from typing import Any
 
 from capture_bench.files import atomic_write
 from capture_bench.paths import models_dir
-from capture_bench.task.scenarios import ConfigError
+from capture_bench.task.scenarios import ConfigError, load_scenario
 
 #: The fields every model card has (``metadata.json`` key ``model_card``).
 CARD_FIELDS = ("command", "total_timesteps", "wall_time_s", "hardware", "training_seed",
@@ -82,8 +82,6 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
     scenarios = [s.name for s in mixture_scenarios(config["scenario"])]
     validation = {}
     for scenario in scenarios:
-        from capture_bench.task.scenarios import load_scenario
-
         seeds = list(load_scenario(scenario).validation_seeds[:episodes])
         validation[scenario] = validate_policy(tmp, scenario, seeds)
     card = {
