@@ -1,0 +1,140 @@
+"""Episodes to watch (issue 15 point 3): ``evaluate.py --video DIR`` writes playable GIFs of the
+tables' own episodes, the report embeds the reference and the best-ranked trained model on one
+seed of each scenario, and the suite's ``videos`` key switches it off."""
+
+from __future__ import annotations
+
+import base64
+import csv
+from pathlib import Path
+
+import pytest
+from PIL import Image
+from test_evaluation_metrics import record
+
+from capture_bench.evaluation import pipeline
+from capture_bench.evaluation.aggregate import RankingRow
+from capture_bench.evaluation.report import csv_value
+from capture_bench.evaluation.rollout import TIMING_COLUMNS
+from capture_bench.evaluation.suites import SuiteError, load_suite
+from capture_bench.evaluation.video import FRAME_SIZE
+from capture_bench.evaluation.watch import choose_episodes
+from capture_bench.task.scenarios import load_scenario
+from evaluate import main
+
+PAPER_SEEDS = load_scenario("paper").evaluation_seeds
+
+
+def _table_row(report: Path, agent: str, seed: int) -> dict[str, str]:
+    with open(report / "episodes.csv", newline="") as handle:
+        rows = [r for r in csv.DictReader(handle) if (r["agent"], r["seed"]) == (agent, str(seed))]
+    assert len(rows) == 1
+    return {k: v for k, v in rows[0].items() if k not in TIMING_COLUMNS}
+
+
+def _row(episode) -> dict[str, str]:
+    """An EpisodeRecord as its episodes.csv row reads back (timing columns left out)."""
+    return {k: str(csv_value(v)) for k, v in episode.as_row().items() if k not in TIMING_COLUMNS}
+
+
+def test_video_writes_a_playable_gif_of_a_quick_episode(tmp_path):
+    argv = ["--agents", "incremental_ik", "--scenarios", "paper", "--episodes", "1"]
+    argv += ["--workers", "1", "--out", str(tmp_path / "reports")]
+    assert main([*argv, "--video", str(tmp_path / "videos")]) == 0
+    (gif,) = (tmp_path / "videos").iterdir()
+    assert gif.name == f"incremental_ik_paper_seed{PAPER_SEEDS[0]}.gif"
+    with Image.open(gif) as image:
+        assert image.format == "GIF" and image.size == FRAME_SIZE
+        assert image.n_frames > 1 and image.is_animated
+        image.seek(image.n_frames - 1)  # every frame decodes
+    (report,) = (tmp_path / "reports").iterdir()
+    assert gif.read_bytes() == (report / gif.name).read_bytes()  # the report's own, reused
+
+
+@pytest.fixture(scope="module")
+def watched(tmp_path_factory):
+    """The reference and a shipped trained model on paper, 3 seeds; the ReportData and folder."""
+    out = tmp_path_factory.mktemp("watch")
+    seen = {}
+    original = pipeline.write_report
+
+    def keep(data, root):
+        seen["data"] = data
+        return original(data, root)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(pipeline, "write_report", keep)
+    try:
+        argv = ["--agents", "incremental_ik,models/ppo-paper,hold", "--scenarios", "paper",
+                "--episodes", "3", "--workers", "1", "--out", str(out)]  # fmt: skip
+        assert main(argv) == 0
+    finally:
+        mp.undo()
+    (folder,) = [p for p in out.iterdir() if p.is_dir()]
+    return seen["data"], folder
+
+
+def test_the_report_shows_the_reference_and_the_best_trained_model_on_one_seed(watched):
+    data, folder = watched
+    videos = data.videos
+    assert [v.record.agent for v in videos] == ["incremental_ik", "ppo-paper"]
+    reference = [r for r in data.records if r.agent == "incremental_ik"]
+    first_capture = next(r.seed for r in reference if r.captured)
+    assert {v.record.seed for v in videos} == {first_capture}
+    for video in videos:  # the same episode as the table's: outcome, failure, steps, times
+        assert _row(video.record) == _table_row(folder, video.record.agent, video.record.seed)
+    html = (folder / "leaderboard.html").read_text()
+    md = (folder / "leaderboard.md").read_text()
+    assert html.count("data:image/gif;base64,") == 2 and "<h2>Episodes to watch</h2>" in html
+    for video in videos:
+        written = (folder / video.file_name).read_bytes()
+        assert written == video.gif and written.startswith(b"GIF89a")
+        assert base64.b64encode(written).decode("ascii") in html
+        assert f"({video.file_name})" in md and video.caption() in html
+    assert "captured at" in videos[0].caption() and f"seed {first_capture}" in videos[0].caption()
+
+
+def _ranking(*agents: str) -> list[RankingRow]:
+    return [RankingRow(a, k + 1, 0.5, 1.2, 1, False) for k, a in enumerate(agents)]
+
+
+def test_the_seed_is_the_first_the_reference_captured_and_models_are_ranked():
+    records = [
+        record("incremental_ik", 1, None),
+        record("incremental_ik", 2, 1.5),
+        record("incremental_ik", 3, 1.2),
+        record("incremental_ik", 1, None, scenario="drift"),
+        record("model_b", 1, 1.0),
+        record("model_a", 1, 1.0),
+    ]
+    ranking = _ranking("model_b", "incremental_ik", "model_a", "hold")
+    (paper, drift) = choose_episodes(records, ranking, "incremental_ik", {"model_a", "model_b"})
+    assert (paper.scenario, paper.seed, paper.agents) == ("paper", 2, ("incremental_ik", "model_b"))
+    assert (drift.scenario, drift.seed) == ("drift", 1)  # captured on none: the first seed
+    only = choose_episodes(records, ranking, "incremental_ik", set())  # no trained model
+    assert [w.agents for w in only] == [("incremental_ik",), ("incremental_ik",)]
+    without = choose_episodes(records[4:5], _ranking("model_b"), "incremental_ik", {"model_b"})
+    assert [(w.agents, w.seed) for w in without] == [(("model_b",), 1)]
+    assert choose_episodes(records, ranking, "absent", set()) == []
+
+
+def test_a_suite_without_videos_writes_none_and_a_bad_value_names_the_key(tmp_path):
+    suite = tmp_path / "still.yaml"
+    suite.write_text("agents: [hold]\nscenarios: [tumbling]\nepisodes: 1\nvideos: false\n")
+    assert load_suite(suite).videos is False and load_suite("default").videos is True
+    assert main(["--suite", str(suite), "--workers", "1", "--out", str(tmp_path / "r")]) == 0
+    report = tmp_path / "r" / "still"
+    assert not list(report.glob("*.gif"))
+    assert "Episodes to watch" not in (report / "leaderboard.html").read_text()
+    suite.write_text("agents: [hold]\nscenarios: [paper]\nepisodes: 1\nvideos: sometimes\n")
+    with pytest.raises(SuiteError, match="videos.*true or false"):
+        load_suite(suite)
+
+
+@pytest.mark.parametrize("episodes", ["0", "4"])
+def test_video_episodes_outside_the_evaluated_ones_is_one_line_exit_2(episodes, tmp_path, capsys):
+    argv = ["--suite", "quick", "--video", str(tmp_path / "v"), "--video-episodes", episodes]
+    assert main([*argv, "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"--video-episodes {episodes}" in err
+    assert not (tmp_path / "r").exists() and not (tmp_path / "v").exists()
