@@ -1,6 +1,7 @@
 """Episodes to watch (issue 15 point 3): ``evaluate.py --video DIR`` writes playable GIFs of the
 tables' own episodes, the report embeds the reference and the best-ranked trained model on one
-seed of each scenario, and the suite's ``videos`` key switches it off."""
+seed of each scenario, the suite's ``videos`` key switches it off, and gymnasium's
+``RecordVideo`` works over the env with the ``video`` extra."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import base64
 import csv
 from pathlib import Path
 
+import gymnasium
+import numpy as np
 import pytest
 from PIL import Image
 from test_evaluation_metrics import record
@@ -138,3 +141,32 @@ def test_video_episodes_outside_the_evaluated_ones_is_one_line_exit_2(episodes, 
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and f"--video-episodes {episodes}" in err
     assert not (tmp_path / "r").exists() and not (tmp_path / "v").exists()
+
+
+def test_record_video_writes_an_mp4_over_the_registered_env(tmp_path):
+    pytest.importorskip(
+        "moviepy",
+        reason="gymnasium's RecordVideo needs moviepy: pip install 'capture-bench[video]'",
+    )
+    from agents import make_agent
+
+    env = gymnasium.make("CaptureBench/Paper-v0", render_mode="rgb_array", render_size=(160, 120))
+    env = gymnasium.wrappers.RecordVideo(env, str(tmp_path / "videos"), disable_logger=True)
+    agent = make_agent("incremental_ik", env)
+    observation, _ = env.reset(seed=PAPER_SEEDS[0])
+    done, steps = False, 0
+    while not done:
+        action, _ = agent.predict(observation, deterministic=True)
+        observation, _, terminated, truncated, _ = env.step(np.asarray(action))
+        done, steps = terminated or truncated, steps + 1
+    env.close()
+    (video,) = (tmp_path / "videos").glob("*.mp4")
+    assert video.read_bytes()[4:8] == b"ftyp"  # an MP4 container
+    from moviepy.video.io.VideoFileClip import VideoFileClip  # the path of moviepy 1 and 2
+
+    clip = VideoFileClip(str(video))
+    try:  # a frame after reset and after each step, at the env's render_fps (20)
+        assert list(clip.size) == [160, 120] and steps > 1
+        assert clip.duration == pytest.approx((steps + 1) / 20, abs=0.06)
+    finally:
+        clip.close()
