@@ -15,7 +15,6 @@ import pytest
 from PIL import Image
 from test_evaluation_metrics import record
 
-from capture_bench.evaluation import pipeline
 from capture_bench.evaluation.aggregate import RankingRow
 from capture_bench.evaluation.report import csv_value
 from capture_bench.evaluation.rollout import TIMING_COLUMNS
@@ -55,26 +54,11 @@ def test_video_writes_a_playable_gif_of_a_quick_episode(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def watched(tmp_path_factory):
-    """The reference and a shipped trained model on paper, 3 seeds; the ReportData and folder."""
-    out = tmp_path_factory.mktemp("watch")
-    seen = {}
-    original = pipeline.write_report
-
-    def keep(data, root):
-        seen["data"] = data
-        return original(data, root)
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(pipeline, "write_report", keep)
-    try:
-        argv = ["--agents", "incremental_ik,models/ppo-paper,hold", "--scenarios", "paper",
-                "--episodes", "3", "--workers", "1", "--out", str(out)]  # fmt: skip
-        assert main(argv) == 0
-    finally:
-        mp.undo()
-    (folder,) = [p for p in out.iterdir() if p.is_dir()]
-    return seen["data"], folder
+def watched(tmp_path_factory, evaluated):
+    """The reference, a shipped trained model and hold on paper, 3 seeds; the ReportData and the
+    report folder."""
+    argv = ["--agents", "incremental_ik,models/ppo-paper,hold", "--scenarios", "paper"]
+    return evaluated([*argv, "--episodes", "3", "--workers", "1"], tmp_path_factory.mktemp("w"))
 
 
 def test_the_report_shows_the_reference_and_the_best_trained_model_on_one_seed(watched):
