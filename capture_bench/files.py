@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -51,3 +52,13 @@ def atomic_write(path: Path, data: bytes | None = None, writer: Any = None) -> N
     else:
         writer(str(tmp))
     os.replace(tmp, path)
+
+
+def episode_file_name(agent: str, scenario: str, seed: int, suffix: str) -> str:
+    """The file of one episode's figure or video: ``<agent>_<scenario>_seed<seed><suffix>``, every
+    run of characters other than letters, digits, ``_``, ``.`` and ``-`` replaced by ``_``."""
+
+    def safe(name: str) -> str:
+        return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+    return f"{safe(agent)}_{safe(scenario)}_seed{seed}{suffix}"

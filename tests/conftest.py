@@ -1,4 +1,4 @@
-"""Shared fixtures: environments that are always closed."""
+"""Shared fixtures: environments that are always closed; an evaluation's report and its data."""
 
 import tempfile
 from pathlib import Path
@@ -27,3 +27,27 @@ def make_env():
     yield _make
     for env in made:
         env.close()
+
+
+@pytest.fixture(scope="session")
+def evaluated():
+    """``evaluated(argv, out)`` runs ``evaluate.py`` with ``argv`` (``--out out`` added) and
+    returns ``(the ReportData it wrote, the report folder)``."""
+    from capture_bench.evaluation import pipeline
+    from capture_bench.evaluation.cli import main
+
+    def run(argv: list[str], out: Path):
+        seen = {}
+        original = pipeline.write_report
+
+        def keep(data, root):
+            seen["data"] = data
+            return original(data, root)
+
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(pipeline, "write_report", keep)
+            assert main([*argv, "--out", str(out)]) == 0
+        (folder,) = [p for p in out.iterdir() if p.is_dir()]
+        return seen["data"], folder
+
+    return run

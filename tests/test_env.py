@@ -365,6 +365,16 @@ def test_rgb_array_render_shows_something(make_env):
     assert image.std() > 5
 
 
+def test_render_size_sets_the_image_size_and_is_checked(make_env):
+    env = make_env(render_mode="rgb_array", render_size=(160, 120))
+    env.reset(seed=0)
+    env.step(np.ones(3, np.float32))
+    assert env.render().shape == (120, 160, 3)
+    for bad in ((0, 120), (160,), "160x120", (160.0, 120), None):
+        with pytest.raises(ValueError, match="render_size must be"):
+            CaptureEnv("paper", render_size=bad)
+
+
 def test_docstring_documents_every_argument_and_failure():
     doc = CaptureEnv.__doc__
     for name in inspect.signature(CaptureEnv.__init__).parameters:

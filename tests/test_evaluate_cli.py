@@ -127,8 +127,11 @@ def test_quick_suite_writes_every_file_with_consistent_aggregates(quick_report):
     parser = Images()
     parser.feed((quick_report / "leaderboard.html").read_text())
     parser.close()
-    assert len(parser.sources) == 7  # 3 summary figures, 2 survival, failures, ratio
-    assert all(s.startswith("data:image/png;base64,") for s in parser.sources)
+    pngs = [s for s in parser.sources if s.startswith("data:image/png;base64,")]
+    gifs = [s for s in parser.sources if s.startswith("data:image/gif;base64,")]
+    assert len(pngs) == 7  # 3 summary figures, 2 survival, failures, ratio
+    assert len(gifs) == 2 and len(parser.sources) == 9  # the reference on paper and tumbling
+    assert len(list(quick_report.glob("incremental_ik_*_seed*.gif"))) == 2
 
 
 def _same_results(a: Path, b: Path) -> None:

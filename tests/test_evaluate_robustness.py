@@ -26,7 +26,7 @@ def one_line_error(capsys, argv: list[str], *expected: str) -> None:
         assert text in err, err
 
 
-@pytest.mark.parametrize("option", ["--out", "--episode-plots"])
+@pytest.mark.parametrize("option", ["--out", "--episode-plots", "--video"])
 def test_an_unwritable_output_folder_is_refused_before_any_episode(option, tmp_path, capsys):
     blocker = tmp_path / "a-file"
     blocker.write_text("")

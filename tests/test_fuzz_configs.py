@@ -387,6 +387,7 @@ SUITE_SPEC = {
     "scenarios": _kind(st.one_of(NAMES, st.just("all")), st.one_of(st.just([]), JUNK_TEXT.filter(lambda s: s != "all"), SCALARS, st.lists(st.one_of(st.just(""), st.none()), min_size=1, max_size=2))),
     "episodes": _kind(st.integers(1, 10**6), st.one_of(st.integers(-(10**6), 0), st.floats(), st.booleans(), NON_NUMBERS, HUGE_INT.map(lambda n: -n))),
     "reference": _kind(JUNK_TEXT.filter(bool), st.one_of(st.just(""), NON_STRINGS)),
+    "videos": _kind(st.booleans(), st.one_of(st.integers(0, 1), st.sampled_from(["true", "yes"]), st.none(), st.floats())),
 }  # fmt: skip
 REQUIRED_SUITE_KEYS = ("agents", "scenarios", "episodes")
 
@@ -394,7 +395,7 @@ REQUIRED_SUITE_KEYS = ("agents", "scenarios", "episodes")
 @st.composite
 def suites(draw: st.DrawFn) -> tuple[dict[str, Any], set[str]]:
     """A suite mapping and the keys made invalid (empty: a valid suite)."""
-    optional = draw(st.lists(st.sampled_from(["description", "reference"]), unique=True))
+    optional = draw(st.lists(st.sampled_from(["description", "reference", "videos"]), unique=True))
     data = {k: draw(SUITE_SPEC[k]["valid"]) for k in [*REQUIRED_SUITE_KEYS, *optional]}
     bad: set[str] = set()
     for _ in range(draw(st.integers(0, 2))):
@@ -429,6 +430,7 @@ def test_a_suite_file_loads_as_written_or_is_a_suite_error_naming_the_file_and_k
         assert suite.episodes == data["episodes"]
         assert suite.description == data.get("description", "")
         assert suite.reference == data.get("reference", "incremental_ik")
+        assert suite.videos is data.get("videos", True)
         return
     with pytest.raises(SuiteError) as raised:
         load_suite(path)

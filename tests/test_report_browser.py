@@ -1,7 +1,7 @@
 """The HTML report in a real browser (issue 15 point 4): headless Chromium (Debian's ``chromium``
 and ``chromium-driver``, which ``.ci/run`` installs where missing, driven by selenium) opens
-``leaderboard.html``: it renders, every image loads, and the console shows no error. Skipped, with
-the reason, only where Chromium cannot be had."""
+``leaderboard.html``: it renders, every image loads (the episodes' GIFs too), and the console shows
+no error. Skipped, with the reason, only where Chromium cannot be had."""
 
 from __future__ import annotations
 
@@ -54,6 +54,11 @@ def _check_page(driver, page: Path) -> None:
 def test_a_fresh_report_renders_with_every_image_and_no_console_error(browser, tmp_path):
     assert main(["--suite", "quick", "--workers", "1", "--out", str(tmp_path)]) == 0
     _check_page(browser, tmp_path / "quick" / "leaderboard.html")
+    gifs = browser.execute_script(  # the episodes to watch (issue 15 point 3), animated
+        "return Array.from(document.images).filter(i => i.src.startsWith('data:image/gif'))"
+        ".map(i => [i.naturalWidth, i.naturalHeight])"
+    )
+    assert gifs == [[320, 240], [320, 240]]  # the reference on paper and on tumbling
 
 
 def test_the_committed_leaderboard_renders_with_every_image_and_no_console_error(browser):

@@ -10,8 +10,6 @@ import math
 import numpy as np
 import pytest
 
-from capture_bench.evaluation import pipeline
-from capture_bench.evaluation.cli import main
 from capture_bench.evaluation.report import SUMMARY_FIGURES, summary_text
 from capture_bench.evaluation.summary import (
     heatmap_cells,
@@ -24,26 +22,10 @@ AGENTS = "incremental_ik,pure_pursuit,intercept,hold"
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory):
+def report(tmp_path_factory, evaluated):
     """4 agents x 2 scenarios x 6 seeds, serial; the ReportData and the report folder."""
-    out = tmp_path_factory.mktemp("summary")
-    seen = {}
-    original = pipeline.write_report
-
-    def keep(data, root):
-        seen["data"] = data
-        return original(data, root)
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(pipeline, "write_report", keep)
-    try:
-        argv = ["--agents", AGENTS, "--scenarios", "paper,tumbling", "--episodes", "6",
-                "--workers", "1", "--out", str(out)]  # fmt: skip
-        assert main(argv) == 0
-    finally:
-        mp.undo()
-    (folder,) = [p for p in out.iterdir() if p.is_dir()]
-    return seen["data"], folder
+    argv = ["--agents", AGENTS, "--scenarios", "paper,tumbling", "--episodes", "6"]
+    return evaluated([*argv, "--workers", "1"], tmp_path_factory.mktemp("summary"))
 
 
 def test_the_ranking_plot_has_the_rankings_numbers_and_intervals_around_them(report):

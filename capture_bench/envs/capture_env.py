@@ -90,6 +90,22 @@ def check_actions(actions: Any, shape: tuple[int, ...], name: str) -> NDArray[np
     return a
 
 
+def _check_render_size(size: Any) -> tuple[int, int]:
+    """``size`` as (width, height) in pixels, or ``ValueError`` saying what is valid."""
+    try:
+        width, height = size
+    except (TypeError, ValueError):
+        width = height = None
+    if not all(
+        isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 1
+        for n in (width, height)
+    ):
+        raise ValueError(
+            f"render_size must be (width, height), two whole numbers >= 1; got {size!r}"
+        )
+    return int(width), int(height)
+
+
 class CaptureEnv(gym.Env):
     """Capture a drifting or tumbling target with the 3-joint arm of Dong & Zhu (2016).
 
@@ -172,7 +188,10 @@ class CaptureEnv(gym.Env):
     ``scenario``: a shipped name (``capture_bench.task.scenarios.list_scenarios()``), a YAML path
     or a ``Scenario``. ``observation_source``: ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
     (default: the scenario's). ``reward``: ``"dense"``, ``"sparse"`` or ``"shaped"``.
-    ``render_mode``: ``"rgb_array"`` or ``"human"``. ``reuse_target_side``: when True,
+    ``render_mode``: ``"rgb_array"`` or ``"human"``. ``render_size``: (width, height) of the image
+    ``render()`` returns, pixels, default (640, 480) (a video of many episodes asks for less:
+    pybullet's TinyRenderer takes ~50 ms a frame at 640 x 480, ~12 ms at 320 x 240); two whole
+    numbers >= 1, else ``ValueError``. ``reuse_target_side``: when True,
     ``reset(seed=s)`` records the target's side of the whole episode up to the time limit at once
     (trajectory, control periods, camera frames, estimates: a
     :class:`~capture_bench.task.recording.RecordedEpisode`, none of which depends on the actions)
@@ -202,6 +221,7 @@ class CaptureEnv(gym.Env):
         observation_source: str | None = None,
         reward: str = "dense",
         render_mode: str | None = None,
+        render_size: tuple[int, int] = (640, 480),
         reuse_target_side: bool = False,
         episode_cache: EpisodeCache | None = None,
     ) -> None:
@@ -215,6 +235,7 @@ class CaptureEnv(gym.Env):
             )
         self.reward_mode = reward
         self.render_mode = render_mode
+        self.render_size = _check_render_size(render_size)
         self.reuse_target_side = bool(reuse_target_side)
         self.episode_cache = DEFAULT_EPISODE_CACHE if episode_cache is None else episode_cache
         self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
@@ -366,7 +387,8 @@ class CaptureEnv(gym.Env):
         if self.render_mode is None or self._world is None:
             return None
         traces = {k: np.array(v) for k, v in self._traces.items()}
-        image = self._world.render(traces=traces)
+        width, height = self.render_size
+        image = self._world.render(width, height, traces=traces)
         return image if self.render_mode == "rgb_array" else None
 
     def close(self) -> None:

@@ -105,13 +105,19 @@ def close_envs() -> None:
         _ENVS.popitem()[1].close()
 
 
-def run_task(task: EpisodeTask, trace: bool = False) -> tuple[EpisodeRecord, EpisodeTrace | None]:
-    """Run one task in this process (environment cached per scenario, agent built afresh)."""
+def run_task(
+    task: EpisodeTask, trace: bool = False, env: Any = None
+) -> tuple[EpisodeRecord, EpisodeTrace | None]:
+    """Run one task in this process (environment cached per scenario, agent built afresh).
+
+    ``env``: run on this environment of the task's scenario instead of the cached one (a
+    rendering one, :mod:`capture_bench.evaluation.video`), by the same steps: the same episode.
+    """
     key = (task.agent, task.trust_model)
     if key not in _SPECS:
         _SPECS[key] = resolve_agent(task.agent, trust_model=task.trust_model)
     spec = _SPECS[key]
-    env = _env(task.scenario)
+    env = _env(task.scenario) if env is None else env
     agent = build_agent(spec, env, task.seed)
     return run_episode(
         env,

@@ -5,10 +5,13 @@
     python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper --episodes 20
     python evaluate.py --scenarios path/to/my_scenario.yaml --suite quick
     python evaluate.py --workers 1           # serially, in this process (default: every CPU)
+    python evaluate.py --suite quick --video videos/   # also a GIF of each agent's first episode
     python evaluate.py --backend ray --ray-address auto
 
 Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures),
-replacing the previous report only once the new one is complete. ``--agents``, ``--scenarios`` or
+replacing the previous report only once the new one is complete; with the suite's ``videos`` (the
+default) its "Episodes to watch" show the reference and the best-ranked trained model on one seed
+of each scenario as GIFs. ``--agents``, ``--scenarios`` or
 ``--episodes`` that change the suite make a custom selection, written to
 ``<out>/custom-<hash of the selection>/``: ``reports/<suite>/`` only ever holds that suite as
 defined. Bad input (unknown agent, scenario or suite, a missing, corrupt or untrusted model,
@@ -64,6 +67,8 @@ def _epilog() -> str:
         "  python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper",
         "  python evaluate.py --agents runs/paper-ppo-0/best --episodes 20 --workers 2",
         "  python evaluate.py --agents my_agents:MyController   # your own class",
+        "  python evaluate.py --agents models/ppo-paper --scenarios paper --episodes 5 \\",
+        "      --video videos/ --video-episodes 2               # GIFs of the first 2 episodes",
         "",
         f"built-in agents: {', '.join(builtin_names())}",
         f"shipped models:  {', '.join(models) or 'none'}",
@@ -129,6 +134,21 @@ def build_parser() -> argparse.ArgumentParser:
         help="also plot the first episode of every agent x scenario into DIR",
     )
     parser.add_argument(
+        "--video",
+        type=Path,
+        metavar="DIR",
+        help="also record the first episode(s) of every agent x scenario as animated GIFs "
+        "(pybullet frames with the target's and end-effector's traces) into DIR, named "
+        "<agent>_<scenario>_seed<seed>.gif: the same episodes as in episodes.csv",
+    )
+    parser.add_argument(
+        "--video-episodes",
+        type=int,
+        default=1,
+        metavar="K",
+        help="with --video: the first K seeds of each agent x scenario (default 1)",
+    )
+    parser.add_argument(
         "--trust-model",
         action="store_true",
         help="load a model directory that has no safe policy.pt from its SB3 .zip; a .zip holds "
@@ -156,6 +176,8 @@ def parse_config(argv: list[str]) -> EvaluationConfig:
         ray_address=args.ray_address,
         out=args.out,
         episode_plots=args.episode_plots,
+        video=args.video,
+        video_episodes=args.video_episodes,
         trust_model=args.trust_model,
     )
 

@@ -8,9 +8,8 @@
 from __future__ import annotations
 
 import os
-import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,7 @@ from capture_bench.evaluation.agents_loading import (
     expand_specs,
     resolve_agent,
 )
-from capture_bench.evaluation.aggregate import rank_agents, summarise_all
+from capture_bench.evaluation.aggregate import RankingRow, rank_agents, summarise_all
 from capture_bench.evaluation.backends import (
     BACKENDS,
     EpisodeTask,
@@ -43,7 +42,9 @@ from capture_bench.evaluation.provenance import (
 from capture_bench.evaluation.report import ReportData, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
-from capture_bench.files import check_writable
+from capture_bench.evaluation.video import EpisodeVideo, record_video, write_videos
+from capture_bench.evaluation.watch import choose_episodes
+from capture_bench.files import check_writable, episode_file_name
 from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
 
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2. OSError:
@@ -66,6 +67,10 @@ class EvaluationConfig:
         ray_address: Ray cluster address (``ray`` backend); None for a local instance.
         out: reports are written to ``<out>/<suite>/``.
         episode_plots: if set, per-episode figures of the first seed of every agent x scenario.
+        video: if set, animated GIFs of the first ``video_episodes`` seeds of every agent x
+            scenario are written there (:mod:`capture_bench.evaluation.video`).
+        video_episodes: how many seeds of each agent x scenario ``video`` records (>= 1, at most
+            the episodes evaluated).
         trust_model: load a model directory that has no safe policy file from its SB3 ``.zip``
             (pickles, which can run code): only for models whose source you trust.
     """
@@ -79,6 +84,8 @@ class EvaluationConfig:
     ray_address: str | None = None
     out: Path = Path("reports")
     episode_plots: Path | None = None
+    video: Path | None = None
+    video_episodes: int = 1
     trust_model: bool = False
 
     def resolved_workers(self) -> int:
@@ -207,13 +214,22 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         "scenarios": {n: file_sha256(scenario_file(n)) for n in scenarios},
         "models": {s.label: _model_provenance(s) for s in specs if s.kind == "model"},
     }
+    if config.video is not None and not 1 <= config.video_episodes <= suite.episodes:
+        raise EvaluationError(
+            f"--video-episodes {config.video_episodes}: expected a whole number from 1 to the "
+            f"{suite.episodes} episodes evaluated of each agent x scenario"
+        )
     check_writable(config.out, "--out")
     if config.episode_plots is not None:
         check_writable(config.episode_plots, "--episode-plots")
+    if config.video is not None:
+        check_writable(config.video, "--video")
     return Plan(suite, specs, scenarios, seeds, tasks, hashes)
 
 
-def _provenance(plan: Plan, config: EvaluationConfig, command: str, seconds: float) -> dict:
+def _provenance(
+    plan: Plan, config: EvaluationConfig, command: str, seconds: float, videos: dict[str, Any]
+) -> dict:
     return {
         "command": command,
         "git": git_state(),
@@ -231,12 +247,8 @@ def _provenance(plan: Plan, config: EvaluationConfig, command: str, seconds: flo
             for s in plan.agents
         ],
         "backend": {"name": config.resolved_backend(), "workers": config.resolved_workers()},
-        "timing": {"wall_clock_s": seconds, "episodes": len(plan.tasks)},
+        "timing": {"wall_clock_s": seconds, "episodes": len(plan.tasks), **videos},
     }
-
-
-def _safe(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
 
 
 def write_episode_plots(plan: Plan, directory: Path) -> list[Path]:
@@ -251,14 +263,48 @@ def write_episode_plots(plan: Plan, directory: Path) -> list[Path]:
                 seed = plan.seeds[name][0]
                 record, trace = run_task(EpisodeTask(spec.spec, name, seed), trace=True)
                 assert trace is not None
-                path = (
-                    directory / f"{_safe(spec.label)}_{_safe(scenario_label(name))}_seed{seed}.png"
-                )
+                path = directory / episode_file_name(spec.label, scenario_label(name), seed, ".png")
                 path.write_bytes(episode_figure(record, trace))
                 written.append(path)
     finally:
         close_envs()
     return written
+
+
+def record_videos(
+    plan: Plan,
+    config: EvaluationConfig,
+    records: Sequence[EpisodeRecord],
+    ranking: Sequence[RankingRow],
+) -> tuple[list[EpisodeVideo], list[EpisodeVideo]]:
+    """Record the report's episodes to watch (if the suite has ``videos``) and ``--video``'s
+    episodes, in this process, each episode once; ``records`` are in ``plan.tasks`` order.
+
+    Returns:
+        ``(episodes to watch, --video's episodes)``.
+    """
+    played = {(r.agent, r.scenario, r.seed): (t, r) for t, r in zip(plan.tasks, records)}
+    made: dict[tuple[str, str, int], EpisodeVideo] = {}
+
+    def video(key: tuple[str, str, int]) -> EpisodeVideo:
+        if key not in made:
+            task, record = played[key]
+            made[key] = record_video(task, record.steps)
+        return made[key]
+
+    watched = []
+    if plan.suite.videos:
+        learned = {s.label for s in plan.agents if s.kind == "model"}
+        for w in choose_episodes(records, ranking, plan.suite.reference, learned):
+            watched += [video((agent, w.scenario, w.seed)) for agent in w.agents]
+    requested = []
+    if config.video is not None:
+        requested = [
+            video((r.agent, r.scenario, r.seed))
+            for t, r in zip(plan.tasks, records)
+            if t.seed in plan.seeds[t.scenario][: config.video_episodes]
+        ]
+    return watched, requested
 
 
 def run_evaluation(
@@ -282,6 +328,13 @@ def run_evaluation(
     )
     summaries = summarise_all(records, plan.suite.reference)
     privileged = {s.label for s in plan.agents if s.privileged}
+    ranking = rank_agents(summaries, privileged)
+    seconds = time.perf_counter() - start
+    watched, requested = record_videos(plan, config, records, ranking)
+    video_timing = {
+        "videos": len({v.file_name for v in [*watched, *requested]}),  # each recorded once
+        "videos_wall_clock_s": time.perf_counter() - start - seconds,
+    }
     data = ReportData(
         suite=plan.suite.name,
         description=plan.suite.description,
@@ -289,14 +342,13 @@ def run_evaluation(
         reference=plan.suite.reference,
         records=records,
         summaries=summaries,
-        ranking=rank_agents(summaries, privileged),
-        provenance={},
-    )
-    seconds = time.perf_counter() - start
-    data = ReportData(
-        **{**data.__dict__, "provenance": _provenance(plan, config, command, seconds)}
+        ranking=ranking,
+        provenance=_provenance(plan, config, command, seconds, video_timing),
+        videos=watched,
     )
     target = write_report(data, config.out)
+    if config.video is not None:
+        write_videos(requested, config.video)
     if config.episode_plots is not None:
         write_episode_plots(plan, config.episode_plots)
     return data, target

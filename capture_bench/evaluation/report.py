@@ -1,10 +1,11 @@
 """Write the leaderboard report of one suite into ``<out>/<suite>/``.
 
 Files: ``leaderboard.md`` (headed by the command that regenerates it), ``leaderboard.html`` (one
-self-contained file, figures embedded as base64 PNG), ``results.csv`` (one row per agent x
-scenario), ``episodes.csv`` (one row per episode), ``results.json`` (rows, ranking, provenance) and
-the PNG figures. Everything is written into a temporary directory next to the target and renamed
-into place at the end, so a failed run never leaves a half-written report.
+self-contained file, figures embedded as base64 PNG and the episodes to watch as base64 GIF),
+``results.csv`` (one row per agent x scenario), ``episodes.csv`` (one row per episode),
+``results.json`` (rows, ranking, provenance), the PNG figures and the GIFs. Everything is written
+into a temporary directory next to the target and renamed into place at the end, so a failed run
+never leaves a half-written report.
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from capture_bench.evaluation import plots, summary
+from capture_bench.evaluation import plots, summary, watch
 from capture_bench.evaluation.aggregate import (
     RANKING_RULE,
     RankingRow,
@@ -32,6 +33,9 @@ from capture_bench.evaluation.aggregate import (
 )
 from capture_bench.evaluation.metrics import Estimate
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
+
+if TYPE_CHECKING:
+    from capture_bench.evaluation.video import EpisodeVideo
 
 CSV_FILES = ("results.csv", "episodes.csv")
 
@@ -49,6 +53,7 @@ class ReportData:
         summaries: one per agent x scenario.
         ranking: the overall ranking.
         provenance: JSON-ready provenance (git, hashes, versions, seeds, timing).
+        videos: the episodes to watch (:mod:`capture_bench.evaluation.watch`), in display order.
     """
 
     suite: str
@@ -59,6 +64,7 @@ class ReportData:
     summaries: Sequence[Summary]
     ranking: Sequence[RankingRow]
     provenance: dict[str, Any]
+    videos: Sequence[EpisodeVideo] = ()
 
 
 def csv_value(value: Any) -> Any:
@@ -229,7 +235,8 @@ def markdown(data: ReportData) -> str:
         lines += ["", f"## {scenario}", ""]
         lines += _md_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells])
         lines += ["", *_md_table(DETAIL_HEADER, [detail_cells(s) for s in cells])]
-    lines += ["", f"Figures: {', '.join(figure_names(data))} (in this directory).", ""]
+    lines += ["", *watch.markdown_lines(data.videos)]
+    lines += [f"Figures: {', '.join(figure_names(data))} (in this directory).", ""]
     return "\n".join(lines)
 
 
@@ -301,6 +308,7 @@ STYLE = (
     "table{border-collapse:collapse;margin:1em 0;font-size:0.9em}"
     "th,td{border:1px solid #ccc;padding:0.3em 0.6em;text-align:left}"
     "th{background:#f3f3f3}img{max-width:100%}code,pre{background:#f6f6f6;padding:0.2em}"
+    + watch.STYLE
 )
 
 
@@ -335,6 +343,7 @@ def html_page(data: ReportData, images: dict[str, bytes]) -> str:
         parts.append(f"<h2>{esc(scenario)}</h2>")
         parts.append(_html_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells]))
         parts.append(_html_table(DETAIL_HEADER, [detail_cells(s) for s in cells]))
+    parts.append(watch.html_section(data.videos))
     parts.append("<h2>Figures</h2>")
     parts += [
         _img(name, images[name]) for name in figure_names(data) if name not in SUMMARY_FIGURES
@@ -364,6 +373,8 @@ def _write_all(data: ReportData, directory: Path) -> None:
     images = figures(data)
     for name, png in images.items():
         (directory / name).write_bytes(png)
+    for video in data.videos:
+        (directory / video.file_name).write_bytes(video.gif)
     (directory / "leaderboard.md").write_text(markdown(data))
     (directory / "leaderboard.html").write_text(html_page(data, images))
     payload = {

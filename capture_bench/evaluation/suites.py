@@ -7,6 +7,7 @@ A suite file::
     scenarios: all               # or a list of scenario names
     episodes: 100                # first N published evaluation seeds of each scenario
     reference: incremental_ik    # agent of the paired comparison
+    videos: true                 # the report's "Episodes to watch" (default true)
 
 The suite's name is its file stem. Scenario and agent names are checked against what exists when
 the evaluation is planned; this module checks the file's shape and types.
@@ -44,6 +45,9 @@ class Suite:
         reference: the agent every other one is compared with, seed by seed.
         path: the file it came from.
         sha256: hash of the file's bytes (provenance).
+        videos: the report shows, for each scenario, the reference and the best-ranked trained
+            model on one seed as animated GIFs (:mod:`capture_bench.evaluation.watch`); they are
+            run again with rendering after the evaluation.
     """
 
     name: str
@@ -54,6 +58,7 @@ class Suite:
     reference: str
     path: Path
     sha256: str
+    videos: bool = True
 
 
 _SCHEMA = {  # capture_bench.validation rules
@@ -62,6 +67,7 @@ _SCHEMA = {  # capture_bench.validation rules
     "scenarios": Rule("names", choices=(ALL,)),
     "episodes": Rule("int", 1),
     "reference": Rule("string"),
+    "videos": Rule("bool"),
 }
 
 
@@ -92,6 +98,7 @@ def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite
         reference=checked.get("reference", "incremental_ik"),
         path=path,
         sha256=hashlib.sha256(raw).hexdigest(),
+        videos=checked.get("videos", True),
     )
 
 
