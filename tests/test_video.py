@@ -127,6 +127,13 @@ def test_video_episodes_outside_the_evaluated_ones_is_one_line_exit_2(episodes, 
     assert not (tmp_path / "r").exists() and not (tmp_path / "v").exists()
 
 
+def test_video_episodes_without_video_is_one_line_exit_2(tmp_path, capsys):
+    assert main(["--suite", "quick", "--video-episodes", "2", "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--video-episodes 2" in err and "--video DIR" in err
+    assert not (tmp_path / "r").exists()
+
+
 def test_record_video_writes_an_mp4_over_the_registered_env(tmp_path):
     pytest.importorskip(
         "moviepy",

@@ -144,7 +144,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--video-episodes",
         type=int,
-        default=1,
         metavar="K",
         help="with --video: the first K seeds of each agent x scenario (default 1)",
     )
@@ -165,7 +164,13 @@ def _split(values: list[str] | None) -> list[str] | None:
 
 def parse_config(argv: list[str]) -> EvaluationConfig:
     """Parse the command line into a typed config."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.video_episodes is not None and args.video is None:
+        parser.error(
+            f"--video-episodes {args.video_episodes} records episodes only with --video DIR; "
+            "add --video DIR (the folder for the GIFs) or drop --video-episodes"
+        )
     return EvaluationConfig(
         suite=args.suite,
         agents=_split(args.agents),
@@ -177,7 +182,7 @@ def parse_config(argv: list[str]) -> EvaluationConfig:
         out=args.out,
         episode_plots=args.episode_plots,
         video=args.video,
-        video_episodes=args.video_episodes,
+        video_episodes=1 if args.video_episodes is None else args.video_episodes,
         trust_model=args.trust_model,
     )
 
