@@ -85,6 +85,21 @@ def test_the_saved_resolved_config_trains_the_same_hyperparameters(tmp_path):
     assert json.loads((second / "metadata.json").read_text())["reward"] == "sparse"
 
 
+def test_metadata_names_the_code_the_run_started_from(tmp_path, monkeypatch):
+    """A long run outlives commits made while it trains: metadata.json's git is the state
+    recorded in config.json at the start, and git_at_save the state when it was saved."""
+    import capture_bench.evaluation.provenance as provenance
+
+    states = iter([{"commit": "a" * 40, "dirty": False}, {"commit": "b" * 40, "dirty": True}])
+    monkeypatch.setattr(provenance, "git_state", lambda *a: next(states))
+    run_dir = tmp_path / "run"
+    assert train.main(["--algo", "ppo", *_tiny("ppo"), "--run-dir", str(run_dir)]) == 0
+    assert json.loads((run_dir / "config.json").read_text())["git"]["commit"] == "a" * 40
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    assert meta["git"] == {"commit": "a" * 40, "dirty": False}
+    assert meta["git_at_save"] == {"commit": "b" * 40, "dirty": True}
+
+
 SECTIONS = """\
 n_envs: 4
 total_timesteps: 1000

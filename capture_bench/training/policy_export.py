@@ -97,7 +97,7 @@ def policy_metadata(
         "device": str(model.device),
         "wall_time_s": round(wall_time_s, 1),  # training time over all sessions of the run
         "steps_per_second": round(steps / wall_time_s, 1) if wall_time_s else None,
-        "git": git_state(),
+        **_code_state(config, git_state()),
         "packages": package_versions(),
         "hyperparameters": hp,
         "command": command_line(config),
@@ -105,6 +105,17 @@ def policy_metadata(
         if hp["residual"] == "none"
         else {"base": hp["residual"], "scale": hp["residual_scale"]},
     }
+
+
+def _code_state(config: Any, now: dict[str, object]) -> dict[str, object]:
+    """``{"git": the code the run started from}`` (its ``config.json``; runs started before it
+    was recorded there: the code now), and ``"git_at_save"`` where the code now differs: a long
+    run outlives commits made while it trains, and the policy is the starting code's."""
+    saved = Path(config.run_dir) / "config.json" if config.run_dir else None
+    start = json.loads(saved.read_text()).get("git") if saved and saved.is_file() else None
+    if start is None or start == now:
+        return {"git": now}
+    return {"git": start, "git_at_save": now}
 
 
 def export_policy(directory: Path, model: Any, metadata: dict[str, Any]) -> Path:

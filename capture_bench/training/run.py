@@ -215,7 +215,14 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     _note_rounding(config.algo, hp, hp["total_timesteps"])
     config.run_dir = str(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    payload = {"config": vars(config) | {"resume": None}, "hyperparameters": hp, "origin": origin}
+    from capture_bench.evaluation.provenance import git_state
+
+    payload = {
+        "config": vars(config) | {"resume": None},
+        "hyperparameters": hp,
+        "origin": origin,
+        "git": git_state(),  # the code the run starts from (metadata.json's "git")
+    }
     atomic_write(run_dir / "hyperparameters.yaml", resolved_yaml(config, hp, origin).encode())
     atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
     return config, hp, run_dir, None
