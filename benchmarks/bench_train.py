@@ -15,7 +15,8 @@ checkpoint and save included), so steps/s is what a user waits for:
   config's ``n_envs`` ``FlattenObservation(gym.make("PandaReachDense-v3"))`` in a
   ``VecMonitor``, and the same SB3 algorithm built from the same config with the same keyword
   arguments (``sb3_kwargs``: n_steps, batch size, epochs, net, learning rate, train_freq,
-  gradient steps, ...) and the same torch thread setting, learning N steps.
+  gradient steps, ...; not the capture-bench-only ``features_extractor``) and the same torch
+  thread setting, learning N steps.
 
 The two alternate (capture-bench, panda-gym, capture-bench, ...) so that a drift in the
 machine's speed hits both; each figure is the median over ``--repeats``. "in learn" is the
@@ -54,6 +55,10 @@ def run_panda(algo: str, steps: int) -> None:
     from capture_bench.training.run import set_torch_threads
 
     hp, _ = load_hyperparameters(algo, CONFIGS / f"{algo}.yaml")
+    # The relative-log-distance features read capture-bench's observation layout: panda-gym's
+    # network reads its observation as it is (the same layers; the features' small cost stays on
+    # capture-bench's side of the comparison).
+    hp["policy_kwargs"].pop("features_extractor", None)
     set_torch_threads()
     venv = VecMonitor(
         DummyVecEnv(
