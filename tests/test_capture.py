@@ -184,3 +184,52 @@ def test_leaving_along_the_arc_mid_step_is_seen_where_the_chord_stays_inside():
     done, since = held_capture(stays, 0.98, 1.0, DT, 0.5)
     assert done is None and since == pytest.approx(1.0 + stays[1][0] * DT)
     assert first_entry_along_arc(theta0, delta, on_chord, EPS) == 0.0
+
+
+def _chord_by_chord(theta0, delta, target_at, tolerance):
+    """inside_intervals_along_arc as first written: one scalar inside_interval per chord, the
+    stays joined where one reaches its chord's end and the next starts at its beginning."""
+    import capture_bench.task.capture as capture
+
+    pieces = max(1, math.ceil(math.sqrt(arc_sag_bound(delta) / capture.ARC_RESOLUTION)))
+    s = np.linspace(0.0, 1.0, pieces + 1)
+    relative = forward_kinematics(theta0 + s[:, None] * delta) - target_at(s)
+    intervals, joins = [], False
+    for k in range(pieces):
+        interval = inside_interval(relative[k], relative[k + 1], tolerance)
+        if interval is None:
+            joins = False
+            continue
+        lo, hi = interval
+        if joins and lo == 0.0:
+            intervals[-1] = (intervals[-1][0], (k + hi) / pieces)
+        else:
+            intervals.append(((k + lo) / pieces, (k + hi) / pieces))
+        joins = hi == 1.0
+    if intervals and joins:
+        intervals[-1] = (intervals[-1][0], 1.0)
+    return intervals
+
+
+def test_the_arc_walk_equals_the_chord_by_chord_walk_exactly():
+    """The arc's chords are tested all at once: the stays are the scalar walk's, float for float,
+    on swings whose arcs enter, leave, re-enter and stay (targets on the chord, near the arc, or
+    wobbling across the box)."""
+    rng = np.random.default_rng(20)
+    checked = 0
+    for _ in range(400):
+        theta0 = rng.uniform([-1.0, 0.6, -0.5], [1.0, 1.6, 0.5])
+        delta = rng.uniform(-0.5, 0.5, 3) * rng.choice([0.01, 0.1, 1.0])
+        a, b = forward_kinematics(theta0), forward_kinematics(theta0 + delta)
+        wobble = rng.uniform(-2e-3, 2e-3, 3)
+        frequency = rng.uniform(1.0, 20.0)
+        tolerance = EPS * rng.choice([1.0, 5.0, 20.0])
+
+        def target_at(s, a=a, b=b, wobble=wobble, frequency=frequency):
+            s = np.asarray(s)[:, None]
+            return a + s * (b - a) + wobble * np.sin(frequency * s)
+
+        expected = _chord_by_chord(theta0, delta, target_at, tolerance)
+        assert inside_intervals_along_arc(theta0, delta, target_at, tolerance) == expected
+        checked += bool(expected)
+    assert checked > 50  # many swings have stays, some several

@@ -147,14 +147,13 @@ def inside_intervals_along_arc(
     s = np.linspace(0.0, 1.0, pieces + 1)
     ee = forward_kinematics(np.asarray(theta0, float) + s[:, None] * np.asarray(delta_theta, float))
     relative = ee - target_at(s)
+    # Every chord at once (the same arithmetic as inside_interval's, so the same floats); the
+    # walk below visits only the chords with a stay, which are few.
+    los, his = inside_intervals(relative[:-1], relative[1:], tolerance)
     intervals: list[tuple[float, float]] = []
-    joins = False  # the previous chord's stay reached its end
-    for k in range(pieces):
-        interval = inside_interval(relative[k], relative[k + 1], tolerance)
-        if interval is None:
-            joins = False
-            continue
-        lo, hi = interval
+    joins = False  # the last chord with a stay reached its end (so the next chord starts inside)
+    for k in np.flatnonzero(~np.isnan(los)).tolist():
+        lo, hi = float(los[k]), float(his[k])
         if joins and lo == 0.0:
             intervals[-1] = (intervals[-1][0], (k + hi) / pieces)
         else:
