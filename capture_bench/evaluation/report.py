@@ -10,7 +10,6 @@ never leaves a half-written report.
 
 from __future__ import annotations
 
-import base64
 import csv
 import html
 import json
@@ -314,11 +313,7 @@ STYLE = (
 
 def _img(name: str, png: bytes) -> str:
     """A figure embedded as base64 (the page stays one file)."""
-    encoded = base64.b64encode(png).decode("ascii")
-    return (
-        f'<figure><img alt="{html.escape(name)}" src="data:image/png;base64,{encoded}">'
-        f"<figcaption>{html.escape(name)}</figcaption></figure>"
-    )
+    return watch.embedded_figure(png, "image/png", name)
 
 
 def html_page(data: ReportData, images: dict[str, bytes]) -> str:

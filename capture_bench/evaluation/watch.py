@@ -80,13 +80,22 @@ def choose_episodes(
     return watches
 
 
-def _gif(video: EpisodeVideo) -> str:
-    encoded = base64.b64encode(video.gif).decode("ascii")
-    alt = html.escape(video.caption())
+def embedded_figure(
+    data: bytes, mime: str, caption: str, size: tuple[int, int] | None = None
+) -> str:
+    """An image inlined as base64 in a ``<figure>`` with its caption (the page stays one file);
+    ``size``: (width, height) attributes. The report's plots use it too."""
+    encoded = base64.b64encode(data).decode("ascii")
+    alt = html.escape(caption)
+    dims = "" if size is None else f'width="{size[0]}" height="{size[1]}" '
     return (
-        f'<figure><img alt="{alt}" width="320" height="240" '
-        f'src="data:image/gif;base64,{encoded}"><figcaption>{alt}</figcaption></figure>'
+        f'<figure><img alt="{alt}" {dims}src="data:{mime};base64,{encoded}">'
+        f"<figcaption>{alt}</figcaption></figure>"
     )
+
+
+def _gif(video: EpisodeVideo) -> str:
+    return embedded_figure(video.gif, "image/gif", video.caption(), (320, 240))
 
 
 def _by_scenario(videos: Sequence[EpisodeVideo]) -> dict[str, list[EpisodeVideo]]:
