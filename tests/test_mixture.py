@@ -68,7 +68,7 @@ TINY = ["n_steps=32", "batch_size=32", "n_epochs=1", "policy_kwargs.net_arch=[8]
         "total_timesteps=128", "eval_freq=128", "eval_episodes=2"]  # fmt: skip
 
 
-def test_a_tiny_mixture_run_trains_validates_each_scenario_and_loads(tmp_path, monkeypatch):
+def test_a_tiny_mixture_run_trains_validates_each_scenario_loads_and_resumes(tmp_path, monkeypatch):
     import json
 
     from test_training_metrics import scalars
@@ -95,6 +95,10 @@ def test_a_tiny_mixture_run_trains_validates_each_scenario_and_loads(tmp_path, m
             assert env.action_space.contains(agent.predict(obs)[0])
         finally:
             env.close()
+    # a mixture's config.json has no single observation source (null); it resumes all the same
+    assert json.loads((run_dir / "config.json").read_text())["config"]["observation_source"] is None
+    assert train.main(["--resume", str(run_dir), "--total-timesteps", "256"]) == 0
+    assert json.loads((run_dir / "metadata.json").read_text())["total_timesteps"] == 256
 
 
 @pytest.mark.parametrize(

@@ -127,13 +127,13 @@ def _read_run_config(run_dir: Path) -> tuple[dict, TrainConfig]:
             or value < (1 if key == "n_envs" else 0)
         ):
             raise ConfigError(f"{saved}: key 'config.{key}' is {value!r}; valid: a whole number")
-    if old.observation_source not in OBSERVATION_SOURCES:
-        raise ConfigError(
+    if old.observation_source is not None and old.observation_source not in OBSERVATION_SOURCES:
+        raise ConfigError(  # None: a mixture, where each scenario keeps its own estimate
             f"{saved}: key 'config.observation_source' is {old.observation_source!r}; "
-            f"valid: {', '.join(OBSERVATION_SOURCES)}"
+            f"valid: {', '.join(OBSERVATION_SOURCES)}, or null for a mixture"
         )
     try:
-        load_scenario(str(old.scenario))
+        mixture_scenarios(str(old.scenario))  # one scenario, or a mixture ("all", "a,b")
     except ConfigError as exc:
         raise ConfigError(f"{saved}: key 'config.scenario': {exc}") from None
     return data, old
