@@ -21,8 +21,9 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from capture_bench.sensing import photogrammetry
 from capture_bench.sensing.camera import Camera, CameraModel
-from capture_bench.sensing.ekf import LeanExtendedKalmanFilter, TargetEKF
+from capture_bench.sensing.ekf import TargetEKF
 from capture_bench.sensing.estimator import TargetEstimator
+from capture_bench.sensing.lean_ekf import LeanExtendedKalmanFilter
 from capture_bench.sensing.photogrammetry import project_pose, projection_table, solve_pose
 from capture_bench.sensing.sources import SOURCES
 from capture_bench.sim.rotations import euler_to_matrix

@@ -8,13 +8,13 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from capture_bench.sensing.camera import Camera, CameraModel, Frame
 from capture_bench.sensing.ekf import (
-    LeanExtendedKalmanFilter,
     TargetEKF,
     measurement,
     measurement_jacobian,
     transition_matrices,
 )
 from capture_bench.sensing.estimator import DIVERGENCE_FRAMES, TargetEstimator
+from capture_bench.sensing.lean_ekf import LeanExtendedKalmanFilter
 from capture_bench.sensing.photogrammetry import pose_projection, solve_pose
 from capture_bench.sim.rotations import euler_to_matrix
 

@@ -276,3 +276,24 @@ def test_training_time_evaluation_uses_validation_seeds_only(tmp_path, monkeypat
     assert set(validation) == set(paper.validation_seeds[:2]) and len(validation) == 4  # 2 evals
     assert all(s in paper.training_seeds for s in seen if s not in paper.validation_seeds)
     assert not set(seen) & set(paper.evaluation_seeds)
+
+
+def test_a_batched_training_run_never_imports_filterpy(tmp_path):
+    """The batched env's estimator has the EKF's model but not filterpy's class, whose import
+    (scipy.stats with it, ~0.6 s) a training process would pay at start-up for nothing."""
+    import subprocess
+    import sys
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY.replace("n_envs: 1", "n_envs: 2"))
+    script = (
+        "import sys, train\n"
+        f"argv = ['--config', {str(config)!r}, '--run-dir', {str(tmp_path / 'run')!r}]\n"
+        "assert train.main(argv) == 0\n"
+        "print(sorted(m for m in ('filterpy', 'scipy.stats') if m in sys.modules))\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run(
+        [sys.executable, "-c", script], cwd=root, capture_output=True, text=True, check=True
+    )
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr

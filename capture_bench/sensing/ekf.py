@@ -13,20 +13,20 @@ points by eq. 2, flattened as (x_m1, z_m1, ..., x_m4, z_m4), with noise ``R = si
 ``H`` is the analytic Jacobian (:func:`capture_bench.sensing.photogrammetry.project_pose`, on the
 feature points' projection table, computed once); h and H come from one evaluation per update and
 are written into arrays the filter owns. The filter equations (eq. 7) are those of filterpy's
-``ExtendedKalmanFilter.predict`` and ``update``, run by :class:`LeanExtendedKalmanFilter`, a
-subclass that computes them with fewer numpy calls (tests check it against filterpy's own methods
-step for step).
+``ExtendedKalmanFilter.predict`` and ``update``, run by
+:class:`~capture_bench.sensing.lean_ekf.LeanExtendedKalmanFilter`, a subclass that computes them
+with fewer numpy calls (tests check it against filterpy's own methods step for step). That module,
+and so filterpy (whose import pulls in ``scipy.stats``: ~0.6 s), is imported when the first
+:class:`TargetEKF` is built: the batched estimator (:mod:`capture_bench.sensing.estimator_batch`),
+which training runs on, uses this module's model and never needs it.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import lapack
 
 from capture_bench.sensing.photogrammetry import pose_projection, project_pose, projection_table
 
@@ -71,79 +71,6 @@ def default_initial_covariance() -> FloatArray:
     return np.diag(sd**2)
 
 
-class LeanExtendedKalmanFilter(ExtendedKalmanFilter):
-    """filterpy's ``ExtendedKalmanFilter`` with ``predict`` and ``update`` written for speed.
-
-    The same equations, in the same form, leaving the same attributes (``x``, ``P``, ``K``, ``y``,
-    ``S``, ``SI``, ``z``, ``x_prior``, ``P_prior``, ``x_post``, ``P_post``) as filterpy's methods:
-
-    * predict: ``x = F x + B u``, ``P = F P F' + Q``;
-    * update: ``S = H P H' + R``, ``K = P H' S^-1``, ``x = x + K (z - h(x))``, and the Joseph form
-      ``P = (I - K H) P (I - K H)' + K R K'``.
-
-    Two things differ, both only in how the numbers are computed: S^-1 comes from a Cholesky
-    factorisation (LAPACK ``dpotrf``/``dpotrs``; S is symmetric positive definite) instead of
-    ``scipy.linalg.inv``, and the per-call argument handling (``args``, scalar ``R``, ``residual``)
-    is left out: ``update(z, HJacobian, Hx)`` with array ``z`` and the filter's own ``R`` (any other
-    call goes to filterpy's method). On this 12-state, 8-measurement filter the update takes 38 us
-    against filterpy's 45 and the predict 11 against 15 (``benchmarks/bench_estimator.py``); the
-    results agree with filterpy's to rounding (``tests/test_estimator.py``).
-
-    Raises:
-        numpy.linalg.LinAlgError: S is not positive definite (or not finite).
-    """
-
-    x: FloatArray
-    P: FloatArray
-
-    def __init__(self, dim_x: int, dim_z: int, dim_u: int = 0) -> None:
-        super().__init__(dim_x, dim_z, dim_u)
-        self._I_z = np.eye(dim_z)  # right-hand side that turns dpotrs into S^-1
-
-    def predict(self, u: ArrayLike = 0) -> None:
-        if not (np.isscalar(u) and u == 0):  # a control input: filterpy's own method
-            super().predict(u)
-            return
-        F = self.F  # noqa: N806
-        self.x = F @ self.x
-        self.P = F @ self.P @ F.T + self.Q
-        self.x_prior = self.x.copy()
-        self.P_prior = self.P.copy()
-
-    def update(  # noqa: PLR0913 (filterpy's signature)
-        self,
-        z: ArrayLike | None,
-        HJacobian: Callable[..., FloatArray],  # noqa: N803 (filterpy's names)
-        Hx: Callable[..., FloatArray],  # noqa: N803
-        R: object = None,  # noqa: N803
-        args: tuple = (),
-        hx_args: tuple = (),
-        residual: Callable[..., FloatArray] = np.subtract,
-    ) -> None:
-        if z is None or R is not None or args or hx_args or residual is not np.subtract:
-            super().update(z, HJacobian, Hx, R, args, hx_args, residual)
-            return
-        H = HJacobian(self.x)  # noqa: N806
-        r: FloatArray = self.R
-        PHT = self.P @ H.T  # noqa: N806
-        self.S = S = H @ PHT + r  # noqa: N806
-        chol, info = lapack.dpotrf(S)
-        if info != 0 or not math.isfinite(S.sum()):
-            raise np.linalg.LinAlgError(
-                f"innovation covariance S is not positive definite (dpotrf info {info})"
-            )
-        self.SI, _ = lapack.dpotrs(chol, self._I_z)
-        self.K = K = PHT @ self.SI  # noqa: N806
-        self.y = np.subtract(z, Hx(self.x))
-        self.x = self.x + K @ self.y
-        I_KH = self._I - K @ H  # noqa: N806
-        self.P = I_KH @ self.P @ I_KH.T + K @ r @ K.T
-        self._log_likelihood = self._likelihood = self._mahalanobis = None
-        self.z = np.array(z, dtype=float)
-        self.x_post = self.x.copy()
-        self.P_post = self.P.copy()
-
-
 class TargetEKF:
     """The paper's EKF for the target's pose and rates in the camera frame.
 
@@ -173,6 +100,8 @@ class TargetEKF:
         n_z = 2 * self.feature_points.shape[0]
         sigma_m = measurement_sigma(noise_px, pixel_pitch, noise_floor_px)
         self._q = np.diag([sigma_acceleration**2] * 3 + [sigma_angular_acceleration**2] * 3)
+        from capture_bench.sensing.lean_ekf import LeanExtendedKalmanFilter  # filterpy (above)
+
         self._kf = LeanExtendedKalmanFilter(dim_x=12, dim_z=n_z)
         self._kf.R = np.eye(n_z) * sigma_m**2
         self._dt: float | None = None
