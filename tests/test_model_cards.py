@@ -53,3 +53,35 @@ def test_shipping_a_run_writes_the_model_and_its_card(tmp_path):
     _check_replay(target, card, count=3)
     with pytest.raises(Exception, match="already exists"):
         ship(run_dir, "tiny", episodes=3, out=tmp_path / "models")
+
+
+def test_shipping_a_runs_best_validation_says_so(tmp_path):
+    run_dir = tmp_path / "run"
+    sets = ["n_envs=2", "n_steps=32", "batch_size=32", "n_epochs=1", "total_timesteps=128",
+            "policy_kwargs.net_arch=[8]", "eval_freq=64", "eval_episodes=2"]  # fmt: skip
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) == 0
+    step = json.loads((run_dir / "best" / "validation.json").read_text())["step"]
+    target = ship(run_dir / "best", "tiny-best", episodes=2, out=tmp_path / "models")
+    card = json.loads((target / "metadata.json").read_text())["model_card"]
+    assert card["policy"] == {"kind": "best validation", "step": step, "seeds": 2}
+    assert card["command"].startswith("python train.py") and card["scenarios"] == ["paper"]
+    assert f"at step {step:,}" in (target / "README.md").read_text()
+    assert not (target / "model.zip").exists()  # best/ keeps the safe policy only
+    _check_replay(target, card, count=2)
+    final = ship(run_dir, "tiny", episodes=2, out=tmp_path / "models")
+    assert json.loads((final / "metadata.json").read_text())["model_card"]["policy"] == {
+        "kind": "final"
+    }
+
+
+def test_shipping_a_directory_without_a_run_config_is_one_line(tmp_path, capsys):
+    from capture_bench.training.model_card import main
+
+    lone = tmp_path / "best"
+    lone.mkdir()
+    (lone / "policy.pt").write_bytes(b"")
+    (lone / "metadata.json").write_text("{}")
+    (lone / "validation.json").write_text('{"step": 64, "seeds": [1]}')
+    assert main([str(lone), "--name", "x"]) == 2
+    err = capsys.readouterr().err
+    assert "config.json: missing" in err and len(err.strip().splitlines()) == 1, err

@@ -1,6 +1,8 @@
 """Ship a trained policy: ``python -m capture_bench.training.model_card RUN_DIR --name NAME``.
 
-Copies a finished run's safe policy (``policy.pt`` + ``metadata.json``, and SB3's ``model.zip``
+RUN_DIR is a finished run (its final policy) or a run's ``best/`` (the policy of its best periodic
+validation, as the RL Zoo ships ``best_model``; the card says which, and at which step). Copies
+the safe policy (``policy.pt`` + ``metadata.json``, and SB3's ``model.zip``
 for SB3 users) to ``models/NAME/``, plays its validation episodes (the first ``--episodes``
 validation seeds of each scenario it was trained on, deterministic actions; never a published
 evaluation seed) and writes the model card: the ``model_card`` entry of ``metadata.json`` and a
@@ -22,10 +24,11 @@ from typing import Any
 from capture_bench.files import atomic_write
 from capture_bench.paths import models_dir
 from capture_bench.task.scenarios import ConfigError, load_scenario
+from capture_bench.training.policy_export import BEST_DIR
 
 #: The fields every model card has (``metadata.json`` key ``model_card``).
 CARD_FIELDS = ("command", "total_timesteps", "wall_time_s", "hardware", "training_seed",
-               "scenarios", "actions", "validation")  # fmt: skip
+               "scenarios", "actions", "validation", "policy")  # fmt: skip
 COPIED = ("policy.pt", "metadata.json", "model.zip")
 
 
@@ -67,9 +70,15 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
     run_dir = Path(run_dir)
     meta_file = run_dir / "metadata.json"
     if not meta_file.is_file() or not (run_dir / "policy.pt").is_file():
-        raise ConfigError(f"{run_dir}: not a finished run (no policy.pt + metadata.json)")
+        raise ConfigError(
+            f"{run_dir}: not a finished run or its {BEST_DIR}/ (no policy.pt + metadata.json)"
+        )
     meta = json.loads(meta_file.read_text())
-    config = json.loads((run_dir / "config.json").read_text())["config"]
+    best = _best_validation(run_dir)  # RUN/best: the run's best periodic validation
+    config_file = (run_dir.parent if best else run_dir) / "config.json"
+    if not config_file.is_file():
+        raise ConfigError(f"{config_file}: missing; ship a run directory or its {BEST_DIR}/")
+    config = json.loads(config_file.read_text())["config"]
     target = (out or models_dir()) / name
     if target.exists():
         raise ConfigError(f"{target}: already exists; remove it or choose another --name")
@@ -93,12 +102,31 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
         "scenarios": scenarios,
         "actions": meta.get("actions", "deterministic"),
         "validation": validation,
+        # which of the run's policies: its last, or its best periodic validation (step, seeds)
+        "policy": (
+            {"kind": "best validation", "step": best["step"], "seeds": len(best["seeds"])}
+            if best
+            else {"kind": "final"}
+        ),
     }
     meta["model_card"] = card
     atomic_write(tmp / "metadata.json", json.dumps(meta, indent=2).encode())
     atomic_write(tmp / "README.md", _readme(name, meta, card).encode())
     tmp.rename(target)
     return target
+
+
+def _best_validation(directory: Path) -> dict[str, Any] | None:
+    """``validation.json`` of a run's ``best/`` directory (its step and seeds), None for a run
+    directory."""
+    found = directory / "validation.json"
+    if directory.name != BEST_DIR or not found.is_file():
+        return None
+    try:
+        data = json.loads(found.read_text())
+        return {"step": int(data["step"]), "seeds": list(data["seeds"])}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{found}: unreadable ({exc}); it is written by train.py") from None
 
 
 def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
@@ -128,6 +156,11 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
         "",
         f"- command: `{card['command']}`",
         f"- environment steps: {card['total_timesteps']:,}",
+        *(
+            [f"- policy: the run's best periodic validation (`best/`), at step "
+             f"{card['policy']['step']:,}, on {card['policy']['seeds']} validation seeds"]
+            if card["policy"]["kind"] != "final" else []
+        ),  # fmt: skip
         f"- training wall-clock: {card['wall_time_s']:.0f} s "
         f"({meta.get('steps_per_second')} steps/s, validations included)",
         f"- hardware: {hardware['cpu']}, {hardware['cores']} cores ({hardware['system']}); "
