@@ -1,6 +1,7 @@
-"""The tolerance curriculum (issue 14 point 1, training only): the training envs count a capture
-at a tolerance that shrinks geometrically to the scenario's epsilon; what is measured (the
-validation, every evaluation) keeps the scenario's epsilon."""
+"""The tolerance and hold curricula (issue 14 point 1, training only): the training envs count a
+capture at a tolerance that shrinks geometrically to the scenario's epsilon, or after a hold that
+grows linearly to the scenario's; what is measured (the validation, every evaluation) keeps the
+scenario's epsilon and hold."""
 
 from __future__ import annotations
 
@@ -74,7 +75,8 @@ def test_curriculum_steps_alone_is_one_line(tmp_path, capsys):
     argv = ["--set", "curriculum_steps=100", "--run-dir", str(tmp_path / "r")]
     assert train.main(argv) == 2
     err = capsys.readouterr().err
-    assert "curriculum_tolerance" in err and len(err.strip().splitlines()) == 1
+    assert "curriculum_tolerance" in err and "curriculum_hold" in err
+    assert len(err.strip().splitlines()) == 1
 
 
 def test_the_default_curriculum_is_half_the_runs_budget_after_the_options(tmp_path, monkeypatch):
@@ -88,3 +90,75 @@ def test_the_default_curriculum_is_half_the_runs_budget_after_the_options(tmp_pa
     assert train.main([*argv, "--run-dir", str(run_dir)]) == 0
     hp = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
     assert hp["curriculum_steps"] == 4096  # not half of ppo.yaml's 3,000,000
+
+
+# -- the hold curriculum ------------------------------------------------------------------------
+
+
+def _grasp_episode(env, seed: int) -> float | None:
+    """The capture time of incremental_ik_uncapped (it flies through the box) on one grasp
+    episode, s (None: not captured)."""
+    agent = make_agent("incremental_ik_uncapped", env)
+    obs, _ = env.reset(seed=seed)
+    while True:
+        obs, _, terminated, truncated, info = env.step(agent.predict(obs)[0])
+        if terminated or truncated:
+            return info["capture_time"]
+
+
+def test_a_shorter_hold_captures_at_the_first_entry_and_never_later():
+    """The arm's actions do not depend on the hold, so an episode is the same until its first
+    capture: with hold 0 the capture is the box's first entry; with the scenario's 0.3 s it is
+    an entry + 0.3 s, never earlier, and only episodes that capture with hold 0 can."""
+    seeds = load_scenario("grasp").validation_seeds[:6]
+    held, flown = CaptureEnv("grasp"), CaptureEnv("grasp")
+    try:
+        flown.set_capture_hold(0.0)
+        pairs = [(_grasp_episode(held, s), _grasp_episode(flown, s)) for s in seeds]
+    finally:
+        held.close()
+        flown.close()
+    assert any(t_held is None and t_flown is not None for t_held, t_flown in pairs)
+    for t_held, t_flown in pairs:
+        if t_held is not None:
+            assert t_flown is not None and t_flown <= t_held - 0.3 + 1e-9
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        held.rule.set_hold(-0.1)
+
+
+def test_the_vector_env_takes_the_hold_as_the_single_env_does():
+    seed = load_scenario("grasp").validation_seeds[0]
+    single = CaptureEnv("grasp")
+    single.set_capture_hold(0.0)
+    vector = CaptureVectorEnv(1, "grasp")
+    vector.set_capture_hold(0.0)
+    try:
+        want = _grasp_episode(single, seed)
+        agent = make_agent("incremental_ik_uncapped", single)
+        obs, _ = vector.reset(seed=[seed])
+        for _ in range(400):
+            obs, _, terminated, truncated, info = vector.step(agent.predict(obs)[0])
+            if terminated[0] or truncated[0]:
+                break
+        assert want is not None and info["capture_time"][0] == pytest.approx(want, rel=1e-9)
+    finally:
+        single.close()
+        vector.close()
+
+
+def test_the_hold_schedule_is_linear_from_the_start_to_the_scenarios_hold():
+    from capture_bench.training.callbacks import HoldCurriculum
+
+    schedule = HoldCurriculum(0.0, 0.3, 1000)
+    assert [schedule.hold(t) for t in (0, 500, 1000, 5000)] == pytest.approx([0, 0.15, 0.3, 0.3])
+
+
+def test_a_run_with_a_hold_curriculum_grows_the_training_hold(tmp_path):
+    run_dir = tmp_path / "run"
+    sets = ["curriculum_hold=0", "curriculum_steps=96", "n_envs=2", "n_steps=32",
+            "batch_size=32", "n_epochs=1", "policy_kwargs.net_arch=[8]", "total_timesteps=128",
+            "eval_freq=128", "eval_episodes=2"]  # fmt: skip
+    argv = ["--scenario", "grasp", *(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]
+    assert train.main(argv) == 0
+    hold = [v for _, v in scalars(run_dir / "tb")["train/capture_hold_s"]]
+    assert hold[0] == 0.0 and hold == sorted(hold) and 0.0 < hold[-1] <= 0.3

@@ -585,8 +585,9 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
     features = kwargs.get("features_extractor", "flatten") if isinstance(kwargs, dict) else None
     if not bad and data.get("normalize") is True and features not in (None, "flatten"):
         bad.add("policy_kwargs.features_extractor")  # reads the raw observation
-    if not bad and "curriculum_steps" in data and "curriculum_tolerance" not in data:
-        bad.add("curriculum_steps")  # a curriculum needs its starting tolerance
+    curricula = ("curriculum_tolerance", "curriculum_hold")
+    if not bad and "curriculum_steps" in data and not any(k in data for k in curricula):
+        bad.add("curriculum_steps")  # a curriculum needs its starting value
     return algo, data, bad
 
 

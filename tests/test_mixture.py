@@ -108,6 +108,7 @@ def test_a_tiny_mixture_run_trains_validates_each_scenario_loads_and_resumes(tmp
         (["--vec-env", "dummy"], "a mixture trains on --vec-env batched"),
         (["--set", "residual=incremental_ik"], "residual depends on one scenario"),
         (["--set", "curriculum_tolerance=0.01"], "curriculum_tolerance depends on one scenario"),
+        (["--set", "curriculum_hold=0"], "curriculum_hold depends on one scenario"),
     ],
 )
 def test_what_a_mixture_cannot_take_is_one_line(tmp_path, capsys, argv, expected):

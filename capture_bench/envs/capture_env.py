@@ -376,6 +376,13 @@ class CaptureEnv(gym.Env):
             info,
         )
 
+    def set_capture_hold(self, hold: float) -> None:
+        """Ask a capture to hold ``hold`` s (0: the first entry captures) instead of the
+        scenario's ``capture.hold`` from the next step on: a training curriculum's lever
+        (:class:`capture_bench.training.callbacks.HoldCurriculum`), never an evaluation's. The
+        recorded physical limit stays the scenario's."""
+        self.rule.set_hold(hold)
+
     def set_capture_tolerance(self, tolerance: Any) -> None:
         """Count a capture at ``tolerance`` (m, a number or (3,)) instead of the scenario's
         epsilon from the next step on: a training curriculum's lever

@@ -203,6 +203,16 @@ class StepRule:
         self.time_limit = time_limit(scenario.control)
         self.frames_matter = scenario.estimator.source != "truth"  # target_lost needs a camera
 
+    def set_hold(self, hold: float) -> None:
+        """Ask a capture to hold ``hold`` s (0: the first entry captures) from the next step on.
+        Only a training curriculum does this (:class:`capture_bench.training.callbacks.
+        HoldCurriculum`); an env built from its scenario asks for the scenario's
+        ``capture.hold``."""
+        value = float(hold)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"capture hold must be finite and >= 0 s, got {hold!r}")
+        self.hold = value
+
     def set_tolerance(self, tolerance: Any) -> None:
         """Test eq. 20 with ``tolerance`` (m, a number or (3,)) from the next step on. Only a
         training curriculum does this (:class:`capture_bench.training.callbacks.

@@ -75,6 +75,40 @@ class ToleranceCurriculum(BaseCallback):
         return True
 
 
+class HoldCurriculum(BaseCallback):
+    """Training-only hold curriculum: the training envs ask a capture to hold for a time that
+    grows linearly from ``start`` (s; 0: the first entry captures, as a fly-through does on the
+    other scenarios) to the scenario's ``capture.hold`` over ``steps`` environment steps,
+    h(t) = start + (final - start) p with p = min(t / steps, 1), set at the start of every
+    rollout (a resumed run continues where it was). The validation, and everything evaluated,
+    asks for the scenario's hold; the recorded physical limit stays the scenario's.
+
+    Args:
+        start: starting hold, s.
+        final: the scenario's hold, s.
+        steps: environment steps to reach it.
+    """
+
+    def __init__(self, start: float, final: float, steps: int) -> None:
+        super().__init__()
+        self.start, self.final, self.steps = float(start), float(final), int(steps)
+
+    def hold(self, step: int) -> float:
+        """The hold at environment step ``step``, s."""
+        return self.start + (self.final - self.start) * min(step / self.steps, 1.0)
+
+    def _on_training_start(self) -> None:
+        self._on_rollout_start()
+
+    def _on_rollout_start(self) -> None:
+        hold = self.hold(self.num_timesteps)
+        self.training_env.env_method("set_capture_hold", hold)
+        self.logger.record("train/capture_hold_s", hold)
+
+    def _on_step(self) -> bool:
+        return True
+
+
 class _Normalized:
     """``model.predict`` on observations normalised first (or not, where ``normalize`` is
     None)."""

@@ -64,8 +64,14 @@ TRAINING_KEYS = {
     # a tolerance curriculum, training only: eq. 20 counts a capture at curriculum_tolerance (m)
     # at first, shrinking geometrically to the scenario's epsilon over curriculum_steps
     "curriculum_tolerance": Rule("float", 0.0, 1.0, low_inclusive=False),
+    # a hold curriculum, training only: a capture must hold curriculum_hold s (0: the first entry
+    # captures, a fly-through) at first, growing linearly to the scenario's capture.hold over
+    # curriculum_steps (grasp: PPO finds the capture by flying through, then learns to stay)
+    "curriculum_hold": Rule("float", 0.0, 10.0),
     "curriculum_steps": POS_INT,
 }
+#: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
+CURRICULA = ("curriculum_tolerance", "curriculum_hold")
 _SDE = {"use_sde": Rule("bool"), "sde_sample_freq": Rule("int", -1)}
 _ON = {  # PPO and A2C (OnPolicyAlgorithm)
     "learning_rate": Rule("schedule"),
@@ -172,10 +178,10 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
     out.setdefault("checkpoint_freq", 0)
     out.setdefault("eval_freq", 0)
     out.setdefault("eval_episodes", 5)
-    if "curriculum_steps" in out and "curriculum_tolerance" not in out:
+    if "curriculum_steps" in out and not any(key in out for key in CURRICULA):
         raise ConfigError(
             f"{source}: key 'curriculum_steps' needs curriculum_tolerance (the starting "
-            "tolerance, m) beside it"
+            "tolerance, m) or curriculum_hold (the starting hold, s) beside it"
         )
     out.setdefault("residual", "none")
     if out["residual"] != "none":

@@ -37,6 +37,7 @@ from capture_bench.training.checkpoint import (
 )
 from capture_bench.training.hyperparameters import (
     ALGORITHMS,
+    CURRICULA,
     OFF_POLICY,
     algorithm_class,
     resolve_hyperparameters,
@@ -196,7 +197,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         if getattr(config, key) is not None:
             hp[key] = getattr(config, key)
     _check_shaping(hp)
-    if "curriculum_tolerance" in hp:  # default: half the run's budget, after the options
+    if any(key in hp for key in CURRICULA):  # default: half the run's budget, after the options
         hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
@@ -242,7 +243,7 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
             f"--scenario {config.scenario}: n_envs {hp['n_envs']} does not split evenly between "
             f"{count} scenarios; use a multiple of {count} (e.g. --n-envs {up})"
         )
-    for key in ("residual", "curriculum_tolerance"):
+    for key in ("residual", *CURRICULA):
         if hp.get(key, "none") != "none":
             raise ConfigError(
                 f"--scenario {config.scenario}: {key} depends on one scenario's task; train it "
@@ -425,6 +426,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
     from capture_bench.training.callbacks import (
         Checkpointer,
+        HoldCurriculum,
         Progress,
         RolloutMetrics,
         ToleranceCurriculum,
@@ -459,6 +461,11 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
         final = describe_task(load_scenario(config.scenario)).capture_tolerance
         callbacks.append(
             ToleranceCurriculum(hp["curriculum_tolerance"], final, hp["curriculum_steps"])
+        )
+    if "curriculum_hold" in hp:  # training only: validation asks for the scenario's hold
+        scenario_hold = load_scenario(config.scenario).capture.hold
+        callbacks.append(
+            HoldCurriculum(hp["curriculum_hold"], scenario_hold, hp["curriculum_steps"])
         )
     start = time.perf_counter()
     status = 0
