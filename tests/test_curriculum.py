@@ -71,8 +71,9 @@ def test_a_run_with_a_curriculum_sets_the_training_tolerance_and_validates_at_ep
     assert tolerance[-1] < 0.05 / 4
 
 
-def test_curriculum_steps_alone_is_one_line(tmp_path, capsys):
-    argv = ["--set", "curriculum_steps=100", "--run-dir", str(tmp_path / "r")]
+@pytest.mark.parametrize("key", ["curriculum_steps", "curriculum_delay"])
+def test_a_curriculum_schedule_alone_is_one_line(tmp_path, capsys, key):
+    argv = ["--set", f"{key}=100", "--run-dir", str(tmp_path / "r")]
     assert train.main(argv) == 2
     err = capsys.readouterr().err
     assert "curriculum_tolerance" in err and "curriculum_hold" in err
@@ -151,6 +152,13 @@ def test_the_hold_schedule_is_linear_from_the_start_to_the_scenarios_hold():
 
     schedule = HoldCurriculum(0.0, 0.3, 1000)
     assert [schedule.hold(t) for t in (0, 500, 1000, 5000)] == pytest.approx([0, 0.15, 0.3, 0.3])
+    delayed = HoldCurriculum(0.0, 0.3, 1000, delay=300)
+    assert [delayed.hold(t) for t in (0, 300, 800, 1300, 9999)] == pytest.approx(
+        [0, 0, 0.15, 0.3, 0.3]
+    )
+    tolerance = ToleranceCurriculum(0.05, np.full(3, 1e-3), 1000, delay=300)
+    np.testing.assert_allclose(tolerance.tolerance(300), 0.05)
+    np.testing.assert_allclose(tolerance.tolerance(800), np.sqrt(0.05 * 1e-3))
 
 
 def test_a_run_with_a_hold_curriculum_grows_the_training_hold(tmp_path):

@@ -586,8 +586,9 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
     if not bad and data.get("normalize") is True and features not in (None, "flatten"):
         bad.add("policy_kwargs.features_extractor")  # reads the raw observation
     curricula = ("curriculum_tolerance", "curriculum_hold")
-    if not bad and "curriculum_steps" in data and not any(k in data for k in curricula):
-        bad.add("curriculum_steps")  # a curriculum needs its starting value
+    for key in ("curriculum_steps", "curriculum_delay"):
+        if not bad and key in data and not any(k in data for k in curricula):
+            bad.add(key)  # a curriculum needs its starting value
     return algo, data, bad
 
 

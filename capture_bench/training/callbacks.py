@@ -41,26 +41,35 @@ from capture_bench.training.policy_export import (
 )
 
 
+def curriculum_progress(step: int, steps: int, delay: int) -> float:
+    """How far a curriculum has moved at environment step ``step``: 0 for the first ``delay``
+    steps, then linearly to 1 over ``steps`` steps, and 1 after."""
+    return min(max(step - delay, 0) / steps, 1.0)
+
+
 class ToleranceCurriculum(BaseCallback):
     """Training-only tolerance curriculum: the training envs count a capture at a tolerance
     that shrinks geometrically from ``start`` (m) to the scenario's epsilon over ``steps``
-    environment steps, eps(t) = start^(1-p) eps^p with p = min(t / steps, 1), set at the start
-    of every rollout (so a resumed run continues where it was). The validation, and everything
-    evaluated, tests the scenario's epsilon; the recorded physical limit stays the scenario's.
+    environment steps after ``delay`` steps at ``start``, eps(t) = start^(1-p) eps^p with
+    p = :func:`curriculum_progress`, set at the start of every rollout (so a resumed run
+    continues where it was). The validation, and everything evaluated, tests the scenario's
+    epsilon; the recorded physical limit stays the scenario's.
 
     Args:
         start: starting tolerance, m (each component).
         final: the scenario's epsilon, m, (3,).
-        steps: environment steps to reach it.
+        steps: environment steps to reach it, once it moves.
+        delay: environment steps at ``start`` first.
     """
 
-    def __init__(self, start: float, final: Any, steps: int) -> None:
+    def __init__(self, start: float, final: Any, steps: int, delay: int = 0) -> None:
         super().__init__()
-        self.start, self.final, self.steps = float(start), np.asarray(final, float), int(steps)
+        self.start, self.final = float(start), np.asarray(final, float)
+        self.steps, self.delay = int(steps), int(delay)
 
     def tolerance(self, step: int) -> np.ndarray:
         """eps at environment step ``step``, m, (3,)."""
-        p = min(step / self.steps, 1.0)
+        p = curriculum_progress(step, self.steps, self.delay)
         return self.start ** (1.0 - p) * self.final**p
 
     def _on_training_start(self) -> None:
@@ -78,24 +87,28 @@ class ToleranceCurriculum(BaseCallback):
 class HoldCurriculum(BaseCallback):
     """Training-only hold curriculum: the training envs ask a capture to hold for a time that
     grows linearly from ``start`` (s; 0: the first entry captures, as a fly-through does on the
-    other scenarios) to the scenario's ``capture.hold`` over ``steps`` environment steps,
-    h(t) = start + (final - start) p with p = min(t / steps, 1), set at the start of every
-    rollout (a resumed run continues where it was). The validation, and everything evaluated,
-    asks for the scenario's hold; the recorded physical limit stays the scenario's.
+    other scenarios) to the scenario's ``capture.hold`` over ``steps`` environment steps after
+    ``delay`` steps at ``start``, h(t) = start + (final - start) p with
+    p = :func:`curriculum_progress`, set at the start of every rollout (a resumed run continues
+    where it was). The validation, and everything evaluated, asks for the scenario's hold; the
+    recorded physical limit stays the scenario's.
 
     Args:
         start: starting hold, s.
         final: the scenario's hold, s.
-        steps: environment steps to reach it.
+        steps: environment steps to reach it, once it moves.
+        delay: environment steps at ``start`` first (time to learn the fly-through).
     """
 
-    def __init__(self, start: float, final: float, steps: int) -> None:
+    def __init__(self, start: float, final: float, steps: int, delay: int = 0) -> None:
         super().__init__()
-        self.start, self.final, self.steps = float(start), float(final), int(steps)
+        self.start, self.final = float(start), float(final)
+        self.steps, self.delay = int(steps), int(delay)
 
     def hold(self, step: int) -> float:
         """The hold at environment step ``step``, s."""
-        return self.start + (self.final - self.start) * min(step / self.steps, 1.0)
+        p = curriculum_progress(step, self.steps, self.delay)
+        return self.start + (self.final - self.start) * p
 
     def _on_training_start(self) -> None:
         self._on_rollout_start()

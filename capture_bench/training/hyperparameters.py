@@ -69,6 +69,7 @@ TRAINING_KEYS = {
     # curriculum_steps (grasp: PPO finds the capture by flying through, then learns to stay)
     "curriculum_hold": Rule("float", 0.0, 10.0),
     "curriculum_steps": POS_INT,
+    "curriculum_delay": NONNEG_INT,  # steps at the starting value before either curriculum moves
 }
 #: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
 CURRICULA = ("curriculum_tolerance", "curriculum_hold")
@@ -178,11 +179,12 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
     out.setdefault("checkpoint_freq", 0)
     out.setdefault("eval_freq", 0)
     out.setdefault("eval_episodes", 5)
-    if "curriculum_steps" in out and not any(key in out for key in CURRICULA):
-        raise ConfigError(
-            f"{source}: key 'curriculum_steps' needs curriculum_tolerance (the starting "
-            "tolerance, m) or curriculum_hold (the starting hold, s) beside it"
-        )
+    for key in ("curriculum_steps", "curriculum_delay"):
+        if key in out and not any(curriculum in out for curriculum in CURRICULA):
+            raise ConfigError(
+                f"{source}: key '{key}' needs curriculum_tolerance (the starting tolerance, m) "
+                "or curriculum_hold (the starting hold, s) beside it"
+            )
     out.setdefault("residual", "none")
     if out["residual"] != "none":
         out.setdefault("residual_scale", 0.5)

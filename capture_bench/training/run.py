@@ -199,6 +199,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     _check_shaping(hp)
     if any(key in hp for key in CURRICULA):  # default: half the run's budget, after the options
         hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
+        hp.setdefault("curriculum_delay", 0)
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
     if mixed:
@@ -460,12 +461,16 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
 
         final = describe_task(load_scenario(config.scenario)).capture_tolerance
         callbacks.append(
-            ToleranceCurriculum(hp["curriculum_tolerance"], final, hp["curriculum_steps"])
+            ToleranceCurriculum(
+                hp["curriculum_tolerance"], final, hp["curriculum_steps"], hp["curriculum_delay"]
+            )
         )
     if "curriculum_hold" in hp:  # training only: validation asks for the scenario's hold
         scenario_hold = load_scenario(config.scenario).capture.hold
         callbacks.append(
-            HoldCurriculum(hp["curriculum_hold"], scenario_hold, hp["curriculum_steps"])
+            HoldCurriculum(
+                hp["curriculum_hold"], scenario_hold, hp["curriculum_steps"], hp["curriculum_delay"]
+            )
         )
     start = time.perf_counter()
     status = 0
