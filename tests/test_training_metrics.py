@@ -230,7 +230,7 @@ def test_best_model_is_written_whole_and_loads_as_a_policy_directory(run_dir):
     from capture_bench.training.checkpoint import read_checkpoint
 
     best = run_dir / "best"
-    assert sorted(p.name for p in best.iterdir()) == ["metadata.json", "policy.pt",
+    assert sorted(p.name for p in best.iterdir()) == ["metadata.json", "model.zip", "policy.pt",
                                                       "validation.json"]  # fmt: skip
     record = json.loads((best / "validation.json").read_text())
     assert record["step"] == 128  # both validations fail every episode: the first stays (a tie)
@@ -239,7 +239,7 @@ def test_best_model_is_written_whole_and_loads_as_a_policy_directory(run_dir):
             "median_ratio_to_limit"} <= set(record["validation"])  # fmt: skip
     meta = json.loads((best / "metadata.json").read_text())
     final = json.loads((run_dir / "metadata.json").read_text())
-    assert meta["total_timesteps"] == 128 and meta["model"] is None
+    assert meta["total_timesteps"] == 128 and meta["model"] == "model.zip"
     assert set(meta) == set(final) and meta["algorithm"] == "PPO" and meta["scenario"] == "paper"
     # the weights are the policy's at the validation's step (the checkpoint taken then)
     weights = torch.load(best / "policy.pt", weights_only=True)
@@ -255,6 +255,8 @@ def test_best_model_is_written_whole_and_loads_as_a_policy_directory(run_dir):
         assert env.action_space.contains(policy.predict(obs)[0])
         agent = build_agent(resolve_agent(str(best)), env, seed=0)  # as evaluate.py loads it
         np.testing.assert_array_equal(agent.predict(obs)[0], policy.predict(obs)[0])
+        trusted = load_sb3_policy(best, env, trust_model=True)  # SB3's best/model.zip too
+        np.testing.assert_array_equal(trusted.predict(obs)[0], policy.predict(obs)[0])
     finally:
         env.close()
 

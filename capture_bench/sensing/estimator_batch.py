@@ -324,7 +324,10 @@ class BatchedTargetEstimator:
             whether every feature point of the prior lies beyond the lens.
         """
         m, n_z = x.shape[0], 2 * images.shape[1]
-        rj, depth = project_poses(x[:, :6], self._table)  # h(X) and J at the prior (eq. 6)
+        # h(X) and J at the prior (eq. 6), every pose as a row of a matrix-matrix product (a lone
+        # pose too): a filter's numbers do not depend on which other filters update this step,
+        # so an episode plays the same in any batch (a batch of 20 validation seeds or of 3)
+        rj, depth = project_poses(x[:, :6], self._table, 0.0, np.zeros(m, dtype=bool))
         h = rj[:, 0].transpose(0, 2, 1).reshape(m, n_z)  # (x_m1, z_m1, x_m2, ...)
         jac = rj[:, 1:].transpose(0, 3, 2, 1).reshape(m, n_z, 6)  # J = dh/dq: H = [J, 0]
         jac_t = np.ascontiguousarray(jac.transpose(0, 2, 1))

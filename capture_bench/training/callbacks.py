@@ -333,7 +333,7 @@ class Progress(BaseCallback):
             wall = recorded_wall_time(self.run_dir) + time.perf_counter() - self._session_start
             append_validation(self.run_dir, self.num_timesteps, wall, result)
             if self.best is not None:
-                metadata = policy_metadata(self.model, self.config, self.hp, wall, sb3_files=False)
+                metadata = policy_metadata(self.model, self.config, self.hp, wall, sb3_files=True)
                 if self.best.offer(self.model, result, seeds, metadata):
                     line += f"; best so far -> {self.best.directory}"
         print(line, flush=True)

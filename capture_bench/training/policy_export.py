@@ -6,7 +6,8 @@ validated model so far, ``best/``.
 (:func:`is_better`: a higher validation capture rate, then a lower median ratio of capture time to
 the physical limit, then a lower median capture time), the policy at that step is written as
 ``best/policy.pt`` + ``best/metadata.json`` (loadable by ``evaluate.py --agents RUN/best`` like the
-final policy) and ``best/validation.json`` (the step and the validation statistics). It is written
+final policy), SB3's ``best/model.zip`` (+ ``vecnormalize.pkl``) as at the end of a run, and
+``best/validation.json`` (the step and the validation statistics). It is written
 into a temporary directory that is then renamed onto ``best/``: a reader finds the previous best
 whole or the new one whole, never a mix (for an instant between the two renames, none).
 """
@@ -128,6 +129,15 @@ def export_policy(directory: Path, model: Any, metadata: dict[str, Any]) -> Path
     return save_policy(directory, metadata["algorithm"], model.policy, normalizer, extra=metadata)
 
 
+def save_sb3_files(directory: Path, model: Any) -> None:
+    """SB3's own ``model.zip`` (+ ``vecnormalize.pkl``) beside the safe policy, for SB3 users
+    who trust the run (loading them unpickles)."""
+    atomic_write(Path(directory) / "model.zip", writer=model.save)
+    env = model.get_vec_normalize_env()
+    if env is not None:
+        atomic_write(Path(directory) / "vecnormalize.pkl", writer=env.save)
+
+
 def _rank(stats: Mapping[str, float]) -> tuple[float, float, float]:
     """Sort key, smaller is better (NaN: worst)."""
 
@@ -186,6 +196,7 @@ class BestModel:
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.rmtree(old, ignore_errors=True)
         export_policy(tmp, model, metadata)
+        save_sb3_files(tmp, model)  # model.zip, as the RL Zoo keeps best_model.zip
         record = {
             "step": int(model.num_timesteps),
             "seeds": [int(s) for s in seeds],

@@ -538,11 +538,12 @@ def save_final(
     """Write the policy in the safe form (``policy.pt`` + declared ``metadata.json``, loaded
     without unpickling: :mod:`agents.policy_file`), and SB3's own ``model.zip`` (+
     ``vecnormalize.pkl``) for SB3 users who trust the run."""
-    from capture_bench.training.policy_export import export_policy, policy_metadata
+    from capture_bench.training.policy_export import (
+        export_policy,
+        policy_metadata,
+        save_sb3_files,
+    )
 
-    atomic_write(run_dir / "model.zip", writer=model.save)
-    env = model.get_vec_normalize_env()
-    if env is not None:
-        atomic_write(run_dir / "vecnormalize.pkl", writer=env.save)
+    save_sb3_files(run_dir, model)
     metadata = policy_metadata(model, config, hp, total_wall, sb3_files=True)
     export_policy(run_dir, model, metadata)
