@@ -19,13 +19,24 @@ from capture_bench.training.callbacks import ToleranceCurriculum
 SEED = load_scenario("paper").validation_seeds[2]
 
 
-def _capture_time(env) -> float | None:
-    agent = make_agent("incremental_ik", env)
-    obs, _ = env.reset(seed=SEED)
+def _capture_time(env, seed: int = SEED, agent: str = "incremental_ik") -> float | None:
+    """The capture time of ``agent`` on one episode of a single env, s (None: not captured)."""
+    controller = make_agent(agent, env)
+    obs, _ = env.reset(seed=seed)
     while True:
-        obs, _, terminated, truncated, info = env.step(agent.predict(obs)[0])
+        obs, _, terminated, truncated, info = env.step(controller.predict(obs)[0])
         if terminated or truncated:
             return info["capture_time"]
+
+
+def _vector_capture_time(vector, controller, seed: int) -> float | None:
+    """The same in a one-sub-env ``CaptureVectorEnv`` (its first episode)."""
+    obs, _ = vector.reset(seed=[seed])
+    for _ in range(400):
+        obs, _, terminated, truncated, info = vector.step(controller.predict(obs)[0])
+        if terminated[0] or truncated[0]:
+            break
+    return info["capture_time"][0]
 
 
 def test_a_looser_tolerance_captures_earlier_in_both_envs():
@@ -36,13 +47,8 @@ def test_a_looser_tolerance_captures_earlier_in_both_envs():
         assert t_exact is not None and t_loose is not None and t_loose < t_exact
         vector = CaptureVectorEnv(1, "paper")
         vector.set_capture_tolerance(0.02)
-        agent = make_agent("incremental_ik", exact)
-        obs, _ = vector.reset(seed=[SEED])
-        for _ in range(400):
-            obs, _, terminated, truncated, info = vector.step(agent.predict(obs)[0])
-            if terminated[0] or truncated[0]:
-                break
-        assert info["capture_time"][0] == pytest.approx(t_loose, rel=1e-9)
+        got = _vector_capture_time(vector, make_agent("incremental_ik", exact), SEED)
+        assert got == pytest.approx(t_loose, rel=1e-9)
         vector.close()
     finally:
         exact.close()
@@ -99,12 +105,7 @@ def test_the_default_curriculum_is_half_the_runs_budget_after_the_options(tmp_pa
 def _grasp_episode(env, seed: int) -> float | None:
     """The capture time of incremental_ik_uncapped (it flies through the box) on one grasp
     episode, s (None: not captured)."""
-    agent = make_agent("incremental_ik_uncapped", env)
-    obs, _ = env.reset(seed=seed)
-    while True:
-        obs, _, terminated, truncated, info = env.step(agent.predict(obs)[0])
-        if terminated or truncated:
-            return info["capture_time"]
+    return _capture_time(env, seed, "incremental_ik_uncapped")
 
 
 def test_a_shorter_hold_captures_at_the_first_entry_and_never_later():
@@ -135,13 +136,8 @@ def test_the_vector_env_takes_the_hold_as_the_single_env_does():
     vector.set_capture_hold(0.0)
     try:
         want = _grasp_episode(single, seed)
-        agent = make_agent("incremental_ik_uncapped", single)
-        obs, _ = vector.reset(seed=[seed])
-        for _ in range(400):
-            obs, _, terminated, truncated, info = vector.step(agent.predict(obs)[0])
-            if terminated[0] or truncated[0]:
-                break
-        assert want is not None and info["capture_time"][0] == pytest.approx(want, rel=1e-9)
+        got = _vector_capture_time(vector, make_agent("incremental_ik_uncapped", single), seed)
+        assert want is not None and got == pytest.approx(want, rel=1e-9)
     finally:
         single.close()
         vector.close()
