@@ -166,3 +166,33 @@ def test_a_run_with_a_hold_curriculum_grows_the_training_hold(tmp_path):
     assert train.main(argv) == 0
     hold = [v for _, v in scalars(run_dir / "tb")["train/capture_hold_s"]]
     assert hold[0] == 0.0 and hold == sorted(hold) and 0.0 < hold[-1] <= 0.3
+
+
+@pytest.mark.parametrize(
+    ("sets", "expected"),
+    [
+        (["curriculum_hold=5"], "curriculum_hold 5 s is not below paper's capture.hold 0 s"),
+        (["curriculum_tolerance=0.0005"], "is not above paper's capture tolerance 0.001 m"),
+    ],
+)
+def test_a_curriculum_that_starts_past_the_scenarios_rule_is_one_line(tmp_path, capsys, sets,
+                                                                      expected):  # fmt: skip
+    run_dir = tmp_path / "r"
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and len(err.strip().splitlines()) == 1, err
+    assert not run_dir.exists()
+
+
+def test_a_curriculum_run_saved_before_curriculum_delay_resumes(tmp_path):
+    import json
+
+    run_dir = tmp_path / "run"
+    sets = ["curriculum_tolerance=0.05", "n_envs=2", "n_steps=32", "batch_size=32", "n_epochs=1",
+            "policy_kwargs.net_arch=[8]", "total_timesteps=64", "checkpoint_freq=64"]  # fmt: skip
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) == 0
+    saved = json.loads((run_dir / "config.json").read_text())
+    del saved["hyperparameters"]["curriculum_delay"]  # as runs before the key were saved
+    (run_dir / "config.json").write_text(json.dumps(saved))
+    assert train.main(["--resume", str(run_dir), "--total-timesteps", "128"]) == 0
+    assert json.loads((run_dir / "metadata.json").read_text())["total_timesteps"] == 128

@@ -185,6 +185,8 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
                 f"{source}: key '{key}' needs curriculum_tolerance (the starting tolerance, m) "
                 "or curriculum_hold (the starting hold, s) beside it"
             )
+    if any(curriculum in out for curriculum in CURRICULA):
+        out.setdefault("curriculum_delay", 0)  # a run saved before the key resumes as it ran
     out.setdefault("residual", "none")
     if out["residual"] != "none":
         out.setdefault("residual_scale", 0.5)

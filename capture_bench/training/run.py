@@ -206,6 +206,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         _check_mixture(config, hp, len(scenarios))
     else:
         config.observation_source = config.observation_source or scenario.estimator.source
+        _check_curricula(hp, scenario)
     kind = config.algo if hp["residual"] == "none" else f"{config.algo}-residual"
     name = mixture_name(config.scenario) if mixed else scenario.name
     run_dir = Path(config.run_dir or f"runs/{name}-{kind}-{config.seed}")
@@ -250,6 +251,23 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
                 f"--scenario {config.scenario}: {key} depends on one scenario's task; train it "
                 "on a single scenario"
             )
+
+
+def _check_curricula(hp: dict, scenario: Any) -> None:
+    """A curriculum starts on the easy side of the scenario's rule and moves to it: a tolerance
+    above its epsilon, a hold below its ``capture.hold``."""
+    hold, eps = scenario.capture.hold, scenario.capture_tolerance
+    if "curriculum_hold" in hp and not hp["curriculum_hold"] < hold:
+        raise ConfigError(
+            f"curriculum_hold {hp['curriculum_hold']:g} s is not below {scenario.name}'s "
+            f"capture.hold {hold:g} s; the curriculum grows the hold to it (e.g. "
+            "--scenario grasp --set curriculum_hold=0)"
+        )
+    if "curriculum_tolerance" in hp and not hp["curriculum_tolerance"] > eps:
+        raise ConfigError(
+            f"curriculum_tolerance {hp['curriculum_tolerance']:g} m is not above "
+            f"{scenario.name}'s capture tolerance {eps:g} m; the curriculum shrinks it to that"
+        )
 
 
 def _check_shaping(hp: dict) -> None:
