@@ -99,6 +99,8 @@ def test_a_tiny_mixture_run_trains_validates_each_scenario_loads_and_resumes(tmp
     assert json.loads((run_dir / "config.json").read_text())["config"]["observation_source"] is None
     assert train.main(["--resume", str(run_dir), "--total-timesteps", "256"]) == 0
     assert json.loads((run_dir / "metadata.json").read_text())["total_timesteps"] == 256
+    resumed = ["--resume", str(run_dir), "--total-timesteps", "512", "--vec-env", "dummy"]
+    assert train.main(resumed) == 2  # as a new mixture run would be refused
 
 
 @pytest.mark.parametrize(

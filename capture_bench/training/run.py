@@ -162,6 +162,8 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         )
         if config.total_timesteps is not None:
             hp["total_timesteps"] = config.total_timesteps
+        if is_mixture(config.scenario):  # e.g. --vec-env dummy: a mixture trains batched
+            _check_mixture(config, hp, len(mixture_scenarios(config.scenario)))
         found = list_checkpoints(run_dir / "checkpoints")
         if not found:
             raise ConfigError(
