@@ -159,9 +159,9 @@ def test_the_hold_schedule_is_linear_from_the_start_to_the_scenarios_hold():
 
 def test_a_run_with_a_hold_curriculum_grows_the_training_hold(tmp_path):
     run_dir = tmp_path / "run"
-    sets = ["curriculum_hold=0", "curriculum_steps=96", "n_envs=2", "n_steps=32",
-            "batch_size=32", "n_epochs=1", "policy_kwargs.net_arch=[8]", "total_timesteps=128",
-            "eval_freq=128", "eval_episodes=2"]  # fmt: skip
+    sets = ["curriculum_hold=0", "curriculum_steps=96", "curriculum_delay=0", "n_envs=2",
+            "n_steps=32", "batch_size=32", "n_epochs=1", "policy_kwargs.net_arch=[8]",
+            "total_timesteps=128", "eval_freq=128", "eval_episodes=2"]  # fmt: skip
     argv = ["--scenario", "grasp", *(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]
     assert train.main(argv) == 0
     hold = [v for _, v in scalars(run_dir / "tb")["train/capture_hold_s"]]
@@ -196,3 +196,17 @@ def test_a_curriculum_run_saved_before_curriculum_delay_resumes(tmp_path):
     (run_dir / "config.json").write_text(json.dumps(saved))
     assert train.main(["--resume", str(run_dir), "--total-timesteps", "128"]) == 0
     assert json.loads((run_dir / "metadata.json").read_text())["total_timesteps"] == 128
+
+
+def test_the_plain_grasp_command_resolves_to_the_shipped_ppo_grasp_hyperparameters():
+    """``python train.py --algo ppo --scenario grasp`` reads ppo.yaml's grasp section: the
+    hyper-parameters models/ppo-grasp was trained with (its card's command spells them out)."""
+    import json
+    from pathlib import Path
+
+    from capture_bench.training.hyperparameters import resolve_hyperparameters
+
+    hp, _, origin = resolve_hyperparameters("ppo", load_scenario("grasp"), None, ())
+    card = Path(__file__).parents[1] / "models" / "ppo-grasp" / "metadata.json"
+    assert origin["section"] == "grasp"
+    assert hp == json.loads(card.read_text())["hyperparameters"]
