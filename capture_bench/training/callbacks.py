@@ -47,79 +47,75 @@ def curriculum_progress(step: int, steps: int, delay: int) -> float:
     return min(max(step - delay, 0) / steps, 1.0)
 
 
-class ToleranceCurriculum(BaseCallback):
-    """Training-only tolerance curriculum: the training envs count a capture at a tolerance
-    that shrinks geometrically from ``start`` (m) to the scenario's epsilon over ``steps``
-    environment steps after ``delay`` steps at ``start``, eps(t) = start^(1-p) eps^p with
-    p = :func:`curriculum_progress`, set at the start of every rollout (so a resumed run
-    continues where it was). The validation, and everything evaluated, tests the scenario's
-    epsilon; the recorded physical limit stays the scenario's.
+class _Curriculum(BaseCallback):
+    """A training-only curriculum: at the start of every rollout (so a resumed run continues
+    where it was) the training envs get :meth:`value` at the step reached, through their method
+    ``ENV_METHOD``, and TensorBoard gets it as ``TAG``. The validation, and everything
+    evaluated, keep the scenario's rule; the recorded physical limit stays the scenario's.
 
     Args:
-        start: starting tolerance, m (each component).
-        final: the scenario's epsilon, m, (3,).
+        start: the starting value (the easy side of the scenario's rule).
+        final: the scenario's value.
         steps: environment steps to reach it, once it moves.
         delay: environment steps at ``start`` first.
     """
+
+    ENV_METHOD = ""
+    TAG = ""
 
     def __init__(self, start: float, final: Any, steps: int, delay: int = 0) -> None:
         super().__init__()
         self.start, self.final = float(start), np.asarray(final, float)
         self.steps, self.delay = int(steps), int(delay)
 
-    def tolerance(self, step: int) -> np.ndarray:
+    def value(self, step: int) -> Any:
+        """The curriculum's value at environment step ``step``."""
+        raise NotImplementedError
+
+    def _on_training_start(self) -> None:
+        self._on_rollout_start()
+
+    def _on_rollout_start(self) -> None:
+        value = self.value(self.num_timesteps)
+        self.training_env.env_method(self.ENV_METHOD, value)
+        self.logger.record(self.TAG, float(np.max(value)))
+
+    def _on_step(self) -> bool:
+        return True
+
+
+class ToleranceCurriculum(_Curriculum):
+    """The tolerance curriculum: the training envs count a capture at a tolerance that shrinks
+    geometrically from ``start`` (m, each component) to the scenario's epsilon (``final``, m,
+    (3,)), eps(t) = start^(1-p) eps^p with p = :func:`curriculum_progress`."""
+
+    ENV_METHOD = "set_capture_tolerance"
+    TAG = "train/capture_tolerance_m"
+
+    def value(self, step: int) -> np.ndarray:
         """eps at environment step ``step``, m, (3,)."""
         p = curriculum_progress(step, self.steps, self.delay)
         return self.start ** (1.0 - p) * self.final**p
 
-    def _on_training_start(self) -> None:
-        self._on_rollout_start()
-
-    def _on_rollout_start(self) -> None:
-        eps = self.tolerance(self.num_timesteps)
-        self.training_env.env_method("set_capture_tolerance", eps)
-        self.logger.record("train/capture_tolerance_m", float(eps.max()))
-
-    def _on_step(self) -> bool:
-        return True
+    tolerance = value
 
 
-class HoldCurriculum(BaseCallback):
-    """Training-only hold curriculum: the training envs ask a capture to hold for a time that
-    grows linearly from ``start`` (s; 0: the first entry captures, as a fly-through does on the
-    other scenarios) to the scenario's ``capture.hold`` over ``steps`` environment steps after
-    ``delay`` steps at ``start``, h(t) = start + (final - start) p with
-    p = :func:`curriculum_progress`, set at the start of every rollout (a resumed run continues
-    where it was). The validation, and everything evaluated, asks for the scenario's hold; the
-    recorded physical limit stays the scenario's.
+class HoldCurriculum(_Curriculum):
+    """The hold curriculum: the training envs ask a capture to hold for a time that grows
+    linearly from ``start`` (s; 0: the first entry captures, as a fly-through does on the other
+    scenarios) to the scenario's ``capture.hold`` (``final``, s),
+    h(t) = start + (final - start) p with p = :func:`curriculum_progress`; ``delay`` gives the
+    policy time to learn the fly-through first."""
 
-    Args:
-        start: starting hold, s.
-        final: the scenario's hold, s.
-        steps: environment steps to reach it, once it moves.
-        delay: environment steps at ``start`` first (time to learn the fly-through).
-    """
+    ENV_METHOD = "set_capture_hold"
+    TAG = "train/capture_hold_s"
 
-    def __init__(self, start: float, final: float, steps: int, delay: int = 0) -> None:
-        super().__init__()
-        self.start, self.final = float(start), float(final)
-        self.steps, self.delay = int(steps), int(delay)
-
-    def hold(self, step: int) -> float:
+    def value(self, step: int) -> float:
         """The hold at environment step ``step``, s."""
         p = curriculum_progress(step, self.steps, self.delay)
-        return self.start + (self.final - self.start) * p
+        return float(self.start + (self.final - self.start) * p)
 
-    def _on_training_start(self) -> None:
-        self._on_rollout_start()
-
-    def _on_rollout_start(self) -> None:
-        hold = self.hold(self.num_timesteps)
-        self.training_env.env_method("set_capture_hold", hold)
-        self.logger.record("train/capture_hold_s", hold)
-
-    def _on_step(self) -> bool:
-        return True
+    hold = value
 
 
 class _Normalized:

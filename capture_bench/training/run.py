@@ -201,7 +201,6 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     _check_shaping(hp)
     if any(key in hp for key in CURRICULA):  # default: half the run's budget, after the options
         hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
-        hp.setdefault("curriculum_delay", 0)
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
     if mixed:
@@ -476,22 +475,17 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     checkpointer = Checkpointer(run_dir / "checkpoints", hp["checkpoint_freq"], algo in OFF_POLICY)
     progress = Progress(config, hp, target)
     callbacks = [checkpointer, RolloutMetrics(), progress]
-    if "curriculum_tolerance" in hp:  # training only: validation tests the scenario's epsilon
+    if any(key in hp for key in CURRICULA):  # training only: validation keeps the rule
         from capture_bench.envs.capture_env import describe_task
 
-        final = describe_task(load_scenario(config.scenario)).capture_tolerance
-        callbacks.append(
-            ToleranceCurriculum(
-                hp["curriculum_tolerance"], final, hp["curriculum_steps"], hp["curriculum_delay"]
-            )
-        )
-    if "curriculum_hold" in hp:  # training only: validation asks for the scenario's hold
-        scenario_hold = load_scenario(config.scenario).capture.hold
-        callbacks.append(
-            HoldCurriculum(
-                hp["curriculum_hold"], scenario_hold, hp["curriculum_steps"], hp["curriculum_delay"]
-            )
-        )
+        scenario = load_scenario(config.scenario)
+        schedule = (hp["curriculum_steps"], hp["curriculum_delay"])
+        if "curriculum_tolerance" in hp:
+            final = describe_task(scenario).capture_tolerance
+            callbacks.append(ToleranceCurriculum(hp["curriculum_tolerance"], final, *schedule))
+        if "curriculum_hold" in hp:
+            hold = scenario.capture.hold
+            callbacks.append(HoldCurriculum(hp["curriculum_hold"], hold, *schedule))
     start = time.perf_counter()
     status = 0
     try:
