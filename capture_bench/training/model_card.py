@@ -24,7 +24,7 @@ from typing import Any
 from capture_bench.files import atomic_write
 from capture_bench.paths import models_dir
 from capture_bench.task.scenarios import ConfigError, load_scenario
-from capture_bench.training.policy_export import BEST_DIR
+from capture_bench.training.policy_export import BEST_DIR, VALIDATION_FILE
 
 #: The fields every model card has (``metadata.json`` key ``model_card``).
 CARD_FIELDS = ("command", "total_timesteps", "wall_time_s", "hardware", "training_seed",
@@ -128,9 +128,10 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
 
 
 def _best_validation(directory: Path) -> dict[str, Any] | None:
-    """``validation.json`` of a run's ``best/`` directory (its step and seeds), None for a run
+    """:data:`VALIDATION_FILE` of a run's ``best/`` directory (its step and seeds), as
+    :class:`~capture_bench.training.policy_export.BestModel` writes it; None for a run
     directory."""
-    found = directory / "validation.json"
+    found = directory / VALIDATION_FILE
     if directory.name != BEST_DIR or not found.is_file():
         return None
     try:
