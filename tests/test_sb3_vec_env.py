@@ -189,9 +189,9 @@ def test_episodes_are_recorded_in_batches(short_scenario, monkeypatch):
     sizes: list[int] = []
     original = vector_env.record_episodes
 
-    def spy(*args):
+    def spy(*args, **kwargs):
         sizes.append(len(args[-1]))
-        return original(*args)
+        return original(*args, **kwargs)
 
     monkeypatch.setattr(vector_env, "record_episodes", spy)
     env = CaptureSB3VecEnv(N, short_scenario, seed=SEED)

@@ -268,3 +268,35 @@ def test_seed_sources_seed_every_episode():
         env.set_episode_seeds([_Counter(0)])
     env.close()
     reference.close()
+
+
+def _transitions(env: CaptureVectorEnv, steps: int) -> list[np.ndarray]:
+    """Everything ``env`` returns over ``steps`` steps of random actions from ``reset(seed=3)``,
+    across autoresets, as arrays (info's object arrays as their repr)."""
+    rng = np.random.default_rng(5)
+    obs, info = env.reset(seed=3)
+    out = [obs, *(np.asarray(info[key]) for key in sorted(info))]
+    for t in range(steps):
+        scale = 0.1 if (t // 25) % 2 else 1.0  # slow spells, so that some episodes capture
+        obs, reward, terminated, truncated, info = env.step(scale * rng.uniform(-1, 1, (5, 3)))
+        out += [obs, reward, terminated, truncated]
+        for key in sorted(info):
+            value = info[key]
+            out.append(np.array(repr(value.tolist())) if value.dtype == object else value)
+    return out
+
+
+@pytest.mark.parametrize("scenario", ["paper", "noisy", "jitter", "grasp"])
+def test_the_live_ekf_equals_the_recorded_full_horizon_bit_for_bit(scenario, monkeypatch):
+    """The EKF that runs only as far as each episode is played gives every step exactly what
+    the recording of every row to the time limit gave it (``LIVE_ESTIMATES_FROM = None``):
+    observations, rewards, ends and info, across autoresets, with drop-outs and divergences
+    (noisy) and episodes of different lengths (jitter)."""
+    from capture_bench.envs import vector_env
+
+    live = _transitions(CaptureVectorEnv(5, scenario), 260)
+    monkeypatch.setattr(vector_env, "LIVE_ESTIMATES_FROM", None)
+    recorded = _transitions(CaptureVectorEnv(5, scenario), 260)
+    assert len(live) == len(recorded)
+    for i, (a, b) in enumerate(zip(live, recorded, strict=True)):
+        np.testing.assert_array_equal(a, b, err_msg=f"value {i}")

@@ -8,11 +8,16 @@ arithmetic may differ from the single env's in the last bits).
 
 How it is fast: nothing on the target's side of a step depends on the actions, so each sub-env's
 next episodes are recorded ahead, many at once
-(:func:`capture_bench.task.recording.record_episodes`: camera vectorised over time, EKF and bound
-over episodes), and a step only does the arm's side for all sub-envs together: the joint limits,
-forward kinematics and a pybullet collision query only for the sub-envs whose arm is near the
-floor or the base column (:func:`capture_bench.sim.collision_screen.clear_of_collisions`); then
-the task's rules (capture along the arc, eq. 20; failures; reward; ``info``; observation) are
+(:func:`capture_bench.task.recording.record_episodes`: camera vectorised over time, the first
+frame's cold photogrammetry and the bound over episodes). The EKF is the one part that runs with
+the steps: one batched filter, a row per sub-env, takes each sub-env's episode from its first row
+(:data:`LIVE_ESTIMATES_FROM`) one row per step played, so no filter runs past its episode's end;
+its numbers are those of the recording of every row, bit for bit (a filter's rows do not depend
+on the other rows of a call). A step then does the arm's side for all sub-envs together: the
+joint limits, forward kinematics and a pybullet collision query only for the sub-envs whose arm
+is near the floor or the base column
+(:func:`capture_bench.sim.collision_screen.clear_of_collisions`); then the task's rules
+(capture along the arc, eq. 20; failures; reward; ``info``; observation) are
 :class:`capture_bench.task.step_rule.StepRule`'s, the same that ``CaptureEnv`` applies to its one
 episode.
 
@@ -42,13 +47,19 @@ from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
 from capture_bench.envs.capture_env import check_actions, describe_task, resolve_scenario
+from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World, limit_joint_increments
 from capture_bench.task.episode import period_count
 from capture_bench.task.observation import observation_space
-from capture_bench.task.recording import STEP_TRACKS, RecordedEpisode, record_episodes
+from capture_bench.task.recording import (
+    STEP_TRACKS,
+    RecordedEpisode,
+    estimate_errors,
+    record_episodes,
+)
 from capture_bench.task.scenarios import Scenario
 from capture_bench.task.step_rule import ArmState, StepRule
 from capture_bench.task.target_side import scenario_camera
@@ -60,6 +71,13 @@ RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs ep
 #: more even with few sub-envs: the batched EKF costs 17.5 us per episode-step at 16 episodes and
 #: 9.7 us at 64 (README, ``bench_estimator_batch.py``). Memory: ~100 kB per recorded episode.
 RECORD_BATCH = 64
+#: With the EKF source, a recording estimates its first row only (row 0, whose cold
+#: photogrammetry is batched over the recording's episodes); the env's own EKF continues each
+#: episode from there, one row per step played, so no filter runs past its episode's end
+#: (learned policies end most episodes long before the time limit the recording reaches).
+#: None: recordings estimate every row (the reference ``tests/test_vector_env.py`` holds the
+#: live filter to, bit for bit).
+LIVE_ESTIMATES_FROM: int | None = 1
 
 
 class EpisodeSeedSource(Protocol):
@@ -147,6 +165,15 @@ class CaptureVectorEnv(VectorEnv):
             name: np.zeros((n, steps, *_TRACK_SHAPES[name]), dtype=_TRACK_DTYPES[name])
             for name in STEP_TRACKS
         }
+        # The EKF source runs each episode's filter only as far as the episode is played: the
+        # recording estimates row 0 (the batched cold photogrammetry), then this filter, one
+        # row per sub-env, continues it step by step with the frames of ``_images``.
+        self._ekf: BatchedTargetEstimator | None = None
+        if sc.estimator.source == "ekf" and LIVE_ESTIMATES_FROM is not None:
+            self._ekf = BatchedTargetEstimator(
+                n, self._camera.model, self._features, **sc.estimator_settings()
+            )
+            self._images = np.full((n, steps, self._features.shape[0], 2), np.nan)
         self._bound = np.full(n, np.nan)
         self._episodes: list[RecordedEpisode | None] = [None] * n
         self._steps = np.zeros(n, dtype=np.int64)
@@ -313,6 +340,7 @@ class CaptureVectorEnv(VectorEnv):
                 self._features,
                 self.description,
                 [rng for _, _, rng in jobs],
+                estimated_steps=None if self._ekf is None else LIVE_ESTIMATES_FROM,
             )
             if jobs
             else []
@@ -323,6 +351,7 @@ class CaptureVectorEnv(VectorEnv):
             i: (seed, episode)
             for (i, seed, _), episode in zip(now, recorded[: len(now)], strict=True)
         }
+        filters: list[tuple[int, FilterRows]] = []
         for i in envs.tolist():
             seed, episode = played[i] if i in played else self._queues[i].popleft()
             assert episode.bound is not None  # record_episodes computes it
@@ -330,6 +359,12 @@ class CaptureVectorEnv(VectorEnv):
             self._episode_seeds[i] = seed
             self._load_tracks(i, episode)
             self._bound[i] = episode.bound.time
+            if episode.continuation is not None:
+                self._images[i, : episode.time.size] = episode.images
+                filters.append((i, episode.continuation.filter))
+        if filters and self._ekf is not None:
+            rows, states = zip(*filters, strict=True)
+            self._ekf.restore(list(rows), FilterRows.stack(list(states)))
         self._steps[envs] = 0
         self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
 
@@ -373,6 +408,8 @@ class CaptureVectorEnv(VectorEnv):
         tracks, arm = self._tracks, self.description.arm
         k = self._steps[idx] + 1
         self._steps[idx] = k
+        if self._ekf is not None and m:
+            self._estimate(idx, k)
         before = {name: track[idx, k - 1] for name, track in tracks.items()}
         after = {name: track[idx, k] for name, track in tracks.items()}
         # The world: rate and joint limits (TaskDescription.action_to_increment, then
@@ -417,6 +454,34 @@ class CaptureVectorEnv(VectorEnv):
         info["physical_limit_time"] = limit
         info["_physical_limit_time"] = self._mask(over)
         return info
+
+    def _estimate(self, idx: NDArray[np.intp], k: NDArray[np.int64]) -> None:
+        """Row k[j] of the estimate tracks of sub-env idx[j], each at its own step (>= 1): one
+        update of the live EKF with those frames (what the recording's batched EKF gives the
+        row: a filter's numbers do not depend on which others update with it), then the
+        errors and NEES as :func:`~capture_bench.task.recording.estimate_errors` derives them."""
+        ekf, tracks = self._ekf, self._tracks
+        assert ekf is not None
+        images = np.full((self.num_envs, *self._images.shape[2:]), np.nan)
+        images[idx] = self._images[idx, k]
+        dt = np.zeros(self.num_envs)
+        dt[idx] = tracks["dt"][idx, k]
+        out = ekf.update(images, dt, self._mask(idx))
+        position, velocity, valid = out.position[idx], out.velocity[idx], out.valid[idx]
+        tracks["estimate_position"][idx, k] = position
+        tracks["estimate_velocity"][idx, k] = velocity
+        tracks["estimate_valid"][idx, k] = valid
+        tracks["estimator_status"][idx, k] = out.status[idx]
+        errors = estimate_errors(
+            position,
+            velocity,
+            out.covariance[idx],
+            valid,
+            tracks["position"][idx, k],
+            tracks["velocity"][idx, k],
+        )
+        for name, value in zip(("position_error", "velocity_error", "nees"), errors, strict=True):
+            tracks[name][idx, k] = value
 
     def _observe(self) -> NDArray[np.float32]:
         """The observation of every sub-env at its current step (the last real period: that of

@@ -49,6 +49,7 @@ from capture_bench.sensing.estimator import (
     state_to_global,
 )
 from capture_bench.sensing.photogrammetry import project_poses, projection_table, solve_pose_batch
+from capture_bench.sensing.row_products import row_stable_matmul
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -89,6 +90,37 @@ class BatchedEstimates:
     def status_names(self) -> list[str]:
         """The statuses as the strings of :class:`TargetEstimate`."""
         return [STATUSES[s] for s in self.status]
+
+
+@dataclass
+class FilterRows:
+    """The complete state of m rows of a :class:`BatchedTargetEstimator`: what their next
+    :meth:`~BatchedTargetEstimator.update` reads, so that another estimator given it
+    (:meth:`~BatchedTargetEstimator.restore`) continues those filters bit for bit.
+
+    Attributes:
+        x: (m, 12) states, block order, camera frame; P: (m, 12, 12) their covariances.
+        initialised, diverged: (m,) flags; high_nis, reinitialisations: (m,) counters;
+        status: (m,) int8 index into :data:`capture_bench.sensing.estimator.STATUSES`.
+    """
+
+    x: FloatArray
+    P: FloatArray
+    initialised: BoolArray
+    diverged: BoolArray
+    high_nis: NDArray[np.int64]
+    reinitialisations: NDArray[np.int64]
+    status: NDArray[np.int8]
+
+    def row(self, i: int) -> FilterRows:
+        """Row i alone, as a one-row :class:`FilterRows` (copies)."""
+        return FilterRows(*(np.array(value[i : i + 1]) for value in vars(self).values()))
+
+    @classmethod
+    def stack(cls, parts: list[FilterRows]) -> FilterRows:
+        """The rows of ``parts``, in order, as one :class:`FilterRows`."""
+        names = list(vars(parts[0]))
+        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in names))
 
 
 def _rows(mask: BoolArray) -> slice | NDArray[np.intp]:
@@ -207,6 +239,29 @@ class BatchedTargetEstimator:
         self.reinitialisations[rows] = 0
         self._status[rows] = INITIALISING
 
+    def snapshot(self, rows: ArrayLike) -> FilterRows:
+        """The state of the filters ``rows`` (indices), a copy (:class:`FilterRows`)."""
+        idx = np.asarray(rows, dtype=np.intp)
+        return FilterRows(
+            self.x[idx],
+            self.P[idx],
+            self.initialised[idx],
+            self.diverged[idx],
+            self.high_nis[idx],
+            self.reinitialisations[idx],
+            self._status[idx],
+        )
+
+    def restore(self, rows: ArrayLike, state: FilterRows) -> None:
+        """Give the filters ``rows`` (indices, as many as ``state`` has) the state ``state``:
+        their next update is the one the snapshot's filters would have made."""
+        idx = np.asarray(rows, dtype=np.intp)
+        self.x[idx], self.P[idx] = state.x, state.P
+        self.initialised[idx], self.diverged[idx] = state.initialised, state.diverged
+        self.high_nis[idx] = state.high_nis
+        self.reinitialisations[idx] = state.reinitialisations
+        self._status[idx] = state.status
+
     @property
     def state(self) -> FloatArray:
         """X (n, 12) in the paper's order (x, x_dot, y, y_dot, ...), a copy."""
@@ -311,7 +366,7 @@ class BatchedTargetEstimator:
         # + B Q B' with B = (t_s^2 / 2, t_s)' per coordinate: [[t^4/4, t^3/2], [t^3/2, t^2]] (x) Q
         half_t2 = 0.5 * dt * dt
         blocks = np.stack([half_t2 * half_t2, half_t2 * dt, half_t2 * dt, dt * dt], axis=1)
-        p += (blocks @ self._q_blocks).reshape(p.shape)
+        p += row_stable_matmul(blocks, self._q_blocks).reshape(p.shape)
 
     def _update(
         self, x: FloatArray, p: FloatArray, images: FloatArray
@@ -379,7 +434,7 @@ class BatchedTargetEstimator:
         """Eqs. 11-12: the global-frame estimates; NaN rows where not valid."""
         valid = active & _VALID[self._status]
         m, m_t = self._to_global, self._to_global_t
-        pv = self.x @ m_t  # (n, 6): R_gc-rotated (position, velocity)
+        pv = row_stable_matmul(self.x, m_t)  # (n, 6): R_gc-rotated (position, velocity)
         cov = m @ self.P @ m_t
         if not valid.all():
             pv[~valid] = np.nan

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from capture_bench.sensing.row_products import row_stable_matmul
 from capture_bench.sim.rotations import matrix_to_euler
 
 FloatArray = NDArray[np.float64]
@@ -151,24 +152,20 @@ def _table_products(
 
     BLAS rounds a matrix-vector product differently from a matrix-matrix one, and numpy takes
     the former for a single row; a row of a matrix-matrix product comes out the same whatever
-    the other rows. None: one product for all K rows, as numpy takes it.
+    the other rows (:func:`~capture_bench.sensing.row_products.row_stable_matmul`: always an
+    even number of them, a lone row twice). None: one product for all K rows, as numpy takes it.
     """
     k = features.shape[0]
     if alone is None:
         return features @ table.T
     n_alone = int(np.count_nonzero(alone))
-    if n_alone == 0 and k >= 2:
-        return features @ table.T
+    if n_alone == 0:
+        return row_stable_matmul(features, table.T)
     if n_alone == k:
         return (features[:, None, :] @ table.T)[:, 0]  # a stack of matrix-vector products
     g = np.empty((k, table.shape[0]))
-    if n_alone:
-        g[alone] = (features[alone, None, :] @ table.T)[:, 0]
-    rest = features[~alone] if n_alone else features
-    if rest.shape[0] == 1:  # a matrix-matrix product needs two rows: the row twice
-        g[~alone] = (np.repeat(rest, 2, axis=0) @ table.T)[:1]
-    else:
-        g[~alone] = rest @ table.T
+    g[alone] = (features[alone, None, :] @ table.T)[:, 0]
+    g[~alone] = row_stable_matmul(features[~alone], table.T)
     return g
 
 

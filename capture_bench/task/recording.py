@@ -34,7 +34,7 @@ from capture_bench.sensing.estimator import (
     TargetEstimator,
     normalised_error_squared,
 )
-from capture_bench.sensing.estimator_batch import BatchedTargetEstimator
+from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sim import kinematics
 from capture_bench.task.episode import EpisodePlan, episode_bounds
 from capture_bench.task.observation import TaskDescription
@@ -74,6 +74,9 @@ class RecordedEpisode(EpisodeTruth):
     ``position_error``, ``velocity_error``, ``nees`` (T+1,). ``bound`` is the episode's physical
     limit (``inf`` as ``CaptureEnv.physical_limit`` gives it), None until computed (the single
     env computes it lazily, at the end of an episode or when the oracle asks).
+    ``continuation`` is None when every row holds the estimator's output; a recording whose EKF
+    was run for its first rows only (:func:`record_episodes` with ``estimated_steps``) says
+    there where its estimates stop and the filter to continue from.
     """
 
     estimate_position: FloatArray
@@ -85,6 +88,19 @@ class RecordedEpisode(EpisodeTruth):
     velocity_error: FloatArray
     nees: FloatArray
     bound: PhysicalLimit | None
+    continuation: EstimatorContinuation | None = None
+
+
+@dataclass(eq=False)
+class EstimatorContinuation:
+    """Where a recording's estimates stop short of its time limit, and how to go on: rows 0 ..
+    ``step`` - 1 of the estimate tracks hold the EKF's output (later rows hold no estimate, and
+    their errors are NaN), and ``filter`` is the EKF's state after row ``step`` - 1
+    (:meth:`BatchedTargetEstimator.restore` continues it bit for bit, with the frames
+    ``images[step:]`` and periods ``dt[step:]``)."""
+
+    step: int
+    filter: FilterRows
 
 
 #: The per-step quantities of a :class:`RecordedEpisode` that a step reads, (T+1, ...) each.
@@ -115,6 +131,7 @@ def record_episodes(
     features: FloatArray,
     description: TaskDescription,
     rngs: Sequence[np.random.Generator],
+    estimated_steps: int | None = None,
 ) -> list[RecordedEpisode]:
     """The next episode of each generator, recorded to its time limit.
 
@@ -125,14 +142,24 @@ def record_episodes(
         description: the task (arm and capture tolerance) for the bound.
         rngs: one generator per episode; each advances exactly as ``CaptureEnv`` with
             ``reuse_target_side`` advances it in ``reset``.
+        estimated_steps: with the EKF source, run the EKF for the first ``estimated_steps``
+            rows only (>= 1; the batched cold photogrammetry of the first frames is there) and
+            give each episode its :class:`EstimatorContinuation`, for a consumer that runs the
+            rest of the filter only as far as the episode is played (``CaptureVectorEnv``).
+            None: every row. The other sources always estimate every row.
     """
+    if estimated_steps is not None and estimated_steps < 1:
+        raise ValueError(f"estimated_steps must be None or >= 1, got {estimated_steps}")
     truths = []
     for rng in rngs:
         plan = EpisodePlan.draw(scenario, camera.model, features, rng)
         truths.append(_truth(plan, camera, features, rng))
     source = scenario.estimator.source
+    continuations: list[EstimatorContinuation | None] = [None] * len(truths)
     if source == "ekf":
-        estimates = _estimate_ekf(scenario, camera, features, truths)
+        estimates, continuations = _estimate_ekf(
+            scenario, camera, features, truths, estimated_steps
+        )
     elif source == "photogrammetry":
         estimator = TargetEstimator(
             camera.model, features, source=source, **scenario.estimator_settings()
@@ -142,8 +169,10 @@ def record_episodes(
         estimates = [_estimate_truth(t) for t in truths]
     bounds = episode_bounds([t.plan for t in truths], description)
     return [
-        _finish(truth, estimate, bound)
-        for truth, estimate, bound in zip(truths, estimates, bounds, strict=True)
+        _finish(truth, estimate, bound, continuation)
+        for truth, estimate, bound, continuation in zip(
+            truths, estimates, bounds, continuations, strict=True
+        )
     ]
 
 
@@ -166,10 +195,15 @@ def _truth(
 
 
 def _estimate_ekf(
-    scenario: Scenario, camera: Camera, features: FloatArray, truths: Sequence[EpisodeTruth]
-) -> list[_Estimates]:
+    scenario: Scenario,
+    camera: Camera,
+    features: FloatArray,
+    truths: Sequence[EpisodeTruth],
+    estimated_steps: int | None,
+) -> tuple[list[_Estimates], list[EstimatorContinuation | None]]:
     """The EKF over all episodes together, step by step (episodes of different lengths stop
-    taking part after their last step)."""
+    taking part after their last step), through their last row or only the first
+    ``estimated_steps`` rows (then with each episode's continuation where it has more)."""
     n = len(truths)
     batch = BatchedTargetEstimator(n, camera.model, features, **scenario.estimator_settings())
     lengths = np.array([t.time.size for t in truths])
@@ -184,15 +218,22 @@ def _estimate_ekf(
     covariance = np.full((n, n_steps, 6, 6), np.nan)
     valid = np.zeros((n, n_steps), dtype=bool)
     status = np.zeros((n, n_steps), dtype=np.int8)
-    for k in range(n_steps):
+    stop = n_steps if estimated_steps is None else min(estimated_steps, n_steps)
+    for k in range(stop):
         out = batch.update(images[k], dt[k], lengths > k)
         position[:, k], velocity[:, k] = out.position, out.velocity
         covariance[:, k] = out.covariance
         valid[:, k], status[:, k] = out.valid, out.status
-    return [
+    continuations: list[EstimatorContinuation | None] = [None] * n
+    if stop < n_steps:
+        state = batch.snapshot(np.arange(n))
+        for i in np.flatnonzero(lengths > stop).tolist():
+            continuations[i] = EstimatorContinuation(stop, state.row(i))
+    estimates = [
         (position[i, :m], velocity[i, :m], covariance[i, :m], valid[i, :m], status[i, :m])
         for i, m in enumerate(lengths.tolist())
     ]
+    return estimates, continuations
 
 
 def _estimate_one_by_one(estimator: TargetEstimator, truth: EpisodeTruth) -> _Estimates:
@@ -225,7 +266,12 @@ def _estimate_truth(truth: EpisodeTruth) -> _Estimates:
     )
 
 
-def _finish(truth: EpisodeTruth, estimates: _Estimates, bound: PhysicalLimit) -> RecordedEpisode:
+def _finish(
+    truth: EpisodeTruth,
+    estimates: _Estimates,
+    bound: PhysicalLimit,
+    continuation: EstimatorContinuation | None = None,
+) -> RecordedEpisode:
     """Errors, NEES and reachability of every step, as ``CaptureEnv`` derives them."""
     position, velocity, covariance, valid, status = estimates
     position_error, velocity_error, nees = estimate_errors(
@@ -242,6 +288,7 @@ def _finish(truth: EpisodeTruth, estimates: _Estimates, bound: PhysicalLimit) ->
         velocity_error=velocity_error,
         nees=nees,
         bound=bound,
+        continuation=continuation,
     )
 
 
@@ -270,13 +317,22 @@ def estimate_errors(
     nees = np.full(valid.size, np.nan)
     rows = np.flatnonzero(valid & np.isfinite(covariance).all(axis=(1, 2)))
     try:  # e^T P^-1 e through one batched Cholesky factorisation
-        chol = np.linalg.cholesky(covariance[rows])
-        w = np.linalg.solve(chol, error[rows][:, :, None])[:, :, 0]
-        nees[rows] = np.einsum("ij,ij->i", w, w)
-    except np.linalg.LinAlgError:  # some P not positive definite: NaN there
-        for k in rows.tolist():
-            nees[k] = normalised_error_squared(error[k], covariance[k])
+        nees[rows] = _nees(covariance[rows], error[rows])
+    except np.linalg.LinAlgError:  # some P not positive definite: NaN there, the same
+        for k in rows.tolist():  # arithmetic row by row elsewhere (a row's NEES does not
+            try:  # depend on which rows share the call: live and recorded rows agree)
+                nees[k] = _nees(covariance[k : k + 1], error[k : k + 1])[0]
+            except np.linalg.LinAlgError:
+                pass
     return position_error, velocity_error, nees
+
+
+def _nees(covariance: FloatArray, error: FloatArray) -> FloatArray:
+    """``e^T P^-1 e`` of m rows, (m, 6, 6) and (m, 6): ``|L^-1 e|^2`` with ``P = L L^T``;
+    ``LinAlgError`` if some P is not positive definite."""
+    chol = np.linalg.cholesky(covariance)
+    w = np.linalg.solve(chol, error[:, :, None])[:, :, 0]
+    return np.einsum("ij,ij->i", w, w)
 
 
 def estimate_errors_scalar(
