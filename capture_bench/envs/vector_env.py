@@ -71,9 +71,9 @@ RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs ep
 #: more even with few sub-envs: the batched EKF costs 17.5 us per episode-step at 16 episodes and
 #: 9.7 us at 64 (README, ``bench_estimator_batch.py``). Memory: ~100 kB per recorded episode.
 RECORD_BATCH = 64
-#: With the EKF source, a recording estimates its first row only (row 0, whose cold
-#: photogrammetry is batched over the recording's episodes); the env's own EKF continues each
-#: episode from there, one row per step played, so no filter runs past its episode's end
+#: With the EKF source, a recording estimates its first ``LIVE_ESTIMATES_FROM`` rows only (row
+#: 0's cold photogrammetry is batched over the recording's episodes); the env's own EKF continues
+#: each episode from there, one row per step played, so no filter runs past its episode's end
 #: (learned policies end most episodes long before the time limit the recording reaches).
 #: None: recordings estimate every row (the reference ``tests/test_vector_env.py`` holds the
 #: live filter to, bit for bit).
@@ -174,6 +174,10 @@ class CaptureVectorEnv(VectorEnv):
                 n, self._camera.model, self._features, **sc.estimator_settings()
             )
             self._images = np.full((n, steps, self._features.shape[0], 2), np.nan)
+        # The first row of each sub-env's episode that the live filter estimates (the
+        # recording's continuation step; past the episode's end where the recording holds
+        # every row).
+        self._live_from = np.zeros(n, dtype=np.int64)
         self._bound = np.full(n, np.nan)
         self._episodes: list[RecordedEpisode | None] = [None] * n
         self._steps = np.zeros(n, dtype=np.int64)
@@ -359,8 +363,10 @@ class CaptureVectorEnv(VectorEnv):
             self._episode_seeds[i] = seed
             self._load_tracks(i, episode)
             self._bound[i] = episode.bound.time
+            self._live_from[i] = episode.time.size
             if episode.continuation is not None:
                 self._images[i, : episode.time.size] = episode.images
+                self._live_from[i] = episode.continuation.step
                 filters.append((i, episode.continuation.filter))
         if filters and self._ekf is not None:
             rows, states = zip(*filters, strict=True)
@@ -409,7 +415,9 @@ class CaptureVectorEnv(VectorEnv):
         k = self._steps[idx] + 1
         self._steps[idx] = k
         if self._ekf is not None and m:
-            self._estimate(idx, k)
+            live = k >= self._live_from[idx]
+            if live.any():
+                self._estimate(idx[live], k[live])
         before = {name: track[idx, k - 1] for name, track in tracks.items()}
         after = {name: track[idx, k] for name, track in tracks.items()}
         # The world: rate and joint limits (TaskDescription.action_to_increment, then
@@ -456,10 +464,11 @@ class CaptureVectorEnv(VectorEnv):
         return info
 
     def _estimate(self, idx: NDArray[np.intp], k: NDArray[np.int64]) -> None:
-        """Row k[j] of the estimate tracks of sub-env idx[j], each at its own step (>= 1): one
-        update of the live EKF with those frames (what the recording's batched EKF gives the
-        row: a filter's numbers do not depend on which others update with it), then the
-        errors and NEES as :func:`~capture_bench.task.recording.estimate_errors` derives them."""
+        """Row k[j] of the estimate tracks of sub-env idx[j], each at its own step (the row
+        after the last one its filter estimated): one update of the live EKF with those frames
+        (what the recording's batched EKF gives the row: a filter's numbers do not depend on
+        which others update with it), then the errors and NEES as
+        :func:`~capture_bench.task.recording.estimate_errors` derives them."""
         ekf, tracks = self._ekf, self._tracks
         assert ekf is not None
         images = np.full((self.num_envs, *self._images.shape[2:]), np.nan)

@@ -27,7 +27,7 @@ order). In blocks the model's structure is plain:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -114,13 +114,12 @@ class FilterRows:
 
     def row(self, i: int) -> FilterRows:
         """Row i alone, as a one-row :class:`FilterRows` (copies)."""
-        return FilterRows(*(np.array(value[i : i + 1]) for value in vars(self).values()))
+        return FilterRows(*(np.array(getattr(self, f.name)[i : i + 1]) for f in fields(self)))
 
     @classmethod
     def stack(cls, parts: list[FilterRows]) -> FilterRows:
         """The rows of ``parts``, in order, as one :class:`FilterRows`."""
-        names = list(vars(parts[0]))
-        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in names))
+        return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)))
 
 
 def _rows(mask: BoolArray) -> slice | NDArray[np.intp]:
