@@ -112,10 +112,6 @@ class FilterRows:
     reinitialisations: NDArray[np.int64]
     status: NDArray[np.int8]
 
-    def row(self, i: int) -> FilterRows:
-        """Row i alone, as a one-row :class:`FilterRows` (copies)."""
-        return FilterRows(*(np.array(getattr(self, f.name)[i : i + 1]) for f in fields(self)))
-
     @classmethod
     def stack(cls, parts: list[FilterRows]) -> FilterRows:
         """The rows of ``parts``, in order, as one :class:`FilterRows`."""

@@ -226,9 +226,8 @@ def _estimate_ekf(
         valid[:, k], status[:, k] = out.valid, out.status
     continuations: list[EstimatorContinuation | None] = [None] * n
     if stop < n_steps:
-        state = batch.snapshot(np.arange(n))
         for i in np.flatnonzero(lengths > stop).tolist():
-            continuations[i] = EstimatorContinuation(stop, state.row(i))
+            continuations[i] = EstimatorContinuation(stop, batch.snapshot([i]))
     estimates = [
         (position[i, :m], velocity[i, :m], covariance[i, :m], valid[i, :m], status[i, :m])
         for i, m in enumerate(lengths.tolist())
@@ -318,9 +317,11 @@ def estimate_errors(
     rows = np.flatnonzero(valid & np.isfinite(covariance).all(axis=(1, 2)))
     try:  # e^T P^-1 e through one batched Cholesky factorisation
         nees[rows] = _nees(covariance[rows], error[rows])
-    except np.linalg.LinAlgError:  # some P not positive definite: NaN there, the same
-        for k in rows.tolist():  # arithmetic row by row elsewhere (a row's NEES does not
-            try:  # depend on which rows share the call: live and recorded rows agree)
+    except np.linalg.LinAlgError:
+        # Some P not positive definite: NaN there, and the same arithmetic row by row elsewhere
+        # (a row's NEES does not depend on which rows share the call: live and recorded agree).
+        for k in rows.tolist():
+            try:
                 nees[k] = _nees(covariance[k : k + 1], error[k : k + 1])[0]
             except np.linalg.LinAlgError:
                 pass
