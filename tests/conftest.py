@@ -1,5 +1,7 @@
-"""Shared fixtures: environments that are always closed; an evaluation's report and its data."""
+"""Shared fixtures: environments that are always closed; an evaluation's report and its data;
+each test's signal handlers put back."""
 
+import signal
 import tempfile
 from pathlib import Path
 
@@ -12,6 +14,28 @@ import capture_bench  # noqa: F401  (registers the environments)
 # The fuzz tests use no example database (CI sees the same inputs every run); Hypothesis's own
 # caches (constants, Unicode tables) go to the temporary folder, not a .hypothesis/ in the checkout.
 set_hypothesis_home_dir(Path(tempfile.gettempdir()) / "capture-bench-hypothesis")
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def default_sigint() -> None:
+    """``preexec_fn`` for a child that a test stops with Ctrl-C's signal: SIGINT at its default,
+    as in a terminal. A process started in the background by a non-interactive shell (a CI
+    runner, ``nohup ... &``) inherits SIGINT ignored, Python then installs no KeyboardInterrupt
+    handler, and the child ran to the end (status 0, not 130)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture(autouse=True)
+def _signal_handlers_put_back():
+    """Put back SIGINT's and SIGTERM's handlers after each test: one that changes them (Ray's
+    start-up handles SIGTERM in this process) must not change how a later test's processes
+    end."""
+    before = {s: signal.getsignal(s) for s in SIGNALS}
+    yield
+    for s, handler in before.items():
+        if signal.getsignal(s) != handler:
+            signal.signal(s, handler)
 
 
 @pytest.fixture

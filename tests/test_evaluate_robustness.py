@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import default_sigint
 
 from evaluate import main
 
@@ -109,7 +110,7 @@ def test_a_signal_ends_evaluate_at_once_with_no_worker_left(signum, status, tmp_
         [sys.executable, "evaluate.py", "--suite", "quick", "--episodes", "50", "--workers", "2",
          "--out", str(out)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=default_sigint,
     )  # fmt: skip
     deadline = time.monotonic() + 60
     workers: list[int] = []

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import default_sigint
 
 import train
 
@@ -155,6 +156,7 @@ def _start(tmp_path: Path, vec_env: str) -> tuple[subprocess.Popen, Path]:
         [sys.executable, "train.py", "--config", str(config), "--run-dir", str(run_dir),
          "--vec-env", vec_env],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        preexec_fn=default_sigint,
     )  # fmt: skip
     assert proc.stdout is not None
     for line in proc.stdout:  # wait until learning has started
