@@ -1,5 +1,5 @@
-"""Shared fixtures: environments that are always closed; an evaluation's report and its data;
-each test's signal handlers put back."""
+"""Shared fixtures: environments that are always closed; an evaluation's report and its data.
+Also ``default_sigint``, for tests that stop a child process with Ctrl-C's signal."""
 
 import signal
 import tempfile
@@ -15,8 +15,6 @@ import capture_bench  # noqa: F401  (registers the environments)
 # caches (constants, Unicode tables) go to the temporary folder, not a .hypothesis/ in the checkout.
 set_hypothesis_home_dir(Path(tempfile.gettempdir()) / "capture-bench-hypothesis")
 
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
 
 def default_sigint() -> None:
     """``preexec_fn`` for a child that a test stops with Ctrl-C's signal: SIGINT at its default,
@@ -24,18 +22,6 @@ def default_sigint() -> None:
     runner, ``nohup ... &``) inherits SIGINT ignored, Python then installs no KeyboardInterrupt
     handler, and the child ran to the end (status 0, not 130)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-@pytest.fixture(autouse=True)
-def _signal_handlers_put_back():
-    """Put back SIGINT's and SIGTERM's handlers after each test: one that changes them (Ray's
-    start-up handles SIGTERM in this process) must not change how a later test's processes
-    end."""
-    before = {s: signal.getsignal(s) for s in SIGNALS}
-    yield
-    for s, handler in before.items():
-        if signal.getsignal(s) != handler:
-            signal.signal(s, handler)
 
 
 @pytest.fixture
