@@ -1,7 +1,5 @@
-"""Shared fixtures: environments that are always closed; an evaluation's report and its data.
-Also ``default_sigint``, for tests that stop a child process with Ctrl-C's signal."""
+"""Shared fixtures: environments that are always closed; an evaluation's report and its data."""
 
-import signal
 import tempfile
 from pathlib import Path
 
@@ -14,14 +12,6 @@ import capture_bench  # noqa: F401  (registers the environments)
 # The fuzz tests use no example database (CI sees the same inputs every run); Hypothesis's own
 # caches (constants, Unicode tables) go to the temporary folder, not a .hypothesis/ in the checkout.
 set_hypothesis_home_dir(Path(tempfile.gettempdir()) / "capture-bench-hypothesis")
-
-
-def default_sigint() -> None:
-    """``preexec_fn`` for a child that a test stops with Ctrl-C's signal: SIGINT at its default,
-    as in a terminal. A process started in the background by a non-interactive shell (a CI
-    runner, ``nohup ... &``) inherits SIGINT ignored, Python then installs no KeyboardInterrupt
-    handler, and the child ran to the end (status 0, not 130)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 @pytest.fixture

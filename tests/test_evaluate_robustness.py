@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import default_sigint
+from processes import alive, default_sigint, descendants
 
 from evaluate import main
 
@@ -81,26 +81,6 @@ def test_a_scenario_file_path_is_accepted(tmp_path, capsys):
     assert not (tmp_path / "r2").exists()
 
 
-def _descendants(pid: int) -> list[int]:
-    children = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat = (entry / "stat").read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                children.append(int(entry.name))
-    return children + [d for c in children for d in _descendants(c)]
-
-
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 @pytest.mark.parametrize(("signum", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_ends_evaluate_at_once_with_no_worker_left(signum, status, tmp_path):
     out = tmp_path / "reports"
@@ -116,7 +96,7 @@ def test_a_signal_ends_evaluate_at_once_with_no_worker_left(signum, status, tmp_
     workers: list[int] = []
     while time.monotonic() < deadline and len(workers) < 3:  # forkserver + 2 workers running
         time.sleep(0.2)
-        workers = _descendants(proc.pid)
+        workers = descendants(proc.pid)
     assert len(workers) >= 3, "the workers never started"
     time.sleep(1.0)  # mid-episodes
     proc.send_signal(signum)
@@ -124,6 +104,6 @@ def test_a_signal_ends_evaluate_at_once_with_no_worker_left(signum, status, tmp_
     assert proc.returncode == status, err
     assert "Traceback" not in err and "interrupted" in err
     time.sleep(0.5)
-    assert not [pid for pid in workers if _alive(pid)], "a worker outlived evaluate.py"
+    assert not [pid for pid in workers if alive(pid)], "a worker outlived evaluate.py"
     assert (out / "quick" / "marker").read_text() == "previous report"
     assert sorted(p.name for p in out.iterdir()) == ["quick"]  # no staging folder left

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import default_sigint
+from processes import alive, default_sigint, descendants
 
 import train
 
@@ -166,44 +166,19 @@ def _start(tmp_path: Path, vec_env: str) -> tuple[subprocess.Popen, Path]:
     return proc, run_dir
 
 
-def _children(pid: int) -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat = (entry / "stat").read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                found.append(int(entry.name))
-    return found
-
-
-def _descendants(pid: int) -> list[int]:
-    found = _children(pid)
-    return found + [d for child in found for d in _descendants(child)]
-
-
-def _state(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return "gone"
-
-
 @pytest.mark.parametrize(("signum", "status", "vec_env"), [
     (signal.SIGTERM, 143, "subproc"), (signal.SIGINT, 130, "dummy"),
 ])  # fmt: skip
 def test_a_signal_saves_a_checkpoint_that_resumes(tmp_path, signum, status, vec_env):
     proc, run_dir = _start(tmp_path, vec_env)
-    workers = _descendants(proc.pid)
+    workers = descendants(proc.pid)
     assert vec_env == "dummy" or len(workers) >= 2, workers
     proc.send_signal(signum)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == status, err
     assert "Traceback" not in err and "interrupted at" in out, (out, err)
     time.sleep(0.5)
-    left = [pid for pid in workers if Path(f"/proc/{pid}").exists() and _state(pid) != "Z"]
+    left = [pid for pid in workers if alive(pid)]
     assert not left, f"workers {left} outlived train.py"
     from capture_bench.training.checkpoint import list_checkpoints
 
