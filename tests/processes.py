@@ -24,7 +24,7 @@ def _stat_fields(pid: int) -> list[str] | None:
 
 
 def descendants(pid: int) -> list[int]:
-    """Every living process below ``pid``: its children, theirs, and so on."""
+    """Every process below ``pid`` that /proc lists (zombies too): its children, theirs, and so on."""
     children = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
