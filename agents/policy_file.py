@@ -25,13 +25,12 @@ expects). The result acts exactly as the same model loaded by SB3 (tested on eve
 ``python -m agents.policy_file convert DIR --trust-model`` converts an existing SB3 model
 directory (which unpickles it: only for files you trust).
 
-Why one file of ~560 lines: the writer, the validating reader and the converter of one file format;
+Why one file of ~730 lines: the writer, the validating reader and the converter of one file format;
 the validation rules are the format's definition and must be read beside what writes it.
 """
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import inspect
 import json
@@ -494,6 +493,54 @@ def declare(algorithm: str, policy: Any, normalizer: ObservationNormalizer | Non
     }
 
 
+def policy_files(
+    algorithm: str,
+    policy: Any,
+    normalizer: ObservationNormalizer | None = None,
+    extra: dict[str, Any] | None = None,
+    where: str = "policy",
+) -> tuple[bytes, bytes]:
+    """The contents of ``policy.pt`` and ``metadata.json`` (``extra`` entries first) declaring
+    ``policy``, checked to read back as a declaration; nothing is written.
+
+    Raises:
+        PolicyLoadError: naming ``where``: a policy the format cannot declare.
+    """
+    import io
+
+    import torch
+
+    try:
+        declaration = declare(algorithm, policy, normalizer)
+    except PolicyLoadError as exc:
+        raise PolicyLoadError(f"{where}: {exc}") from None
+    metadata = {**(extra or {}), **declaration}
+    parse_declaration(metadata, where)  # what we write, we can read
+    text = json.dumps(metadata, indent=2, allow_nan=False) + "\n"
+    state = {k: v.detach().cpu().clone() for k, v in policy.state_dict().items()}
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    return buffer.getvalue(), text.encode()
+
+
+def write_policy_files(directory: Path, weights: bytes, metadata: bytes) -> Path:
+    """Write :func:`policy_files`' contents into ``directory`` (created if missing).
+
+    Each file is written to a temporary name and renamed, so an interrupted write leaves the
+    previous files whole. The weights are written before the metadata that names them.
+
+    Returns:
+        The metadata file.
+    """
+    from capture_bench.files import atomic_write
+
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    atomic_write(directory / WEIGHTS_FILE, weights)
+    atomic_write(directory / METADATA_FILE, metadata)
+    return directory / METADATA_FILE
+
+
 def save_policy(
     directory: Path,
     algorithm: str,
@@ -501,10 +548,8 @@ def save_policy(
     normalizer: ObservationNormalizer | None = None,
     extra: dict[str, Any] | None = None,
 ) -> Path:
-    """Write ``policy.pt`` and ``metadata.json`` (``extra`` entries first) into ``directory``.
-
-    Each file is written to a temporary name and renamed, so an interrupted save leaves the
-    previous files whole. The weights are written before the metadata that names them.
+    """Write ``policy.pt`` and ``metadata.json`` (``extra`` entries first) into ``directory``:
+    :func:`policy_files`, then :func:`write_policy_files` (atomic, weights first).
 
     Args:
         directory: the model directory (created if missing).
@@ -516,48 +561,129 @@ def save_policy(
     Returns:
         The metadata file.
     """
-    import io
-
-    import torch
-
-    from capture_bench.files import atomic_write
-
     directory = Path(directory)
-    declaration = declare(algorithm, policy, normalizer)
-    metadata = {**(extra or {}), **declaration}
-    parse_declaration(metadata, str(directory / METADATA_FILE))  # what we write, we can read
-    state = {k: v.detach().cpu().clone() for k, v in policy.state_dict().items()}
-    buffer = io.BytesIO()
-    torch.save(state, buffer)
-    directory.mkdir(parents=True, exist_ok=True)
-    atomic_write(directory / WEIGHTS_FILE, buffer.getvalue())
-    text = json.dumps(metadata, indent=2, allow_nan=False) + "\n"
-    atomic_write(directory / METADATA_FILE, text.encode())
-    return directory / METADATA_FILE
+    weights, metadata = policy_files(
+        algorithm, policy, normalizer, extra, str(directory / METADATA_FILE)
+    )
+    return write_policy_files(directory, weights, metadata)
 
 
 # --------------------------------------------------------------------------- conversion
 
+_CONVERTIBLE = (
+    "convert takes a directory holding an SB3 .zip (from model.save) and a metadata.json naming "
+    'its algorithm, e.g. {"algorithm": "PPO"}'
+)
 
-def convert(directory: Path) -> Path:
-    """Write the safe form of the SB3 model directory ``directory`` beside its ``.zip``.
 
-    This unpickles the ``.zip`` (and VecNormalize statistics): call it only on files you trust.
+def _listing(directory: Path) -> str:
+    names = sorted(p.name for p in directory.iterdir())
+    return (", ".join(names[:6]) + (" ..." if len(names) > 6 else "")) or "nothing"
+
+
+def _check_directory(directory: Path) -> None:
+    if directory.is_dir():
+        return
+    if directory.exists():
+        held_by = f" (the model directory may be {directory.parent})"
+        raise PolicyLoadError(f"{directory}: a file, not a directory{held_by}; {_CONVERTIBLE}")
+    if directory.name == "best" and directory.parent.is_dir():
+        raise PolicyLoadError(
+            f"{directory}: no such directory: the run has no best/ (train.py writes it only with "
+            f"periodic validation, eval_freq > 0); its final model is {directory.parent}"
+        )
+    raise PolicyLoadError(f"{directory}: no such directory; {_CONVERTIBLE}")
+
+
+def _metadata_entries(meta_file: Path) -> dict[str, Any]:
+    """The entries of a metadata file, as read (the checks are :func:`read_metadata`'s)."""
+    kind = "JSON" if meta_file.suffix == ".json" else "YAML"
+    expected = 'expected a mapping naming the algorithm, e.g. {"algorithm": "PPO"}'
+    try:
+        text = meta_file.read_text()
+        data = json.loads(text) if kind == "JSON" else yaml.safe_load(text)
+    except (OSError, ValueError, yaml.YAMLError) as exc:  # UnicodeDecodeError is a ValueError
+        reason = " ".join(str(exc).split())
+        reason = reason if len(reason) <= 100 else reason[:97] + "..."
+        raise PolicyLoadError(f"{meta_file}: not valid {kind} ({reason}); {expected}") from None
+    if not isinstance(data, dict):
+        raise PolicyLoadError(f"{meta_file}: holds a {type(data).__name__}; {expected}")
+    return data
+
+
+def _check_plain_json(entries: dict[str, Any], meta_file: Path) -> None:
+    """Refuse an entry ``metadata.json`` cannot hold (a YAML date, a NaN), naming it."""
+    for key, value in entries.items():
+        try:
+            json.dumps(value, allow_nan=False)
+        except (TypeError, ValueError):
+            text = repr(value) if len(repr(value)) <= 60 else repr(value)[:57] + "..."
+            raise PolicyLoadError(
+                f"{meta_file}: entry {key!r} is {text}, which JSON cannot hold; valid: strings "
+                "(quote a date), finite numbers, true, false, null, and lists or mappings of them"
+            ) from None
+
+
+def prepare_conversion(directory: Path) -> tuple[bytes, bytes]:
+    """The ``policy.pt`` and ``metadata.json`` contents of the safe form of the SB3 model
+    directory ``directory``; nothing is written (:func:`write_policy_files` writes them).
+
+    The directory's files are checked first (cheaply, before anything is unpickled); then the
+    ``.zip`` (and VecNormalize statistics) are unpickled: call it only on files you trust.
     Existing metadata entries are kept; the declaration entries are added.
-    """
-    from agents.sb3_policy import load_trusted, read_metadata
 
+    Raises:
+        PolicyLoadError: one line naming the file, what is wrong and what would be right.
+    """
+    from agents.sb3_policy import find_metadata_file, load_trusted, read_metadata
+
+    directory = Path(directory)
+    _check_directory(directory)
+    meta_file = find_metadata_file(directory)
+    if meta_file is None:
+        raise PolicyLoadError(
+            f"{directory}: no metadata file (found: {_listing(directory)}); {_CONVERTIBLE} "
+            f"(valid: {', '.join(POLICY_CLASSES)})"
+        )
+    entries = _metadata_entries(meta_file)
+    if not entries.get("model") and not any(directory.glob("*.zip")):
+        raise PolicyLoadError(
+            f"{directory}: no SB3 .zip to convert (found: {_listing(directory)}); {_CONVERTIBLE}"
+        )
+    weights = entries.get("weights")
+    weights_file = directory / (weights if isinstance(weights, str) and weights else WEIGHTS_FILE)
+    if "format" in entries and not weights_file.is_file():
+        raise PolicyLoadError(
+            f"{weights_file}: missing, though {meta_file.name} declares it; restore it, or, to "
+            f"convert the .zip afresh, give {meta_file.name} only the model's own entries, "
+            'e.g. {"algorithm": "PPO"}'
+        )
+    _check_plain_json(entries, meta_file)
     metadata = read_metadata(directory)
     loaded = load_trusted(metadata)
-    text = metadata.metadata_file.read_text()
-    extra = json.loads(text) if metadata.metadata_file.suffix == ".json" else yaml.safe_load(text)
-    extra.pop("vecnormalize", None)
-    return save_policy(directory, metadata.algorithm, loaded.policy, loaded.normalizer, extra)
+    entries.pop("vecnormalize", None)
+    return policy_files(
+        metadata.algorithm, loaded.policy, loaded.normalizer, entries, str(metadata.model_file)
+    )
+
+
+def convert(directory: Path) -> Path:
+    """Write the safe form of the SB3 model directory ``directory`` beside its ``.zip``
+    (:func:`prepare_conversion`, then :func:`write_policy_files`); returns the metadata file.
+
+    This unpickles the ``.zip`` (and VecNormalize statistics): call it only on files you trust.
+    """
+    return write_policy_files(Path(directory), *prepare_conversion(directory))
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m agents.policy_file convert DIR --trust-model``: convert SB3 model dirs."""
-    parser = argparse.ArgumentParser(
+    """``python -m agents.policy_file convert DIR... --trust-model``: convert SB3 model dirs.
+
+    Every directory is checked and loaded before any is written: a bad one writes nothing.
+    """
+    from capture_bench.argparsing import OneLineParser
+
+    parser = OneLineParser(
         prog="python -m agents.policy_file",
         description="Convert an SB3 model directory (model.zip + metadata) to the safe form "
         "(policy.pt + declared metadata.json) that capture-bench loads without unpickling.",
@@ -574,20 +700,33 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.trust_model:
         print(
-            "policy_file: error: converting unpickles the SB3 .zip, which can run code; "
+            f"{parser.prog}: error: converting unpickles the SB3 .zip, which can run code; "
             "pass --trust-model if you trust where it came from",
             file=sys.stderr,
         )
         return 2
-    for directory in args.directory:
-        try:
-            written = convert(directory)
-        except PolicyLoadError as exc:
-            print(f"policy_file: error: {exc}", file=sys.stderr)
-            return 2
-        print(f"{directory}: wrote {directory / WEIGHTS_FILE} and {written}")
+    try:
+        prepared = [(directory, prepare_conversion(directory)) for directory in args.directory]
+        for directory, (weights, metadata) in prepared:
+            written = write_policy_files(directory, weights, metadata)
+            print(f"{directory}: wrote {directory / WEIGHTS_FILE} and {written}")
+    except PolicyLoadError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(
+            f"{parser.prog}: error: {exc.filename or 'model directory'}: {exc.strerror or exc}; "
+            "convert must read the model directory and write policy.pt and metadata.json into it",
+            file=sys.stderr,
+        )
+        return 2
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # ``python -m agents.policy_file`` runs this file as the module ``__main__``, a second copy
+    # beside ``agents.policy_file``: the PolicyLoadError that agents.sb3_policy raises is the
+    # latter's, which the former's ``except`` would not catch. So the latter's main runs.
+    from agents.policy_file import main as _main
+
+    raise SystemExit(_main())
