@@ -1,4 +1,4 @@
-"""``python -m agents.policy_file convert DIR --trust-model`` on bad input: one line on stderr
+"""``python -m agents.convert DIR --trust-model`` on bad input: one line on stderr
 naming the file, the problem and what would be right, exit status 2, and nothing written."""
 
 from __future__ import annotations
@@ -14,10 +14,11 @@ from pathlib import Path
 import pytest
 from stand_in import sb3_model
 
-from agents.policy_file import main, save_policy
+from agents.convert import main
+from agents.policy_file import save_policy
 
 ROOT = Path(__file__).resolve().parents[1]
-PREFIX = "python -m agents.policy_file: error: "
+PREFIX = "python -m agents.convert: error: "
 
 
 @pytest.fixture(scope="module")
@@ -148,7 +149,7 @@ def test_a_bad_model_directory_is_one_line_and_exit_2_and_writes_nothing(
     d.mkdir()
     target = build(d, made)
     before = _files(d)
-    assert main(["convert", str(target), "--trust-model"]) == 2
+    assert main([str(target), "--trust-model"]) == 2
     captured = capsys.readouterr()
     err = captured.err
     assert captured.out == ""
@@ -160,12 +161,12 @@ def test_a_bad_model_directory_is_one_line_and_exit_2_and_writes_nothing(
 
 def test_the_readme_placeholder_path_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys):
     placeholder = re.search(
-        r"python -m agents\.policy_file convert (\S+) --trust-model",
+        r"python -m agents\.convert (\S+) --trust-model",
         (ROOT / "README.md").read_text(),
     )
     assert placeholder is not None
     monkeypatch.chdir(tmp_path)
-    assert main(["convert", placeholder.group(1), "--trust-model"]) == 2
+    assert main([placeholder.group(1), "--trust-model"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert f"{placeholder.group(1)}: no such directory; convert takes a directory holding" in err
@@ -181,7 +182,7 @@ def test_run_as_a_module_a_bad_directory_is_one_line_without_a_traceback(metadat
         (tmp_path / "m" / "model.zip").write_bytes(b"never read")
         target = "m"
     result = subprocess.run(
-        [sys.executable, "-m", "agents.policy_file", "convert", target, "--trust-model"],
+        [sys.executable, "-m", "agents.convert", target, "--trust-model"],
         cwd=tmp_path,
         env={**os.environ, "PYTHONPATH": str(ROOT)},  # this checkout, wherever it is installed
         capture_output=True,
@@ -200,16 +201,16 @@ def test_one_bad_directory_among_several_writes_none_of_them(made, tmp_path, cap
         _zip(d, made)
     _metadata(good, {"algorithm": "PPO"})
     _metadata(bad, {"algorithm": "SAC"})  # beside a PPO .zip
-    assert main(["convert", str(good), str(bad), "--trust-model"]) == 2
+    assert main([str(good), str(bad), "--trust-model"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "says algorithm SAC, but model.zip holds a PPO" in err
     assert sorted(p.name for p in good.iterdir()) == ["metadata.json", "model.zip"]
-    assert main(["convert", str(good), "--trust-model"]) == 0
+    assert main([str(good), "--trust-model"]) == 0
     assert (good / "policy.pt").is_file()
     assert json.loads((good / "metadata.json").read_text())["format"]
 
 
-@pytest.mark.parametrize("argv", [[], ["convert"], ["convert", "--trust-model"]])
+@pytest.mark.parametrize("argv", [[], ["--trust-model"]])
 def test_missing_arguments_are_one_line_and_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as stopped:
         main(argv)

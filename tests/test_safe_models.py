@@ -14,14 +14,12 @@ from stand_in import sb3_model as _sb3_model
 
 import evaluate
 import train
+from agents.convert import main as convert_main
 from agents.policy_file import (
     FORMAT,
     ObservationNormalizer,
     PolicyLoadError,
     save_policy,
-)
-from agents.policy_file import (
-    main as policy_file_main,
 )
 from agents.sb3_policy import (
     SB3Policy,
@@ -235,10 +233,10 @@ def test_metadata_naming_sac_beside_a_ppo_zip_says_so(tmp_path):
 
 def test_the_converter_needs_trust_and_writes_the_safe_form(tmp_path, capsys):
     directory = _zip_only_model(tmp_path / "m")
-    assert policy_file_main(["convert", str(directory)]) == 2
+    assert convert_main([str(directory)]) == 2
     assert "--trust-model" in capsys.readouterr().err
     assert not (directory / "policy.pt").exists()
-    assert policy_file_main(["convert", str(directory), "--trust-model"]) == 0
+    assert convert_main([str(directory), "--trust-model"]) == 0
     metadata = read_metadata(directory)
     assert metadata.weights_file is not None and metadata.model_file == directory / "model.zip"
     safe, trusted = load_policy(metadata), load_trusted(metadata)
