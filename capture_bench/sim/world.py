@@ -38,6 +38,7 @@ with quiet_c_output():  # pybullet prints its build time on import
     from pybullet_utils.bullet_client import BulletClient
 
 from capture_bench.sim.kinematics import L0, L1, L2, ArmSpec, FloatArray
+from capture_bench.sim.markers import create_marked_target
 from capture_bench.sim.rotations import quaternion_xyzw
 from capture_bench.sim.traces import draw_polyline, project_points
 
@@ -87,6 +88,10 @@ class World:
             ``GUI`` window; needs a display).
         arm: the arm's published constants; the rate and joint limits are enforced from it. The
             link lengths must be Table 1's (the URDF models that arm only). Default ``ArmSpec()``.
+        marker_radius: None (default) for the target above; a radius in metres for the rendered
+            camera's target instead (:func:`capture_bench.sim.markers.create_marked_target`:
+            spheres of that radius in the detector's colours, red, green, cyan, magenta, and a
+            grey block clear of them).
 
     Collision model (:meth:`collision`): capsules for the upper arm (radius 0.025 m), the forearm
     (0.025 m, offset 0.06 m sideways along the joint axes) and the wrist bracket at the tip
@@ -99,6 +104,7 @@ class World:
         *,
         render_mode: str | None = None,
         arm: ArmSpec | None = None,
+        marker_radius: float | None = None,
     ) -> None:
         arm = ArmSpec() if arm is None else arm
         if render_mode not in RENDER_MODES:
@@ -140,7 +146,11 @@ class World:
         bullet.setCollisionFilterPair(self.floor, self.arm, -1, BASE_COLUMN, 0)
         bullet.setCollisionFilterPair(self.arm, self.arm, BASE_COLUMN, UPPER_ARM, 0)
         bullet.setCollisionFilterPair(self.arm, self.arm, FOREARM, END_EFFECTOR, 0)
-        self.target = self._create_target(bullet, features)
+        self.target = (
+            self._create_target(bullet, features)
+            if marker_radius is None
+            else create_marked_target(bullet, features, marker_radius)
+        )
 
         # Hot-path functions bound to this client once (BulletClient.__getattr__ costs ~1 us).
         self._reset_joints = bullet.resetJointStatesMultiDof
@@ -320,6 +330,11 @@ class World:
         position, quaternion = bullet.getBasePositionAndOrientation(self.target)
         rotation = np.reshape(bullet.getMatrixFromQuaternion(quaternion), (3, 3))
         return np.array(position), rotation
+
+    @property
+    def client(self) -> BulletClient:
+        """The world's pybullet client (to render it; the world still owns and closes it)."""
+        return self._client()
 
     def _client(self) -> BulletClient:
         if self._bullet is None:

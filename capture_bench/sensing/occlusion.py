@@ -1,0 +1,72 @@
+"""Which sphere markers something may hide from the camera, from geometry alone (no rendering).
+
+A marker is *clear* when nothing nearer the lens has an image that comes within ``margin_px`` of
+the marker's image (:func:`capture_bench.sensing.pixels.sphere_image`'s ellipse, taken as a disc
+of its semi-major axis). Two kinds of occluder are tested:
+
+* the other markers: marker j can hide marker i when j's centre is nearer the lens and the two
+  discs overlap;
+* convex obstacles given by points on or around them (the corners of the target's block, points
+  spread over an arm link): the obstacle's image is the convex hull of its points' pixels, and it
+  can hide marker i when that hull comes within the disc and its nearest point is nearer the lens
+  than the marker's far side.
+
+The test is conservative: overlapping images say "may be hidden", not "is hidden", so a clear
+marker is never partly covered (up to the tessellation of the rendered sphere, which lies inside
+the ideal one), while a marker flagged here may still be seen whole.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from capture_bench.sensing.camera import CameraModel
+from capture_bench.sensing.pixels import pixel_of, sphere_image
+
+MARGIN_PX = 2.0  # pixels of clearance required around each marker's image
+
+
+def hidden_markers(
+    model: CameraModel,
+    centres_global: ArrayLike,
+    radius: float,
+    obstacles: Sequence[ArrayLike] = (),
+    margin_px: float = MARGIN_PX,
+) -> NDArray[np.bool_]:
+    """Markers that another marker or an obstacle may hide, or that are not wholly beyond the lens.
+
+    Args:
+        model: the camera.
+        centres_global: marker centres, global, metres, shape (N, 3).
+        radius: marker radius, metres.
+        obstacles: each a set of points, global, metres, shape (M, 3), whose convex hull contains
+            the obstacle (e.g. a box's 8 corners).
+        margin_px: clearance required between images, pixels.
+
+    Returns:
+        (N,) True where marker i may be (partly) hidden; an obstacle with a point at or behind
+        the lens counts as hiding every marker.
+    """
+    centres_cam = model.to_camera(np.asarray(centres_global, dtype=float).reshape(-1, 3))
+    image = sphere_image(centres_cam, radius, model)
+    reach = image.semi_major + margin_px
+    depth = centres_cam[:, 1]
+    hidden = ~np.isfinite(image.semi_major)
+    gap = np.linalg.norm(image.centre[:, None, :] - image.centre[None, :, :], axis=-1)
+    nearer = depth[None, :] < depth[:, None]  # [i, j]: marker j is nearer the lens than i
+    hidden |= np.any(nearer & (gap < reach[:, None] + reach[None, :] - margin_px), axis=1)
+    for points in obstacles:
+        cam = model.to_camera(np.asarray(points, dtype=float).reshape(-1, 3))
+        if not np.all(model.in_front(cam)):
+            return np.ones(len(centres_cam), dtype=bool)
+        hull = cv2.convexHull(pixel_of(cam, model).astype(np.float32))
+        for i in np.flatnonzero(~hidden):
+            if cam[:, 1].min() >= depth[i] + radius:  # wholly behind the marker
+                continue
+            inside = cv2.pointPolygonTest(hull, tuple(map(float, image.centre[i])), True)
+            hidden[i] = inside > -reach[i]  # signed distance: > 0 inside the hull
+    return hidden
