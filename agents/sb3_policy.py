@@ -11,7 +11,7 @@ forms:
   which can run any code when loaded. Loaded only with ``trust_model=True`` (``evaluate.py
   --trust-model``) and only where the directory has no safe form; without it, loading is refused
   with a message saying how to opt in or convert
-  (``python -m agents.policy_file convert DIR --trust-model``).
+  (``python -m agents.convert DIR --trust-model``).
 
 The metadata of an SB3 ``.zip`` directory::
 
@@ -59,7 +59,7 @@ METADATA_FILES = ("metadata.json", "metadata.yaml", "metadata.yml")
 TRUST_HINT = (
     "an SB3 .zip holds pickled Python objects, which can run code when loaded: pass "
     "--trust-model (Python: trust_model=True) only if you trust its source, or convert it once "
-    "with: python -m agents.policy_file convert {directory} --trust-model"
+    "with: python -m agents.convert {directory} --trust-model"
 )
 
 
@@ -442,13 +442,23 @@ class SB3Policy:
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
-        """SB3's ``predict``: observation (16,) -> ``(action (3,), state)``."""
+        """SB3's ``predict``: observation (16,) -> ``(action (3,), state)``, or a batch (N, 16)
+        -> ``(actions (N, 3), state)``.
+
+        Deterministic actions of a batch are computed row by row, each as a batch of one: torch's
+        batched matrix products round a row differently with the batch's height (99 of 100 rows
+        of a 256x256 MLP differ in their last bits between a batch of 100 and batches of one),
+        and an episode must play the same whatever episodes share its batch.
+        """
         deterministic = deterministic and not self.sampled
         if self.normalizer is not None:
             observation = self.normalizer.normalize_obs(observation)
         obs = np.asarray(observation)
-        if deterministic and state is None and obs.shape == self.policy.observation_space.shape:
+        one = self.policy.observation_space.shape
+        if deterministic and state is None and obs.shape == one:
             return self._deterministic_action(obs), None
+        if deterministic and state is None and obs.shape[1:] == one:
+            return np.stack([self._deterministic_action(row) for row in obs]), None
         action, state = self.policy.predict(
             observation, state=state, episode_start=episode_start, deterministic=deterministic
         )
@@ -478,6 +488,13 @@ class SB3Policy:
         else:
             action = np.clip(action, policy.action_space.low, policy.action_space.high)
         return np.asarray(action, dtype=np.float32)
+
+    @property
+    def batched(self) -> bool:
+        """Whether one instance may act for a batch of episodes with per-row results: yes for
+        deterministic actions; sampled ones draw from torch's one generator, seeded per episode,
+        so each episode needs its own turn."""
+        return not self.sampled
 
     def reset(self) -> None:
         """Nothing to forget: recurrent state, if any, is passed through ``predict``."""

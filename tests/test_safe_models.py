@@ -165,7 +165,7 @@ def test_a_trained_model_round_trips_through_the_safe_form(algorithm, normalize,
 def test_train_py_writes_a_run_directory_that_loads_safely(tmp_path):
     config = tmp_path / "tiny.yaml"
     config.write_text(
-        "n_envs: 1\ntotal_timesteps: 32\npolicy_kwargs: {net_arch: [8]}\n"
+        "n_envs: 1\ntotal_timesteps: 32\npolicy_kwargs: {net_arch: [8], features_extractor: flatten}\n"
         "n_steps: 32\nbatch_size: 32\nn_epochs: 1\nnormalize: true\n"
     )
     run_dir = tmp_path / "run"

@@ -45,7 +45,7 @@ def test_run_writes_model_metadata_checkpoints_and_tensorboard(trained):
     assert meta["env_id"] == "CaptureBench/Paper-v0" and meta["model"] == "model.zip"
     assert meta["observation_source"] == "ekf" and meta["seed"] == 3
     assert meta["total_timesteps"] == 64
-    assert meta["hyperparameters"]["policy_kwargs"] == {"net_arch": [16]}
+    assert meta["hyperparameters"]["policy_kwargs"]["net_arch"] == [16]
     assert "stable-baselines3" in meta["packages"]
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == [
         "step_32",
@@ -87,7 +87,8 @@ def test_sac_resume_restores_replay_buffer_and_vecnormalize(tmp_path):
 
     config = tmp_path / "sac.yaml"
     config.write_text(
-        "n_envs: 1\ntotal_timesteps: 48\npolicy_kwargs: {net_arch: [16]}\nlearning_starts: 16\n"
+        "n_envs: 1\ntotal_timesteps: 48\nlearning_starts: 16\n"
+        "policy_kwargs: {net_arch: [16], features_extractor: flatten}\n"  # normalize needs it
         "batch_size: 16\nbuffer_size: 1000\ncheckpoint_freq: 48\nnormalize: true\n"
     )
     run_dir = tmp_path / "run"

@@ -1,10 +1,13 @@
-"""train.py's algorithms and configs (issue 12 points 2, 3, 7): a tiny run of every algorithm,
-per-scenario sections, ``--set``, ``--reward``, the saved resolved config, ``--help``, and each
-bad input as one line with exit status 2 and nothing written."""
+"""train.py's algorithms and configs: a tiny run of every algorithm, per-scenario sections, a
+``--config`` file layered over the shipped one (README's example, run as written), ``--set``,
+``--reward``, the saved resolved config, the default run directory, ``--help``, and each bad
+input as one line with exit status 2 and nothing written."""
 
 from __future__ import annotations
 
 import json
+import re
+import shlex
 from pathlib import Path
 
 import pytest
@@ -15,6 +18,7 @@ from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scena
 from capture_bench.training.hyperparameters import (
     ALGORITHMS,
     OFF_POLICY,
+    load_hyperparameters,
     parse_override,
     resolve_hyperparameters,
 )
@@ -118,7 +122,8 @@ def test_a_scenario_section_overrides_the_top_level_keys_and_set_overrides_both(
     path.write_text(SECTIONS)
     hp, _, origin = resolve_hyperparameters("ppo", load_scenario("tumbling"), path)
     assert hp["gamma"] == 0.95 and hp["n_envs"] == 4 and origin["section"] == "tumbling"
-    assert hp["policy_kwargs"] == {"net_arch": [64], "log_std_init": -1.0}  # merged by entry
+    shipped, _ = load_hyperparameters("ppo")  # the file is layered over ppo.yaml
+    assert hp["policy_kwargs"] == {**shipped["policy_kwargs"], "net_arch": [64]}  # by entry
     hp, _, origin = resolve_hyperparameters("ppo", load_scenario("drift"), path)
     assert (
         hp["n_envs"] == 8 and hp["gamma"] == 0.99 and origin["section"] == "CaptureBench/Drift-v0"
@@ -242,3 +247,102 @@ def test_shipped_configs_resolve_for_every_scenario():
             assert path.name == f"{algo}.yaml" and hp["n_envs"] >= 1
             yaml.safe_dump(hp)  # plain data: what hyperparameters.yaml holds
     assert Path(path).is_file()
+
+
+# --------------------------------------------------------------------------- README's --config example
+
+README = Path(__file__).parents[1] / "README.md"
+
+
+def _readme_config_example() -> tuple[str, list[str]]:
+    """README's training section: its example hyper-parameter file (the yaml block) and the
+    options of its ``--config my_ppo.yaml`` command."""
+    training = README.read_text().split("\n## Training\n", 1)[1].split("\n## ", 1)[0]
+    text = re.search(r"```yaml\n(.*?)```", training, re.S).group(1)
+    line = next(ln for ln in training.splitlines() if "--config my_ppo.yaml" in ln)
+    words = shlex.split(line.split("#", 1)[0])
+    assert words[:2] == ["python", "train.py"], line
+    return text, words[2:]
+
+
+def test_readmes_config_example_runs_as_written_over_the_shipped_defaults(tmp_path, capsys):
+    text, options = _readme_config_example()
+    path = tmp_path / "my_ppo.yaml"
+    path.write_text(text)  # saved as written
+    argv = [str(path) if word == "my_ppo.yaml" else word for word in options]
+    # 32 envs as subprocesses are not a fast test; the batched env draws the same episodes
+    # (tests/test_sb3_vec_env.py)
+    argv = [word if word != "subproc" else "batched" for word in argv]
+    run_dir = tmp_path / "run"
+    assert train.main([*argv, "--total-timesteps", "3000", "--run-dir", str(run_dir)]) == 0
+    shipped, _, _ = resolve_hyperparameters("ppo", load_scenario("paper"))
+    written = yaml.safe_load(text)
+    top = {k: v for k, v in written.items() if k != "tumbling"}
+    expected = {**shipped, **top, "reward": "sparse", "total_timesteps": 3000}
+    saved = json.loads((run_dir / "config.json").read_text())
+    assert saved["hyperparameters"] == expected  # the shipped n_steps 64, not SB3's 2048
+    assert saved["origin"]["defaults"]["file"].endswith("ppo.yaml")
+    rollout = expected["n_steps"] * expected["n_envs"]  # 64 x 32 = 2048
+    meta = json.loads((run_dir / "metadata.json").read_text())
+    assert meta["total_timesteps"] == -(-3000 // rollout) * rollout == 4096
+    assert "rounded up to 4096" in capsys.readouterr().out
+    # the file's tumbling section applies on tumbling, over the shipped keys
+    hp, _, origin = resolve_hyperparameters("ppo", load_scenario("tumbling"), path)
+    assert origin["section"] == "tumbling" and hp["gamma"] == 0.95 and hp["n_steps"] == 64
+    assert hp["policy_kwargs"] == {**shipped["policy_kwargs"], "net_arch": [256, 256]}
+
+
+def test_a_complete_config_file_gets_nothing_from_the_shipped_one(tmp_path):
+    """A file setting every key the shipped one sets (hyperparameters.yaml, best.yaml) is the
+    run's hyper-parameters as written, with or without the layering."""
+    shipped, path = load_hyperparameters("sac")
+    own = {**shipped, "gamma": 0.9, "policy_kwargs": {**shipped["policy_kwargs"], "n_critics": 3}}
+    (tmp_path / "sac.yaml").write_text(yaml.safe_dump(own))
+    hp, _, origin = resolve_hyperparameters("sac", load_scenario("tumbling"), tmp_path / "sac.yaml")
+    assert hp == own and origin["defaults"] == {"file": str(path), "section": None}
+
+
+# --------------------------------------------------------------------------- the run directory
+
+
+def test_without_run_dir_each_run_gets_a_directory_of_its_own(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    tiny = ["--algo", "a2c", *_tiny("a2c")]
+    assert train.main(tiny) == 0
+    first = tmp_path / "runs" / "paper-a2c-0"
+    before = {p: p.read_bytes() for p in first.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert train.main([*tiny, "--set", "gamma=0.9"]) == 0  # the same default name: taken
+    out = capsys.readouterr().out
+    second = tmp_path / "runs" / "paper-a2c-0_2"
+    assert "runs/paper-a2c-0 is taken" in out and "goes to runs/paper-a2c-0_2" in out
+    assert json.loads((second / "config.json").read_text())["hyperparameters"]["gamma"] == 0.9
+    assert {p: p.read_bytes() for p in first.rglob("*") if p.is_file()} == before
+
+
+def test_the_free_run_directory_skips_anything_that_holds_files(tmp_path):
+    from capture_bench.training.run import free_run_dir
+
+    base = tmp_path / "paper-ppo-0"
+    assert free_run_dir(base) == base
+    base.mkdir()
+    assert free_run_dir(base) == base  # an empty folder holds nothing to mix with
+    (base / "notes.txt").write_text("mine")
+    (tmp_path / "paper-ppo-0_2").write_text("a file")
+    (tmp_path / "paper-ppo-0_3").mkdir()
+    assert free_run_dir(base) == tmp_path / "paper-ppo-0_3"
+
+
+def test_a_shipped_key_that_clashes_with_the_file_names_where_it_came_from(tmp_path, capsys):
+    (tmp_path / "mine.yaml").write_text("normalize: true\n")
+    argv = ["--config", str(tmp_path / "mine.yaml"), "--run-dir", str(tmp_path / "run")]
+    one_line_error(capsys, argv, "mine.yaml", "ppo.yaml, under this file", "extractor: flatten")
+    assert not (tmp_path / "run").exists()
+    (tmp_path / "mine.yaml").write_text(
+        "normalize: true\npolicy_kwargs: {features_extractor: flatten}\n"
+    )
+    hp, _, _ = resolve_hyperparameters("ppo", load_scenario("paper"), tmp_path / "mine.yaml")
+    shipped, _ = load_hyperparameters("ppo")
+    assert (
+        hp["normalize"] and hp["policy_kwargs"]["net_arch"] == shipped["policy_kwargs"]["net_arch"]
+    )

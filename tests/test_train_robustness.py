@@ -62,8 +62,16 @@ def _snapshot(directory: Path) -> dict[str, bytes]:
 def test_resume_with_no_more_steps_than_done_is_refused_and_changes_nothing(run, tmp_path, capsys):
     run_dir = _copy(run, tmp_path)
     before = _snapshot(run_dir)
-    one_line_error(capsys, ["--resume", str(run_dir), "--total-timesteps", "32"], "done 64", "> 64")
-    one_line_error(capsys, ["--resume", str(run_dir)], "done 64")  # its own total, reached
+    one_line_error(
+        capsys,
+        ["--resume", str(run_dir), "--total-timesteps", "32"],
+        "--total-timesteps 32 is not more than the 64 steps",
+        "above 64",
+    )
+    # its own total, reached: the message names the run's budget, not a flag never passed
+    err = one_line_error(capsys, ["--resume", str(run_dir)], "finished", "done 64 steps")
+    assert "its total_timesteps 64" in err and "--total-timesteps 64" not in err
+    assert f"--resume {run_dir} --total-timesteps <steps>" in err
     assert _snapshot(run_dir) == before
 
 
@@ -134,13 +142,46 @@ def test_cuda_without_cuda_is_refused(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
-def test_a_budget_that_is_not_whole_rollouts_is_rounded_with_a_note(tmp_path, capsys):
+def _progress_targets(monkeypatch) -> list[int]:
+    """The targets train.py gives its progress lines (``steps N/target``)."""
+    from capture_bench.training import callbacks
+
+    targets: list[int] = []
+
+    class Recording(callbacks.Progress):
+        def __init__(self, config, hp, target, **kwargs):
+            targets.append(target)
+            super().__init__(config, hp, target, **kwargs)
+
+    monkeypatch.setattr(callbacks, "Progress", Recording)
+    return targets
+
+
+def test_a_budget_that_is_not_whole_rollouts_is_rounded_with_one_note(
+    tmp_path, capsys, monkeypatch
+):
+    targets = _progress_targets(monkeypatch)
     (tmp_path / "tiny.yaml").write_text(TINY)
     argv = ["--config", str(tmp_path / "tiny.yaml"), "--total-timesteps", "40"]
     assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 0
     out = capsys.readouterr().out
-    assert "rounded up to 64" in out and "n_steps x n_envs = 32" in out
+    assert out.count("rounded up to 64") == 1 and "n_steps x n_envs = 32" in out
+    assert ", 64 steps -> " in out and targets == [64]  # the real target, not 40
     assert json.loads((tmp_path / "r" / "metadata.json").read_text())["total_timesteps"] == 64
+
+
+def test_an_off_policy_budget_is_rounded_to_steps_of_all_envs(tmp_path, capsys, monkeypatch):
+    """SB3 steps every env together, ``train_freq`` times between looks at the budget."""
+    targets = _progress_targets(monkeypatch)
+    argv = ["--algo", "td3", "--total-timesteps", "41", "--run-dir", str(tmp_path / "r")]
+    for item in ("n_envs=2", "train_freq=3", "learning_starts=8", "batch_size=8",
+                 "buffer_size=100", "gradient_steps=1", "policy_kwargs.net_arch=[16]"):  # fmt: skip
+        argv += ["--set", item]
+    assert train.main(argv) == 0
+    out = capsys.readouterr().out
+    assert out.count("rounded up to 42") == 1 and "train_freq x n_envs = 6" in out
+    assert targets == [42]
+    assert json.loads((tmp_path / "r" / "metadata.json").read_text())["total_timesteps"] == 42
 
 
 # --------------------------------------------------------------------------- signals

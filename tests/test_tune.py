@@ -79,7 +79,7 @@ def test_tuning_writes_best_yaml_trials_csv_and_plots(tuned):
         assert trial.value == trial.intermediate_values[2]
         assert {"capture_rate", "median_ratio_to_limit"} <= set(trial.user_attrs)
         hp = trial.user_attrs["hyperparameters"]
-        assert hp["policy_kwargs"] == {"net_arch": [16]} and hp["batch_size"] == 16  # kept
+        assert hp["policy_kwargs"]["net_arch"] == [16] and hp["batch_size"] == 16  # kept
         assert hp["gamma"] == trial.params["gamma"] and hp["gradient_steps"] == hp["train_freq"]
     rows = list(csv.DictReader((out / "trials.csv").open()))
     assert [row["number"] for row in rows] == ["0", "1"]
@@ -98,9 +98,10 @@ def test_train_accepts_best_yaml(tuned, tmp_path):
     run_dir = tmp_path / "run"
     argv = ["--algo", "sac", "--config", str(out / "best.yaml"), "--run-dir", str(run_dir)]
     assert train.main([*argv, "--total-timesteps", "16"]) == 0
-    meta = json.loads((run_dir / "metadata.json").read_text())
-    for key in ("learning_rate", "gamma", "tau", "train_freq", "learning_starts"):
-        assert meta["hyperparameters"][key] == best[key], key
+    trained = json.loads((run_dir / "metadata.json").read_text())["hyperparameters"]
+    # the trial's hyper-parameters, nothing layered in: sac.yaml's paper section was in the trial
+    assert {**trained, "total_timesteps": best["total_timesteps"]} == best
+    assert best["use_sde"] is True and best["curriculum_tolerance"] == 0.02
 
 
 def test_a_second_run_adds_trials_to_the_same_study(tuned, tmp_path):
@@ -118,7 +119,7 @@ def test_a_second_run_adds_trials_to_the_same_study(tuned, tmp_path):
 def test_a_trial_worse_than_the_median_is_pruned_and_stops_training(tmp_path, capsys):
     out = tmp_path / "out"
     argv = tiny_argv(tmp_path, out, "--n-startup-trials", "1")
-    setup = prepare(parse_args(argv))
+    setup = prepare(*parse_args(argv))
     out.mkdir()
     study = open_study(setup)
     # a finished trial that captured everything at both validations: the median to beat
@@ -291,3 +292,138 @@ def test_ctrl_c_stops_after_writing_what_finished(monkeypatch, tmp_path, capsys)
     assert len(list(csv.DictReader((out / "trials.csv").open()))) == 2
     assert (out / "optimization_history.png").is_file()
     assert not (out / "param_importances.png").exists()  # one completed trial: a note instead
+
+
+# --------------------------------------------------------------------------- a study's settings
+
+
+def test_a_study_stores_the_settings_that_define_its_trials(tuned):
+    out, _ = tuned
+    attrs = load(out).user_attrs
+    assert attrs["algo"] == "sac" and attrs["scenario"] == "paper"
+    assert attrs["n_timesteps"] == 32 and attrs["n_evaluations"] == 2
+    assert attrs["eval_episodes"] == 1 and attrs["seed"] == load_scenario("paper").training_seeds[0]
+    assert attrs["keep"] == sorted(KEEP.split(","))
+    assert attrs["base_hyperparameters"]["buffer_size"] == 1000  # the --config file's
+    assert attrs["base_hyperparameters"]["use_sde"] is True  # sac.yaml's paper section
+    assert set(attrs["search_space"]) == set(SAMPLERS["sac"]) - set(KEEP.split(","))
+    header = (out / "best.yaml").read_text()
+    assert "--n-timesteps 32 --n-evaluations 2 --eval-episodes 1" in header
+
+
+def test_continuing_a_study_without_its_options_runs_its_trials_as_before(
+    tuned, tmp_path, capsys, monkeypatch
+):
+    from capture_bench.training import tune_trial
+    from capture_bench.training.callbacks import ToleranceCurriculum
+
+    real, made = tune_trial.curriculum_callbacks, []
+
+    def recording(config, hp):
+        made.extend(real(config, hp))
+        return list(made)
+
+    monkeypatch.setattr(tune_trial, "curriculum_callbacks", recording)
+    first, argv = tuned
+    out = tmp_path / "out"
+    shutil.copytree(first, out)
+    capsys.readouterr()
+    plain = ["--algo", "sac", "--scenario", "paper", "--output", str(out), "--trials", "1"]
+    assert tune.main(plain) == 0  # sac.yaml alone would train 600000 steps a trial
+    printed = capsys.readouterr().out
+    assert "note: continuing study 'paper-sac' with its own settings" in printed
+    assert "--n-timesteps 32" in printed and "1 more of 32 steps" in printed
+    study = load(out)
+    added = study.trials[2]
+    assert added.user_attrs["n_timesteps"] == 32 and added.user_attrs["eval_episodes"] == 1
+    assert added.user_attrs["hyperparameters"]["policy_kwargs"]["net_arch"] == [16]  # kept
+    assert set(added.intermediate_values) == {1, 2}
+    assert "--n-timesteps 32 --n-evaluations 2" in (out / "best.yaml").read_text()
+    # the trial trains as train.py would: sac.yaml's paper section, its curriculum included
+    assert [type(c) for c in made] == [ToleranceCurriculum] and made[0].steps == 300_000
+
+
+def _study_with_a_trial(tmp_path: Path) -> list[str]:
+    """A study created by a tiny command, with one finished trial (no training)."""
+    out = tmp_path / "out"
+    argv = tiny_argv(tmp_path, out)
+    setup = prepare(*parse_args(argv))
+    out.mkdir()
+    open_study(setup).add_trial(optuna.trial.create_trial(value=0.5))
+    return argv
+
+
+@pytest.mark.parametrize(
+    ("extra", "expected"),
+    [
+        (["--n-timesteps", "64"], ["--n-timesteps 64", "created with --n-timesteps 32"]),
+        (["--n-evaluations", "4"], ["--n-evaluations 4", "created with --n-evaluations 2"]),
+        (["--eval-episodes", "3"], ["--eval-episodes 3", "created with --eval-episodes 1"]),
+        (["--seed", "5"], ["--seed 5", "created with --seed 0"]),
+        (
+            ["--keep", "net_arch"],
+            ["--keep net_arch", f"created with --keep {','.join(sorted(KEEP.split(',')))}"],
+        ),
+    ],
+)
+def test_continuing_a_study_with_another_setting_is_refused_before_any_trial(
+    tmp_path, capsys, extra, expected
+):
+    argv = _study_with_a_trial(tmp_path)
+    before = (tmp_path / "out" / "study.db").read_bytes()
+    one_line_error(capsys, [*argv, *extra, "--trials", "1"], *expected, "--study-name")
+    assert [t.number for t in load(tmp_path / "out").trials] == [0]
+    assert (tmp_path / "out" / "study.db").read_bytes() == before
+
+
+def test_a_config_with_other_hyperparameters_is_refused_naming_the_key(tmp_path, capsys):
+    argv = _study_with_a_trial(tmp_path)
+    (tmp_path / "sac.yaml").write_text(TINY_SAC.replace("buffer_size: 1000", "buffer_size: 2000"))
+    config = str(tmp_path / "sac.yaml")
+    (tmp_path / "other.yaml").write_text(TINY_SAC)
+    # the same hyper-parameters from another file continue the study
+    same = [a if a != config else str(tmp_path / "other.yaml") for a in argv]
+    assert tune.main([*same, "--trials", "0"]) == 0
+    one_line_error(
+        capsys, [*argv, "--trials", "1"], f"--config {config}", "buffer_size 1000, given 2000"
+    )
+
+
+def test_a_changed_search_space_is_refused(tmp_path, capsys, monkeypatch):
+    from capture_bench.training.search_spaces import Param
+
+    argv = _study_with_a_trial(tmp_path)
+    monkeypatch.setitem(SAMPLERS["sac"], "tau", Param(Choice((0.005, 0.01)), "tau"))
+    one_line_error(capsys, [*argv, "--trials", "1"], "samples tau as", "search_spaces.py")
+
+
+def test_a_study_of_no_trials_takes_the_new_settings(tmp_path):
+    out = tmp_path / "out"
+    argv = tiny_argv(tmp_path, out)
+    out.mkdir()
+    open_study(prepare(*parse_args(argv)))  # created, no trial yet
+    setup = prepare(*parse_args([*argv, "--n-timesteps", "64"]))
+    open_study(setup)
+    assert setup.budget == 64 and load(out).user_attrs["n_timesteps"] == 64
+
+
+def test_a_study_that_stored_no_settings_keeps_what_its_trials_recorded(tmp_path, capsys):
+    """A study created before studies stored their settings: its trials' n_timesteps counts."""
+    out = tmp_path / "out"
+    out.mkdir()
+    study = optuna.create_study(
+        storage=f"sqlite:///{out / 'study.db'}", study_name="paper-sac", direction="maximize"
+    )
+    study.set_user_attr("algo", "sac")
+    study.set_user_attr("scenario", "paper")
+    study.add_trial(
+        optuna.trial.create_trial(value=0.5, user_attrs={"n_timesteps": 48, "eval_episodes": 1})
+    )
+    argv = tiny_argv(tmp_path, out)
+    one_line_error(capsys, [*argv, "--trials", "1"], "--n-timesteps 32", "with --n-timesteps 48")
+    without = [a for a in argv if a != "32"]
+    without.remove("--n-timesteps")
+    setup = prepare(*parse_args(without))
+    open_study(setup)
+    assert setup.budget == 48 and setup.every == 24
+    assert load(out).user_attrs["n_timesteps"] == 48  # stored from now on

@@ -41,6 +41,8 @@ ALGORITHM_CLASSES = {
     "ddpg": ("stable_baselines3", "DDPG"),
     "tqc": ("sb3_contrib", "TQC"),
 }
+#: SB3's ``n_steps`` where a file leaves it out.
+SB3_N_STEPS = {"ppo": 2048, "a2c": 5}
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
 
@@ -154,9 +156,12 @@ def _schema(algo: str) -> Schema:
     return {**TRAINING_KEYS, **ALGO_KEYS[algo], "policy_kwargs": POLICY_KWARGS[algo]}
 
 
-def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any]:
+def validate_hyperparameters(
+    data: Any, algo: str, source: str, features_from: str | None = None
+) -> dict[str, Any]:
     """Check a complete hyper-parameter mapping for ``algo`` (no scenario sections); return it
-    with numbers in canonical form and the defaults filled in.
+    with numbers in canonical form and the defaults filled in. ``features_from``: the file
+    ``policy_kwargs.features_extractor`` came from where not ``source`` (for the message).
 
     Raises:
         ConfigError: not a mapping, an unknown key, or a bad value (the message names
@@ -169,8 +174,10 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
     features = out.get("policy_kwargs", {}).get("features_extractor", "flatten")
     if features != "flatten" and out.get("normalize"):
         raise ConfigError(
-            f"{source}: key 'policy_kwargs.features_extractor': {features!r} reads the raw "
-            "observation and cannot be combined with normalize: true; set normalize: false"
+            f"{source}: key 'policy_kwargs.features_extractor': {features!r}"
+            + (f" (from {features_from}, under this file)" if features_from else "")
+            + " reads the raw observation and cannot be combined with normalize: true; set "
+            "normalize: false, or policy_kwargs.features_extractor: flatten"
         )
     out.setdefault("policy", "MlpPolicy")
     out.setdefault("policy_kwargs", {})
@@ -193,11 +200,31 @@ def validate_hyperparameters(data: Any, algo: str, source: str) -> dict[str, Any
     return out
 
 
+def steps_per_update(algo: str, hp: dict[str, Any]) -> int:
+    """Environment steps (all envs together) SB3 takes between two looks at the budget: a
+    rollout of ``n_steps x n_envs`` (PPO, A2C), or ``train_freq x n_envs`` (off-policy)."""
+    if algo in OFF_POLICY:
+        return int(hp.get("train_freq", 1)) * int(hp["n_envs"])  # SB3's default train_freq: 1
+    return int(hp.get("n_steps", SB3_N_STEPS[algo])) * int(hp["n_envs"])
+
+
+def planned_steps(algo: str, hp: dict[str, Any], done: int = 0) -> int:
+    """The step count a run of ``hp["total_timesteps"]`` ends at, from ``done`` steps: SB3 trains
+    in whole :func:`steps_per_update`, so the steps left are rounded up to a multiple."""
+    unit = steps_per_update(algo, hp)
+    return done + -(-max(hp["total_timesteps"] - done, 0) // unit) * unit
+
+
 def load_hyperparameters(algo: str, path: str | Path | None = None) -> tuple[dict[str, Any], Path]:
-    """Read and validate ``configs/algos/<algo>.yaml`` (or ``path``) without a scenario section
-    applied; return it and its path (see :func:`resolve_hyperparameters`)."""
-    hp, file, _ = resolve_hyperparameters(algo, None, path)
-    return hp, file
+    """Read and validate one hyper-parameter file as written, complete on its own:
+    ``configs/algos/<algo>.yaml`` (or ``path``), no scenario section applied, nothing layered
+    under it; return it and its path. What ``train.py`` trains with is
+    :func:`resolve_hyperparameters`."""
+    if algo not in ALGORITHMS:
+        raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
+    file = Path(path) if path is not None else ALGO_DIR / f"{algo}.yaml"
+    top, _ = _read_layers(file, algo, None)
+    return validate_hyperparameters(top, algo, str(file)), file
 
 
 def resolve_hyperparameters(
@@ -208,27 +235,70 @@ def resolve_hyperparameters(
 ) -> tuple[dict[str, Any], Path, dict[str, Any]]:
     """The hyper-parameters of a run of ``algo`` on ``scenario``, validated.
 
-    Three layers, each checked on its own so that a message names where the bad value came from:
+    Layers, each checked on its own so that a message names where a bad value came from:
 
-    1. the file's top-level keys (every scenario);
-    2. the file's section for the scenario, if any: a top-level key that is a scenario's name
-       or env ID (``paper:`` or ``CaptureBench/Paper-v0:``, RL Zoo style) holding a mapping of
+    1. the shipped defaults, ``configs/algos/<algo>.yaml``: its top-level keys (every scenario),
+       then its section for the scenario, if any: a top-level key that is a scenario's name or
+       env ID (``paper:`` or ``CaptureBench/Paper-v0:``, RL Zoo style) holding a mapping of
        hyper-parameters;
+    2. ``path`` (``--config``), if given, the same way: its top-level keys, then its section
+       for the scenario. A file may set a few keys; the others keep the shipped values;
     3. ``overrides``, ``KEY=VALUE`` strings (``--set``): VALUE is YAML, a dotted KEY reaches
        into ``policy_kwargs`` (``policy_kwargs.net_arch=[64,64]``).
 
     A later layer replaces an earlier one key by key (``policy_kwargs`` entry by entry).
 
     Returns:
-        The validated mapping, the file it came from, and where each layer came from
-        (``{"file": ..., "section": name or None, "overrides": [...]}``).
+        The validated mapping, the file it came from (``path``, else the shipped file), and
+        where each layer came from: ``{"defaults": {"file": ..., "section": ...} or None (no
+        --config), "file": ..., "section": name or None, "overrides": [...]}``.
 
     Raises:
         ConfigError: an unknown algorithm, file, key or section, or a bad value.
     """
     if algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
-    file = Path(path) if path is not None else ALGO_DIR / f"{algo}.yaml"
+    shipped = ALGO_DIR / f"{algo}.yaml"
+    file = Path(path) if path is not None else shipped
+    layered = path is not None and not _same_file(file, shipped)
+    merged: dict[str, Any] = {}
+    defaults = None
+    if layered:
+        top, section = _read_layers(shipped, algo, scenario)
+        merged = _overlay(top, section[1]) if section else top
+        defaults = {"file": str(shipped), "section": section[0] if section else None}
+    top, chosen = _read_layers(file, algo, scenario)
+    own = _overlay(top, chosen[1]) if chosen else top  # what the file and --set say
+    for item in overrides:
+        own = _overlay(own, parse_override(item, algo))
+    merged = _overlay(merged, own)
+    source = str(file) + (f" ({chosen[0]})" if chosen else "")
+    shipped_features = layered and "features_extractor" not in own.get("policy_kwargs", {})
+    hp = validate_hyperparameters(
+        merged, algo, source, features_from=str(shipped) if shipped_features else None
+    )
+    origin = {
+        "defaults": defaults,
+        "file": str(file),
+        "section": chosen[0] if chosen else None,
+        "overrides": list(overrides),
+    }
+    return hp, file, origin
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve()
+    except OSError:  # a path that cannot be resolved: reading it says why
+        return False
+
+
+def _read_layers(
+    file: Path, algo: str, scenario: Scenario | None
+) -> tuple[dict[str, Any], tuple[str, dict[str, Any]] | None]:
+    """One hyper-parameter file, checked: its top-level keys, and its section for ``scenario``
+    as ``(name, keys)`` (None: no scenario, or no section for it). Every section is checked,
+    whichever scenario it is for."""
     if not is_file(file):
         raise ConfigError(f"{file}: no such hyper-parameter file")
     data, _ = read_mapping(file, "hyper-parameters")
@@ -253,18 +323,10 @@ def resolve_hyperparameters(
             f"{file}: two sections for scenario {scenario.name!r} ({chosen[0]!r} and "
             f"{chosen[1]!r}); keep one"
         )
-    merged = check_mapping(flat, schema, str(file))
-    if chosen:
-        merged = _overlay(merged, sections[chosen[0]])
-    for item in overrides:
-        merged = _overlay(merged, parse_override(item, algo))
-    hp = validate_hyperparameters(merged, algo, str(file) + (f" ({chosen[0]})" if chosen else ""))
-    origin = {
-        "file": str(file),
-        "section": chosen[0] if chosen else None,
-        "overrides": list(overrides),
-    }
-    return hp, file, origin
+    top = check_mapping(flat, schema, str(file))
+    if not chosen:
+        return top, None
+    return top, (chosen[0], check_mapping(sections[chosen[0]], schema, str(file)))
 
 
 def parse_override(item: Any, algo: str) -> dict[str, Any]:

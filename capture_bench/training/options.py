@@ -27,7 +27,11 @@ class TrainConfig:
 
     algo: str = _opt("ppo", f"SB3 algorithm, one of {', '.join(ALGORITHMS)}")
     scenario: str = _opt("paper", "scenario name (configs/scenarios/<name>.yaml) or YAML path")
-    config: str | None = _opt(None, "hyper-parameter YAML (default: configs/algos/<algo>.yaml)")
+    config: str | None = _opt(
+        None,
+        "hyper-parameter YAML layered over configs/algos/<algo>.yaml: the keys it sets replace "
+        "the shipped ones, the others keep them",
+    )
     total_timesteps: int | None = _opt(None, "environment steps to train for, in total (all envs)")
     n_envs: int | None = _opt(None, "parallel environments (default: the YAML's n_envs)")
     vec_env: str = _opt(
@@ -50,7 +54,11 @@ class TrainConfig:
     observation_source: str | None = _opt(
         None, "target estimate the agent sees (default: the scenario's)", OBSERVATION_SOURCES
     )
-    run_dir: str | None = _opt(None, "output directory (default: runs/<scenario>-<algo>-<seed>)")
+    run_dir: str | None = _opt(
+        None,
+        "output directory (default: runs/<scenario>-<algo>-<seed>, or where that holds a run "
+        "the first free runs/<scenario>-<algo>-<seed>_2, _3, ...)",
+    )
     resume: str | None = _opt(
         None, "continue the run in this directory from its last checkpoint, with its saved config"
     )
@@ -81,8 +89,10 @@ evaluate a run beside the built-in agents ({agents}) or a suite ({suites}):
   python evaluate.py --agents incremental_ik runs/paper-ppo-0 --scenarios paper
 
 A hyper-parameter YAML holds keys for every scenario and, optionally, per-scenario sections
-(RL Zoo style) keyed by scenario name or env ID that override them; --set overrides both. The
-resolved hyper-parameters are saved in the run as hyperparameters.yaml (a --config file).
+(RL Zoo style) keyed by scenario name or env ID that override them. A --config file is layered
+over configs/algos/<algo>.yaml (its keys replace the shipped ones, the others stay); --set
+overrides both, then --n-envs, --total-timesteps and --reward. The resolved hyper-parameters are
+saved in the run as hyperparameters.yaml (a --config file).
 """
 
 

@@ -1,24 +1,27 @@
 """What ``train.py`` does: check every option before any work, build the envs and the SB3 model
 (or restore the run's newest checkpoint), learn, and save the policy in the safe form.
 
-Hyper-parameters come from ``configs/algos/<algo>.yaml`` (or ``--config``), validated by
-:mod:`capture_bench.training.hyperparameters`. A run directory holds ``config.json`` (everything
-needed to resume), ``tb/`` (TensorBoard), ``checkpoints/step_<N>/``
+Hyper-parameters come from ``configs/algos/<algo>.yaml``, with ``--config`` (a file that may
+set a few keys), ``--set`` and the options layered over it, validated by
+:mod:`capture_bench.training.hyperparameters`. A run goes to ``--run-dir``, by default
+``runs/<scenario>-<algo>-<seed>`` or, where that is taken, the first free ``..._2``, ``..._3``;
+an existing run is never written into but by ``--resume``. A run directory holds
+``config.json`` (everything needed to resume), ``tb/`` (TensorBoard), ``checkpoints/step_<N>/``
 (:mod:`capture_bench.training.checkpoint`: parameters, optimiser state, counters, replay buffer
 and VecNormalize statistics, written under a temporary name and renamed, and read back without
 unpickling anything), ``best/`` (the policy of the best periodic validation so far, in the safe
 form: :mod:`capture_bench.training.policy_export`), and at the end the policy in the safe form
 ``policy.pt`` + ``metadata.json`` (:mod:`agents.policy_file`), beside SB3's own ``model.zip``.
 Ctrl-C (SIGINT) or SIGTERM saves a checkpoint and exits with status 130 or 143. A user's mistake
-is one line on stderr and exit 2, found before any environment is built. PPO and A2C train in
-whole rollouts of ``n_steps x n_envs`` steps: a budget that is not a multiple is rounded up, with
-a note saying so.
+is one line on stderr and exit 2, found before any environment is built. SB3 trains in whole
+rollouts of ``n_steps x n_envs`` steps (PPO, A2C) or ``train_freq x n_envs`` (off-policy): a
+budget that is not a multiple is rounded up, with a note saying so, and the progress counts to the
+rounded total.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import os
 import signal
 import sys
@@ -26,6 +29,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from capture_bench.argparsing import program
 from capture_bench.files import atomic_write, check_writable
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.task.scenarios import OBSERVATION_SOURCES, ConfigError, load_scenario
@@ -40,8 +44,10 @@ from capture_bench.training.hyperparameters import (
     CURRICULA,
     OFF_POLICY,
     algorithm_class,
+    planned_steps,
     resolve_hyperparameters,
     sb3_kwargs,
+    steps_per_update,
     validate_hyperparameters,
 )
 from capture_bench.training.mixture import (
@@ -79,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         config, given = parse_args(argv)
         config, hp, run_dir, checkpoint = prepare(config, given)
     except (ConfigError, CheckpointError, OSError) as exc:  # OSError: a path that cannot be read
-        print(f"train.py: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        print(f"{program('train.py')}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     except SystemExit as exc:  # argparse: --help (0) or a bad option (2, already printed)
         return int(exc.code or 0)
@@ -90,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
             print("\ninterrupted before training started; nothing to save", file=sys.stderr)
             return exit_status(exc)
         except CheckpointError as exc:  # the newest checkpoint does not fit the run's model
-            print(f"train.py: error: {' '.join(str(exc).split())}", file=sys.stderr)
+            print(f"{program('train.py')}: error: {' '.join(str(exc).split())}", file=sys.stderr)
             return 2
 
 
@@ -171,13 +177,19 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
             )
         done, checkpoint = found[-1]
         read_checkpoint(checkpoint)  # a corrupt newest checkpoint is an error here, not later
+        if hp["total_timesteps"] <= done and "total_timesteps" in given:
+            raise ConfigError(
+                f"--total-timesteps {hp['total_timesteps']} is not more than the {done} steps "
+                f"{run_dir} has done; pass the new total, above {done}, to train it further"
+            )
         if hp["total_timesteps"] <= done:
             raise ConfigError(
-                f"{run_dir}: the run has done {done} steps and --total-timesteps "
-                f"{hp['total_timesteps']} is not more; pass the new total, > {done}, to extend it"
+                f"{run_dir}: the run is finished: it has done {done} steps of its total_timesteps "
+                f"{hp['total_timesteps']}; to train it further, pass a new total above {done}: "
+                f"python train.py --resume {run_dir} --total-timesteps <steps>"
             )
         check_writable(run_dir, "--resume")
-        _note_rounding(config.algo, hp, hp["total_timesteps"] - done)
+        note_rounding(config.algo, hp, done)
         return config, hp, run_dir, checkpoint
 
     config.algo = config.algo.lower()
@@ -198,7 +210,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     for key in ("total_timesteps", "n_envs", "reward"):  # the options win over the file
         if getattr(config, key) is not None:
             hp[key] = getattr(config, key)
-    _check_shaping(hp)
+    check_shaping(hp)
     if any(key in hp for key in CURRICULA):  # default: half the run's budget, after the options
         hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
@@ -207,16 +219,23 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         _check_mixture(config, hp, len(scenarios))
     else:
         config.observation_source = config.observation_source or scenario.estimator.source
-        _check_curricula(hp, scenario)
+        check_curricula(hp, scenario)
     kind = config.algo if hp["residual"] == "none" else f"{config.algo}-residual"
     name = mixture_name(config.scenario) if mixed else scenario.name
-    run_dir = Path(config.run_dir or f"runs/{name}-{kind}-{config.seed}")
+    if config.run_dir is None:
+        default = Path(f"runs/{name}-{kind}-{config.seed}")
+        run_dir = free_run_dir(default)
+        if run_dir != default:
+            print(f"note: {default} is taken (--resume {default} continues that run); this run "
+                  f"goes to {run_dir} (--run-dir chooses another)")  # fmt: skip
+    else:
+        run_dir = Path(config.run_dir)
     if (run_dir / "config.json").exists():
         raise ConfigError(
             f"{run_dir}: already holds a run; use --resume {run_dir} or another --run-dir"
         )
     check_writable(run_dir, "--run-dir")
-    _note_rounding(config.algo, hp, hp["total_timesteps"])
+    note_rounding(config.algo, hp)
     config.run_dir = str(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     from capture_bench.evaluation.provenance import git_state
@@ -230,6 +249,16 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     atomic_write(run_dir / "hyperparameters.yaml", resolved_yaml(config, hp, origin).encode())
     atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
     return config, hp, run_dir, None
+
+
+def free_run_dir(default: Path) -> Path:
+    """``default``, or else the first of ``default_2``, ``default_3``, ... that does not exist
+    (or is an empty folder), as the RL Zoo numbers its runs: a new run never mixes with one."""
+    candidate, number = default, 1
+    while candidate.exists() and not (candidate.is_dir() and not any(candidate.iterdir())):
+        number += 1
+        candidate = default.with_name(f"{default.name}_{number}")
+    return candidate
 
 
 def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
@@ -254,7 +283,7 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
             )
 
 
-def _check_curricula(hp: dict, scenario: Any) -> None:
+def check_curricula(hp: dict, scenario: Any) -> None:
     """A curriculum starts on the easy side of the scenario's rule and moves to it: a tolerance
     above its epsilon, a hold below its ``capture.hold``."""
     hold, eps = scenario.capture.hold, scenario.capture_tolerance
@@ -271,7 +300,7 @@ def _check_curricula(hp: dict, scenario: Any) -> None:
         )
 
 
-def _check_shaping(hp: dict) -> None:
+def check_shaping(hp: dict) -> None:
     """``reward: shaped`` is potential-based only for the discount it assumes."""
     from capture_bench.task.rewards import SHAPING_GAMMA
 
@@ -288,7 +317,13 @@ def resolved_yaml(config: TrainConfig, hp: dict, origin: dict) -> str:
     """The run's resolved hyper-parameters as a YAML file that ``--config`` reads back."""
     import yaml
 
-    layers = [f"  file: {origin['file']}"]
+    layers = []
+    defaults = origin.get("defaults")
+    if defaults:
+        layers.append(f"  defaults: {defaults['file']}")
+        if defaults["section"]:
+            layers.append(f"  defaults section: {defaults['section']}")
+    layers.append(f"  file: {origin['file']}")
     if origin["section"]:
         layers.append(f"  section: {origin['section']}")
     layers += [f"  --set {item}" for item in origin["overrides"]]
@@ -339,21 +374,24 @@ def _check_env_count(n_envs: int, vec_env: str) -> None:
         )
 
 
-def _note_rounding(algo: str, hp: dict, steps: int) -> None:
-    """Print a note where SB3 will run more steps than asked (whole rollouts) or learn nothing."""
+def note_rounding(algo: str, hp: dict, done: int = 0) -> None:
+    """Print a note where SB3 will run more steps than asked (:func:`~capture_bench.training.
+    hyperparameters.planned_steps`: whole rollouts, or whole steps of all envs) or learn
+    nothing (an off-policy budget within ``learning_starts``)."""
+    total, unit = hp["total_timesteps"], steps_per_update(algo, hp)
     if algo in OFF_POLICY:
         starts = hp.get("learning_starts", 100)
-        if steps <= starts:
-            print(f"note: {steps} steps is not more than learning_starts {starts}: "
+        if total <= starts:
+            print(f"note: {total} steps is not more than learning_starts {starts}: "
                   "the policy will not be updated")  # fmt: skip
-        return
-    rollout = hp.get("n_steps", 2048) * hp["n_envs"]
-    if steps % rollout:
-        rounded = math.ceil(steps / rollout) * rollout
-        print(
-            f"note: {algo.upper()} trains in whole rollouts of n_steps x n_envs = {rollout} steps; "
-            f"{steps} steps are rounded up to {rounded}"
-        )
+        why = f"train_freq x n_envs = {unit} steps at a time (all envs step together)"
+    else:
+        why = f"whole rollouts of n_steps x n_envs = {unit} steps"
+    end = planned_steps(algo, hp, done)
+    if end != total:
+        since = f" from step {done}" if done else ""
+        print(f"note: {algo.upper()} trains in {why}: the budget of {total} steps{since} is "
+              f"rounded up to {end}")  # fmt: skip
 
 
 def make_env(config: TrainConfig, reward: str, rank: int, subprocess: bool) -> Any:
@@ -442,15 +480,28 @@ def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str |
     )  # fmt: skip
 
 
+def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
+    """The curricula ``hp`` asks for (training only: validation keeps the scenario's rule), as
+    SB3 callbacks; none where it asks for none."""
+    if not any(key in hp for key in CURRICULA):
+        return []
+    from capture_bench.envs.capture_env import describe_task
+    from capture_bench.training.callbacks import HoldCurriculum, ToleranceCurriculum
+
+    scenario = load_scenario(config.scenario)
+    schedule = (hp["curriculum_steps"], hp["curriculum_delay"])
+    callbacks: list[Any] = []
+    if "curriculum_tolerance" in hp:
+        final = describe_task(scenario).capture_tolerance
+        callbacks.append(ToleranceCurriculum(hp["curriculum_tolerance"], final, *schedule))
+    if "curriculum_hold" in hp:
+        callbacks.append(HoldCurriculum(hp["curriculum_hold"], scenario.capture.hold, *schedule))
+    return callbacks
+
+
 def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
     """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
-    from capture_bench.training.callbacks import (
-        Checkpointer,
-        HoldCurriculum,
-        Progress,
-        RolloutMetrics,
-        ToleranceCurriculum,
-    )
+    from capture_bench.training.callbacks import Checkpointer, Progress, RolloutMetrics
 
     algo = config.algo
     venv = build_venv(config, hp)
@@ -465,7 +516,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
             raise
         model.set_random_seed((config.seed or 0) + model.num_timesteps)  # fresh episode draws
         seed_note = f"resuming {checkpoint.name}"
-    target = hp["total_timesteps"]
+    target = planned_steps(algo, hp, model.num_timesteps)  # the step SB3 stops at
     source = config.observation_source or "each scenario's own estimate"
     print(
         f"training {algo.upper()} on {config.scenario} ({source}), "
@@ -474,18 +525,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     print(f"TensorBoard: tensorboard --logdir {tb}")
     checkpointer = Checkpointer(run_dir / "checkpoints", hp["checkpoint_freq"], algo in OFF_POLICY)
     progress = Progress(config, hp, target)
-    callbacks = [checkpointer, RolloutMetrics(), progress]
-    if any(key in hp for key in CURRICULA):  # training only: validation keeps the rule
-        from capture_bench.envs.capture_env import describe_task
-
-        scenario = load_scenario(config.scenario)
-        schedule = (hp["curriculum_steps"], hp["curriculum_delay"])
-        if "curriculum_tolerance" in hp:
-            final = describe_task(scenario).capture_tolerance
-            callbacks.append(ToleranceCurriculum(hp["curriculum_tolerance"], final, *schedule))
-        if "curriculum_hold" in hp:
-            hold = scenario.capture.hold
-            callbacks.append(HoldCurriculum(hp["curriculum_hold"], hold, *schedule))
+    callbacks = [checkpointer, RolloutMetrics(), progress, *curriculum_callbacks(config, hp)]
     start = time.perf_counter()
     status = 0
     try:

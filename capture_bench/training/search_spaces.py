@@ -169,6 +169,23 @@ def sample(trial: Any, algo: str, budget: int, keep: tuple[str, ...] = ()) -> di
     return out
 
 
+def describe_space(algo: str, budget: int, keep: tuple[str, ...] = ()) -> dict[str, str]:
+    """What ``algo``'s trials of ``budget`` steps sample, less ``keep``, as a study stores it:
+    parameter name -> its distribution, the keys it sets and, where converted, what each choice
+    becomes (``"Choice(values=(64, 128)) -> batch_size"``)."""
+    out = {}
+    for name, param in SAMPLERS[algo].items():
+        if name in keep:
+            continue
+        text = f"{param.space!r} -> {', '.join((param.key, *param.also))}"
+        if param.convert is not _same and isinstance(param.space, Choice):
+            text += f" = {[param.convert(value, budget) for value in param.space.values]}"
+        elif param.convert is not _same:
+            text += f" via {param.convert.__name__}"
+        out[name] = text
+    return out
+
+
 def merge(base: dict[str, Any], sampled: dict[str, Any]) -> dict[str, Any]:
     """``base`` (a hyper-parameter mapping, not modified) with the dotted keys of ``sampled``
     set."""

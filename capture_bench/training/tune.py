@@ -6,16 +6,18 @@ validations inside each trial), for the validation capture rate.
     python tune.py --algo sac --scenario paper --trials 50   # again: 50 more trials, same study
 
 Each trial trains ``--n-timesteps`` steps on training seeds only, with the hyper-parameters it
-samples (:mod:`capture_bench.training.search_spaces`) merged over the algorithm's YAML (or
-``--config``) and validated like any config file, and is validated ``--n-evaluations`` times on
+samples (:mod:`capture_bench.training.search_spaces`) merged over those ``train.py`` would train
+the scenario with (``configs/algos/<algo>.yaml`` and its scenario section, ``--config`` layered
+over them) and validated like any config file, and is validated ``--n-evaluations`` times on
 the first ``--eval-episodes`` validation seeds (never a published evaluation seed). The score of
 a validation (:func:`objective_value`) ranks the capture rate first and, among equal capture
 rates, the median ratio of capture time to the physical limit (lower is better). Trials are
 stored in ``--storage`` (default ``sqlite:///<output>/study.db``); a study with the same name is
-resumed. At the end (also after Ctrl-C) ``--output`` gets ``best.yaml`` (for
-``train.py --config``), ``trials.csv``, ``optimization_history.png`` and
-``param_importances.png``, each written atomically. A user's mistake is one line on stderr and
-exit 2, found before anything is written.
+resumed with the settings it was created with (:mod:`capture_bench.training.tune_study`: an
+option left out takes the study's value, another value is refused). At the end (also after
+Ctrl-C) ``--output`` gets ``best.yaml`` (for ``train.py --config``), ``trials.csv``,
+``optimization_history.png`` and ``param_importances.png``, each written atomically. A user's
+mistake is one line on stderr and exit 2, found before anything is written.
 """
 
 from __future__ import annotations
@@ -28,17 +30,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from capture_bench.argparsing import OneLineParser
+from capture_bench.argparsing import OneLineParser, program
 from capture_bench.files import check_writable
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
-from capture_bench.training.hyperparameters import ALGORITHMS, OFF_POLICY, load_hyperparameters
+from capture_bench.training.hyperparameters import (
+    ALGORITHMS,
+    OFF_POLICY,
+    SB3_N_STEPS,
+    resolve_hyperparameters,
+)
 from capture_bench.training.options import option as _opt
 from capture_bench.training.search_spaces import SAMPLERS, Choice
 from capture_bench.training.seeds import check_training_seed
 from capture_bench.training.tune_outputs import OUTPUT_FILES, redacted, write_outputs
+from capture_bench.training.tune_study import keep_settings
 
-PROG = "tune.py"
+PROG = program("tune.py")  # capture-bench-tune when run as that console script
 INSTALL_HINT = "pip install 'capture-bench[tune]' (or: pip install 'optuna>=3.4')"
 
 
@@ -49,11 +57,15 @@ class TuneConfig:
     algo: str = _opt("ppo", f"SB3 algorithm, one of {', '.join(ALGORITHMS)}")
     scenario: str = _opt("paper", "scenario name (configs/scenarios/<name>.yaml) or YAML path")
     config: str | None = _opt(
-        None, "base hyper-parameter YAML the samples override (default: configs/algos/<algo>.yaml)"
+        None,
+        "base hyper-parameter YAML the samples override, layered over configs/algos/<algo>.yaml "
+        "as train.py layers it (default: that file alone)",
     )
     trials: int = _opt(20, "trials to run now, added to the study (0: only rewrite the outputs)")
     n_timesteps: int | None = _opt(
-        None, "training budget of each trial, environment steps (default: the YAML's total)"
+        None,
+        "training budget of each trial, environment steps (default: a continued study's, else "
+        "the YAML's total)",
     )
     n_evaluations: int = _opt(5, "validations per trial, evenly spaced; each is reported to Optuna")
     eval_episodes: int | None = _opt(
@@ -92,6 +104,7 @@ class Setup:
     scenario: Scenario
     base: dict[str, Any]  # the validated base hyper-parameters
     base_path: Path
+    given: set[str]  # the options given on the command line (the others may take a study's)
     budget: int  # environment steps per trial, all envs together
     every: int  # environment steps between validations
     eval_episodes: int
@@ -113,7 +126,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
         parser.add_argument(
             "--" + f.name.replace("_", "-"),
             type=kind,
-            default=f.default,
+            default=None,  # None = not given: a continued study's own value may apply
             choices=f.metadata["choices"],
             help=doc,
             metavar=f.name.upper(),
@@ -121,9 +134,12 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     return parser
 
 
-def parse_args(argv: list[str] | None) -> TuneConfig:
-    """The options as a :class:`TuneConfig` (argparse exits 2 on a bad one, in one line)."""
-    return TuneConfig(**vars(build_parser().parse_args(argv)))
+def parse_args(argv: list[str] | None) -> tuple[TuneConfig, set[str]]:
+    """The options as a :class:`TuneConfig` and the set of option names given explicitly
+    (argparse exits 2 on a bad option, in one line)."""
+    namespace = build_parser().parse_args(argv)
+    given = {k for k, v in vars(namespace).items() if v is not None}
+    return TuneConfig(**{k: v for k, v in vars(namespace).items() if v is not None}), given
 
 
 def objective_value(capture_rate: float, ratio: float, n_episodes: int) -> float:
@@ -164,17 +180,24 @@ def _positive(value: int | None, option: str, low: int = 1) -> None:
         raise ConfigError(f"--{option} must be >= {low}, got {value}")
 
 
-def prepare(config: TuneConfig) -> Setup:
-    """Check and resolve every option before any work; writes nothing. Raises
-    :class:`ConfigError` naming what is wrong."""
+def prepare(config: TuneConfig, given: set[str] | None = None) -> Setup:
+    """Check and resolve every option before any work; writes nothing. ``given``: the options
+    given on the command line (default: none; the others may take a continued study's value,
+    :func:`open_study`). Raises :class:`ConfigError` naming what is wrong."""
+    from capture_bench.training.run import check_curricula, check_shaping
+
     config.algo = config.algo.lower()
-    base, base_path = load_hyperparameters(config.algo, config.config)
+    if config.algo not in ALGORITHMS:
+        raise ConfigError(f"unknown algorithm {config.algo!r}; valid: {', '.join(ALGORITHMS)}")
+    scenario = load_scenario(config.scenario)
+    base, base_path, _ = resolve_hyperparameters(config.algo, scenario, config.config)
+    check_shaping(base)
+    check_curricula(base, scenario)
     if config.algo not in SAMPLERS:
         raise ConfigError(
             f"--algo {config.algo}: no search space for it in capture_bench/training/"
             f"search_spaces.py (SAMPLERS); algorithms with one: {', '.join(SAMPLERS)}"
         )
-    scenario = load_scenario(config.scenario)
     if config.seed is None:
         config.seed = scenario.training_seeds.start
     check_training_seed(config.seed, scenario)
@@ -216,6 +239,7 @@ def prepare(config: TuneConfig) -> Setup:
         scenario=scenario,
         base=base,
         base_path=base_path,
+        given=set(given or ()),
         budget=budget,
         every=every,
         eval_episodes=episodes,
@@ -224,11 +248,26 @@ def prepare(config: TuneConfig) -> Setup:
         storage=config.storage or f"sqlite:///{output / 'study.db'}",
         output=output,
     )
-    setup.command = "python tune.py " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(config).items() if v is not None
-    )
-    _note_rollouts(setup)
+    setup.command = study_command(setup)
     return setup
+
+
+def study_command(setup: Setup) -> str:
+    """The ``tune.py`` command of the study's trials: every setting that defines a trial
+    (:data:`~capture_bench.training.tune_study.SETTINGS`) spelled out, and where the study is."""
+    config = setup.config
+    words = ["python", "tune.py", "--algo", config.algo, "--scenario", config.scenario]
+    if config.config:
+        words += ["--config", str(config.config)]
+    words += ["--n-timesteps", str(setup.budget), "--n-evaluations", str(config.n_evaluations)]
+    words += ["--eval-episodes", str(setup.eval_episodes), "--seed", str(config.seed)]
+    if setup.keep:
+        words += ["--keep", ",".join(setup.keep)]
+    for option, value in (("study-name", config.study_name), ("storage", config.storage),
+                          ("output", config.output)):  # fmt: skip
+        if value is not None:
+            words += [f"--{option}", redacted(str(value))]
+    return " ".join(words)
 
 
 def _note_rollouts(setup: Setup) -> None:
@@ -240,7 +279,7 @@ def _note_rollouts(setup: Setup) -> None:
     if param is not None and "n_steps" not in setup.keep and isinstance(param.space, Choice):
         n_steps = max(param.space.values)
     else:
-        n_steps = setup.base.get("n_steps", 2048)  # SB3's default
+        n_steps = setup.base.get("n_steps", SB3_N_STEPS[setup.config.algo])
     rollout = n_steps * setup.base["n_envs"]
     if rollout > setup.every:
         print(
@@ -252,21 +291,19 @@ def _note_rollouts(setup: Setup) -> None:
 
 
 def open_study(setup: Setup) -> Any:
-    """Create the study in ``setup.storage``, or load the one of that name (then its algorithm and
-    scenario must match). TPE is seeded with ``--seed`` plus the trials already stored, so a
-    resumed study does not repeat its first samples."""
+    """Create the study in ``setup.storage``, or load the one of that name: then its algorithm and
+    scenario must match, and ``setup`` takes the settings its trials ran with, or a differing
+    option is refused (:func:`~capture_bench.training.tune_study.keep_settings`). TPE is seeded
+    with ``--seed`` plus the trials already stored, so a resumed study does not repeat its first
+    samples."""
     import optuna
 
     config = setup.config
-    pruner = optuna.pruners.MedianPruner(
-        n_startup_trials=config.n_startup_trials, n_warmup_steps=config.n_evaluations // 3
-    )
     try:
         study = optuna.create_study(
             storage=setup.storage,
             study_name=setup.study_name,
             direction="maximize",
-            pruner=pruner,
             load_if_exists=True,
         )
     except Exception as exc:  # Optuna and SQLAlchemy raise many kinds on a bad URL
@@ -282,6 +319,11 @@ def open_study(setup: Setup) -> Any:
             f"{found['algo']} on {found['scenario']}, not {config.algo} on {setup.scenario.name}; "
             "choose another --study-name"
         )
+    keep_settings(study, setup, setup.given)
+    setup.command = study_command(setup)
+    study.pruner = optuna.pruners.MedianPruner(
+        n_startup_trials=config.n_startup_trials, n_warmup_steps=config.n_evaluations // 3
+    )
     study.sampler = optuna.samplers.TPESampler(
         n_startup_trials=config.n_startup_trials,
         seed=(config.seed or 0) + len(study.trials),
@@ -293,7 +335,7 @@ def open_study(setup: Setup) -> Any:
 def main(argv: list[str] | None = None) -> int:
     """Run ``tune.py`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
     try:
-        config = parse_args(argv)
+        config, given = parse_args(argv)
     except SystemExit as exc:  # --help (0) or a bad option (2, already printed)
         return int(exc.code or 0)
     try:
@@ -302,12 +344,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: tuning needs Optuna; install it: {INSTALL_HINT}", file=sys.stderr)
         return 2
     try:
-        setup = prepare(config)
+        setup = prepare(config, given)
         setup.output.mkdir(parents=True, exist_ok=True)
         study = open_study(setup)
     except (ConfigError, OSError) as exc:
         print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+    _note_rollouts(setup)
     from capture_bench.training.tune_trial import run_trial
 
     status = 0

@@ -84,7 +84,7 @@ def best_yaml(trial: Any, setup: Setup) -> str:
         f"median ratio to the limit {ratio_text}",
         f"(after {trial.user_attrs.get('n_timesteps')} steps; objective_value in "
         "capture_bench/training/tune.py).",
-        f"Written by: {setup.command}",
+        f"Tuned by: {setup.command} (the study's settings, every trial's)",
         f"Train with: python train.py --algo {algo} --scenario {scenario} --config "
         f"{setup.output / 'best.yaml'}",
         "total_timesteps is the per-trial budget it was tuned at; --total-timesteps trains longer.",

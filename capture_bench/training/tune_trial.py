@@ -13,9 +13,13 @@ import optuna
 from stable_baselines3.common.callbacks import BaseCallback
 
 from capture_bench.training.callbacks import Progress
-from capture_bench.training.hyperparameters import validate_hyperparameters
+from capture_bench.training.hyperparameters import (
+    CURRICULA,
+    planned_steps,
+    validate_hyperparameters,
+)
 from capture_bench.training.options import TrainConfig
-from capture_bench.training.run import build_model, build_venv, close_envs
+from capture_bench.training.run import build_model, build_venv, close_envs, curriculum_callbacks
 from capture_bench.training.search_spaces import merge, sample
 from capture_bench.training.tune import Setup, objective_value, report_validation
 
@@ -57,7 +61,8 @@ class TrialValidation(BaseCallback):
 
 def trial_hyperparameters(trial: Any, setup: Setup) -> dict[str, Any]:
     """The ``trial``'s sample merged over the base hyper-parameters, with the tuning budget and
-    validation schedule, validated like a config file."""
+    validation schedule, validated like a config file. A curriculum without ``curriculum_steps``
+    moves over half the budget, as in ``train.py``."""
     base = {
         **setup.base,
         "total_timesteps": setup.budget,
@@ -65,6 +70,8 @@ def trial_hyperparameters(trial: Any, setup: Setup) -> dict[str, Any]:
         "eval_episodes": setup.eval_episodes,
         "checkpoint_freq": 0,
     }
+    if any(key in base for key in CURRICULA):
+        base.setdefault("curriculum_steps", max(1, setup.budget // 2))
     sampled = sample(trial, setup.config.algo, setup.budget, setup.keep)
     source = f"trial {trial.number} of study {setup.study_name!r}"
     return validate_hyperparameters(merge(base, sampled), setup.config.algo, source)
@@ -94,14 +101,15 @@ def run_trial(trial: Any, setup: Setup) -> float:
         observation_source=setup.scenario.estimator.source,
     )
     venv = build_venv(config, hp)
-    progress = Progress(config, {**hp, "eval_freq": 0}, setup.budget)
+    progress = Progress(config, {**hp, "eval_freq": 0}, planned_steps(setup.config.algo, hp))
     validation = TrialValidation(
         trial, progress, setup.every, setup.config.n_evaluations, setup.eval_episodes
     )
     interrupted = False
     try:
         model = build_model(config, hp, venv, tensorboard_log=None)
-        model.learn(total_timesteps=setup.budget, callback=[progress, validation])
+        callbacks = [progress, validation, *curriculum_callbacks(config, hp)]
+        model.learn(total_timesteps=setup.budget, callback=callbacks)
     except KeyboardInterrupt:  # Optuna records the trial as failed and re-raises it
         interrupted = True
         raise
