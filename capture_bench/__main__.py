@@ -23,6 +23,8 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+from capture_bench.argparsing import OneLineParser
+
 PROG = "python -m capture_bench"
 DELEGATED = {
     "evaluate": "evaluate agents on a suite and write the leaderboard report",
@@ -33,8 +35,9 @@ DELEGATED = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog=PROG,
+        hint=" (see --help)",
         description="capture-bench: evaluate agents, train and tune policies, list what is "
         "installed.",
     )

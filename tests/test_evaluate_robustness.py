@@ -1,8 +1,10 @@
-"""evaluate.py: output folders checked first, reports replaced only by what they are, signals end
-it at once with no worker left and the previous report intact."""
+"""evaluate.py: output folders and the Ray cluster checked first, reports replaced only by what
+they are, signals end it at once with no worker left and the previous report intact, and no
+worker outlives it however it dies."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -107,3 +109,45 @@ def test_a_signal_ends_evaluate_at_once_with_no_worker_left(signum, status, tmp_
     assert not [pid for pid in workers if alive(pid)], "a worker outlived evaluate.py"
     assert (out / "quick" / "marker").read_text() == "previous report"
     assert sorted(p.name for p in out.iterdir()) == ["quick"]  # no staging folder left
+
+
+def test_an_unreachable_ray_cluster_is_refused_in_seconds(tmp_path):
+    """Ray's own connect retries a dead address for many minutes; the run is refused first, as
+    bad input (in a child process: a hang must fail the test, not stall it)."""
+    out = tmp_path / "reports"
+    done = subprocess.run(
+        [sys.executable, "evaluate.py", "--suite", "quick", "--backend", "ray",
+         "--ray-address", "127.0.0.1:1", "--out", str(out)],
+        cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "127.0.0.1:1" in lines[0] and "Traceback" not in lines[0], lines
+    assert not out.exists()
+
+
+def test_no_worker_outlives_evaluate_killed_by_sigkill(tmp_path):
+    """SIGKILL leaves evaluate.py no chance to clean up: the workers, the forkserver they fork
+    from and multiprocessing's resource tracker must still all end by themselves."""
+    proc = subprocess.Popen(
+        [sys.executable, "evaluate.py", "--suite", "quick", "--episodes", "50", "--workers", "2",
+         "--out", str(tmp_path)],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        started: list[int] = []
+        while time.monotonic() < deadline and len(started) < 4:  # tracker, forkserver, 2 workers
+            time.sleep(0.2)
+            started = descendants(proc.pid)
+        assert len(started) >= 4, "the workers never started"
+        time.sleep(1.0)  # mid-episodes
+        proc.kill()
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and any(alive(pid) for pid in started):
+            time.sleep(0.1)
+        assert not [pid for pid in started if alive(pid)], "a process outlived evaluate.py"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)  # its own session: whatever of it is left

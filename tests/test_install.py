@@ -78,6 +78,8 @@ def test_the_console_script_writes_a_report(installed, tmp_path):
     assert {a["label"] for a in results["provenance"]["agents"]} == {"incremental_ik", "random"}
     assert (out / "quick" / "leaderboard.md").is_file()
     assert list(elsewhere.iterdir()) == []  # nothing written where it ran
+    usage = _run([str(script), "--help"], cwd=elsewhere).stdout
+    assert usage.startswith("usage: capture-bench-evaluate ")  # its own name, not evaluate.py
 
 
 def test_python_m_capture_bench_runs_the_same_commands(installed):

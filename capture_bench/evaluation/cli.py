@@ -13,23 +13,30 @@ replacing the previous report only once the new one is complete; with the suite'
 default) its "Episodes to watch" show the reference and the best-ranked trained model on one seed
 of each scenario as GIFs. ``--agents``, ``--scenarios`` or
 ``--episodes`` that change the suite make a custom selection, written to
-``<out>/custom-<hash of the selection>/``: ``reports/<suite>/`` only ever holds that suite as
-defined. Bad input (unknown agent, scenario or suite, a missing, corrupt or untrusted model,
-mismatched spaces, an output folder that cannot be written) prints one line to stderr and exits
-with code 2, before any episode runs or any file is written. Ctrl-C (SIGINT) or SIGTERM stops
-every worker and exits with 130 or 143, writing nothing and leaving the previous report as it was.
+``<out>/custom-<hash of the selection>/``, and so does a suite file named like a shipped suite
+that is not it (``--suite my/default.yaml``): ``reports/<suite>/`` only ever holds that suite as
+defined; the output names the folder written. Bad input (unknown agent, scenario or suite, a
+missing, corrupt or untrusted model, mismatched spaces, an output folder that cannot be written,
+an empty option value) prints one line to stderr and exits with code 2, before any episode runs
+or any file is written. Ctrl-C (SIGINT) or SIGTERM stops every worker and exits with 130 or 143,
+writing nothing and leaving the previous report as it was. The summary table printed at the end
+fits the terminal (80 columns in a pipe or a CI log: then without the per-scenario columns).
 Models load without unpickling anything (``--trust-model`` to allow an SB3 ``.zip``).
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import math
 import shlex
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from capture_bench.argparsing import OneLineParser
+from capture_bench.argparsing import OneLineParser, program
+from capture_bench.evaluation.aggregate import RankingRow
 from capture_bench.evaluation.backends import BACKENDS
 from capture_bench.evaluation.pipeline import (
     INPUT_ERRORS,
@@ -40,10 +47,14 @@ from capture_bench.evaluation.pipeline import (
 )
 from capture_bench.evaluation.provenance import git_state
 from capture_bench.evaluation.report import ReportData
-from capture_bench.evaluation.suites import ALL
+from capture_bench.evaluation.suites import ALL, shadowed_suite
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.task.scenarios import invalid_scenarios
 
+if TYPE_CHECKING:
+    from rich.table import Table
+
+#: The script's name; the console script shows its own (:func:`capture_bench.argparsing.program`).
 PROG = "evaluate.py"
 
 
@@ -187,34 +198,74 @@ def parse_config(argv: list[str]) -> EvaluationConfig:
     )
 
 
-def _summary_table(data: ReportData, target: Path) -> None:
+SUMMARY_CAPTION = (
+    "ratio: mean over scenarios of the median capture time / physical limit; "
+    "speed: mean over scenarios of the median relative speed at capture, mm/s"
+)
+
+
+def summary_table(
+    suite: str,
+    ranking: Sequence[RankingRow],
+    rates: Mapping[tuple[str, str], float],
+    width: int,
+) -> Table:
+    """The ranking as the terminal shows it: rank, agent, mean capture rate (%), the rate on
+    each scenario (%), ratio and speed, ``width`` columns wide at most.
+
+    ``rates`` maps (agent, scenario) to the capture rate, scenarios in report order. Where the
+    scenario columns do not fit in ``width`` (16 agents on 8 scenarios need ~100 columns; a pipe
+    or a CI log gets 80), they are left out, so that no agent name, rate or ratio is cut short;
+    the caption then says where they are.
+    """
     from rich.console import Console
+    from rich.measure import Measurement
+
+    scenarios = list(dict.fromkeys(scenario for _, scenario in rates))
+    table = _table(suite, ranking, rates, scenarios)
+    unbounded = Console(width=10_000, file=io.StringIO())  # measures the table's natural width
+    if Measurement.get(unbounded, unbounded.options, table).maximum > width:
+        table = _table(suite, ranking, rates, [])
+        table.caption = f"{SUMMARY_CAPTION}. Per scenario: the report (leaderboard.md)."
+    return table
+
+
+def _table(
+    suite: str,
+    ranking: Sequence[RankingRow],
+    rates: Mapping[tuple[str, str], float],
+    scenarios: list[str],
+) -> Table:
     from rich.table import Table
 
-    scenarios = list(dict.fromkeys(s.scenario for s in data.summaries))
-    rate = {(s.agent, s.scenario): s.capture_rate.value for s in data.summaries}
     table = Table(
-        title=f"capture-bench · {data.suite} · capture rate, % of episodes",
-        caption="ratio: mean over scenarios of the median capture time / physical limit; "
-        "speed: mean over scenarios of the median relative speed at capture, mm/s",
+        title=f"capture-bench · {suite} · capture rate, % of episodes",
+        caption=SUMMARY_CAPTION,
     )
-    table.add_column("rank", justify="right")
+    table.add_column("rank", justify="right", no_wrap=True)
     table.add_column("agent", no_wrap=True)
     for column in ("mean", *scenarios, "ratio", "speed"):
-        table.add_column(column, justify="right")
-    for row in data.ranking:
+        table.add_column(column, justify="right", no_wrap=True)
+    for row in ranking:
         table.add_row(
             "—" if row.rank is None else str(row.rank),
             row.agent + (" (privileged)" if row.privileged else ""),
             f"{100 * row.mean_capture_rate:.0f}",
-            *(f"{100 * rate.get((row.agent, s), float('nan')):.0f}" for s in scenarios),
+            *(f"{100 * rates.get((row.agent, s), math.nan):.0f}" for s in scenarios),
             f"{row.mean_ratio_median:.2f}",
             "—"
             if math.isnan(row.mean_relative_speed_median)
             else f"{1e3 * row.mean_relative_speed_median:.0f}",
         )
+    return table
+
+
+def _print_summary(data: ReportData, target: Path) -> None:
+    from rich.console import Console
+
     console = Console()
-    console.print(table)
+    rates = {(s.agent, s.scenario): s.capture_rate.value for s in data.summaries}
+    console.print(summary_table(data.suite, data.ranking, rates, console.width))
     console.print(f"report: {target}")
 
 
@@ -242,8 +293,26 @@ def _run(plan: Plan, config: EvaluationConfig, command: str) -> tuple[ReportData
         return run_evaluation(plan, config, command, lambda n: bar.advance(task, n))
 
 
+def _where_note(config: EvaluationConfig, plan: Plan) -> str | None:
+    """Why the report goes to a folder other than ``<out>/<suite>/``, and where; None if not."""
+    target = config.out / plan.suite.name
+    shadowed = shadowed_suite(config.suite)
+    if shadowed is not None:
+        return (
+            f"{config.suite} is not the shipped {shadowed!r} suite, so the report goes to "
+            f"{target}/ ({config.out / shadowed}/ is left as it is)"
+        )
+    if plan.suite.name != config.suite and plan.suite.name.startswith("custom-"):
+        return (
+            f"a custom selection, so the report goes to {target}/ (the {config.suite!r} "
+            "suite's own report is left as it is)"
+        )
+    return None
+
+
 def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    prog = program(PROG)
     try:
         config = parse_config(argv)
     except SystemExit as exc:  # --help, or a malformed option (already reported in one line)
@@ -253,26 +322,22 @@ def _main(argv: list[str] | None) -> int:
         plan = plan_evaluation(config)
     except INPUT_ERRORS as exc:
         message = " ".join(str(exc).split())
-        print(f"{PROG}: error: {message}", file=sys.stderr)
+        print(f"{prog}: error: {message}", file=sys.stderr)
         return 2
     if plan.suite.scenarios == (ALL,):  # "every scenario": say which invalid files were left out
         for name, error in invalid_scenarios().items():
-            print(f"{PROG}: note: skipping invalid scenario {name!r}: {error}", file=sys.stderr)
+            print(f"{prog}: note: skipping invalid scenario {name!r}: {error}", file=sys.stderr)
     if git_state().get("dirty"):
         print(
-            f"{PROG}: note: the checkout has uncommitted changes; results.json will say "
+            f"{prog}: note: the checkout has uncommitted changes; results.json will say "
             "dirty: true (commit first for a report others can trace to its code)",
             file=sys.stderr,
         )
-    if plan.suite.name != config.suite and plan.suite.name.startswith("custom-"):
-        print(
-            f"{PROG}: note: a custom selection, so the report goes to "
-            f"{config.out / plan.suite.name}/ (the {config.suite!r} suite's own report is left "
-            "as it is)",
-            file=sys.stderr,
-        )
+    where = _where_note(config, plan)
+    if where is not None:
+        print(f"{prog}: note: {where}", file=sys.stderr)
     data, target = _run(plan, config, command)
-    _summary_table(data, target)
+    _print_summary(data, target)
     return 0
 
 
@@ -283,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
             return _main(argv)
         except KeyboardInterrupt as exc:
             print(
-                f"{PROG}: interrupted; no report written (a previous report is as it was)",
+                f"{program(PROG)}: interrupted; no report written (a previous report is as it was)",
                 file=sys.stderr,
             )
             return exit_status(exc)

@@ -25,6 +25,7 @@ from capture_bench.evaluation.aggregate import RankingRow, rank_agents, summaris
 from capture_bench.evaluation.backends import (
     BACKENDS,
     EpisodeTask,
+    check_ray_cluster,
     close_envs,
     make_env,
     run_task,
@@ -219,6 +220,8 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
             f"--video-episodes {config.video_episodes}: expected a whole number from 1 to the "
             f"{suite.episodes} episodes evaluated of each agent x scenario"
         )
+    if config.resolved_backend() == "ray":
+        check_ray_cluster(config.ray_address)
     check_writable(config.out, "--out")
     if config.episode_plots is not None:
         check_writable(config.episode_plots, "--episode-plots")

@@ -31,6 +31,7 @@ from capture_bench.evaluation.aggregate import (
     summary_row,
 )
 from capture_bench.evaluation.metrics import Estimate
+from capture_bench.evaluation.provenance import REPRODUCIBILITY, provenance_text
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
 
 if TYPE_CHECKING:
@@ -236,6 +237,7 @@ def markdown(data: ReportData) -> str:
         lines += ["", *_md_table(DETAIL_HEADER, [detail_cells(s) for s in cells])]
     lines += ["", *watch.markdown_lines(data.videos)]
     lines += [f"Figures: {', '.join(figure_names(data))} (in this directory).", ""]
+    lines += ["## Provenance", "", provenance_text(data.provenance), "", REPRODUCIBILITY, ""]
     return "\n".join(lines)
 
 
@@ -343,6 +345,8 @@ def html_page(data: ReportData, images: dict[str, bytes]) -> str:
     parts += [
         _img(name, images[name]) for name in figure_names(data) if name not in SUMMARY_FIGURES
     ]
+    parts.append(f"<h2>Provenance</h2><p>{esc(provenance_text(data.provenance))}</p>")
+    parts.append(f"<p>{esc(REPRODUCIBILITY)}</p>")
     parts.append("</body></html>")
     return "\n".join(parts)
 

@@ -9,7 +9,10 @@ A suite file::
     reference: incremental_ik    # agent of the paired comparison
     videos: true                 # the report's "Episodes to watch" (default true)
 
-The suite's name is its file stem. Scenario and agent names are checked against what exists when
+The suite's name is its file stem, and its report goes to ``<out>/<name>/``; a suite file given
+by path whose stem names a shipped suite but which is not that suite's file (``my/default.yaml``)
+is named ``custom-<hash>`` instead (:func:`shadowed_suite`), so that ``reports/default/`` only
+ever holds the shipped suite. Scenario and agent names are checked against what exists when
 the evaluation is planned; this module checks the file's shape and types.
 """
 
@@ -36,7 +39,8 @@ class Suite:
 
     Attributes:
         name: the file stem (``default``, ``quick``), or ``custom-<hash>`` for a narrowed
-            selection (:func:`narrow`); reports go to ``reports/<name>/``.
+            selection (:func:`narrow`) or a file named like a shipped suite that is not it
+            (:func:`shadowed_suite`); reports go to ``reports/<name>/``.
         description: one line for people.
         agents: agent specs, in report order.
         scenarios: scenario names, in report order; ``("all",)`` means every shipped scenario.
@@ -76,8 +80,22 @@ def list_suites(suites_dir: Path = SUITES_DIR) -> list[str]:
     return sorted(p.stem for p in suites_dir.glob("*.yaml"))
 
 
+def shadowed_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> str | None:
+    """The shipped suite a suite file would pass for: its name when ``name_or_path`` is a YAML
+    path whose stem names a shipped suite but which is another file (``my/default.yaml``);
+    None for a name, for the shipped file itself by any path, or for a stem no shipped suite
+    has."""
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml") or path.stem not in list_suites(suites_dir):
+        return None
+    shipped = suites_dir / f"{path.stem}.yaml"
+    return None if path.resolve() == shipped.resolve() else path.stem
+
+
 def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite:
-    """Load and validate a shipped suite by name, or any suite YAML by path."""
+    """Load and validate a shipped suite by name, or any suite YAML by path (named
+    ``custom-<hash of the file>`` where :func:`shadowed_suite` says it would pass for a shipped
+    suite)."""
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
         path = suites_dir / f"{name_or_path}.yaml"
@@ -89,15 +107,22 @@ def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite
     data, raw = read_mapping(path, f"suite keys ({', '.join(_SCHEMA)})", SuiteError)
     required = {key: _SCHEMA[key].describe() for key in ("agents", "scenarios", "episodes")}
     checked = check_mapping(data, _SCHEMA, str(path), error=SuiteError, required=required)
+    sha256 = hashlib.sha256(raw).hexdigest()
+    name, description = path.stem, checked.get("description", "")
+    shadowed = shadowed_suite(path, suites_dir)
+    if shadowed is not None:
+        digest = hashlib.sha256(json.dumps(["suite file", shadowed, sha256]).encode()).hexdigest()
+        name = f"custom-{digest[:8]}"
+        description = f"suite file {path}, not the shipped {shadowed!r} suite: {description}"
     return Suite(
-        name=path.stem,
-        description=checked.get("description", ""),
+        name=name,
+        description=description,
         agents=checked["agents"],
         scenarios=checked["scenarios"],
         episodes=checked["episodes"],
         reference=checked.get("reference", "incremental_ik"),
         path=path,
-        sha256=hashlib.sha256(raw).hexdigest(),
+        sha256=sha256,
         videos=checked.get("videos", True),
     )
 
