@@ -25,8 +25,8 @@ expects). The result acts exactly as the same model loaded by SB3 (tested on eve
 ``python -m agents.convert DIR --trust-model`` (:mod:`agents.convert`) converts an existing SB3
 model directory (which unpickles it: only for files you trust).
 
-Why one file of ~570 lines: the writer, the validating reader and the converter of one file format;
-the validation rules are the format's definition and must be read beside what writes it.
+The writer and the validating reader of one file format live together: the validation rules are
+the format's definition and must be read beside what writes it.
 """
 
 from __future__ import annotations

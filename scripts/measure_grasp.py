@@ -1,4 +1,4 @@
-"""The measurements behind the ``grasp`` scenario's tolerance and hold (issue 13).
+"""The measurements behind the ``grasp`` scenario's tolerance and hold.
 
 On the first ``--seeds`` *validation* seeds of ``grasp`` (never a published evaluation seed):
 

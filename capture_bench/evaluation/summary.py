@@ -1,4 +1,4 @@
-"""The report's summary, taken in at a glance (issue 15 point 1): what the heatmap, the ranking
+"""The report's summary, taken in at a glance: what the heatmap, the ranking
 plot and the probability-of-improvement matrix at the top of the HTML show, as numbers.
 
 * **heatmap**: agent x scenario, the capture rate and the median ratio to the physical limit of

@@ -1,4 +1,4 @@
-"""Episodes to watch (issue 15 point 3): which episodes the report shows on video, and its section.
+"""Episodes to watch: which episodes the report shows on video, and its section.
 
 For each scenario: the suite's reference (the paper's controller, ``incremental_ik``) and the
 learned agent ranked highest in the overall ranking (a trained model), on one seed: the first

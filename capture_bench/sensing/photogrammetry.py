@@ -19,7 +19,7 @@ points and the Jacobian follow by the quotient rule. One matrix product serves a
 The functions here are pure; the projection table is shared with the EKF (its measurement model
 h and Jacobian H, eq. 6).
 
-Why one file of ~750 lines: the single-image solve, the batched cold multi-start and the damped
+The single-image solve, the batched cold multi-start and the damped
 Levenberg-Marquardt rounds share the projection table and every helper; split, each half would
 import the other's internals.
 """

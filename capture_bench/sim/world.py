@@ -15,7 +15,7 @@ elsewhere; the target is only drawn.
 
 ``World`` imports nothing from gymnasium. It owns one ``BulletClient``; ``close()`` is safe twice.
 
-Why ~420 lines: the URDF's collision model, the joint limits and the renderer all act on the one
+The URDF's collision model, the joint limits and the renderer all act on the one
 ``BulletClient`` this class owns; the collision screen and the trace drawing live in their own
 modules (:mod:`capture_bench.sim.collision_screen`, :mod:`capture_bench.sim.traces`).
 """

@@ -1,4 +1,4 @@
-"""Learning curves (issue 14 point 4): ``python -m capture_bench curves``.
+"""Learning curves: ``python -m capture_bench curves``.
 
 Trains (with ``--train``) or reads runs of each algorithm on one scenario from several training
 seeds, and writes one report page, ``learning_curves.md`` and a self-contained

@@ -1,5 +1,5 @@
 """Features a policy network may compute from the observation before its layers: entries that
-resolve millimetres (issue 14's observation lever), without changing the env's observation.
+resolve millimetres, without changing the env's observation (its effect: docs/results/ablation.md).
 
 The observation's relative vector (entries 12-14, eq. 13's predicted X^_T' - X_E, scaled by
 0.5 m) is of order 0.002 at eq. 20's 1 mm tolerance: to a network that starts with weights of

@@ -1,4 +1,4 @@
-"""Training on a mixture of scenarios (issue 14 point 3): one policy for every scenario.
+"""Training on a mixture of scenarios: one policy for every scenario.
 
 ``train.py --scenario all`` (every shipped scenario) or ``--scenario paper,tumbling,grasp`` trains
 one policy on all of them at once: the ``n_envs`` sub-envs are split evenly between the

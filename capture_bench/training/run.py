@@ -75,7 +75,7 @@ MEMORY_SHARE = 0.8
 #: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
 #: number it read from there). One: the networks are small (a few 256-wide layers, batches of
 #: <= 1024), so a second thread saves little in the update and costs a spin-waiting core that
-#: the env side (the same process) and other processes need; see README, "Training speed".
+#: the env side (the same process) and other processes need; see docs/speed.md, "Training speed".
 TORCH_THREADS = 1
 
 
