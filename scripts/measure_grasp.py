@@ -26,7 +26,7 @@ import sys
 
 import numpy as np
 
-from agents import make_agent
+from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.evaluation.rollout import run_episode
 from capture_bench.task.scenarios import Scenario, load_scenario

@@ -1,8 +1,8 @@
 """Reproduce Dong & Zhu (2016), section 4: one ``paper`` episode with the lambda_max controller.
 
-Runs the paper's incremental IK controller (``agents/incremental_ik.py``) with the vision
-estimate (photogrammetry -> EKF) on one published evaluation episode of the ``paper`` scenario and
-draws the analogues of the paper's figures:
+Runs the paper's incremental IK controller (``capture_bench/agents/incremental_ik.py``) with the
+vision estimate (photogrammetry -> EKF) on one published evaluation episode of the ``paper``
+scenario and draws the analogues of the paper's figures:
 
 * ``fig2_target_estimate.png`` — estimated vs true target position and velocity (global frame);
 * ``fig3_joint_velocities.png`` — joint velocities dTheta/dt against their limits, and dTheta;
@@ -61,7 +61,7 @@ def run_episode(
     import gymnasium
 
     import capture_bench  # noqa: F401  (registers the env IDs)
-    from agents import make_agent
+    from capture_bench.agents import make_agent
     from capture_bench.sim.kinematics import forward_kinematics
     from capture_bench.task.observation import decode_observation
     from capture_bench.task.scenarios import load_scenario

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from stand_in import sb3_model
 
-from agents.policy_file import PolicyLoadError, save_policy
-from agents.sb3_policy import read_metadata
+from capture_bench.agents.policy_file import PolicyLoadError, save_policy
+from capture_bench.agents.sb3_policy import read_metadata
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
 

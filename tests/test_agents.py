@@ -7,9 +7,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import agents
-from agents import AGENTS, IncrementalIK, Oracle, make_agent
-from agents.incremental_ik import incremental_step, lambda_max_of
+import capture_bench.agents as agents
+from capture_bench.agents import AGENTS, IncrementalIK, Oracle, make_agent
+from capture_bench.agents.incremental_ik import incremental_step, lambda_max_of
 from capture_bench.sim.kinematics import (
     HOME,
     JOINT_LOWER,
@@ -394,3 +394,64 @@ def test_reproduce_paper_script_writes_the_figures(tmp_path, monkeypatch):
         assert (tmp_path / f"{name}.png").stat().st_size > 10_000
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["is_success"] and summary["capture_time"] >= 0.0
+
+
+# --- batches -----------------------------------------------------------------------------------
+
+
+def _observations(rng: np.random.Generator, n: int) -> np.ndarray:
+    """N observations around reachable poses, with some targets far off and some on X_E."""
+    rows = []
+    for theta in random_poses(rng, n):
+        offset = rng.uniform(-0.3, 0.3, 3) * rng.choice([0.0, 0.01, 1.0, 5.0])
+        rows.append(observe(theta, forward_kinematics(theta) + offset, rng.uniform(-0.05, 0.05, 3)))
+    return np.array(rows)
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["incremental_ik", "incremental_ik_uncapped", "pure_pursuit", "intercept", "dls", "hold"],
+)
+def test_a_batched_analytic_agent_equals_itself_applied_row_by_row(name):
+    agent = make_agent(name, PublicEnv())
+    assert agent.batched
+    obs = _observations(np.random.default_rng(7), 60)
+    batch, _ = agent.predict(obs)
+    rows = np.stack([agent.predict(o)[0] for o in obs])
+    assert batch.shape == (60, 3) and batch.dtype == np.float32
+    assert np.array_equal(batch, rows)  # bit for bit: no row depends on another
+    halves = np.concatenate([agent.predict(obs[:17])[0], agent.predict(obs[17:])[0]])
+    assert np.array_equal(batch, halves)  # nor on the batch's size
+
+
+def test_intercept_batch_falls_back_to_pure_pursuit_row_by_row():
+    agent = make_agent("intercept", PublicEnv())
+    pursuit = make_agent("pure_pursuit", PublicEnv())
+    theta = HOME
+    near = observe(theta, forward_kinematics(theta) + [0.1, 0.0, 0.0])
+    away = observe(theta, [30.0, 0.0, 0.0], [5.0, 0.0, 0.0])  # never met: no interception
+    actions, _ = agent.predict(np.stack([near, away]))
+    assert np.isnan(agent.last_tau[1]) and np.isfinite(agent.last_tau[0])
+    assert np.array_equal(actions[1], pursuit.predict(away)[0])
+
+
+def test_an_analytic_controller_written_for_one_observation_is_not_batched_but_predicts_batches():
+    class Towards(agents.AnalyticController):
+        def act(self, observation):
+            obs = self.decode(observation)
+            return np.clip(obs.relative_position, -1, 1).astype(np.float32)
+
+    agent = Towards(DESCRIPTION)
+    assert not agent.batched  # the evaluation gives it one instance per episode
+    obs = _observations(np.random.default_rng(3), 5)
+    assert np.array_equal(agent.predict(obs)[0], np.stack([agent.act(o) for o in obs]))
+
+    class Nothing(agents.AnalyticController):
+        pass
+
+    with pytest.raises(NotImplementedError, match="neither act nor act_batch"):
+        Nothing(DESCRIPTION).predict(obs[0])
+
+
+def test_random_agent_acts_one_episode_at_a_time():
+    assert not make_agent("random", PublicEnv()).batched

@@ -1,4 +1,5 @@
-"""Eq. 20 over a whole step, against hand cases and a dense brute force; the hold."""
+"""Eq. 20 over a whole step, against hand cases and a dense brute force; the hold. Every test
+takes M steps as rows; one step is M = 1 (:func:`_interval`)."""
 
 import math
 
@@ -7,47 +8,54 @@ import pytest
 
 from capture_bench.sim.kinematics import forward_kinematics
 from capture_bench.task.capture import (
-    arc_sag_bound,
-    closest_approach,
+    approach_lower_bounds,
+    arc_sag_bounds,
+    closest_approaches,
     first_entry_along_arc,
-    first_entry_fraction,
     held_capture,
-    inside_interval,
     inside_intervals,
     inside_intervals_along_arc,
-    within_tolerance,
+    row_norms,
 )
 
 EPS = np.full(3, 1e-3)
 
 
+def _interval(d0, d1, tolerance=EPS) -> tuple[float, float] | None:
+    """One step's stay inside the box, from :func:`inside_intervals` at M = 1 (None: none)."""
+    lo, hi = inside_intervals(np.array([d0], float), np.array([d1], float), tolerance)
+    return None if np.isnan(lo[0]) else (float(lo[0]), float(hi[0]))
+
+
 def test_pass_through_the_box_mid_step_is_a_capture():
-    # Relative vector goes from (-5, 0, 0) mm to (+5, 0, 0) mm: enters the 1 mm box at s = 0.4.
-    s = first_entry_fraction([-5e-3, 0, 0], [5e-3, 0, 0], EPS)
-    assert s is not None and abs(s - 0.4) < 1e-12
+    # Relative vector goes from (-5, 0, 0) mm to (+5, 0, 0) mm: inside the 1 mm box for
+    # s in (0.4, 0.6).
+    lo, hi = _interval([-5e-3, 0, 0], [5e-3, 0, 0])
+    assert lo == pytest.approx(0.4, abs=1e-12) and hi == pytest.approx(0.6, abs=1e-12)
 
 
 def test_a_miss_by_more_than_epsilon_in_one_component_is_not():
-    assert first_entry_fraction([-5e-3, 2e-3, 0], [5e-3, 2e-3, 0], EPS) is None
+    assert _interval([-5e-3, 2e-3, 0], [5e-3, 2e-3, 0]) is None
 
 
 def test_touching_the_boundary_is_not_a_capture():
-    assert first_entry_fraction([1e-3, 0, 0], [3e-3, 0, 0], EPS) is None
-    assert not within_tolerance([1e-3, 0, 0], EPS)
+    assert _interval([1e-3, 0, 0], [3e-3, 0, 0]) is None
+    assert _interval([1e-3, 0, 0], [1e-3, 0, 0]) is None  # standing on the boundary
+    assert _interval([0.5e-3, 0, 0], [0.5e-3, 0, 0]) == (0.0, 1.0)  # standing inside
 
 
 def test_agrees_with_dense_sampling():
     rng = np.random.default_rng(0)
     s_grid = np.linspace(0, 1, 20001)
-    for _ in range(300):
-        d0, d1 = rng.uniform(-4e-3, 4e-3, (2, 3))
-        path = d0 + s_grid[:, None] * (d1 - d0)
-        inside = np.all(np.abs(path) < EPS, axis=1)
-        s = first_entry_fraction(d0, d1, EPS)
+    d0, d1 = rng.uniform(-4e-3, 4e-3, (2, 300, 3))
+    lo, _ = inside_intervals(d0, d1, EPS)
+    for a, b, s in zip(d0, d1, lo, strict=True):
+        inside = np.all(np.abs(a + s_grid[:, None] * (b - a)) < EPS, axis=1)
         if inside.any():
-            assert s is not None and abs(s - s_grid[np.argmax(inside)]) < 1e-4
+            assert abs(s - s_grid[np.argmax(inside)]) < 1e-4
         else:
-            assert s is None or np.all(np.abs(d0 + s * (d1 - d0)) <= EPS + 1e-12)
+            assert np.isnan(s) or np.all(np.abs(a + s * (b - a)) <= EPS + 1e-12)
+    assert 50 < np.isnan(lo).sum() < 250  # both kinds tested
 
 
 def test_the_arc_test_sees_a_capture_the_chord_misses_and_vice_versa():
@@ -58,7 +66,7 @@ def test_the_arc_test_sees_a_capture_the_chord_misses_and_vice_versa():
     on_arc = forward_kinematics(theta0 + 0.5 * delta)
     on_chord = 0.5 * (forward_kinematics(theta0) + forward_kinematics(theta0 + delta))
     assert np.linalg.norm(on_arc - on_chord) > 0.015
-    assert arc_sag_bound(delta) >= np.linalg.norm(on_arc - on_chord)
+    assert arc_sag_bounds(delta[None])[0] >= np.linalg.norm(on_arc - on_chord)
     s = first_entry_along_arc(theta0, delta, lambda s: np.tile(on_arc, (len(s), 1)), EPS)
     assert s is not None and abs(s - 0.5) < 0.01
     assert (
@@ -66,16 +74,27 @@ def test_the_arc_test_sees_a_capture_the_chord_misses_and_vice_versa():
     )
     # The chord test alone gets both wrong.
     d0, d1 = forward_kinematics(theta0) - on_chord, forward_kinematics(theta0 + delta) - on_chord
-    assert first_entry_fraction(d0, d1, EPS) is not None
+    assert _interval(d0, d1) is not None
 
 
-def test_closest_approach_against_sampling():
+def test_closest_approach_and_its_screen_against_sampling():
     rng = np.random.default_rng(1)
     s = np.linspace(0, 1, 100001)
-    for _ in range(50):
-        d0, d1 = rng.normal(size=(2, 3))
-        dense = np.linalg.norm(d0 + s[:, None] * (d1 - d0), axis=1).min()
-        assert abs(closest_approach(d0, d1) - dense) < 1e-6
+    d0, d1 = rng.normal(size=(2, 50, 3))
+    d1[:5] = d0[:5]  # segments of no length
+    closest = closest_approaches(d0, d1)
+    for a, b, got in zip(d0, d1, closest, strict=True):
+        dense = np.linalg.norm(a + s[:, None] * (b - a), axis=1).min()
+        assert abs(got - dense) < 1e-6
+    bound = approach_lower_bounds(d0, d1)
+    assert (bound <= closest).all() and (bound > 0.3 * closest).mean() > 0.5  # a useful screen
+    assert np.isnan(approach_lower_bounds(np.full((1, 3), np.nan), d1[:1]))[0]  # no estimate
+
+
+def test_row_norms_are_numpys_norms_float_for_float():
+    v = np.random.default_rng(2).normal(size=(1000, 9)) * np.array([1e-3, 1.0, 1e3] * 3)
+    np.testing.assert_array_equal(row_norms(v[:, :3]), np.linalg.norm(v[:, :3], axis=1))
+    np.testing.assert_array_equal(row_norms(v), np.linalg.norm(v.reshape(-1, 3, 3), axis=2))
 
 
 # --- a hold: eq. 20 without a break for `hold` s (issue 13) ------------------------------------
@@ -89,7 +108,7 @@ def _held(relative: list[list[float]], hold: float, tolerance=EPS) -> float | No
     since = math.nan
     for k in range(1, len(relative)):
         t0 = (k - 1) * DT
-        interval = inside_interval(relative[k - 1], relative[k], tolerance)
+        interval = _interval(relative[k - 1], relative[k], tolerance)
         if interval is None:
             since = math.nan
             continue
@@ -149,7 +168,7 @@ def test_inside_interval_agrees_with_dense_sampling():
     for _ in range(300):
         d0, d1 = rng.uniform(-4e-3, 4e-3, (2, 3))
         inside = np.all(np.abs(d0 + s_grid[:, None] * (d1 - d0)) < EPS, axis=1)
-        interval = inside_interval(d0, d1, EPS)
+        interval = _interval(d0, d1)
         if inside.any():
             assert interval is not None
             assert abs(interval[0] - s_grid[inside][0]) < 1e-4
@@ -187,16 +206,17 @@ def test_leaving_along_the_arc_mid_step_is_seen_where_the_chord_stays_inside():
 
 
 def _chord_by_chord(theta0, delta, target_at, tolerance):
-    """inside_intervals_along_arc as first written: one scalar inside_interval per chord, the
-    stays joined where one reaches its chord's end and the next starts at its beginning."""
+    """inside_intervals_along_arc chord by chord: each chord's stay alone (M = 1), the stays
+    joined where one reaches its chord's end and the next starts at its beginning."""
     import capture_bench.task.capture as capture
 
-    pieces = max(1, math.ceil(math.sqrt(arc_sag_bound(delta) / capture.ARC_RESOLUTION)))
+    sag = arc_sag_bounds(delta[None])[0]
+    pieces = max(1, math.ceil(math.sqrt(sag / capture.ARC_RESOLUTION)))
     s = np.linspace(0.0, 1.0, pieces + 1)
     relative = forward_kinematics(theta0 + s[:, None] * delta) - target_at(s)
     intervals, joins = [], False
     for k in range(pieces):
-        interval = inside_interval(relative[k], relative[k + 1], tolerance)
+        interval = _interval(relative[k], relative[k + 1], tolerance)
         if interval is None:
             joins = False
             continue
@@ -212,9 +232,9 @@ def _chord_by_chord(theta0, delta, target_at, tolerance):
 
 
 def test_the_arc_walk_equals_the_chord_by_chord_walk_exactly():
-    """The arc's chords are tested all at once: the stays are the scalar walk's, float for float,
-    on swings whose arcs enter, leave, re-enter and stay (targets on the chord, near the arc, or
-    wobbling across the box)."""
+    """The arc's chords are tested all at once: the stays are the chord-by-chord walk's, float
+    for float, on swings whose arcs enter, leave, re-enter and stay (targets on the chord, near
+    the arc, or wobbling across the box)."""
     rng = np.random.default_rng(20)
     checked = 0
     for _ in range(400):

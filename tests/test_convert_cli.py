@@ -1,4 +1,4 @@
-"""``python -m agents.convert DIR --trust-model`` on bad input: one line on stderr
+"""``python -m capture_bench.agents.convert DIR --trust-model`` on bad input: one line on stderr
 naming the file, the problem and what would be right, exit status 2, and nothing written."""
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 from stand_in import sb3_model
 
-from agents.convert import main
-from agents.policy_file import save_policy
+from capture_bench.agents.convert import main
+from capture_bench.agents.policy_file import save_policy
 
 ROOT = Path(__file__).resolve().parents[1]
-PREFIX = "python -m agents.convert: error: "
+PREFIX = "python -m capture_bench.agents.convert: error: "
 
 
 @pytest.fixture(scope="module")
@@ -161,7 +161,7 @@ def test_a_bad_model_directory_is_one_line_and_exit_2_and_writes_nothing(
 
 def test_the_readme_placeholder_path_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys):
     placeholder = re.search(
-        r"python -m agents\.convert (\S+) --trust-model",
+        r"python -m capture_bench\.agents\.convert (\S+) --trust-model",
         (ROOT / "README.md").read_text(),
     )
     assert placeholder is not None
@@ -176,13 +176,13 @@ def test_the_readme_placeholder_path_is_one_line_and_exit_2(tmp_path, monkeypatc
 def test_run_as_a_module_a_bad_directory_is_one_line_without_a_traceback(metadata, tmp_path):
     if metadata is None:  # README's placeholder path: no such directory
         target = "path/to/sb3_model_dir"
-    else:  # an error raised in agents.sb3_policy, under the module run as __main__
+    else:  # an error raised in capture_bench.agents.sb3_policy, under the module run as __main__
         (tmp_path / "m").mkdir()
         _metadata(tmp_path / "m", metadata)
         (tmp_path / "m" / "model.zip").write_bytes(b"never read")
         target = "m"
     result = subprocess.run(
-        [sys.executable, "-m", "agents.convert", target, "--trust-model"],
+        [sys.executable, "-m", "capture_bench.agents.convert", target, "--trust-model"],
         cwd=tmp_path,
         env={**os.environ, "PYTHONPATH": str(ROOT)},  # this checkout, wherever it is installed
         capture_output=True,

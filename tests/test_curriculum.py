@@ -10,7 +10,7 @@ import pytest
 from test_training_metrics import scalars
 
 import train
-from agents import make_agent
+from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.task.scenarios import load_scenario

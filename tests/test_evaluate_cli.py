@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.policy_file import ObservationNormalizer, save_policy
+from capture_bench.agents.policy_file import ObservationNormalizer, save_policy
 from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
 from capture_bench.evaluation.aggregate import RESULT_TIMING_COLUMNS
 from capture_bench.evaluation.rollout import TIMING_COLUMNS

@@ -1,4 +1,4 @@
-"""The features a policy may compute from the observation (capture_bench/training/features.py):
+"""The features a policy may compute from the observation (capture_bench/agents/features.py):
 the appended entries decode to the predicted relative vector's direction and distance, the torch
 extractor equals the numpy definition, and a policy using it trains through train.py and loads
 through the safe format with the actions SB3's own loading gives."""
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 import train
-from capture_bench.task.observation import decode_observation, encode_observation
-from capture_bench.training.features import (
+from capture_bench.agents.features import (
     FEATURE_EXTRACTORS,
     RelativeLogDistance,
     decode_relative_features,
     relative_features,
 )
+from capture_bench.task.observation import decode_observation, encode_observation
 
 T_S = 0.05
 
@@ -74,7 +74,7 @@ def test_the_torch_extractor_is_the_observation_then_the_numpy_features():
 
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_a_policy_with_the_features_trains_and_loads_safely_with_sb3s_actions(tmp_path, algo):
-    from agents.sb3_policy import load_policy, load_trusted, read_metadata
+    from capture_bench.agents.sb3_policy import load_policy, load_trusted, read_metadata
 
     tiny = {
         "ppo": ["n_steps=32", "batch_size=32", "n_epochs=1"],

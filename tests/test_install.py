@@ -9,6 +9,7 @@ import subprocess
 import sys
 import sysconfig
 import venv
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -26,8 +27,8 @@ def _run(args: list[str], cwd: Path, **kwargs) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def installed(tmp_path_factory) -> tuple[Path, Path]:
-    """(the fresh environment's python, a working directory outside the checkout)."""
+def wheel(tmp_path_factory) -> Path:
+    """The wheel built from a copy of the checkout."""
     if shutil.which("git") is None and not (ROOT / "configs").is_dir():
         pytest.skip("no checkout to build from")
     base = tmp_path_factory.mktemp("wheel")
@@ -39,7 +40,14 @@ def installed(tmp_path_factory) -> tuple[Path, Path]:
          "-w", str(wheels), str(source)],
         cwd=base,
     )  # fmt: skip
-    (wheel,) = wheels.glob("capture_bench-*.whl")
+    (built,) = wheels.glob("capture_bench-*.whl")
+    return built
+
+
+@pytest.fixture(scope="module")
+def installed(wheel: Path) -> tuple[Path, Path]:
+    """(the fresh environment's python, a working directory outside the checkout)."""
+    base = wheel.parents[1]
     env_dir = base / "venv"
     venv.EnvBuilder(with_pip=True).create(env_dir)
     python = env_dir / "bin" / "python"
@@ -53,6 +61,17 @@ def installed(tmp_path_factory) -> tuple[Path, Path]:
     elsewhere = base / "elsewhere"
     elsewhere.mkdir()
     return python, elsewhere
+
+
+def test_the_wheel_installs_one_import_name(wheel):
+    names = zipfile.ZipFile(wheel).namelist()
+    top = {name.split("/")[0] for name in names}
+    (dist_info,) = [t for t in top if t.endswith(".dist-info")]
+    assert top - {dist_info} == {"capture_bench"}  # no top-level ``agents`` beside it
+    assert "capture_bench/agents/protocol.py" in names
+    top_level = f"{dist_info}/top_level.txt"
+    if top_level in names:
+        assert zipfile.ZipFile(wheel).read(top_level).decode().split() == ["capture_bench"]
 
 
 def test_the_wheel_registers_every_scenario_from_another_directory(installed):

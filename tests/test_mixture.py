@@ -74,7 +74,7 @@ def test_a_tiny_mixture_run_trains_validates_each_scenario_loads_and_resumes(tmp
     from test_training_metrics import scalars
 
     import train
-    from agents.sb3_policy import load_sb3_policy
+    from capture_bench.agents.sb3_policy import load_sb3_policy
     from capture_bench.envs.capture_env import CaptureEnv
 
     monkeypatch.chdir(tmp_path)

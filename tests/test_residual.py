@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import train
-from agents import make_agent
-from agents.residual import RESIDUAL_BASES, ResidualAgent, combine, make_base
+from capture_bench.agents import make_agent
+from capture_bench.agents.residual import RESIDUAL_BASES, ResidualAgent, combine, make_base
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.task.scenarios import load_scenario
 
@@ -109,7 +109,7 @@ def test_a_residual_run_is_named_declared_and_validated_as_the_hybrid(residual_r
 
 
 def test_evaluation_rebuilds_the_hybrid_from_the_metadata(residual_run):
-    from agents.sb3_policy import SB3Policy, load_sb3_policy
+    from capture_bench.agents.sb3_policy import SB3Policy, load_sb3_policy
     from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
 
     env = CaptureEnv("paper")
@@ -135,8 +135,8 @@ def test_evaluation_rebuilds_the_hybrid_from_the_metadata(residual_run):
 def test_a_bad_residual_declaration_is_one_clear_error(residual_run, tmp_path, value):
     import shutil
 
-    from agents.policy_file import PolicyLoadError
-    from agents.sb3_policy import read_metadata
+    from capture_bench.agents.policy_file import PolicyLoadError
+    from capture_bench.agents.sb3_policy import read_metadata
 
     copy = tmp_path / "m"
     shutil.copytree(residual_run, copy)

@@ -23,7 +23,7 @@ from capture_bench.task.rewards import (
 def _episode(env: CaptureEnv, seed: int, agent_name: str) -> tuple[list[float], list[dict]]:
     """One episode with ``agent_name``: the true distance at reset and after each step, and
     each step's info."""
-    from agents import make_agent
+    from capture_bench.agents import make_agent
 
     agent = make_agent(agent_name, env)
     obs, info = env.reset(seed=seed)

@@ -14,14 +14,14 @@ from stand_in import sb3_model as _sb3_model
 
 import evaluate
 import train
-from agents.convert import main as convert_main
-from agents.policy_file import (
+from capture_bench.agents.convert import main as convert_main
+from capture_bench.agents.policy_file import (
     FORMAT,
     ObservationNormalizer,
     PolicyLoadError,
     save_policy,
 )
-from agents.sb3_policy import (
+from capture_bench.agents.sb3_policy import (
     SB3Policy,
     load_policy,
     load_sb3_policy,

@@ -16,7 +16,7 @@ import pytest
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
-from agents import make_agent
+from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv

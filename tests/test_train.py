@@ -56,7 +56,7 @@ def test_run_writes_model_metadata_checkpoints_and_tensorboard(trained):
 
 
 def test_trained_model_loads_as_an_agent_acting_in_the_action_space(trained):
-    from agents.sb3_policy import load_sb3_policy
+    from capture_bench.agents.sb3_policy import load_sb3_policy
     from capture_bench.envs.capture_env import CaptureEnv
 
     env = CaptureEnv("paper")
@@ -195,7 +195,7 @@ def test_deterministic_predict_shortcut_equals_sb3_predict(algorithm):
     """SB3Policy's shortcut for deterministic actions gives exactly model.predict's action."""
     import stable_baselines3
 
-    from agents.sb3_policy import SB3Policy
+    from capture_bench.agents.sb3_policy import SB3Policy
     from capture_bench.envs.capture_env import CaptureEnv
 
     env = CaptureEnv("paper")

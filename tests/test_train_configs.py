@@ -48,7 +48,7 @@ def _tiny(algo: str) -> list[str]:
 
 @pytest.mark.parametrize("algo", ALGORITHMS)
 def test_a_tiny_run_of_each_algorithm_writes_a_complete_run_directory(tmp_path, algo):
-    from agents.sb3_policy import load_sb3_policy
+    from capture_bench.agents.sb3_policy import load_sb3_policy
     from capture_bench.envs.capture_env import CaptureEnv
 
     run_dir = tmp_path / "run"

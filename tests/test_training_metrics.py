@@ -162,7 +162,7 @@ def assert_same_stats(batched, single):
 def test_batched_validation_equals_single_envs_on_the_same_seeds():
     """An analytic controller (captures after different numbers of steps, so sub-envs autoreset
     while others still play) and a small SB3 model with VecNormalize statistics (fails)."""
-    from agents.baselines import PurePursuit
+    from capture_bench.agents.baselines import PurePursuit
     from capture_bench.envs.vector_env import CaptureVectorEnv
     from capture_bench.training.validation_run import run_validation
 
@@ -224,7 +224,7 @@ def test_tensorboard_holds_the_task_metrics_of_rollouts_and_validation(run_dir):
 def test_best_model_is_written_whole_and_loads_as_a_policy_directory(run_dir):
     import torch
 
-    from agents.sb3_policy import load_sb3_policy
+    from capture_bench.agents.sb3_policy import load_sb3_policy
     from capture_bench.envs.capture_env import CaptureEnv
     from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
     from capture_bench.training.checkpoint import read_checkpoint

@@ -8,26 +8,21 @@ discrete exactly.
 
 from __future__ import annotations
 
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium.vector import AutoresetMode
 
 import capture_bench  # noqa: F401  (registers the envs)
-from agents import make_agent
+from capture_bench.agents import make_agent
+from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.kinematics import reachable, reachable_points
 from capture_bench.sim.target_motion import FEATURE_POINTS
 from capture_bench.sim.world import World, limit_joint_increments
-from capture_bench.task.capture import (
-    arc_sag_bound,
-    arc_sag_bounds,
-    closest_approach,
-    closest_approaches,
-    first_entry_fraction,
-    first_entry_fractions,
-)
-from capture_bench.task.observation import encode_observation, encode_observations
 
 DISCRETE = ("is_success", "failure", "saturated", "clipped", "target_visible", "estimator_status")
 
@@ -176,30 +171,10 @@ def test_seeding_reset_mask_and_autoreset_contract():
         env.step(np.zeros((3, 3)))
 
 
-def test_batched_helpers_equal_their_single_versions():
-    rng = np.random.default_rng(3)
-    tolerance = np.full(3, 0.01)
-    d0 = rng.normal(0, 0.02, (2000, 3))
-    d1 = rng.normal(0, 0.02, (2000, 3))
-    d1[:50, 1] = d0[:50, 1]  # a component that does not move
-    got = first_entry_fractions(d0, d1, tolerance)
-    want = [first_entry_fraction(a, b, tolerance) for a, b in zip(d0, d1, strict=True)]
-    np.testing.assert_array_equal(got, [np.nan if w is None else w for w in want])
-    assert np.isfinite(got).sum() > 100 and np.isnan(got).sum() > 100
-    np.testing.assert_allclose(
-        closest_approaches(d0, d1), [closest_approach(a, b) for a, b in zip(d0, d1, strict=True)]
-    )
-    points = rng.uniform(-1.0, 1.0, (5000, 3))
+def test_reachability_of_many_points_equals_one_by_one():
+    points = np.random.default_rng(3).uniform(-1.0, 1.0, (5000, 3))
     reach = reachable_points(points)
     assert reach.tolist() == [reachable(p) for p in points] and 200 < reach.sum() < 4800
-    delta = rng.normal(0, 0.1, (100, 3))
-    np.testing.assert_allclose(arc_sag_bounds(delta), [arc_sag_bound(d) for d in delta])
-    args = [rng.normal(0, 0.3, (50, 3)) for _ in range(4)]
-    periods = rng.uniform(0.04, 0.06, 50)
-    got_obs = encode_observations(*args, periods, 0.05)
-    for i in range(50):
-        want_obs = encode_observation(*(a[i] for a in args), periods[i], 0.05)
-        np.testing.assert_array_equal(got_obs[i], want_obs)
 
 
 def test_joint_limits_and_collision_screen_agree_with_the_world():
@@ -337,3 +312,147 @@ def test_the_live_ekf_equals_the_recorded_one_with_many_sub_envs(monkeypatch):
         env.close()
     for i, (a, b) in enumerate(zip(*out, strict=True)):
         np.testing.assert_array_equal(a, b, err_msg=f"value {i}")
+
+
+# -- the single env is the vector env's N = 1 ---------------------------------------------------
+
+
+def _assert_step_equal(single: tuple, vector: tuple, where: str) -> None:
+    """One single-env step against sub-env 0 of a vector step: observation, reward, ends and
+    every info entry (None against NaN), floats to rounding, the rest exactly."""
+    obs, reward, terminated, truncated, info = single
+    obs_v, reward_v, terminated_v, truncated_v, info_v = vector
+    np.testing.assert_allclose(obs_v[0], obs, atol=1e-5, err_msg=where)
+    assert reward_v[0] == pytest.approx(reward, rel=1e-7, abs=1e-9), where
+    assert (terminated_v[0], truncated_v[0]) == (terminated, truncated), where
+    reported = {k for k in info_v if not k.startswith("_") and info_v[f"_{k}"][0]}
+    assert reported == set(info), where
+    for key, value in info.items():
+        got = info_v[key][0]
+        if key in DISCRETE:
+            assert got == value, (where, key)
+        else:
+            expected = np.nan if value is None else value
+            np.testing.assert_allclose(
+                got, expected, rtol=1e-6, atol=1e-8, err_msg=f"{where} {key}"
+            )
+
+
+@pytest.mark.parametrize("scenario", ["paper", "evasive", "grasp", "noisy"])
+def test_the_single_env_equals_the_vector_env_of_one(scenario):
+    """``CaptureEnv(reuse_target_side=True)`` stepped, and reset when its episode ends, against
+    ``CaptureVectorEnv(1)`` with next-step autoreset, field for field: episodes that capture
+    (incremental IK), collide (a swing into the floor), time out (small random moves), or lose
+    the target (evasive)."""
+    single = CaptureEnv(scenario, reuse_target_side=True)
+    vector = CaptureVectorEnv(1, scenario)
+    agent = make_agent("incremental_ik", single)
+    rng = np.random.default_rng(0)
+    obs, info = single.reset(seed=3)
+    obs_v, info_v = vector.reset(seed=3)
+    np.testing.assert_allclose(obs_v[0], obs, atol=1e-5)
+    assert info == pytest.approx({k: info_v[k][0] for k in info})
+    ends, episode, t = [], 0, 0
+    while episode < 6:
+        if episode % 3 == 0:
+            action = agent.predict(obs)[0]
+        elif episode % 3 == 1:
+            action = np.array([1.0, -1.0, -1.0])  # into the floor
+        else:
+            action = 0.2 * rng.uniform(-1, 1, 3)
+        step = single.step(action)
+        _assert_step_equal(step, vector.step(np.asarray(action)[None]), f"{episode}/{t}")
+        obs, t = step[0], t + 1
+        if step[2] or step[3]:
+            ends.append("capture" if step[4]["is_success"] else step[4]["failure"])
+            obs, info = single.reset()  # the sub-env's next episode, from its generator
+            obs_v, reward_v, terminated_v, truncated_v, info_v = vector.step(np.zeros((1, 3)))
+            np.testing.assert_allclose(obs_v[0], obs, atol=1e-5)
+            assert (reward_v[0], terminated_v[0], truncated_v[0]) == (0.0, False, False)
+            assert info == pytest.approx({k: info_v[k][0] for k in info})
+            episode, t = episode + 1, 0
+            agent.reset()
+    single.close()
+    vector.close()
+    assert "capture" in ends and "collision" in ends
+    assert len(set(ends)) >= 3  # and timeouts, or the target lost or out of reach
+    if scenario == "evasive":
+        assert {"unreachable", "target_lost"} & set(ends)
+
+
+# -- no autoreset: a batch of episodes, each played once to its end -----------------------------
+
+
+def test_without_autoreset_sub_envs_play_their_seeds_and_ended_ones_stay_ended():
+    """``autoreset_mode=DISABLED``: ``reset(seed=[s0, s1, s2])`` plays in sub-env i the single
+    env's episode of seed s_i; episodes of different lengths (a capture, a collision, the time
+    limit) end with the single env's last step, field for field; stepping while one has ended
+    raises and steps nothing; a masked reset with new seeds starts only those."""
+    vector = gym.make_vec(
+        "CaptureBench/Paper-v0", 3, vectorization_mode="vector_entry_point",
+        autoreset_mode=AutoresetMode.DISABLED,
+    )  # fmt: skip
+    assert vector.metadata["autoreset_mode"] == AutoresetMode.DISABLED
+    singles = [CaptureEnv("paper", reuse_target_side=True) for _ in range(3)]
+    agent = make_agent("incremental_ik", singles[0])
+    seeds = [21, 22, 23]
+    obs, _ = vector.reset(seed=seeds)
+    single_obs = [env.reset(seed=s)[0] for env, s in zip(singles, seeds, strict=True)]
+    np.testing.assert_allclose(obs, single_obs, atol=1e-5)
+    ends: list[tuple[int, int, str]] = []  # (sub-env, length, how it ended)
+    t = np.zeros(3, dtype=int)
+    while not any(i == 2 for i, *_ in ends):  # until the longest, the waiting sub-env, ends
+        actions = np.array([
+            agent.predict(single_obs[0])[0],  # captures
+            [1.0, -1.0, -1.0],  # swings into the floor
+            np.zeros(3),  # waits for the time limit
+        ])  # fmt: skip
+        out = vector.step(actions)
+        t += 1
+        ended = []
+        for i, env in enumerate(singles):
+            step = env.step(actions[i])
+            single_obs[i] = step[0]
+            _assert_step_equal(step, tuple(_row(x, i) for x in out), f"sub-env {i} t {t[i]}")
+            if step[2] or step[3]:
+                ended.append(i)
+                how = "capture" if step[4]["is_success"] else step[4]["failure"]
+                ends.append((i, int(t[i]), how))
+        if not ended:
+            continue
+        with pytest.raises(RuntimeError, match=re.escape(f"sub-envs {ended} have ended")):
+            vector.step(actions)  # ended sub-envs stay ended, and nothing steps
+        mask = np.zeros(3, dtype=bool)
+        mask[ended] = True
+        new = [s + 3 if m else None for s, m in zip(seeds, mask, strict=True)]  # unused: None
+        obs, info = vector.reset(seed=new, options={"reset_mask": mask})
+        assert info["_time"].tolist() == mask.tolist()
+        for i in ended:
+            seeds[i] += 3
+            single_obs[i] = singles[i].reset(seed=seeds[i])[0]
+            t[i] = 0
+        agent.reset()
+        np.testing.assert_allclose(obs, single_obs, atol=1e-5)  # the others are where they were
+    for env in singles:
+        env.close()
+    vector.close()
+    assert {how for i, _, how in ends if i == 0} == {"capture"}
+    assert {how for i, _, how in ends if i == 1} == {"collision"}
+    assert [(length, how) for i, length, how in ends if i == 2] == [(200, "timeout")]
+    assert len(ends) >= 5 and len({length for _, length, _ in ends}) >= 3
+
+
+def _row(value, i: int):
+    """Sub-env i's part of a vector step's return, kept in the vector form (a batch of one)."""
+    if isinstance(value, dict):
+        return {k: v[i : i + 1] for k, v in value.items()}
+    return value[i : i + 1]
+
+
+def test_the_autoreset_mode_is_checked():
+    with pytest.raises(ValueError, match=r"autoreset_mode must be one of .*NEXT_STEP"):
+        CaptureVectorEnv(2, "paper", autoreset_mode=AutoresetMode.SAME_STEP)
+    env = CaptureVectorEnv(2, "paper", autoreset_mode="Disabled")
+    assert env.metadata["autoreset_mode"] == AutoresetMode.DISABLED
+    assert CaptureVectorEnv.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    env.close()

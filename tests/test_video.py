@@ -139,7 +139,7 @@ def test_record_video_writes_an_mp4_over_the_registered_env(tmp_path):
         "moviepy",
         reason="gymnasium's RecordVideo needs moviepy: pip install 'capture-bench[video]'",
     )
-    from agents import make_agent
+    from capture_bench.agents import make_agent
 
     env = gymnasium.make("CaptureBench/Paper-v0", render_mode="rgb_array", render_size=(160, 120))
     env = gymnasium.wrappers.RecordVideo(env, str(tmp_path / "videos"), disable_logger=True)

@@ -1,9 +1,11 @@
 """``CaptureEnv``: the gymnasium environment, the N = 1 case of the task's step rule.
 
 The rules of a step (capture, eq. 20 along the arc; failures; rewards; ``info``; the observation,
-eq. 13) are :class:`capture_bench.task.step_rule.StepRule`'s, shared with
-:class:`~capture_bench.envs.vector_env.CaptureVectorEnv`; the target's side of an episode
-(trajectory, camera eq. 2, estimator eqs. 3-12) comes from one
+eq. 13) are :class:`capture_bench.task.step_rule.StepRule`'s, which this env applies to its one
+episode as :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` applies them to N: the same
+code, called with one row. What both envs are made of (the scenario, the published description,
+the rule, the camera, the curriculum's levers) is :mod:`capture_bench.envs.core`'s. The target's
+side of an episode (trajectory, camera eq. 2, estimator eqs. 3-12) comes from one
 :class:`~capture_bench.task.target_side.TargetSide`, live or replayed. What this module adds: the
 pybullet world (the arm's rate and joint limits, collisions, rendering) and the privileged
 interface the oracle uses.
@@ -16,78 +18,38 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from numpy.typing import NDArray
 
+from capture_bench.envs.core import (
+    CaptureTask,
+    TaskAccess,
+    check_actions,
+    describe_task,
+    resolve_scenario,
+)
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sim import kinematics
+from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World
 from capture_bench.task.episode import EpisodePlan, episode_bounds
-from capture_bench.task.observation import TaskDescription, observation_space
 from capture_bench.task.physical_limit import PhysicalLimit
 from capture_bench.task.recording import RecordedEpisode
-from capture_bench.task.scenarios import Scenario, load_scenario
-from capture_bench.task.step_rule import FAILURES, ArmState, StepRule, scalar_info
+from capture_bench.task.scenarios import Scenario
+from capture_bench.task.step_rule import (
+    BEFORE_TRACKS,
+    FAILURES,
+    ArmState,
+    scalar_info,
+)
 from capture_bench.task.target_side import (
     DEFAULT_EPISODE_CACHE,
     EpisodeCache,
     EpisodeKey,
     TargetSide,
-    scenario_camera,
 )
 
 __all__ = ["FAILURES", "CaptureEnv", "check_actions", "describe_task", "resolve_scenario"]
 _ALL = slice(None)  # the single env's one episode, as rows of the step rule
-
-
-def resolve_scenario(
-    scenario: str | Path | Scenario, observation_source: str | None = None
-) -> Scenario:
-    """A shipped name, a YAML path or a ``Scenario``, with its estimator source replaced if
-    ``observation_source`` is given (checked)."""
-    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    if observation_source is not None:
-        sc = sc.replace(estimator={"source": observation_source})
-    return sc
-
-
-def describe_task(scenario: Scenario) -> TaskDescription:
-    """What an env of ``scenario`` publishes for agents: the arm, t_s and epsilon (3,)."""
-    return TaskDescription(
-        arm=kinematics.ArmSpec(),
-        control_period=scenario.control.period,
-        capture_tolerance=np.full(3, scenario.capture_tolerance),
-    )
-
-
-def check_actions(actions: Any, shape: tuple[int, ...], name: str) -> NDArray[np.float64]:
-    """``actions`` as a float64 array of ``shape``, or ``ValueError`` naming what is wrong.
-
-    Accepts any array-like of real numbers (bool, int or float dtype; lists and tuples too);
-    refuses other types (strings, complex, objects), another shape, and NaN or infinite entries
-    (the message gives the index of the first). Values outside [-1, 1] pass: the envs clip them.
-    """
-    try:
-        raw = np.asarray(actions)
-    except (TypeError, ValueError) as exc:  # ragged nested lists
-        raise ValueError(f"{name} must be an array of shape {shape} of numbers; {exc}") from None
-    if raw.dtype.kind not in "biuf":
-        raise ValueError(
-            f"{name} must be an array of shape {shape} of real numbers; got dtype {raw.dtype} "
-            f"({actions!r})"
-        )
-    if raw.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}; got shape {raw.shape} ({actions!r})")
-    a = raw.astype(np.float64)
-    bad = ~np.isfinite(a)
-    if bad.any():
-        index = tuple(int(i) for i in np.argwhere(bad)[0])
-        entry = f"{name}[{', '.join(map(str, index))}]"
-        raise ValueError(
-            f"{entry} is {a[index]}; every entry must be a finite number "
-            "(values outside [-1, 1] are clipped)"
-        )
-    return a
 
 
 def _check_render_size(size: Any) -> tuple[int, int]:
@@ -106,7 +68,7 @@ def _check_render_size(size: Any) -> tuple[int, int]:
     return int(width), int(height)
 
 
-class CaptureEnv(gym.Env):
+class CaptureEnv(TaskAccess, gym.Env):
     """Capture a drifting or tumbling target with the 3-joint arm of Dong & Zhu (2016).
 
     ## Description
@@ -225,25 +187,26 @@ class CaptureEnv(gym.Env):
         reuse_target_side: bool = False,
         episode_cache: EpisodeCache | None = None,
     ) -> None:
-        self.scenario = sc = resolve_scenario(scenario, observation_source)
-        self.description = describe_task(sc)
-        self.rule = StepRule(sc, self.description, reward)  # checks ``reward``
+        self.task = task = CaptureTask(
+            scenario, observation_source=observation_source, reward=reward
+        )  # checks ``reward``
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
                 f"got {render_mode!r}"
             )
-        self.reward_mode = reward
         self.render_mode = render_mode
         self.render_size = _check_render_size(render_size)
         self.reuse_target_side = bool(reuse_target_side)
         self.episode_cache = DEFAULT_EPISODE_CACHE if episode_cache is None else episode_cache
-        self.action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
-        self.observation_space = observation_space()
-        self._camera, self._features = scenario_camera(sc)
-        self.camera_model = self._camera.model
+        self.action_space = task.single_action_space
+        self.observation_space = task.single_observation_space
+        self.camera_model = task.camera.model
+        sc = task.scenario
+        # The single episode's filter: filterpy's EKF (LeanExtendedKalmanFilter), ~4x faster at
+        # one episode than the batched filter's n = 1 (TargetEstimator's docstring).
         self._estimator = TargetEstimator(
-            self.camera_model, self._features, source=sc.estimator.source, **sc.estimator_settings()
+            self.camera_model, task.features, source=sc.estimator.source, **sc.estimator_settings()
         )
         self._world: World | None = None
         self._closed = False
@@ -316,7 +279,7 @@ class CaptureEnv(gym.Env):
         super().reset(seed=seed)
         self._closed = False
         if self._world is None:
-            self._world = World(self._features, render_mode=self.render_mode)
+            self._world = World(self.task.features, render_mode=self.render_mode)
         self._key = None if seed is None else (self.scenario, int(seed))
         self._side = self._recorded_side() if self.reuse_target_side else self._live_side()
         self._steps = 0
@@ -329,7 +292,7 @@ class CaptureEnv(gym.Env):
             "end_effector": [self._state.x_e[0].copy()],
         }
         self._episode_over = False
-        return self.rule.observe_scalar(self._state, episode, 0), info
+        return self.rule.observe(self._state, _ALL, episode.rows(0))[0], info
 
     def step(
         self, action: NDArray
@@ -343,52 +306,34 @@ class CaptureEnv(gym.Env):
         a = check_actions(action, (3,), "action")
         k = self._steps + 1
         episode = self._side.through(k)  # the target's side (a live one draws from np_random)
-        dt = float(episode.dt[k])
-        joint_step = self._world.apply_joint_increment(
-            self.description.action_to_increment(np.minimum(np.maximum(a, -1.0), 1.0)), dt
-        )
-        x_e = kinematics.forward_kinematics_point(joint_step.theta)
+        joint_step = self._world.apply_joint_increment(self.task.increments(a), episode.dt[k])
+        theta = joint_step.theta[None]
+        x_e = kinematics.forward_kinematics_point(joint_step.theta)[None]
         self._world.set_target_pose(episode.position[k], episode.rotation[k])
-        # the step rule's one-episode fast path (StepRule.step_scalar, tested equal to step)
-        reward, terminated, truncated, info = self.rule.step_scalar(
+        after = episode.rows(k)
+        out = self.rule.step(
             self._state,
-            episode,
-            k,
-            joint_step.theta,
+            _ALL,
+            episode.rows(k - 1, BEFORE_TRACKS),
+            after,
+            theta,
             x_e,
-            joint_step.clipped,
-            joint_step.saturated,
-            self._in_collision,
-            self.plan.trajectory,
+            np.array([joint_step.clipped]),
+            np.array([joint_step.saturated]),
+            self._collides,
+            self._trajectory,
         )
-        self._steps, self._time = k, float(episode.time[k])
+        terminated, truncated = bool(out.terminated[0]), bool(out.truncated[0])
+        info = scalar_info(out.info)
+        self._steps, self._time = k, info["time"]
         self._episode_over = terminated or truncated
         if self._episode_over:
             info["physical_limit_time"] = self.physical_limit().time
         if self.render_mode is not None:
             self._traces["target"].append(episode.position[k])
-            self._traces["end_effector"].append(x_e)
-        return (
-            self.rule.observe_scalar(self._state, episode, k),
-            reward,
-            terminated,
-            truncated,
-            info,
-        )
-
-    def set_capture_hold(self, hold: float) -> None:
-        """Ask a capture to hold ``hold`` s (0: the first entry captures) instead of the
-        scenario's ``capture.hold`` from the next step on: a training curriculum's lever
-        (:class:`capture_bench.training.callbacks.HoldCurriculum`), never an evaluation's. The
-        recorded physical limit stays the scenario's."""
-        self.rule.set_hold(hold)
-
-    def set_capture_tolerance(self, tolerance: Any) -> None:
-        """Count a capture at ``tolerance`` (m, a number or (3,)) instead of the scenario's
-        epsilon from the next step on: a training curriculum's lever
-        (:class:`capture_bench.training.callbacks.ToleranceCurriculum`), never an evaluation's.
-        The recorded physical limit stays the scenario's."""
-        self.rule.set_tolerance(tolerance)
+            self._traces["end_effector"].append(x_e[0])
+        obs = self.rule.observe(self._state, _ALL, after)[0]
+        return obs, out.reward.item(0), terminated, truncated, info
 
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode is None or self._world is None:
@@ -410,8 +355,9 @@ class CaptureEnv(gym.Env):
     def _live_side(self) -> TargetSide:
         """A new trajectory and control periods from ``np_random``, and a target side whose
         steps are computed (and draw the camera's noise) as they come."""
-        plan = EpisodePlan.draw(self.scenario, self.camera_model, self._features, self.np_random)
-        return TargetSide.live(plan, self._camera, self._estimator, self._features, self.np_random)
+        task = self.task
+        plan = EpisodePlan.draw(task.scenario, self.camera_model, task.features, self.np_random)
+        return TargetSide.live(plan, task.camera, self._estimator, task.features, self.np_random)
 
     def _recorded_side(self) -> TargetSide:
         """This seed's target side to the time limit, recorded now (as live steps would compute
@@ -429,6 +375,11 @@ class CaptureEnv(gym.Env):
         return TargetSide.replay(episode)
 
     # -- the world's answers to the step rule -----------------------------------------------------
-    def _in_collision(self) -> bool:
-        assert self._world is not None
-        return self._world.collision() is not None
+    def _collides(self, ask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Whether the arm is in collision now, if ``ask`` (one episode) asks."""
+        assert self._world is not None  # step() refuses to run before reset() or after close()
+        return np.array([bool(ask[0]) and self._world.collision() is not None])
+
+    def _trajectory(self, j: int) -> TargetTrajectory:
+        """The episode's true trajectory (the step rule's arc test asks for episode j = 0)."""
+        return self.recorded_episode.plan.trajectory

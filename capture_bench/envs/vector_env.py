@@ -2,9 +2,10 @@
 
 ``gymnasium.make_vec("CaptureBench/Paper-v0", num_envs=64)`` builds one (the registered
 ``vector_entry_point``). Sub-env i behaves as ``CaptureEnv(scenario, reuse_target_side=True)``
-seeded like gymnasium's ``SyncVectorEnv`` seeds its i-th env, with next-step autoreset: the same
-episodes, the same observations, rewards and ``info`` (tests compare them, to rounding: the batched
-arithmetic may differ from the single env's in the last bits).
+seeded like gymnasium's ``SyncVectorEnv`` seeds its i-th env, with next-step autoreset (or none,
+``autoreset_mode=AutoresetMode.DISABLED``): the same episodes, the same observations, rewards and
+``info`` (tests compare them, to rounding: the single env's filter is filterpy's, this env's the
+batched one, and the single env computes X_E with ``math``).
 
 How it is fast: nothing on the target's side of a step depends on the actions, so each sub-env's
 next episodes are recorded ahead, many at once
@@ -18,8 +19,8 @@ joint limits, forward kinematics and a pybullet collision query only for the sub
 is near the floor or the base column
 (:func:`capture_bench.sim.collision_screen.clear_of_collisions`); then the task's rules
 (capture along the arc, eq. 20; failures; reward; ``info``; observation) are
-:class:`capture_bench.task.step_rule.StepRule`'s, the same that ``CaptureEnv`` applies to its one
-episode.
+:class:`capture_bench.task.step_rule.StepRule`'s, the same code ``CaptureEnv`` runs for its one
+episode; what both envs are made of is :class:`capture_bench.envs.core.CaptureTask`.
 
 Differences from N single envs, all in the format only:
 
@@ -40,20 +41,18 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-from gymnasium import spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from capture_bench.envs.capture_env import check_actions, describe_task, resolve_scenario
+from capture_bench.envs.core import CaptureTask, TaskAccess, check_actions
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World, limit_joint_increments
 from capture_bench.task.episode import period_count
-from capture_bench.task.observation import observation_space
 from capture_bench.task.recording import (
     STEP_TRACKS,
     RecordedEpisode,
@@ -61,8 +60,7 @@ from capture_bench.task.recording import (
     record_episodes,
 )
 from capture_bench.task.scenarios import Scenario
-from capture_bench.task.step_rule import ArmState, StepRule
-from capture_bench.task.target_side import scenario_camera
+from capture_bench.task.step_rule import BEFORE_TRACKS, ArmState
 
 FloatArray = NDArray[np.float64]
 RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs episodes)
@@ -88,7 +86,10 @@ class EpisodeSeedSource(Protocol):
         ...
 
 
-class CaptureVectorEnv(VectorEnv):
+AUTORESET_MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.DISABLED)
+
+
+class CaptureVectorEnv(TaskAccess, VectorEnv):
     """N :class:`~capture_bench.envs.capture_env.CaptureEnv` episodes of one scenario, stepped
     together.
 
@@ -101,11 +102,23 @@ class CaptureVectorEnv(VectorEnv):
         reuse_target_side: must be True (accepted so that ``make_vec(id, n,
             reuse_target_side=True)`` means the same for every vectorization mode).
         render_mode: must be None (the vector env does not render).
+        autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``AutoresetMode.DISABLED``
+            (or their values, ``"NextStep"``, ``"Disabled"``); ``metadata["autoreset_mode"]``
+            says which.
 
     Spaces, rewards, termination and ``info`` are ``CaptureEnv``'s (see its docstring), batched;
-    see the module docstring for the format of ``info``. Autoreset: next step
-    (``metadata["autoreset_mode"]``): the step after a sub-env's episode ends resets it and
-    returns its first observation, reward 0 and no termination.
+    see the module docstring for the format of ``info``. Autoreset, as gymnasium's
+    ``SyncVectorEnv`` does it:
+
+    * ``NEXT_STEP``: the step after a sub-env's episode ends resets it and returns its first
+      observation, reward 0 and no termination.
+    * ``DISABLED``: an ended sub-env stays ended; the caller resets it, alone or with others,
+      with ``reset(seed=..., options={"reset_mask": mask})``, and a ``step()`` while any sub-env
+      has ended and not been reset raises ``RuntimeError`` (naming them) before anything steps
+      (``SyncVectorEnv`` asserts the same). ``reset(seed=[s0, s1, ...])`` then plays, in
+      sub-env i, exactly the episode of ``CaptureEnv(reuse_target_side=True).reset(seed=s_i)``,
+      and an ended sub-env's last observation and ``info`` are those of its last step: a batch
+      of episodes of different lengths, each played to its end once.
 
     Episodes come from each sub-env's own generator, as gymnasium seeds them, unless
     :meth:`set_episode_seeds` gives each sub-env a stream of episode seeds (what SB3 training
@@ -123,6 +136,7 @@ class CaptureVectorEnv(VectorEnv):
         reward: str = "dense",
         reuse_target_side: bool = True,
         render_mode: str | None = None,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
     ) -> None:
         if not reuse_target_side:
             raise ValueError(
@@ -137,17 +151,20 @@ class CaptureVectorEnv(VectorEnv):
             )
         if int(num_envs) != num_envs or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        self.scenario = sc = resolve_scenario(scenario, observation_source)
-        self.description = describe_task(sc)
-        self.rule = StepRule(sc, self.description, reward)  # checks ``reward``
-        self.reward_mode = reward
+        mode = _autoreset_mode(autoreset_mode)
+        self.task = task = CaptureTask(
+            scenario, observation_source=observation_source, reward=reward
+        )  # checks ``reward``
+        sc = task.scenario
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
+        self.autoreset_mode = mode
         self.render_mode = None
         self.num_envs = n = int(num_envs)
-        self.single_observation_space = observation_space()
-        self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self.single_observation_space = task.single_observation_space
+        self.single_action_space = task.single_action_space
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._camera, self._features = scenario_camera(sc)
+        self._camera, self._features = task.camera, task.features
         # One pybullet world answers every sub-env's collision query in turn (a world per
         # sub-env would cost ~28 MB each): the joints are set before each query.
         self._world: World | None = World(self._features)
@@ -182,7 +199,8 @@ class CaptureVectorEnv(VectorEnv):
         self._episodes: list[RecordedEpisode | None] = [None] * n
         self._steps = np.zeros(n, dtype=np.int64)
         self._state = ArmState.empty(n)
-        self._ended = np.ones(n, dtype=bool)  # reset these sub-envs at the next step
+        # NEXT_STEP: reset these sub-envs at the next step; DISABLED: they wait for reset()
+        self._ended = np.ones(n, dtype=bool)
         self._started = False
 
     # -- gymnasium API --------------------------------------------------------------------------
@@ -257,6 +275,11 @@ class CaptureVectorEnv(VectorEnv):
         a = check_actions(actions, (n, 3), "actions")
         resetting = np.flatnonzero(self._ended)
         stepping = np.flatnonzero(~self._ended)
+        if resetting.size and self.autoreset_mode == AutoresetMode.DISABLED:
+            raise RuntimeError(
+                f"sub-envs {resetting.tolist()} have ended and autoreset is disabled: reset "
+                "them first, e.g. reset(seed=..., options={'reset_mask': mask})"
+            )
         if resetting.size:
             self._start(resetting, {})
         rewards = np.zeros(n)
@@ -273,20 +296,6 @@ class CaptureVectorEnv(VectorEnv):
             self._ended[resetting] = False
         self._ended[stepping] = terminated[stepping] | truncated[stepping]
         return obs, rewards, terminated, truncated, info
-
-    def set_capture_hold(self, hold: float) -> None:
-        """Ask a capture to hold ``hold`` s (0: the first entry captures) instead of the
-        scenario's ``capture.hold`` from the next step on: a training curriculum's lever
-        (:class:`capture_bench.training.callbacks.HoldCurriculum`), never an evaluation's. The
-        recorded physical limit stays the scenario's."""
-        self.rule.set_hold(hold)
-
-    def set_capture_tolerance(self, tolerance: Any) -> None:
-        """Count a capture at ``tolerance`` (m, a number or (3,)) instead of the scenario's
-        epsilon from the next step on: a training curriculum's lever
-        (:class:`capture_bench.training.callbacks.ToleranceCurriculum`), never an evaluation's.
-        The recorded physical limit stays the scenario's."""
-        self.rule.set_tolerance(tolerance)
 
     def set_episode_seeds(self, sources: Sequence[EpisodeSeedSource] | None) -> None:
         """Seed every later episode of sub-env i with ``sources[i].next()`` (None: back to each
@@ -334,7 +343,7 @@ class CaptureVectorEnv(VectorEnv):
         every sub-env short of episodes when one of them has none)."""
         ahead: list[tuple[int, int | None, np.random.Generator]] = []
         if any(i not in explicit and not self._queues[i] for i in envs.tolist()):
-            ahead = self._to_record()
+            ahead = self._to_record(envs)
         now = [(i, s, seeding.np_random(s)[0]) for i, s in explicit.items()]
         jobs = now + ahead
         recorded = (
@@ -374,15 +383,21 @@ class CaptureVectorEnv(VectorEnv):
         self._steps[envs] = 0
         self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
 
-    def _to_record(self) -> list[tuple[int, int | None, np.random.Generator]]:
-        """The episodes to record ahead now, (sub-env, seed, generator) in each sub-env's
-        playing order: one for every sub-env short of ``RECORD_AHEAD`` (its own generator
-        advances through them), or with seed sources every queue topped up (see
-        :data:`RECORD_BATCH`)."""
+    def _to_record(
+        self, envs: NDArray[np.intp]
+    ) -> list[tuple[int, int | None, np.random.Generator]]:
+        """The episodes to record ahead now for a start of the sub-envs ``envs``, (sub-env,
+        seed, generator) in each sub-env's playing order: one for every sub-env short of
+        ``RECORD_AHEAD`` (its own generator advances through them; without autoreset only
+        for ``envs`` that have none: the others' next episodes may never be asked for), or
+        with seed sources every queue topped up (see :data:`RECORD_BATCH`)."""
         jobs: list[tuple[int, int | None, np.random.Generator]] = []
         if self._sources is None:
+            wanted = set(range(self.num_envs))
+            if self.autoreset_mode == AutoresetMode.DISABLED:
+                wanted = {i for i in envs.tolist() if not self._queues[i]}
             for i, (queue, rng) in enumerate(zip(self._queues, self._rngs, strict=True)):
-                if len(queue) < RECORD_AHEAD and rng is not None:
+                if i in wanted and len(queue) < RECORD_AHEAD and rng is not None:
                     jobs.append((i, self._generator_seeds[i], rng))
                     self._generator_seeds[i] = None  # its later episodes continue the generator
             return jobs
@@ -418,12 +433,10 @@ class CaptureVectorEnv(VectorEnv):
             live = k >= self._live_from[idx]
             if live.any():
                 self._estimate(idx[live], k[live])
-        before = {name: track[idx, k - 1] for name, track in tracks.items()}
+        before = {name: tracks[name][idx, k - 1] for name in BEFORE_TRACKS}
         after = {name: track[idx, k] for name, track in tracks.items()}
-        # The world: rate and joint limits (TaskDescription.action_to_increment, then
-        # World.apply_joint_increment's limits, batched).
-        request = np.minimum(np.maximum(action, -1.0), 1.0) * arm.joint_rate_limits
-        request = request * self.description.control_period
+        # The world: rate and joint limits (World.apply_joint_increment's, batched).
+        request = self.task.increments(action)
         theta0 = self._state.theta[idx]
         theta, clipped, saturated = limit_joint_increments(theta0, request, after["dt"], arm)
         x_e = kinematics.forward_kinematics(theta)
@@ -538,3 +551,15 @@ def _scatter(n: int, idx: NDArray[np.intp], value: NDArray) -> NDArray:
         out = np.full(n, np.nan)
     out[idx] = value
     return out
+
+
+def _autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
+    """``mode`` as one of :data:`AUTORESET_MODES`, or ``ValueError`` naming them."""
+    try:
+        value = AutoresetMode(mode)
+    except ValueError:
+        value = None
+    if value not in AUTORESET_MODES:
+        valid = ", ".join(f"AutoresetMode.{m.name} ({m.value!r})" for m in AUTORESET_MODES)
+        raise ValueError(f"autoreset_mode must be one of {valid}; got {mode!r}")
+    return value

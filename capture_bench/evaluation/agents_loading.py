@@ -2,14 +2,14 @@
 
 A spec is one of:
 
-* a built-in name (a key of :data:`agents.AGENTS`, e.g. ``incremental_ik``);
+* a built-in name (a key of :data:`capture_bench.agents.AGENTS`, e.g. ``incremental_ik``);
 * a trained model: a directory (a training run, or ``models/<name>``; ``<name>`` alone also finds
   ``models/<name>``) holding ``metadata.json``/``metadata.yaml`` and the policy, loaded without
-  unpickling anything (an SB3 ``.zip`` only with ``trust_model``; see :mod:`agents.sb3_policy`);
-  ``models/*`` expands to every model shipped;
-* ``module:Class`` (or ``module:factory``): a user's agent following :class:`agents.Agent`. It is
-  called with the environment's public :class:`TaskDescription` if it takes one argument, with no
-  argument if it takes none.
+  unpickling anything (an SB3 ``.zip`` only with ``trust_model``; see
+  :mod:`capture_bench.agents.sb3_policy`); ``models/*`` expands to every model shipped;
+* ``module:Class`` (or ``module:factory``): a user's agent following
+  :class:`capture_bench.agents.Agent`. It is called with the environment's public
+  :class:`TaskDescription` if it takes one argument, with no argument if it takes none.
 
 Specs are plain strings so they travel to worker processes and Ray tasks; each process resolves
 them again and caches loaded SB3 models. Agents are rebuilt for every episode (construction is
@@ -60,14 +60,14 @@ class AgentSpec:
 
 def builtin_names() -> list[str]:
     """Names of the built-in agents."""
-    from agents import AGENTS
+    from capture_bench.agents import AGENTS
 
     return sorted(AGENTS)
 
 
 def shipped_models(models_dir: Path = MODELS_DIR) -> list[str]:
     """Every model directory under ``models_dir`` (those holding a metadata file), sorted."""
-    from agents.sb3_policy import find_metadata_file
+    from capture_bench.agents.sb3_policy import find_metadata_file
 
     if not models_dir.is_dir():
         return []
@@ -97,7 +97,7 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
     """Resolve one spec (see module docstring); raises :class:`AgentSpecError` if it names
     nothing. Models are not loaded here (see :func:`check_agent`); ``trust_model`` lets a model
     directory without a safe form be loaded from its SB3 ``.zip`` (unpickling it)."""
-    from agents import PRIVILEGED_AGENTS
+    from capture_bench.agents import PRIVILEGED_AGENTS
 
     if spec in builtin_names():
         return AgentSpec(spec, spec, "builtin", spec, spec in PRIVILEGED_AGENTS)
@@ -132,8 +132,8 @@ def _model_kind(directory: Path) -> str:
     """What a model row says beside its name: `` (hybrid)`` for a residual on an analytic
     controller, `` (sampled)`` for a model card declaring sampled actions (nothing for the
     leaderboard's rule, deterministic actions); a bad metadata file is reported later."""
-    from agents.policy_file import PolicyLoadError
-    from agents.sb3_policy import read_metadata
+    from capture_bench.agents.policy_file import PolicyLoadError
+    from capture_bench.agents.sb3_policy import read_metadata
 
     try:
         metadata = read_metadata(directory)
@@ -170,8 +170,9 @@ def _call_user_factory(spec: AgentSpec, description: Any) -> Any:
 
 
 def _model(spec: AgentSpec) -> Any:
-    """The loaded policy (:class:`agents.sb3_policy.LoadedPolicy`), cached per process."""
-    from agents.sb3_policy import load_policy, read_metadata
+    """The loaded policy (:class:`capture_bench.agents.sb3_policy.LoadedPolicy`), cached per
+    process."""
+    from capture_bench.agents.sb3_policy import load_policy, read_metadata
 
     key = (spec.target, spec.trust_model)
     if key not in _MODEL_CACHE:
@@ -188,7 +189,7 @@ def _model(spec: AgentSpec) -> Any:
 def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
     """A fresh agent for one episode on ``env`` (seeded with ``seed`` if stochastic)."""
     if spec.kind == "builtin":
-        from agents import make_agent
+        from capture_bench.agents import make_agent
 
         extra = {"seed": seed} if spec.target in SEEDED_BUILTINS else {}
         return make_agent(spec.target, env, **extra)
@@ -206,10 +207,10 @@ def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
 def check_agent(spec: AgentSpec, env: Any, scenario: str) -> None:
     """Check at the edge that the agent can run on ``env`` (loads and checks a model's spaces;
     builds a user's agent and checks it follows the protocol)."""
-    from agents.protocol import Agent
+    from capture_bench.agents.protocol import Agent
 
     if spec.kind == "model":
-        from agents.sb3_policy import check_spaces
+        from capture_bench.agents.sb3_policy import check_spaces
 
         policy = _model(spec).policy
         check_spaces(policy, env.observation_space, env.action_space, f"{spec.spec} on {scenario}")
@@ -223,5 +224,5 @@ def check_agent(spec: AgentSpec, env: Any, scenario: str) -> None:
         if not isinstance(agent, Agent):
             raise AgentSpecError(
                 f"agent {spec.spec!r}: needs predict(observation, state, episode_start, "
-                "deterministic) and reset() (see agents/protocol.py)"
+                "deterministic) and reset() (see capture_bench/agents/protocol.py)"
             )

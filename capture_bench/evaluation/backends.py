@@ -49,7 +49,11 @@ BACKENDS = ("serial", "process", "ray")
 SEEDS_PER_CHUNK = 5
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded.
-PRELOAD = ("capture_bench.evaluation.backends", "capture_bench.envs.capture_env", "agents")
+PRELOAD = (
+    "capture_bench.evaluation.backends",
+    "capture_bench.envs.capture_env",
+    "capture_bench.agents",
+)
 
 #: Not shipped to Ray workers with the checkout.
 RAY_EXCLUDES = [".git", "reports", "runs", "**/__pycache__", "*.egg-info", ".venv", "*.png"]

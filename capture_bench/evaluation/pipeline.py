@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from agents.sb3_policy import PolicyLoadError, read_metadata
+from capture_bench.agents.sb3_policy import PolicyLoadError, read_metadata
 from capture_bench.evaluation.agents_loading import (
     AgentSpec,
     check_agent,

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.protocol import Agent
+from capture_bench.agents.protocol import Agent
 
 CAPTURED = "captured"
 FAILED = "failed"
@@ -145,7 +145,7 @@ def run_episode(
 
     Args:
         env: a ``CaptureEnv`` (possibly wrapped, e.g. by ``TimeLimit``).
-        agent: anything following :class:`agents.protocol.Agent`.
+        agent: anything following :class:`capture_bench.agents.protocol.Agent`.
         agent_name: label stored in the record.
         scenario: scenario name stored in the record.
         seed: passed to ``env.reset(seed=seed)``, and to ``agent.seed`` if the agent has one.

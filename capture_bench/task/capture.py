@@ -1,96 +1,80 @@
-"""The capture test of eq. 20, applied over a whole control step.
+"""The capture test of eq. 20, applied over a whole control step, for M steps at once.
 
 Eq. 20 declares a capture when ``|X_E - X_T| < epsilon`` component-wise. Testing only at the ends
 of a step would let a fast pass through the tolerance box go unseen, so the test is applied to
 the whole step. Within a step the joints move linearly, ``theta(s) = theta0 + s dtheta`` for
 ``s in [0, 1]``, so the end-effector follows the arc ``f(theta(s))``. On a straight segment, the
-relative vector ``d(s) = d0 + s (d1 - d0)`` is tested exactly (:func:`first_entry_fraction`). The
-arc sags from its chord by at most ``(l1 + l2) (sum |dtheta_i|)^2 / 8`` (every second derivative
-of f is bounded by l1 + l2); where that exceeds ``ARC_RESOLUTION``, the step is cut into enough
+relative vector ``d(s) = d0 + s (d1 - d0)`` is inside the box on one open interval of s, found
+exactly (:func:`inside_intervals`). The arc sags from its chord by at most
+``(l1 + l2) (sum |dtheta_i|)^2 / 8`` (every second derivative of f is bounded by l1 + l2,
+:func:`arc_sag_bounds`); where that exceeds ``ARC_RESOLUTION``, the step is cut into enough
 pieces that each piece's chord is within ``ARC_RESOLUTION`` of the arc
-(:func:`first_entry_along_arc`). Joint 1 turns up to 0.5 rad per step, so this matters.
+(:func:`inside_intervals_along_arc`). Joint 1 turns up to 0.5 rad per step, so this matters.
 
 A hold (``capture.hold`` of a scenario, seconds): the capture requires eq. 20 to hold
-*continuously* for ``hold`` s. Each chord's stay inside the tolerance box is an open interval of
-s (:func:`inside_interval`), so the stays of a whole step along the arc are the chords' intervals,
+*continuously* for ``hold`` s. The stays of a whole step along the arc are the chords' intervals,
 joined where one chord's stay reaches its end and the next one's starts at its beginning
 (:func:`inside_intervals_along_arc`): the step's entries *and* exits, to ``ARC_RESOLUTION``.
 :func:`held_capture` walks them carrying when the stay in progress began from one step to the
 next: the capture completes at entry + hold, and leaving the box before restarts the clock at the
-next entry. With ``hold = 0`` it is the first entry, exactly as :func:`first_entry_fraction`.
+next entry. With ``hold = 0`` it is the first entry.
+
+Every test here takes M steps as rows, (M, 3) arrays; one step is the case M = 1. The arc walk and
+the hold are per step (a Python loop over the few steps that come near the target).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
-from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from capture_bench.sim.kinematics import L1, L2, forward_kinematics
 
+FloatArray = NDArray[np.float64]
 ARC_RESOLUTION = 1e-5  # m: largest allowed gap between the end-effector's arc and a test chord
 
 
-def inside_interval(
-    d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike
-) -> tuple[float, float] | None:
-    """The fractions ``(lo, hi)`` of the step, ``0 <= lo < hi <= 1``, between which
-    ``|d0 + s (d1 - d0)| < tolerance`` in every component, or None if never.
+def inside_intervals(
+    d0: FloatArray, d1: FloatArray, tolerance: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """The fractions ``(lo, hi)`` of each of M steps, ``0 <= lo < hi <= 1``, between which
+    ``|d0 + s (d1 - d0)| < tolerance`` in every component; NaN where never.
 
     Args:
-        d0: X_E - X_T at the start of the step, m, shape (3,).
-        d1: X_E - X_T at the end of the step, m, shape (3,).
-        tolerance: epsilon, m, shape (3,) (or a scalar).
+        d0: X_E - X_T at the start of each step, m, (M, 3).
+        d1: X_E - X_T at the end of each step, m, (M, 3).
+        tolerance: epsilon, m, (3,) (or a scalar).
 
     Returns:
-        The open interval of s inside the box, clipped to [0, 1] (``hi == 1``: still inside at
-        the step's end, ``lo == 0``: already inside at its start), or None. Each component is
-        inside its box on an open interval of s; the box is inside where all of them overlap.
+        ``(lo, hi)``, (M,) each: the open interval of s inside the box, clipped to [0, 1]
+        (``hi == 1``: still inside at the step's end, ``lo == 0``: already inside at its start),
+        or NaN. Each component is inside its box on an open interval of s; the box is inside
+        where all of them overlap, so touching ends (``lo == hi``) is not an entry. Each row's
+        floats do not depend on the other rows.
     """
-    lo, hi = 0.0, 1.0
-    for a, b, e in zip(_floats(d0), _floats(d1), _tolerances(tolerance)):
-        slope = b - a
-        if slope == 0.0:
-            if abs(a) >= e:
-                return None
-            continue
-        s_a, s_b = (-e - a) / slope, (e - a) / slope
-        lo = max(lo, min(s_a, s_b))
-        hi = min(hi, max(s_a, s_b))
-        if lo >= hi:
-            # The intervals are open, so touching ends (lo == hi) is not an entry.
-            return None
-    return lo, hi
-
-
-def first_entry_fraction(d0: ArrayLike, d1: ArrayLike, tolerance: ArrayLike) -> float | None:
-    """Earliest fraction s of the step at which ``|d0 + s (d1 - d0)| < tolerance`` in every
-    component, or None if the relative vector never enters the tolerance box: the start of
-    :func:`inside_interval`.
-
-    Args:
-        d0: X_E - X_T at the start of the step, m, shape (3,).
-        d1: X_E - X_T at the end of the step, m, shape (3,).
-        tolerance: epsilon, m, shape (3,) (or a scalar).
-
-    Returns:
-        s in [0, 1], or None.
-    """
-    interval = inside_interval(d0, d1, tolerance)
-    return None if interval is None else interval[0]
+    e = np.broadcast_to(np.asarray(tolerance, dtype=float), (3,))
+    slope = d1 - d0
+    flat = slope == 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_a, s_b = (-e - d0) / slope, (e - d0) / slope
+    lo = np.maximum(np.where(flat, -np.inf, np.minimum(s_a, s_b)).max(axis=1), 0.0)
+    hi = np.minimum(np.where(flat, np.inf, np.maximum(s_a, s_b)).min(axis=1), 1.0)
+    never = (flat & (np.abs(d0) >= e)).any(axis=1) | (lo >= hi)  # open intervals: lo == hi misses
+    return np.where(never, np.nan, lo), np.where(never, np.nan, hi)
 
 
 def held_capture(
     intervals: Iterable[tuple[float, float]], since: float, t0: float, dt: float, hold: float
 ) -> tuple[float | None, float]:
-    """Eq. 20 held for ``hold`` s: when the capture completes in this step, if it does.
+    """Eq. 20 held for ``hold`` s: when the capture completes in one step, if it does.
 
     Args:
         intervals: the step's stays inside the tolerance box, fractions ``(lo, hi)`` of the step
-            in increasing order (:func:`inside_interval`, :func:`inside_intervals_along_arc`).
+            in increasing order (a row of :func:`inside_intervals`, or
+            :func:`inside_intervals_along_arc`).
         since: when the stay in progress at the step's start began, s (NaN: outside then).
         t0, dt: the step's start and real period, s.
         hold: how long eq. 20 must hold without a break, s (0: the first entry captures).
@@ -112,23 +96,24 @@ def held_capture(
     return None, start
 
 
-def arc_sag_bound(delta_theta: ArrayLike) -> float:
-    """Upper bound on the distance between the end-effector's arc and its chord in one step, m.
+def arc_sag_bounds(delta_theta: FloatArray) -> FloatArray:
+    """Upper bound on the distance between the end-effector's arc and its chord in each of M
+    steps, m, (M,).
 
     Args:
-        delta_theta: the joint increment of the step, rad, shape (3,).
+        delta_theta: the joint increments of the steps, rad, (M, 3).
     """
-    total = sum(abs(x) for x in _floats(delta_theta))
+    total = np.add.reduce(np.abs(delta_theta), axis=1)
     return (L1 + L2) * total * total / 8.0
 
 
 def inside_intervals_along_arc(
     theta0: ArrayLike,
     delta_theta: ArrayLike,
-    target_at: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    target_at: Callable[[FloatArray], FloatArray],
     tolerance: ArrayLike,
 ) -> list[tuple[float, float]]:
-    """The fractions of the step during which eq. 20 holds along the end-effector's true arc.
+    """The fractions of one step during which eq. 20 holds along the end-effector's true arc.
 
     Args:
         theta0: joint angles at the start of the step, rad, (3,).
@@ -139,16 +124,16 @@ def inside_intervals_along_arc(
     Returns:
         Open intervals ``(lo, hi)`` of s in [0, 1], in order and disjoint, exact to
         ``ARC_RESOLUTION`` along the arc: the arc is cut into chords within ``ARC_RESOLUTION`` of
-        it (see the module docstring), each chord's stay is :func:`inside_interval`, and a stay
-        that reaches a chord's end joins the next chord's stay that starts there.
+        it (see the module docstring), each chord's stay is a row of :func:`inside_intervals`,
+        and a stay that reaches a chord's end joins the next chord's stay that starts there.
     """
-    sag = arc_sag_bound(delta_theta)
+    delta = np.asarray(delta_theta, dtype=float)
+    sag = float(arc_sag_bounds(delta[None])[0])
     pieces = max(1, math.ceil(math.sqrt(sag / ARC_RESOLUTION)))
     s = np.linspace(0.0, 1.0, pieces + 1)
-    ee = forward_kinematics(np.asarray(theta0, float) + s[:, None] * np.asarray(delta_theta, float))
+    ee = forward_kinematics(np.asarray(theta0, float) + s[:, None] * delta)
     relative = ee - target_at(s)
-    # Every chord at once (the same arithmetic as inside_interval's, so the same floats); the
-    # walk below visits only the chords with a stay, which are few.
+    # Every chord at once; the walk below visits only the chords with a stay, which are few.
     los, his = inside_intervals(relative[:-1], relative[1:], tolerance)
     intervals: list[tuple[float, float]] = []
     joins = False  # the last chord with a stay reached its end (so the next chord starts inside)
@@ -167,7 +152,7 @@ def inside_intervals_along_arc(
 def first_entry_along_arc(
     theta0: ArrayLike,
     delta_theta: ArrayLike,
-    target_at: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    target_at: Callable[[FloatArray], FloatArray],
     tolerance: ArrayLike,
 ) -> float | None:
     """Earliest fraction s of the step at which eq. 20 holds along the end-effector's true arc:
@@ -180,71 +165,31 @@ def first_entry_along_arc(
     return intervals[0][0] if intervals else None
 
 
-def closest_approach(d0: ArrayLike, d1: ArrayLike) -> float:
-    """Smallest ``|d0 + s (d1 - d0)|`` over ``s in [0, 1]``, m (Euclidean)."""
-    a, b = _floats(d0), _floats(d1)
-    slope = [y - x for x, y in zip(a, b)]
-    denom = sum(c * c for c in slope)
-    s = 0.0 if denom == 0.0 else min(1.0, max(0.0, -sum(x * c for x, c in zip(a, slope)) / denom))
-    return math.sqrt(sum((x + s * c) ** 2 for x, c in zip(a, slope)))
-
-
-def within_tolerance(d: ArrayLike, tolerance: ArrayLike) -> bool:
-    """Eq. 20 at one instant: ``|d| < epsilon`` in every component."""
-    return all(abs(c) < e for c, e in zip(_floats(d), _tolerances(tolerance)))
-
-
-def segment_length(a: ArrayLike, b: ArrayLike) -> float:
-    """Euclidean distance between two points, m."""
-    return math.dist(_floats(a), _floats(b))
-
-
-def _floats(v: ArrayLike) -> list[float]:
-    # ArrayLike also admits scalars; every caller passes a vector.
-    return (
-        v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in cast("Iterable[float]", v)]
-    )
-
-
-def _tolerances(tolerance: ArrayLike) -> list[float]:
-    """epsilon as three floats (a scalar applies to every component)."""
-    if isinstance(tolerance, (int, float)):
-        return [float(tolerance)] * 3
-    return _floats(tolerance)
-
-
-def inside_intervals(
-    d0: NDArray, d1: NDArray, tolerance: ArrayLike
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """:func:`inside_interval` for M steps at once: (M, 3), (M, 3) -> ``(lo, hi)``, (M,) each,
-    NaN for None."""
-    e = np.broadcast_to(np.asarray(tolerance, dtype=float), (3,))
-    slope = d1 - d0
-    flat = slope == 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s_a, s_b = (-e - d0) / slope, (e - d0) / slope
-    lo = np.maximum(np.where(flat, -np.inf, np.minimum(s_a, s_b)).max(axis=1), 0.0)
-    hi = np.minimum(np.where(flat, np.inf, np.maximum(s_a, s_b)).min(axis=1), 1.0)
-    never = (flat & (np.abs(d0) >= e)).any(axis=1) | (lo >= hi)  # open intervals: lo == hi misses
-    return np.where(never, np.nan, lo), np.where(never, np.nan, hi)
-
-
-def first_entry_fractions(d0: NDArray, d1: NDArray, tolerance: ArrayLike) -> NDArray[np.float64]:
-    """:func:`first_entry_fraction` for M steps at once: (M, 3), (M, 3) -> (M,), NaN for None."""
-    return inside_intervals(d0, d1, tolerance)[0]
-
-
-def arc_sag_bounds(delta_theta: NDArray) -> NDArray[np.float64]:
-    """:func:`arc_sag_bound` for M steps, (M, 3) -> (M,), m."""
-    total = np.abs(delta_theta).sum(axis=1)
-    return (L1 + L2) * total * total / 8.0
-
-
-def closest_approaches(d0: NDArray, d1: NDArray) -> NDArray[np.float64]:
-    """:func:`closest_approach` for M segments, (M, 3), (M, 3) -> (M,), m."""
+def closest_approaches(d0: FloatArray, d1: FloatArray) -> FloatArray:
+    """Smallest ``|d0 + s (d1 - d0)|`` over ``s in [0, 1]`` (Euclidean) of M segments,
+    (M, 3), (M, 3) -> (M,), m."""
     slope = d1 - d0
     denom = np.einsum("ij,ij->i", slope, slope)
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.clip(-np.einsum("ij,ij->i", d0, slope) / denom, 0.0, 1.0)
     s[denom == 0.0] = 0.0
     return np.linalg.norm(d0 + s[:, None] * slope, axis=1)
+
+
+def approach_lower_bounds(d0: FloatArray, d1: FloatArray) -> FloatArray:
+    """A lower bound on :func:`closest_approaches`, m, (M,), in five numpy calls: along a
+    segment each component stays between its ends, so ``|d(s)|`` is at least the largest
+    component's distance from 0 over its range (negative where every range straddles 0; NaN
+    where an end is NaN). A screen: a step whose bound exceeds the tolerance's radius (plus the
+    arc's sag) cannot capture."""
+    return np.maximum.reduce(np.maximum(np.minimum(d0, d1), -np.maximum(d0, d1)), axis=1)
+
+
+def row_norms(v: FloatArray) -> FloatArray:
+    """Euclidean norms of the 3-vectors of M rows: (M, 3) -> (M,), or K vectors side by side,
+    (M, 3K) -> (M, K). ``np.linalg.norm(v, axis=-1)``'s arithmetic (the same floats) in a few
+    numpy calls instead of its dozen."""
+    squared = v * v
+    if v.shape[1] > 3:
+        squared = squared.reshape(v.shape[0], v.shape[1] // 3, 3)
+    return np.sqrt(np.add.reduce(squared, axis=-1))

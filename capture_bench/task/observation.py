@@ -21,10 +21,11 @@ index  quantity (global frame)                          unit      scale
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from capture_bench.sim.kinematics import ArmSpec
 
@@ -34,6 +35,12 @@ POSITION_SCALE = 1.0  # m
 VELOCITY_SCALE = 0.1  # m/s
 ANGLE_SCALE = np.pi  # rad
 RELATIVE_SCALE = 0.5  # m
+
+# every entry's 1 / scale, in the layout's order (the period's scale, t_s, is divided first)
+_INVERSE_SCALES = 1.0 / np.repeat(
+    [POSITION_SCALE, VELOCITY_SCALE, POSITION_SCALE, ANGLE_SCALE, RELATIVE_SCALE, 1.0],
+    [3, 3, 3, 3, 3, 1],
+)
 
 SLICES = {
     "target_position": slice(0, 3),
@@ -81,7 +88,7 @@ class Observation:
     ee_position: NDArray[np.float64]
     joint_angles: NDArray[np.float64]
     relative_position: NDArray[np.float64]
-    last_period: float
+    last_period: Any  # s: a float, or shape (N,) for a batch
 
 
 def observation_space() -> spaces.Box:
@@ -90,69 +97,52 @@ def observation_space() -> spaces.Box:
 
 
 def encode_observation(
-    target_position: NDArray,
-    target_velocity: NDArray,
-    ee_position: NDArray,
-    joint_angles: NDArray,
-    last_period: float,
+    target_position: ArrayLike,
+    target_velocity: ArrayLike,
+    ee_position: ArrayLike,
+    joint_angles: ArrayLike,
+    last_period: ArrayLike,
     control_period: float,
 ) -> NDArray[np.float32]:
-    """Build the scaled observation vector; the relative vector uses eq. 13 with t_s."""
+    """The scaled observation (see the module docstring) of one step or of M at once.
+
+    Args:
+        target_position, target_velocity: the estimate X^_T (m) and its rate (m/s), global.
+        ee_position: X_E, global, m.
+        joint_angles: Theta, rad.
+        last_period: the last real control period dt, s.
+        control_period: the nominal t_s, s (eq. 13's look-ahead and the period's scale).
+
+    Shapes: (3,) vectors and a float -> (16,), or (M, 3) and (M,) -> (M, 16). The relative
+    vector is eq. 13 with t_s; every entry is clipped to [-10, 10].
+    """
     position = np.asarray(target_position, dtype=float)
     velocity = np.asarray(target_velocity, dtype=float)
     ee = np.asarray(ee_position, dtype=float)
     relative = position + velocity * control_period - ee  # eq. 13, relative to X_E
-    obs = np.concatenate(
-        (
-            position * (1.0 / POSITION_SCALE),
-            velocity * (1.0 / VELOCITY_SCALE),
-            ee * (1.0 / POSITION_SCALE),
-            np.asarray(joint_angles, dtype=float) * (1.0 / ANGLE_SCALE),
-            relative * (1.0 / RELATIVE_SCALE),
-            (last_period / control_period,),
-        )
-    )
-    if np.abs(obs).max() > OBSERVATION_BOUND:
-        np.clip(obs, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=obs)
+    period = np.asarray(last_period, dtype=float) / control_period
+    raw = np.concatenate((position, velocity, ee, joint_angles, relative, period[..., None]), -1)
+    obs = raw * _INVERSE_SCALES
+    np.minimum(obs, OBSERVATION_BOUND, out=obs)
+    np.maximum(obs, -OBSERVATION_BOUND, out=obs)
     return obs.astype(np.float32)
 
 
 def decode_observation(obs: NDArray, control_period: float) -> Observation:
-    """Undo the scaling of :func:`encode_observation` (shape (16,) -> SI units)."""
+    """Undo the scaling of :func:`encode_observation`: shape (16,) -> SI units, or a batch
+    (N, 16) -> fields with leading axis N (``last_period`` then shape (N,))."""
     o = np.asarray(obs, dtype=np.float64)
-    if o.shape != (OBSERVATION_SIZE,):
-        raise ValueError(f"observation must have shape ({OBSERVATION_SIZE},), got {o.shape}")
+    if o.ndim not in (1, 2) or o.shape[-1] != OBSERVATION_SIZE:
+        raise ValueError(
+            f"observation must have shape ({OBSERVATION_SIZE},) or (N, {OBSERVATION_SIZE}), "
+            f"got {o.shape}"
+        )
+    last_period = o[..., 15] * control_period
     return Observation(
-        target_position=o[0:3] * POSITION_SCALE,
-        target_velocity=o[3:6] * VELOCITY_SCALE,
-        ee_position=o[6:9] * POSITION_SCALE,
-        joint_angles=o[9:12] * ANGLE_SCALE,
-        relative_position=o[12:15] * RELATIVE_SCALE,
-        last_period=float(o[15] * control_period),
+        target_position=o[..., 0:3] * POSITION_SCALE,
+        target_velocity=o[..., 3:6] * VELOCITY_SCALE,
+        ee_position=o[..., 6:9] * POSITION_SCALE,
+        joint_angles=o[..., 9:12] * ANGLE_SCALE,
+        relative_position=o[..., 12:15] * RELATIVE_SCALE,
+        last_period=float(last_period) if o.ndim == 1 else last_period,
     )
-
-
-def encode_observations(
-    target_position: NDArray,
-    target_velocity: NDArray,
-    ee_position: NDArray,
-    joint_angles: NDArray,
-    last_period: NDArray,
-    control_period: float,
-) -> NDArray[np.float32]:
-    """:func:`encode_observation` for M observations at once: (M, 3) arrays and last periods
-    (M,) -> (M, 16), with the same arithmetic."""
-    relative = target_position + target_velocity * control_period - ee_position  # eq. 13
-    obs = np.concatenate(
-        (
-            target_position * (1.0 / POSITION_SCALE),
-            target_velocity * (1.0 / VELOCITY_SCALE),
-            ee_position * (1.0 / POSITION_SCALE),
-            joint_angles * (1.0 / ANGLE_SCALE),
-            relative * (1.0 / RELATIVE_SCALE),
-            (last_period / control_period)[:, None],
-        ),
-        axis=1,
-    )
-    np.clip(obs, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=obs)
-    return obs.astype(np.float32)

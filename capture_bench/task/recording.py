@@ -90,6 +90,11 @@ class RecordedEpisode(EpisodeTruth):
     bound: PhysicalLimit | None
     continuation: EstimatorContinuation | None = None
 
+    def rows(self, k: int, names: Sequence[str] | None = None) -> dict[str, NDArray]:
+        """Step k's row of the tracks ``names`` (default :data:`STEP_TRACKS`) as arrays of one
+        row, (1, ...) views: the target side of one episode's step, as the step rule takes it."""
+        return {name: getattr(self, name)[k : k + 1] for name in names or STEP_TRACKS}
+
 
 @dataclass(eq=False)
 class EstimatorContinuation:
@@ -339,8 +344,20 @@ def _nees(covariance: FloatArray, error: FloatArray) -> FloatArray:
 def estimate_errors_scalar(
     estimate: TargetEstimate, true_position: FloatArray, true_velocity: FloatArray
 ) -> tuple[float, float, float]:
-    """:func:`estimate_errors` of one estimate, in scalar ``math`` (the live single env's fast
-    path: it runs every step; tests check it equals the batched form to rounding)."""
+    """:func:`estimate_errors` of one estimate, in scalar ``math`` and LAPACK: the live single
+    env's, every step (``TargetSide``). ``tests/test_step_rule.py`` checks it equals the batched
+    form to rounding.
+
+    Kept because it matters to the single env's speed: at one row, numpy's batched linear
+    algebra is mostly per-call overhead, 28 us a call against 4.5 us here (``taskset -c 0
+    python -m timeit -s "import numpy as np; from capture_bench.task.recording import
+    estimate_errors as f; a = np.ones((1, 3)); c = np.eye(6)[None]; v = np.ones(1, bool);
+    z = 0 * a" "f(a, a, c, v, z, z)"``, and the same for this function), ~50 us of a ~400 us
+    step in the env: the single env (``taskset -c 0 python benchmarks/bench_env.py --seconds 3
+    --scenarios paper --sources ekf``) gives 2,470-2,620 steps/s with this function and
+    1,850-2,690 with the batched form, at times under three times panda-gym's PandaReach-v3
+    (~820 steps/s).
+    """
     if not estimate.valid:
         return math.nan, math.nan, math.nan
     pos_err = math.dist(estimate.position.tolist(), true_position.tolist())

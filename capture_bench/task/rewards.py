@@ -1,4 +1,4 @@
-"""The reward terms of a capture step, over N episodes at once or one (one definition, both envs).
+"""The reward terms of a capture step, over N episodes at once (one definition, both envs).
 
 ``reward="dense"``: progress on the true distance ||X_E - X_T|| (eq. 20's quantity), a time
 penalty per step, a bonus on capture (eq. 20 held during the step) and a penalty on every failure
@@ -18,7 +18,6 @@ gamma**T * Phi(d_T) - Phi(d_0) (``tests/test_rewards.py``). Each term is also re
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -42,15 +41,15 @@ REWARD_TERMS: dict[str, tuple[str, ...]] = {
 REWARD_MODES = tuple(REWARD_TERMS)
 
 
-#: (M,) arrays for M episodes, or one episode's Python float / bool
+#: (M,) arrays for M episodes
 Values = Any
 
 
 def reward_terms(
     mode: str, previous_distance: Values, distance: Values, captured: Values, penalised: Values
 ) -> dict[str, Values]:
-    """The reward of one step of M episodes (arrays (M,)) or of one (scalars), split into the
-    named terms of ``mode``.
+    """The reward of one step of M episodes (arrays (M,)), split into the named terms of
+    ``mode``.
 
     Args:
         mode: ``"dense"`` or ``"sparse"``.
@@ -62,10 +61,8 @@ def reward_terms(
     Returns:
         ``{term: values}`` with the keys of ``REWARD_TERMS[mode]``, in that order.
     """
-    # Arithmetic only (a bool times a number, + 0.0 so that no term is -0.0), so that the same
-    # lines serve numpy arrays (M,) and the single env's Python floats and bools.
     if mode == "sparse":
-        return {"reward_capture": 1.0 * captured + 0.0}
+        return {"reward_capture": np.where(captured, 1.0, 0.0)}
     if mode == "shaped":
         first = {
             "reward_shaping": SHAPING_GAMMA * potential(distance) - potential(previous_distance)
@@ -75,16 +72,14 @@ def reward_terms(
     return {
         **first,
         "reward_time": TIME_PENALTY + 0.0 * distance,
-        "reward_capture": CAPTURE_BONUS * captured + 0.0,
-        "reward_failure": FAILURE_PENALTY * penalised + 0.0,
+        "reward_capture": np.where(captured, CAPTURE_BONUS, 0.0),
+        "reward_failure": np.where(penalised, FAILURE_PENALTY, 0.0),
     }
 
 
 def potential(distance: Values) -> Values:
     """Phi(d) = -SHAPING_SCALE * ln(1 + d / SHAPING_LENGTH): the shaping potential of a true
     distance d, m (arrays or a float; 0 at d = 0, decreasing)."""
-    if isinstance(distance, float):  # the single env's scalar path: a Python float
-        return -SHAPING_SCALE * math.log1p(distance * (1.0 / SHAPING_LENGTH))
     return -SHAPING_SCALE * np.log1p(distance * (1.0 / SHAPING_LENGTH))
 
 

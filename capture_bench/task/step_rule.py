@@ -1,5 +1,5 @@
 """The task's rules for one control step, over N episodes at once (numpy): written once, for
-``CaptureEnv`` (its N = 1 case) and ``CaptureVectorEnv``.
+``CaptureVectorEnv`` and ``CaptureEnv`` (its N = 1 case).
 
 The model is Gymnasium's functional CartPole (``gymnasium/envs/phys2d/cartpole.py``), whose one
 transition function serves both its single and its vector env. Here the envs do the simulation's
@@ -24,10 +24,11 @@ read the target's half from a :class:`~capture_bench.task.recording.RecordedEpis
 Adding an ``info`` key, a reward term, an observation entry or a failure reason is an edit here
 (or in ``rewards.py`` / ``observation.py``); tests check both envs expose exactly these sets.
 
-Why one file of ~530 lines: :meth:`StepRule.step` (N episodes, numpy) and its one-episode fast
-path :meth:`StepRule.step_scalar` (the single env: numpy's per-call overhead would double a
-replayed step's cost) are the same rules and must change together; side by side, a change to one
-is seen next to the other, and ``tests/test_step_rule.py`` checks them equal.
+At N = 1 numpy's per-call overhead, not the arithmetic, is a step's cost, so a step makes few
+numpy calls: the capture tests run in full only for the steps that a cheap bound
+(:func:`~capture_bench.task.capture.approach_lower_bounds`) does not already put out of reach
+(a step far from the target, the common case, costs the bound alone), and each piece of state
+is read once and written once.
 """
 
 from __future__ import annotations
@@ -45,23 +46,16 @@ from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.task.capture import (
     ARC_RESOLUTION,
-    arc_sag_bound,
+    approach_lower_bounds,
     arc_sag_bounds,
-    closest_approach,
     closest_approaches,
     held_capture,
-    inside_interval,
     inside_intervals,
     inside_intervals_along_arc,
-    segment_length,
+    row_norms,
 )
 from capture_bench.task.episode import TIME_SLACK, time_limit
-from capture_bench.task.observation import (
-    TaskDescription,
-    encode_observation,
-    encode_observations,
-)
-from capture_bench.task.recording import RecordedEpisode
+from capture_bench.task.observation import TaskDescription, encode_observation
 from capture_bench.task.rewards import (
     REWARD_MODES,
     REWARD_TERMS,
@@ -84,8 +78,16 @@ COLLISION, UNREACHABLE, TARGET_LOST, TIMEOUT = (
 )
 # by failure code: whether it earns the failure penalty (no failure and UNPENALISED_FAILURES not)
 _PENALISED = np.array([False] + [name not in UNPENALISED_FAILURES for name in FAILURES])
-_STATUS_OK = STATUSES.index("ok")
+_NONE = np.int64(0)  # the failure code of no failure
+_STATUS_OK = np.int8(STATUSES.index("ok"))
 _STATUS_NAMES = np.array(STATUSES, dtype=object)
+# m: slack on the screen of the capture tests, far above the bound's rounding (~1e-17 m), far
+# below anything eq. 20 resolves
+_SCREEN_MARGIN = 1e-9
+
+#: The tracks of the target side :meth:`StepRule.step` reads at a step's start (``before``); at
+#: its end (``after``) it reads every one of :data:`capture_bench.task.recording.STEP_TRACKS`.
+BEFORE_TRACKS = ("position", "estimate_valid", "estimate_position")
 
 #: ``info`` of every step, in this order (the reward terms of the mode follow).
 INFO_KEYS = (
@@ -199,8 +201,9 @@ class StepRule:
         self.hold = scenario.capture.hold  # s
         self.control_period = description.control_period
         self.home = description.arm.home
-        self.lost_after = scenario.lost_after + TIME_SLACK
-        self.time_limit = time_limit(scenario.control)
+        # numpy scalars: an array compares with one twice as fast as with a Python float
+        self.lost_after = np.float64(scenario.lost_after + TIME_SLACK)
+        self.time_limit = np.float64(time_limit(scenario.control))
         self.frames_matter = scenario.estimator.source != "truth"  # target_lost needs a camera
 
     def set_hold(self, hold: float) -> None:
@@ -221,7 +224,8 @@ class StepRule:
         if not (np.isfinite(eps).all() and (eps > 0).all()):
             raise ValueError(f"capture tolerance must be finite and > 0, got {tolerance!r}")
         self.tolerance = eps
-        self.tolerance_radius = float(np.linalg.norm(eps))
+        self.tolerance_radius = np.float64(np.linalg.norm(eps))
+        self._screen_radius = self.tolerance_radius + _SCREEN_MARGIN
 
     def start(self, state: ArmState, rows: Rows, target_position: FloatArray) -> dict[str, NDArray]:
         """Begin episodes ``rows`` at the home pose; ``target_position`` X_T at reset, (M, 3).
@@ -254,8 +258,10 @@ class StepRule:
         Args:
             state: the N episodes' state (rows ``rows`` step).
             rows: the stepping episodes (a slice or indices).
-            before, after: the target side at the start and the end of the step, (M, ...) arrays
-                by :data:`capture_bench.task.recording.STEP_TRACKS` name.
+            before: the target side at the start of the step, (M, ...) arrays by
+                :data:`BEFORE_TRACKS` name (more are ignored).
+            after: the target side at the end of the step, (M, ...) arrays by
+                :data:`capture_bench.task.recording.STEP_TRACKS` name.
             theta, x_e: joint angles after the world's limits, rad, and X_E there, m, (M, 3).
             clipped, saturated: the world's flags, (M,).
             collides: given which of the M to ask (M,) bool, whether each is in collision (the
@@ -263,210 +269,60 @@ class StepRule:
             trajectory: the true trajectory of the j-th stepping episode (for the arc test).
         """
         dt, time, x_t = after["dt"], after["time"], after["position"]
-        # copies: with a slice for ``rows`` these would be views of what the step overwrites
-        theta0, x_e0 = state.theta[rows].copy(), state.x_e[rows].copy()
-        d_prev = state.distance[rows].copy()
-        state.theta[rows], state.x_e[rows] = theta, x_e
-        state.path_length[rows] += np.linalg.norm(x_e - x_e0, axis=1)
+        # The state at the step's start (views of it where ``rows`` is a slice): written back
+        # only once every use below has read it.
+        theta0, x_e0, d_prev = state.theta[rows], state.x_e[rows], state.distance[rows]
+        moved = x_e - x_e0
+        d1 = x_e - x_t
         t0 = time - dt
-
-        capture_time, state.inside_since[rows] = self.capture_times(
+        capture_time, inside_since = self.capture_times(
             theta0,
             theta - theta0,
             x_e0 - before["position"],
-            x_e - x_t,
+            d1,
             t0,
             dt,
             trajectory,
             state.inside_since[rows],
         )
-        captured = ~np.isnan(capture_time)
-        self._estimated_capture(state, rows, before, after, x_e0, x_e, t0, dt)
+        captured = capture_time == capture_time  # not NaN
+        estimated = self._estimated_capture(state, rows, before, after, x_e0, x_e, t0, dt)
         failure = self.failures(state, rows, after, captured, collides)
-        ended = captured | (failure != 0)
-        timeout = ~ended & (time >= self.time_limit)
-        failure[timeout] = TIMEOUT
+        ended = captured | (failure != _NONE)
+        timeout = time >= self.time_limit
+        if np.count_nonzero(timeout):
+            timeout &= ~ended
+            failure[timeout] = TIMEOUT
 
-        distance = np.linalg.norm(x_e - x_t, axis=1)
-        state.distance[rows] = distance
-        penalised = _PENALISED[failure]
-        terms = reward_terms(self.reward_mode, d_prev, distance, captured, penalised)
-        v_e = (x_e - x_e0) / dt[:, None]  # mean end-effector velocity over the step
+        # |X_E - X_T|, the step's length and X_E's mean velocity over it against X_T's: one norm
+        lengths = row_norms(
+            np.concatenate((d1, moved, moved / dt[:, None] - after["velocity"]), axis=1)
+        )
+        distance = lengths[:, 0]
+        path_length = state.path_length[rows] + lengths[:, 1]
+        terms = reward_terms(self.reward_mode, d_prev, distance, captured, _PENALISED[failure])
         info: dict[str, NDArray] = {
             "is_success": captured,
             "failure": FAILURE_NAMES[failure],
             "capture_time": capture_time,
-            "capture_time_estimated": state.capture_time_estimated[rows].copy(),
+            "capture_time_estimated": estimated,
             "time": time,
             "dt": dt,
             "distance": distance,
-            "relative_speed": np.linalg.norm(v_e - after["velocity"], axis=1),
+            "relative_speed": lengths[:, 2],
             "estimate_position_error": after["position_error"],
             "estimate_velocity_error": after["velocity_error"],
             "estimate_nees": after["nees"],
             "saturated": saturated,
             "clipped": clipped,
-            "path_length": state.path_length[rows].copy(),
+            "path_length": path_length,
             "target_visible": after["visible"],
             "estimator_status": _STATUS_NAMES[after["estimator_status"]],
             **terms,
         }
+        state.theta[rows], state.x_e[rows], state.distance[rows] = theta, x_e, distance
+        state.path_length[rows], state.inside_since[rows] = path_length, inside_since
         return StepOutcome(total_reward(terms), ended, timeout, failure, info)
-
-    def step_scalar(
-        self,
-        state: ArmState,
-        episode: RecordedEpisode,
-        k: int,
-        theta: FloatArray,
-        x_e: FloatArray,
-        clipped: bool,
-        saturated: bool,
-        collides: Callable[[], bool],
-        trajectory: TargetTrajectory,
-    ) -> tuple[float, bool, bool, dict[str, Any]]:
-        """:meth:`step` for one episode (row 0 of ``state``), in scalar Python: the single env's
-        fast path (at one row numpy's per-call overhead is most of the rule's cost; measured by
-        ``benchmarks/bench_env.py``). The same rules in the same order; ``tests/test_step_rule.py``
-        checks it equal to :meth:`step`, value for value.
-
-        Args:
-            state: one episode's state, updated in place.
-            episode: its target side; ``k`` the step that ends now (``k - 1`` its start).
-            theta, x_e: joint angles after the world's limits, rad, and X_E there, m, (3,).
-            clipped, saturated: the world's flags.
-            collides: whether the arm is in collision now (asked only if it did not capture).
-            trajectory: the episode's true trajectory (for the arc test).
-
-        Returns:
-            ``(reward, terminated, truncated, info)``, ``info`` as the single env gives it:
-            Python scalars, None for no capture or no failure.
-        """
-        dt, time = float(episode.dt[k]), float(episode.time[k])
-        x_t, x_t0 = episode.position[k], episode.position[k - 1]
-        theta0, x_e0 = state.theta[0].copy(), state.x_e[0].copy()
-        d_prev = float(state.distance[0])
-        state.theta[0], state.x_e[0] = theta, x_e
-        path_length = float(state.path_length[0]) + segment_length(x_e0, x_e)
-        state.path_length[0] = path_length
-        t0 = time - dt
-
-        capture_time, since = self.capture_time_scalar(
-            theta0, theta - theta0, x_e0 - x_t0, x_e - x_t, t0, dt, trajectory,
-            float(state.inside_since[0]),
-        )  # fmt: skip
-        state.inside_since[0] = since
-        captured = capture_time is not None
-        estimated = float(state.capture_time_estimated[0])
-        if math.isnan(estimated):
-            since = math.nan
-            if episode.estimate_valid[k - 1] and episode.estimate_valid[k]:
-                interval = inside_interval(
-                    x_e0 - episode.estimate_position[k - 1],
-                    x_e - episode.estimate_position[k],
-                    self.tolerance,
-                )
-                if interval is not None:
-                    done, since = held_capture(
-                        (interval,), float(state.estimate_inside_since[0]), t0, dt, self.hold
-                    )
-                    if done is not None:
-                        estimated = done
-                        state.capture_time_estimated[0] = estimated
-            state.estimate_inside_since[0] = since
-        failure = self.failure_scalar(state, episode, k, captured, collides)
-        ended = captured or failure != 0
-        timeout = not ended and time >= self.time_limit
-        if timeout:
-            failure = TIMEOUT
-
-        distance = segment_length(x_e, x_t)
-        state.distance[0] = distance
-        terms = reward_terms(self.reward_mode, d_prev, distance, captured, _PENALISED[failure])
-        info: dict[str, Any] = {
-            "is_success": captured,
-            "failure": FAILURE_NAMES[failure],
-            "capture_time": capture_time,
-            "capture_time_estimated": None if math.isnan(estimated) else estimated,
-            "time": time,
-            "dt": dt,
-            "distance": distance,
-            "relative_speed": segment_length((x_e - x_e0) / dt, episode.velocity[k]),
-            "estimate_position_error": float(episode.position_error[k]),
-            "estimate_velocity_error": float(episode.velocity_error[k]),
-            "estimate_nees": float(episode.nees[k]),
-            "saturated": saturated,
-            "clipped": clipped,
-            "path_length": path_length,
-            "target_visible": bool(episode.visible[k]),
-            "estimator_status": STATUSES[episode.estimator_status[k]],
-            **{name: float(value) for name, value in terms.items()},
-        }
-        return float(total_reward(terms)), ended, timeout, info
-
-    def capture_time_scalar(
-        self,
-        theta0: FloatArray,
-        applied: FloatArray,
-        d0: FloatArray,
-        d1: FloatArray,
-        t0: float,
-        dt: float,
-        trajectory: TargetTrajectory,
-        since: float,
-    ) -> tuple[float | None, float]:
-        """:meth:`capture_times` for one step, with the scalar tests of ``capture.py``: the
-        capture time (None where the capture did not complete) and the stay's start at the
-        step's end (NaN: outside)."""
-        sag = arc_sag_bound(applied)
-        if sag <= ARC_RESOLUTION:
-            interval = inside_interval(d0, d1, self.tolerance)
-            intervals = [] if interval is None else [interval]
-        elif closest_approach(d0, d1) > self.tolerance_radius + sag:
-            return None, math.nan  # the arc stays within `sag` of the chord: never inside
-        else:
-            intervals = inside_intervals_along_arc(
-                theta0, applied, lambda f: trajectory.position(t0 + f * dt), self.tolerance
-            )
-        if not intervals:
-            return None, math.nan
-        return held_capture(intervals, since, t0, dt, self.hold)
-
-    def failure_scalar(
-        self,
-        state: ArmState,
-        episode: RecordedEpisode,
-        k: int,
-        captured: bool,
-        collides: Callable[[], bool],
-    ) -> int:
-        """:meth:`failures` for one step (row 0 of ``state``, step ``k`` of ``episode``)."""
-        dt = float(episode.dt[k])
-        failure = COLLISION if not captured and collides() else 0
-        unreachable_for = 0.0 if episode.reachable[k] else float(state.unreachable_for[0]) + dt
-        state.unreachable_for[0] = unreachable_for
-        if failure == 0 and not captured and unreachable_for > self.lost_after:
-            failure = UNREACHABLE
-        if self.frames_matter:
-            usable = episode.estimator_status[k] == _STATUS_OK
-            since = 0.0 if usable else float(state.since_frame[0]) + dt
-            state.since_frame[0] = since
-            if failure == 0 and not captured and since > self.lost_after:
-                failure = TARGET_LOST
-        return failure
-
-    def observe_scalar(
-        self, state: ArmState, episode: RecordedEpisode, k: int
-    ) -> NDArray[np.float32]:
-        """:meth:`observe` of one episode (row 0 of ``state``) at step ``k`` of ``episode``."""
-        x_e = state.x_e[0]
-        if episode.estimate_valid[k]:
-            position, velocity = episode.estimate_position[k], episode.estimate_velocity[k]
-        else:
-            position, velocity = x_e, np.zeros(3)
-        return encode_observation(
-            position, velocity, x_e, state.theta[0], float(episode.dt[k]), self.control_period
-        )
 
     def capture_times(
         self,
@@ -482,8 +338,10 @@ class StepRule:
         """When each step's capture completed (NaN where it did not) and when the stay inside
         eq. 20's box in progress at its end began (NaN: outside), on the true target
         (:mod:`capture_bench.task.capture`): the stays are tested on the chord where the arc sags
-        by at most ``ARC_RESOLUTION``, else along the arc where the chord passes near enough;
-        :func:`~capture_bench.task.capture.held_capture` then applies the hold.
+        by at most ``ARC_RESOLUTION``, else along the arc where the chord passes within the
+        tolerance's radius plus the sag; :func:`~capture_bench.task.capture.held_capture` then
+        applies the hold. The steps that :func:`~capture_bench.task.capture.
+        approach_lower_bounds` puts farther than that cannot enter the box and are not tested.
 
         Args:
             theta0, applied: joint angles at the start and the increment, rad, (M, 3).
@@ -492,60 +350,71 @@ class StepRule:
             trajectory: the j-th episode's true trajectory.
             since: when the stay in progress at the step's start began, s, NaN if none, (M,).
         """
-        lo, hi = inside_intervals(d0, d1, self.tolerance)
+        capture_time = _nans(d0.shape[0])
+        since_after = capture_time.copy()
         sag = arc_sag_bounds(applied)
-        arc = sag > ARC_RESOLUTION
-        near = arc & ~(closest_approaches(d0, d1) > self.tolerance_radius + sag)
-        capture_time = np.full(lo.size, np.nan)
-        since_after = np.full(lo.size, np.nan)
-        # Only steps that are inside the box at some time (rare: near the target) need the walk.
-        for j in np.flatnonzero((~arc & ~np.isnan(lo)) | near).tolist():
-            if arc[j]:  # along the true arc
-                traj, start, step = trajectory(j), float(t0[j]), float(dt[j])
+        near = approach_lower_bounds(d0, d1) - sag <= self._screen_radius
+        if not np.count_nonzero(near):  # the common case
+            return capture_time, since_after
+        steps = np.flatnonzero(near)
+        lo, hi = inside_intervals(d0[steps], d1[steps], self.tolerance)
+        closest = closest_approaches(d0[steps], d1[steps])
+        for j, i in enumerate(steps.tolist()):
+            if sag[i] > ARC_RESOLUTION:  # along the true arc, where the chord passes near
+                if closest[j] > self.tolerance_radius + sag[i]:
+                    continue
+                traj, start, step = trajectory(i), float(t0[i]), float(dt[i])
 
                 def target_at(f: FloatArray, traj=traj, start=start, step=step) -> FloatArray:
                     return traj.position(start + f * step)
 
                 intervals = inside_intervals_along_arc(
-                    theta0[j], applied[j], target_at, self.tolerance
+                    theta0[i], applied[i], target_at, self.tolerance
                 )
+            elif math.isnan(lo[j]):
+                continue
             else:
                 intervals = [(float(lo[j]), float(hi[j]))]
-            done, since_after[j] = held_capture(
-                intervals, float(since[j]), float(t0[j]), float(dt[j]), self.hold
+            done, since_after[i] = held_capture(
+                intervals, float(since[i]), float(t0[i]), float(dt[i]), self.hold
             )
             if done is not None:
-                capture_time[j] = done
+                capture_time[i] = done
         return capture_time, since_after
 
-    def _estimated_capture(self, state, rows, before, after, x_e0, x_e, t0, dt) -> None:
+    def _estimated_capture(self, state, rows, before, after, x_e0, x_e, t0, dt) -> FloatArray:
         """Record the first time the capture test (and its hold) completed on the estimated
         target, along the chord between the step's estimates (both ends valid; a step without
-        them breaks the stay)."""
-        pending = np.isnan(state.capture_time_estimated[rows])
-        where = np.arange(state.distance.size)[rows][pending]
-        since = state.estimate_inside_since[where].copy()
-        state.estimate_inside_since[where] = np.nan
-        valid = (before["estimate_valid"] & after["estimate_valid"])[pending]
-        if not valid.any():
-            return
-        lo, hi = inside_intervals(
-            (x_e0 - before["estimate_position"])[pending][valid],
-            (x_e - after["estimate_position"])[pending][valid],
-            self.tolerance,
-        )
-        start, step = t0[pending][valid], dt[pending][valid]
-        rows_valid, since_valid = where[valid], since[valid]
-        for j in np.flatnonzero(~np.isnan(lo)).tolist():
-            done, state.estimate_inside_since[rows_valid[j]] = held_capture(
+        them breaks the stay); returns ``capture_time_estimated`` of the M episodes after the
+        step (NaN: not yet), a new array."""
+        estimated = state.capture_time_estimated[rows].copy()
+        # The estimates are NaN where not valid, and so is their bound: the screen skips them.
+        d0 = x_e0 - before["estimate_position"]
+        d1 = x_e - after["estimate_position"]
+        near = approach_lower_bounds(d0, d1) <= self._screen_radius
+        if not np.count_nonzero(near):  # the common case
+            state.estimate_inside_since[rows] = np.nan
+            return estimated
+        since = state.estimate_inside_since[rows]
+        since_after = _nans(estimated.size)
+        valid = before["estimate_valid"] & after["estimate_valid"]
+        steps = np.flatnonzero(near & valid & np.isnan(estimated))
+        lo, hi = inside_intervals(d0[steps], d1[steps], self.tolerance)
+        for j, i in enumerate(steps.tolist()):
+            if math.isnan(lo[j]):
+                continue
+            done, since_after[i] = held_capture(
                 [(float(lo[j]), float(hi[j]))],
-                float(since_valid[j]),
-                float(start[j]),
-                float(step[j]),
+                float(since[i]),
+                float(t0[i]),
+                float(dt[i]),
                 self.hold,
             )
             if done is not None:
-                state.capture_time_estimated[rows_valid[j]] = done
+                estimated[i] = done
+        state.estimate_inside_since[rows] = since_after
+        state.capture_time_estimated[rows] = estimated
+        return estimated
 
     def failures(
         self,
@@ -558,17 +427,23 @@ class StepRule:
         """The failure code of each step that did not capture, in the order collision,
         unreachable (X_T out of reach for more than ``lost_after``), target_lost (no usable
         frame for more than ``lost_after``); 0 for none. Updates the two timers."""
-        dt = after["dt"]
-        failure = np.zeros(captured.size, dtype=np.int64)
-        failure[collides(~captured)] = COLLISION
+        dt, going = after["dt"], ~captured
+        collided = collides(going)
         unreachable_for = np.where(after["reachable"], 0.0, state.unreachable_for[rows] + dt)
         state.unreachable_for[rows] = unreachable_for
-        failure[(failure == 0) & ~captured & (unreachable_for > self.lost_after)] = UNREACHABLE
+        failure = np.zeros(captured.size, dtype=np.int64)
+        unreachable = unreachable_for > self.lost_after
+        if np.count_nonzero(unreachable):
+            failure[going & unreachable] = UNREACHABLE
         if self.frames_matter:
             usable = after["estimator_status"] == _STATUS_OK
             since = np.where(usable, 0.0, state.since_frame[rows] + dt)
             state.since_frame[rows] = since
-            failure[(failure == 0) & ~captured & (since > self.lost_after)] = TARGET_LOST
+            lost = since > self.lost_after
+            if np.count_nonzero(lost):
+                failure[going & lost & (failure == _NONE)] = TARGET_LOST
+        if np.count_nonzero(collided):
+            failure[collided] = COLLISION
         return failure
 
     def observe(
@@ -578,10 +453,13 @@ class StepRule:
         current step's rows): the estimate where valid, else X_E with zero velocity, and the
         last real period (t_s at reset)."""
         x_e = state.x_e[rows]
-        valid = now["estimate_valid"][:, None]
-        return encode_observations(
-            np.where(valid, now["estimate_position"], x_e),
-            np.where(valid, now["estimate_velocity"], 0.0),
+        position, velocity = now["estimate_position"], now["estimate_velocity"]
+        if np.count_nonzero(now["estimate_valid"]) < x_e.shape[0]:
+            valid = now["estimate_valid"][:, None]
+            position, velocity = np.where(valid, position, x_e), np.where(valid, velocity, 0.0)
+        return encode_observation(
+            position,
+            velocity,
             x_e,
             state.theta[rows],
             now["dt"],
@@ -589,13 +467,17 @@ class StepRule:
         )
 
 
+def _nans(m: int) -> FloatArray:
+    """(m,) NaN, a new array (np.full's work in two cheaper calls)."""
+    out = np.empty(m)
+    out.fill(np.nan)
+    return out
+
+
 def scalar_info(values: Mapping[str, NDArray], j: int = 0) -> dict[str, Any]:
     """Episode j's ``info`` as the single env gives it: Python scalars, None for no failure and
     for the :data:`OPTIONAL_KEYS` where NaN."""
-    out: dict[str, Any] = {}
-    for key, array in values.items():
-        value = array[j]
-        out[key] = value.item() if isinstance(value, np.generic) else value
+    out = {key: array.item(j) for key, array in values.items()}
     for key in OPTIONAL_KEYS:
         if key in out and math.isnan(out[key]):
             out[key] = None

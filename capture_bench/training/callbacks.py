@@ -303,7 +303,7 @@ class Progress(BaseCallback):
             predictor: Any = self.model
             scaled = normalize
             if self.hp["residual"] != "none":  # the base sees the raw observation
-                from agents.residual import ResidualAgent, make_base
+                from capture_bench.agents.residual import ResidualAgent, make_base
 
                 learned = _Normalized(self.model, normalize)
                 base = make_base(self.hp["residual"], env.description)

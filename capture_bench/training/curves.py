@@ -119,7 +119,7 @@ def mean_interval(samples: np.ndarray) -> tuple[float, float, float, int]:
 def baseline_level(scenario: str, episodes: int) -> dict[str, float]:
     """``incremental_ik``'s validation statistics on the first ``episodes`` validation seeds of
     ``scenario``, as train.py's validation computes them."""
-    from agents.incremental_ik import IncrementalIK
+    from capture_bench.agents.incremental_ik import IncrementalIK
     from capture_bench.envs.vector_env import CaptureVectorEnv
     from capture_bench.training.episode_stats import summarize
     from capture_bench.training.validation_run import run_validation

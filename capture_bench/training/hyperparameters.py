@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from agents.residual import RESIDUAL_BASES
+from capture_bench.agents.residual import RESIDUAL_BASES
 from capture_bench.task.rewards import REWARD_MODES
 from capture_bench.task.scenarios import CONFIG_DIR, Scenario
 from capture_bench.validation import (
@@ -60,7 +60,7 @@ TRAINING_KEYS = {
     "checkpoint_freq": NONNEG_INT,
     "eval_freq": NONNEG_INT,
     "eval_episodes": POS_INT,
-    # a hybrid (agents/residual.py): the policy learns a residual on this analytic controller
+    # a hybrid (capture_bench/agents/residual.py): the policy learns a residual on this controller
     "residual": Rule("choice", choices=("none", *RESIDUAL_BASES)),
     "residual_scale": Rule("float", 0.0, 1.0, low_inclusive=False),  # alpha
     # a tolerance curriculum, training only: eq. 20 counts a capture at curriculum_tolerance (m)
@@ -132,7 +132,7 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
     "tqc": {**_OFF, **_ENTROPY, "top_quantiles_to_drop_per_net": NONNEG_INT},
 }
 #: Features the network computes from the observation: the keys of
-#: capture_bench.training.features.FEATURE_EXTRACTORS (which imports torch; tests check they agree).
+#: capture_bench.agents.features.FEATURE_EXTRACTORS (which imports torch; tests check they agree).
 FEATURES = ("flatten", "relative_log_distance")
 _NET = {
     "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
@@ -141,7 +141,7 @@ _NET = {
 _ACTOR_CRITIC = {"net_arch": Rule("layers", choices=("pi", "vf")), **_NET}
 _Q = {"net_arch": Rule("layers", choices=("pi", "qf")), **_NET, "n_critics": POS_INT}
 #: ``policy_kwargs`` each algorithm's SB3 policy accepts (of those the safe policy format
-#: declares: :mod:`agents.policy_file`).
+#: declares: :mod:`capture_bench.agents.policy_file`).
 POLICY_KWARGS: dict[str, dict[str, Rule]] = {
     "ppo": {**_ACTOR_CRITIC, "log_std_init": Rule("float"), "ortho_init": Rule("bool")},
     "a2c": {**_ACTOR_CRITIC, "log_std_init": Rule("float"), "ortho_init": Rule("bool")},
@@ -397,7 +397,7 @@ def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
             torch.nn, ACTIVATIONS[policy_kwargs["activation_fn"]]
         )
     if "features_extractor" in policy_kwargs:
-        from capture_bench.training.features import FEATURE_EXTRACTORS
+        from capture_bench.agents.features import FEATURE_EXTRACTORS
 
         name = policy_kwargs.pop("features_extractor")
         policy_kwargs["features_extractor_class"] = FEATURE_EXTRACTORS[name]

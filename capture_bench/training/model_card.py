@@ -44,7 +44,7 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
     """The policy in ``model_dir`` on ``seeds`` of ``scenario``, as train.py validates: one
     deterministic episode per seed in the batched env, :data:`CARD_BATCH` seeds at a time;
     per episode and summarised."""
-    from agents.sb3_policy import load_policy, read_metadata
+    from capture_bench.agents.sb3_policy import load_policy, read_metadata
     from capture_bench.envs.vector_env import CaptureVectorEnv
     from capture_bench.training.episode_stats import summarize
     from capture_bench.training.validation_run import run_validation

@@ -1,6 +1,6 @@
 """The trained policy as ``train.py`` writes it: the safe form (``policy.pt`` + ``metadata.json``,
-:mod:`agents.policy_file`) with the run's provenance, at the end of a run and as the run's best
-validated model so far, ``best/``.
+:mod:`capture_bench.agents.policy_file`) with the run's provenance, at the end of a run and as
+the run's best validated model so far, ``best/``.
 
 ``best/`` is what :class:`BestModel` keeps: after a periodic validation whose result is better
 (:func:`is_better`: a higher validation capture rate, then a lower median ratio of capture time to
@@ -67,7 +67,7 @@ def policy_metadata(
     model: Any, config: Any, hp: dict[str, Any], wall_time_s: float, sb3_files: bool
 ) -> dict[str, Any]:
     """The provenance entries of ``metadata.json`` (the network's declaration is added by
-    :func:`agents.policy_file.save_policy`).
+    :func:`capture_bench.agents.policy_file.save_policy`).
 
     Args:
         model: the SB3 algorithm.
@@ -122,7 +122,7 @@ def _code_state(config: Any, now: dict[str, object]) -> dict[str, object]:
 def export_policy(directory: Path, model: Any, metadata: dict[str, Any]) -> Path:
     """Write ``model``'s policy in the safe form into ``directory`` with ``metadata``'s entries;
     return the metadata file."""
-    from agents.policy_file import ObservationNormalizer, save_policy
+    from capture_bench.agents.policy_file import ObservationNormalizer, save_policy
 
     env = model.get_vec_normalize_env()
     normalizer = None if env is None else ObservationNormalizer.from_vecnormalize(env)

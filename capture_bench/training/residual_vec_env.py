@@ -1,5 +1,6 @@
-"""Training a residual on an analytic controller (:mod:`agents.residual`): a ``VecEnvWrapper``
-whose action is the residual pi(s), stepping the envs with clip(a_base(s) + alpha pi(s)).
+"""Training a residual on an analytic controller (:mod:`capture_bench.agents.residual`): a
+``VecEnvWrapper`` whose action is the residual pi(s), stepping the envs with
+clip(a_base(s) + alpha pi(s)).
 
 It sits directly on the environments (inside ``VecNormalize``, when there is one), so the base
 controller sees the raw observation; the learner sees what it would see without it, and
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvStepReturn, VecEnvWrapper
 
-from agents.residual import combine, make_base
+from capture_bench.agents.residual import combine, make_base
 from capture_bench.task.observation import TaskDescription
 
 
@@ -23,7 +24,7 @@ class ResidualVecEnv(VecEnvWrapper):
 
     Args:
         venv: the training envs (raw observations).
-        base: a name of :data:`agents.residual.RESIDUAL_BASES`.
+        base: a name of :data:`capture_bench.agents.residual.RESIDUAL_BASES`.
         scale: alpha.
         description: the task's public description (the base controller's only knowledge).
     """

@@ -11,7 +11,8 @@ an existing run is never written into but by ``--resume``. A run directory holds
 and VecNormalize statistics, written under a temporary name and renamed, and read back without
 unpickling anything), ``best/`` (the policy of the best periodic validation so far, in the safe
 form: :mod:`capture_bench.training.policy_export`), and at the end the policy in the safe form
-``policy.pt`` + ``metadata.json`` (:mod:`agents.policy_file`), beside SB3's own ``model.zip``.
+``policy.pt`` + ``metadata.json`` (:mod:`capture_bench.agents.policy_file`), beside SB3's own
+``model.zip``.
 Ctrl-C (SIGINT) or SIGTERM saves a checkpoint and exits with status 130 or 143. A user's mistake
 is one line on stderr and exit 2, found before any environment is built. SB3 trains in whole
 rollouts of ``n_steps x n_envs`` steps (PPO, A2C) or ``train_freq x n_envs`` (off-policy): a
@@ -590,7 +591,7 @@ def save_final(
     total_wall: float,
 ) -> None:
     """Write the policy in the safe form (``policy.pt`` + declared ``metadata.json``, loaded
-    without unpickling: :mod:`agents.policy_file`), and SB3's own ``model.zip`` (+
+    without unpickling: :mod:`capture_bench.agents.policy_file`), and SB3's own ``model.zip`` (+
     ``vecnormalize.pkl``) for SB3 users who trust the run."""
     from capture_bench.training.policy_export import (
         export_policy,

@@ -1,7 +1,8 @@
 """Agents for capture-bench: the paper's controller, classic baselines and the privileged oracle.
 
-Every agent follows :class:`agents.protocol.Agent` (SB3-style ``predict`` plus ``reset``) and acts
-in the shared action space ``Box(-1, 1, (3,))``. Build one by name with :func:`make_agent`:
+Every agent follows :class:`capture_bench.agents.protocol.Agent` (SB3-style ``predict`` plus
+``reset``) and acts in the shared action space ``Box(-1, 1, (3,))``. Build one by name with
+:func:`make_agent`:
 
 ==========================  ==========================================================  =========
 name                        what                                                        sees
@@ -26,11 +27,17 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from agents.base import AnalyticController
-from agents.baselines import DampedLeastSquares, Hold, Intercept, PurePursuit, RandomAgent
-from agents.incremental_ik import IncrementalIK, incremental_step
-from agents.oracle import Oracle
-from agents.protocol import Agent
+from capture_bench.agents.base import AnalyticController
+from capture_bench.agents.baselines import (
+    DampedLeastSquares,
+    Hold,
+    Intercept,
+    PurePursuit,
+    RandomAgent,
+)
+from capture_bench.agents.incremental_ik import IncrementalIK, incremental_step
+from capture_bench.agents.oracle import Oracle
+from capture_bench.agents.protocol import Agent
 
 AgentFactory = Callable[..., Agent]
 

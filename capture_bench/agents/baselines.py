@@ -16,10 +16,12 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.base import AnalyticController, safe_action
-from agents.incremental_ik import incremental_step, lambda_max_of, resolve_direction
+from capture_bench.agents.base import AnalyticController, safe_action
+from capture_bench.agents.incremental_ik import incremental_steps, lambda_max_of, resolve_direction
 from capture_bench.sim.kinematics import forward_kinematics, jacobian
 from capture_bench.task.observation import TaskDescription
+
+FloatArray = NDArray[np.float64]
 
 
 class PurePursuit(AnalyticController):
@@ -40,16 +42,81 @@ class PurePursuit(AnalyticController):
         super().__init__(description)
         self.cap = cap
 
-    def act(self, observation: NDArray) -> NDArray[np.float32]:
-        """Action for one observation, shape (3,), float32, in [-1, 1]."""
-        obs = self.decode(observation)
-        step = incremental_step(
-            obs.joint_angles, obs.target_position, np.zeros(3), self.description, cap=self.cap
+    def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
+        """Actions for N observations, (N, 16) -> (N, 3), float32, in [-1, 1]."""
+        obs = self.decode(observations)
+        still = np.zeros(obs.target_position.shape)
+        step = incremental_steps(
+            obs.joint_angles, obs.target_position, still, self.description, cap=self.cap
         )
         return safe_action(self.description.increment_to_action(step.increment))
 
 
 REFINE_POINTS = 64
+
+
+def interception_times(
+    theta: NDArray,
+    target_position: NDArray,
+    target_velocity: NDArray,
+    description: TaskDescription,
+    horizon: float = 10.0,
+    samples: int = 400,
+    refinements: int = 2,
+) -> FloatArray:
+    """Earliest tau > 0 at which the end-effector, moving straight at its top speed, meets the
+    target's predicted straight-line path, for N episodes at once.
+
+    The target is predicted at ``P(tau) = X^_T + Xdot^_T tau``. Along the direction
+    ``n(tau) = (P(tau) - X_E)/||P(tau) - X_E||`` the end-effector's top speed at the current pose
+    is ``lambda_max(n)`` (eq. 18 with u = J^-1 n, the Jacobian frozen at the current Theta).
+    Interception is the smallest tau with ``lambda_max(n(tau)) tau >= ||P(tau) - X_E||``: found on
+    a uniform grid over (0, horizon], then the bracketing interval is searched again on a finer
+    grid ``refinements`` times (64-fold each). Rows do not mix.
+
+    Args:
+        theta: joint angles, rad, shape (N, 3).
+        target_position: X^_T, global frame, m, shape (N, 3).
+        target_velocity: Xdot^_T, global frame, m/s, shape (N, 3).
+        description: public description (rate limits).
+        horizon: longest look-ahead, s.
+        samples: grid points over (0, horizon].
+        refinements: finer-grid passes after the first grid.
+
+    Returns:
+        tau in seconds, shape (N,); NaN where the path is not met within the horizon.
+    """
+    theta = np.asarray(theta, dtype=float)
+    x_e = forward_kinematics(theta)[:, None]  # (N, 1, 3)
+    p0 = np.asarray(target_position, dtype=float)[:, None]
+    v = np.asarray(target_velocity, dtype=float)[:, None]
+    rates = description.arm.joint_rate_limits
+
+    def feasible(rows: NDArray, tau: NDArray) -> NDArray[np.bool_]:
+        """Whether the end-effector can be at P(tau) by tau, for taus (M, S) of ``rows``."""
+        offset = p0[rows] + tau[..., None] * v[rows] - x_e[rows]
+        distance = np.linalg.norm(offset, axis=-1)
+        n = offset / np.maximum(distance, 1e-12)[..., None]
+        u, _ = resolve_direction(theta[rows], n)
+        return lambda_max_of(u, rates) * tau - distance >= 0.0
+
+    out = np.full(theta.shape[0], np.nan)
+    taus = np.linspace(horizon / samples, horizon, samples)
+    everyone = np.arange(theta.shape[0])
+    ok = feasible(everyone, np.broadcast_to(taus, (everyone.size, samples)))
+    rows = everyone[ok.any(axis=1)]
+    if rows.size == 0:
+        return out
+    k = np.argmax(ok[rows], axis=1)
+    lo = np.where(k == 0, 0.0, taus[np.maximum(k - 1, 0)])
+    hi = taus[k]
+    for _ in range(refinements):  # each pass narrows the bracket REFINE_POINTS-fold
+        fine = np.linspace(lo, hi, REFINE_POINTS + 1, axis=1)[:, 1:]  # the last is hi: feasible
+        j = np.argmax(feasible(rows, fine), axis=1)
+        pick = np.arange(rows.size)
+        lo, hi = np.where(j == 0, lo, fine[pick, np.maximum(j - 1, 0)]), fine[pick, j]
+    out[rows] = hi
+    return out
 
 
 def interception_time(
@@ -61,52 +128,18 @@ def interception_time(
     samples: int = 400,
     refinements: int = 2,
 ) -> float | None:
-    """Earliest tau > 0 at which the end-effector, moving straight at its top speed, meets the
-    target's predicted straight-line path.
-
-    The target is predicted at ``P(tau) = X^_T + Xdot^_T tau``. Along the direction
-    ``n(tau) = (P(tau) - X_E)/||P(tau) - X_E||`` the end-effector's top speed at the current pose
-    is ``lambda_max(n)`` (eq. 18 with u = J^-1 n, the Jacobian frozen at the current Theta).
-    Interception is the smallest tau with ``lambda_max(n(tau)) tau >= ||P(tau) - X_E||``: found on
-    a uniform grid over (0, horizon], then the bracketing interval is searched again on a finer
-    grid ``refinements`` times (64-fold each: 6 microseconds at the defaults).
-
-    Args:
-        theta: joint angles, rad, shape (3,).
-        target_position: X^_T, global frame, m, shape (3,).
-        target_velocity: Xdot^_T, global frame, m/s, shape (3,).
-        description: public description (rate limits).
-        horizon: longest look-ahead, s.
-        samples: grid points over (0, horizon].
-        refinements: finer-grid passes after the first grid.
-
-    Returns:
-        tau in seconds, or ``None`` when the path is not met within the horizon.
-    """
-    theta = np.asarray(theta, dtype=float)
-    x_e = forward_kinematics(theta)
-    p0 = np.asarray(target_position, dtype=float)
-    v = np.asarray(target_velocity, dtype=float)
-    rates = description.arm.joint_rate_limits
-
-    def slack(tau: NDArray) -> NDArray:
-        offset = p0 + np.outer(tau, v) - x_e
-        distance = np.linalg.norm(offset, axis=1)
-        n = offset / np.maximum(distance, 1e-12)[:, None]
-        u, _ = resolve_direction(theta, n)
-        return lambda_max_of(u, rates) * tau - distance
-
-    taus = np.linspace(horizon / samples, horizon, samples)
-    feasible = slack(taus) >= 0.0
-    if not np.any(feasible):
-        return None
-    k = int(np.argmax(feasible))
-    lo, hi = (0.0 if k == 0 else float(taus[k - 1])), float(taus[k])
-    for _ in range(refinements):  # each pass narrows the bracket REFINE_POINTS-fold
-        fine = np.linspace(lo, hi, REFINE_POINTS + 1)[1:]  # the last point is hi: feasible
-        j = int(np.argmax(slack(fine) >= 0.0))
-        lo, hi = (lo if j == 0 else float(fine[j - 1])), float(fine[j])
-    return hi
+    """:func:`interception_times` for one episode (arrays of shape (3,)): tau in seconds, or
+    ``None`` when the path is not met within the horizon."""
+    tau = interception_times(
+        np.asarray(theta, dtype=float)[None],
+        np.asarray(target_position, dtype=float)[None],
+        np.asarray(target_velocity, dtype=float)[None],
+        description,
+        horizon,
+        samples,
+        refinements,
+    )[0]
+    return None if np.isnan(tau) else float(tau)
 
 
 class Intercept(AnalyticController):
@@ -129,12 +162,13 @@ class Intercept(AnalyticController):
         super().__init__(description)
         self.horizon = horizon
         self.cap = cap
-        self.last_tau: float | None = None
+        #: the last call's interception times, s, one per observation (NaN: none)
+        self.last_tau: FloatArray | None = None
 
-    def act(self, observation: NDArray) -> NDArray[np.float32]:
-        """Action for one observation, shape (3,), float32, in [-1, 1]."""
-        obs = self.decode(observation)
-        tau = interception_time(
+    def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
+        """Actions for N observations, (N, 16) -> (N, 3), float32, in [-1, 1]."""
+        obs = self.decode(observations)
+        tau = interception_times(
             obs.joint_angles,
             obs.target_position,
             obs.target_velocity,
@@ -142,12 +176,11 @@ class Intercept(AnalyticController):
             horizon=self.horizon,
         )
         self.last_tau = tau
-        if tau is None:  # no interception: pure pursuit
-            aim = obs.target_position
-        else:
-            lead = max(tau, self.description.control_period)  # s
-            aim = obs.target_position + obs.target_velocity * lead
-        step = incremental_step(obs.joint_angles, aim, np.zeros(3), self.description, cap=self.cap)
+        # no interception (NaN): pure pursuit; else lead by max(tau, t_s)
+        lead = np.where(np.isnan(tau), 0.0, np.maximum(tau, self.description.control_period))
+        aim = obs.target_position + obs.target_velocity * lead[:, None]
+        still = np.zeros(aim.shape)
+        step = incremental_steps(obs.joint_angles, aim, still, self.description, cap=self.cap)
         return safe_action(self.description.increment_to_action(step.increment))
 
     def reset(self) -> None:
@@ -179,19 +212,19 @@ class DampedLeastSquares(AnalyticController):
         self.gain = 0.5 / description.control_period if gain is None else float(gain)
         self.damping = damping
 
-    def act(self, observation: NDArray) -> NDArray[np.float32]:
-        """Action for one observation, shape (3,), float32, in [-1, 1]."""
-        obs = self.decode(observation)
+    def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
+        """Actions for N observations, (N, 16) -> (N, 3), float32, in [-1, 1]."""
+        obs = self.decode(observations)
         theta = obs.joint_angles
-        jac = jacobian(theta)
+        jac = jacobian(theta)  # (N, 3, 3)
+        jac_t = np.swapaxes(jac, 1, 2)
         x_e = forward_kinematics(theta)
         desired = obs.target_velocity + self.gain * (obs.target_position - x_e)  # m/s
-        lhs = jac @ jac.T + self.damping**2 * np.eye(3)
-        rate = jac.T @ np.linalg.solve(lhs, desired)  # rad/s
+        lhs = jac @ jac_t + self.damping**2 * np.eye(3)
+        rate = (jac_t @ np.linalg.solve(lhs, desired[..., None]))[..., 0]  # rad/s
         limits = self.description.arm.joint_rate_limits
-        peak = float(np.max(np.abs(rate) / limits))
-        if peak > 1.0:
-            rate = rate / peak  # uniform scaling keeps the direction
+        peak = np.max(np.abs(rate) / limits, axis=1)
+        rate = np.where((peak > 1.0)[:, None], rate / peak[:, None], rate)  # keeps the direction
         increment = rate * self.description.control_period  # rad
         return safe_action(self.description.increment_to_action(increment))
 
@@ -220,10 +253,10 @@ class RandomAgent(AnalyticController):
 class Hold(AnalyticController):
     """Zero action: the arm stays at home. Captures only a target that comes to the end-effector."""
 
-    def act(self, observation: NDArray) -> NDArray[np.float32]:
-        """The zero action, shape (3,), float32."""
-        self.decode(observation)  # validates the shape
-        return np.zeros(3, dtype=np.float32)
+    def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
+        """The zero action for each of N observations, shape (N, 3), float32."""
+        obs = self.decode(observations)  # validates the shape
+        return np.zeros(obs.joint_angles.shape, dtype=np.float32)
 
 
 __all__ = [
@@ -233,4 +266,5 @@ __all__ = [
     "PurePursuit",
     "RandomAgent",
     "interception_time",
+    "interception_times",
 ]

@@ -1,12 +1,12 @@
 """Convert an SB3 model directory (``model.zip`` + metadata) to the safe policy format.
 
-    python -m agents.convert DIR... --trust-model
+    python -m capture_bench.agents.convert DIR... --trust-model
 
-writes ``policy.pt`` and a declared ``metadata.json`` (:mod:`agents.policy_file`) beside the
-``.zip``, so the model then loads without unpickling anything. Converting unpickles the ``.zip``
-(and VecNormalize statistics): only for files you trust. Every directory is checked (cheaply,
-before anything is unpickled) and loaded before any is written; every failure is one line on
-stderr and exit status 2.
+writes ``policy.pt`` and a declared ``metadata.json`` (:mod:`capture_bench.agents.policy_file`)
+beside the ``.zip``, so the model then loads without unpickling anything. Converting unpickles
+the ``.zip`` (and VecNormalize statistics): only for files you trust. Every directory is checked
+(cheaply, before anything is unpickled) and loaded before any is written; every failure is one
+line on stderr and exit status 2.
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ from typing import Any
 
 import yaml
 
-from agents.policy_file import (
+from capture_bench.agents.policy_file import (
     POLICY_CLASSES,
     WEIGHTS_FILE,
     PolicyLoadError,
     policy_files,
     write_policy_files,
 )
-from agents.sb3_policy import find_metadata_file, load_trusted, read_metadata
+from capture_bench.agents.sb3_policy import find_metadata_file, load_trusted, read_metadata
 from capture_bench.argparsing import OneLineParser
 
 _CONVERTIBLE = (
@@ -133,12 +133,12 @@ def convert(directory: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m agents.convert DIR... --trust-model``: convert SB3 model directories.
+    """``python -m capture_bench.agents.convert DIR... --trust-model``: convert SB3 models.
 
     Every directory is checked and loaded before any is written: a bad one writes nothing.
     """
     parser = OneLineParser(
-        prog="python -m agents.convert",
+        prog="python -m capture_bench.agents.convert",
         description="Convert an SB3 model directory (model.zip + metadata) to the safe form "
         "(policy.pt + declared metadata.json) that capture-bench loads without unpickling.",
     )

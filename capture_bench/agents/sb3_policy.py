@@ -1,4 +1,5 @@
-"""Trained Stable-Baselines3 policies as :class:`agents.protocol.Agent`, loaded safely.
+"""Trained Stable-Baselines3 policies as agents (:mod:`capture_bench.agents.protocol`), loaded
+safely.
 
 A trained model lives in a directory (a training run directory, or an entry ``models/<name>/``)
 holding a metadata file, ``metadata.json`` (or ``metadata.yaml``), and the policy in one of two
@@ -6,12 +7,13 @@ forms:
 
 * **safe** (what ``train.py`` writes and every shipped model uses): ``policy.pt`` (tensors only)
   and a metadata file declaring the network, its spaces and its normalisation statistics as plain
-  numbers (:mod:`agents.policy_file`). Loading it unpickles nothing, so it runs no code.
+  numbers (:mod:`capture_bench.agents.policy_file`). Loading it unpickles nothing, so it runs no
+  code.
 * **SB3 ``.zip``** (``model.save``), with optional ``vecnormalize.pkl``: pickled Python objects,
   which can run any code when loaded. Loaded only with ``trust_model=True`` (``evaluate.py
   --trust-model``) and only where the directory has no safe form; without it, loading is refused
   with a message saying how to opt in or convert
-  (``python -m agents.convert DIR --trust-model``).
+  (``python -m capture_bench.agents.convert DIR --trust-model``).
 
 The metadata of an SB3 ``.zip`` directory::
 
@@ -27,7 +29,7 @@ message: no metadata, unknown algorithm, missing or corrupt file, a declaration 
 match the weights, an algorithm that does not match the ``.zip``, mismatched spaces. SB3 and torch
 are imported only when a model is loaded.
 
-Why ~430 lines: the safe and the trusted loading paths and the fast deterministic action of each
+The safe and the trusted loading paths and the fast deterministic action of each
 algorithm family, each tested against SB3's own ``predict``.
 """
 
@@ -43,7 +45,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from agents.policy_file import (
+from capture_bench.agents.policy_file import (
     POLICY_CLASSES,
     ObservationNormalizer,
     PolicyDeclaration,
@@ -59,7 +61,7 @@ METADATA_FILES = ("metadata.json", "metadata.yaml", "metadata.yml")
 TRUST_HINT = (
     "an SB3 .zip holds pickled Python objects, which can run code when loaded: pass "
     "--trust-model (Python: trust_model=True) only if you trust its source, or convert it once "
-    "with: python -m agents.convert {directory} --trust-model"
+    "with: python -m capture_bench.agents.convert {directory} --trust-model"
 )
 
 
@@ -78,8 +80,8 @@ class ModelMetadata:
         model_file: the SB3 ``.zip``, or None (the safe form only).
         vecnormalize_file: the ``.zip``'s VecNormalize statistics, or None.
         residual: ``(base, scale)`` where the policy is a residual on an analytic controller
-            (key ``residual: {base: incremental_ik, scale: 0.5}``; :mod:`agents.residual`), or
-            None.
+            (key ``residual: {base: incremental_ik, scale: 0.5}``;
+            :mod:`capture_bench.agents.residual`), or None.
         actions: ``deterministic`` (the leaderboard's rule, the default) or ``sampled`` (key
             ``actions``: the model card declares that the policy acts with sampled actions,
             seeded per episode by evaluation).
@@ -116,11 +118,12 @@ class LoadedPolicy:
 
     def agent(self, name: str, description: Any) -> Any:
         """The policy as an agent labelled ``name``: :class:`SB3Policy`, or, for a residual,
-        :class:`agents.residual.ResidualAgent` over the base built from ``description``."""
+        :class:`capture_bench.agents.residual.ResidualAgent` over the base built from
+        ``description``."""
         learned = SB3Policy(self.policy, name, self.normalizer, sampled=self.sampled)
         if self.residual is None:
             return learned
-        from agents.residual import ResidualAgent, make_base
+        from capture_bench.agents.residual import ResidualAgent, make_base
 
         base, scale = self.residual
         return ResidualAgent(make_base(base, description), learned, scale, name)
@@ -236,7 +239,7 @@ def _actions(value: Any, meta_file: Path) -> str:
 
 def _residual(value: Any, meta_file: Path) -> tuple[str, float] | None:
     """The metadata's ``residual`` entry, checked: None, or ``{base: <name>, scale: (0, 1]}``."""
-    from agents.residual import RESIDUAL_BASES
+    from capture_bench.agents.residual import RESIDUAL_BASES
 
     if value is None:
         return None
@@ -402,7 +405,7 @@ def check_spaces(model: Any, observation_space: Any, action_space: Any, where: s
 
 
 class SB3Policy:
-    """A loaded SB3 policy behind the :class:`agents.protocol.Agent` protocol.
+    """A loaded SB3 policy behind the :class:`capture_bench.agents.protocol.Agent` protocol.
 
     Args:
         policy: the SB3 policy network (``model.policy`` or :func:`load_policy`'s); its
@@ -442,23 +445,16 @@ class SB3Policy:
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
-        """SB3's ``predict``: observation (16,) -> ``(action (3,), state)``, or a batch (N, 16)
-        -> ``(actions (N, 3), state)``.
-
-        Deterministic actions of a batch are computed row by row, each as a batch of one: torch's
-        batched matrix products round a row differently with the batch's height (99 of 100 rows
-        of a 256x256 MLP differ in their last bits between a batch of 100 and batches of one),
-        and an episode must play the same whatever episodes share its batch.
-        """
+        """SB3's ``predict``: observation (16,) -> ``(action (3,), state)``; a batch (N, 16)
+        goes through ``policy.predict`` as SB3 gives it (torch rounds a row of a batched product
+        by the batch's height, so a row's action can differ in its last bits from the same
+        observation's alone)."""
         deterministic = deterministic and not self.sampled
         if self.normalizer is not None:
             observation = self.normalizer.normalize_obs(observation)
         obs = np.asarray(observation)
-        one = self.policy.observation_space.shape
-        if deterministic and state is None and obs.shape == one:
+        if deterministic and state is None and obs.shape == self.policy.observation_space.shape:
             return self._deterministic_action(obs), None
-        if deterministic and state is None and obs.shape[1:] == one:
-            return np.stack([self._deterministic_action(row) for row in obs]), None
         action, state = self.policy.predict(
             observation, state=state, episode_start=episode_start, deterministic=deterministic
         )
@@ -489,13 +485,6 @@ class SB3Policy:
             action = np.clip(action, policy.action_space.low, policy.action_space.high)
         return np.asarray(action, dtype=np.float32)
 
-    @property
-    def batched(self) -> bool:
-        """Whether one instance may act for a batch of episodes with per-row results: yes for
-        deterministic actions; sampled ones draw from torch's one generator, seeded per episode,
-        so each episode needs its own turn."""
-        return not self.sampled
-
     def reset(self) -> None:
         """Nothing to forget: recurrent state, if any, is passed through ``predict``."""
 
@@ -504,7 +493,8 @@ def load_sb3_policy(
     directory: str | Path, env: Any, name: str | None = None, trust_model: bool = False
 ) -> Any:
     """Load the model in ``directory`` (safely; see :func:`load_policy`) and check it fits
-    ``env``; an :class:`SB3Policy`, or a :class:`agents.residual.ResidualAgent` for a residual.
+    ``env``; an :class:`SB3Policy`, or a :class:`capture_bench.agents.residual.ResidualAgent`
+    for a residual.
 
     Args:
         directory: the model directory.

@@ -19,6 +19,12 @@ class Agent(Protocol):
     returns ``(action, state)`` with ``action`` of shape (3,), float32, inside [-1, 1]; ``state``
     is a recurrent state (``None`` for stateless agents). ``reset`` is called at the start of
     every episode.
+
+    Batches (optional): an agent whose ``batched`` attribute is true also takes N observations,
+    shape (N, 16), and returns actions of shape (N, 3), each row as it would be alone (no row's
+    action depends on another row, nor on N), keeping any episode state per row; ``reset`` then
+    starts N episodes. The analytic controllers of :mod:`capture_bench.agents.baselines` and
+    :mod:`capture_bench.agents.incremental_ik` are batched.
     """
 
     def predict(

@@ -1,4 +1,4 @@
-"""A hybrid agent: a learned residual on top of an analytic controller (issue 14 point 6),
+"""A hybrid agent: a learned residual on top of an analytic controller,
 
     a = clip(a_base(s) + alpha * pi(s), -1, 1),
 
@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.base import safe_action
+from capture_bench.agents.base import safe_action
 from capture_bench.task.observation import TaskDescription
 
 #: The analytic controllers a residual may sit on: deterministic, acting from the observation
@@ -28,7 +28,7 @@ RESIDUAL_BASES = ("incremental_ik", "incremental_ik_uncapped", "pure_pursuit", "
 
 def make_base(name: str, description: TaskDescription) -> Any:
     """The analytic controller ``name`` of :data:`RESIDUAL_BASES`, built from ``description``."""
-    from agents import make_agent
+    from capture_bench.agents import make_agent
 
     if name not in RESIDUAL_BASES:
         raise ValueError(f"residual base {name!r}; valid: {', '.join(RESIDUAL_BASES)}")
@@ -43,12 +43,13 @@ def combine(base_action: NDArray, residual: NDArray, scale: float) -> NDArray[np
 
 class ResidualAgent:
     """``base`` plus ``scale`` times ``learned``'s action (module docstring), as an
-    :class:`agents.protocol.Agent`.
+    :class:`capture_bench.agents.protocol.Agent`.
 
     Args:
         base: an analytic controller (``predict`` on one observation or a batch).
-        learned: anything with SB3's ``predict`` (an SB3 model, :class:`agents.sb3_policy.
-            SB3Policy`); it sees the observation the base sees.
+        learned: anything with SB3's ``predict`` (an SB3 model,
+            :class:`capture_bench.agents.sb3_policy.SB3Policy`); it sees the observation the base
+            sees.
         scale: alpha.
         name: label for reports.
     """

@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agents.base import predict_each, safe_action
-from agents.incremental_ik import incremental_step
+from capture_bench.agents.base import predict_each, safe_action
+from capture_bench.agents.incremental_ik import incremental_step
 from capture_bench.sim.kinematics import inverse_kinematics, within_limits
 from capture_bench.task.observation import TaskDescription, decode_observation
 from capture_bench.task.physical_limit import nearest_in_box

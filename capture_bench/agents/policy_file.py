@@ -22,8 +22,8 @@ Loading rebuilds the algorithm's SB3 policy class from the declared keyword argu
 and loads the weights into it strictly (every tensor named and shaped as the declared network
 expects). The result acts exactly as the same model loaded by SB3 (tested on every algorithm).
 :func:`save_policy` writes this form from a trained SB3 model; ``train.py`` calls it, and
-``python -m agents.convert DIR --trust-model`` (:mod:`agents.convert`) converts an existing SB3
-model directory (which unpickles it: only for files you trust).
+``python -m capture_bench.agents.convert DIR --trust-model`` (:mod:`capture_bench.agents.convert`)
+converts an existing SB3 model directory (which unpickles it: only for files you trust).
 
 The writer and the validating reader of one file format live together: the validation rules are
 the format's definition and must be read beside what writes it.
@@ -79,7 +79,7 @@ _BOOL_KWARGS = (
 _FLOAT_KWARGS = ("log_std_init", "clip_mean")
 _INT_KWARGS = ("n_critics", "n_quantiles")
 #: Every policy keyword argument a metadata file may declare; anything else is refused.
-#: ``features_extractor`` names a class of ``capture_bench.training.features.FEATURE_EXTRACTORS``
+#: ``features_extractor`` names a class of ``capture_bench.agents.features.FEATURE_EXTRACTORS``
 #: (SB3's ``features_extractor_class``; omitted: SB3's default, the raw observation).
 POLICY_KWARGS = (
     "net_arch",
@@ -307,7 +307,7 @@ def parse_declaration(data: dict[str, Any], where: str) -> PolicyDeclaration:
 
 def _feature_extractors() -> dict[str, Any]:
     """Declared name -> features extractor class (imported only when a policy is built)."""
-    from capture_bench.training.features import FEATURE_EXTRACTORS
+    from capture_bench.agents.features import FEATURE_EXTRACTORS
 
     return FEATURE_EXTRACTORS
 

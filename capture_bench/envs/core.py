@@ -1,0 +1,168 @@
+"""What ``CaptureEnv`` and ``CaptureVectorEnv`` are both made of, defined once.
+
+:class:`CaptureTask` is the task an env of a scenario plays, whatever the number of episodes it
+steps: the resolved scenario, what it publishes for agents (:func:`describe_task`), the step rule
+(:class:`~capture_bench.task.step_rule.StepRule`), the camera and the target's feature points,
+and the spaces of one episode. Each env owns one (``env.task``, composition, as panda-gym's
+``RobotTaskEnv`` owns its task); :class:`TaskAccess` gives both envs the same public names for it
+(``scenario``, ``description``, ``rule``, ``reward_mode``) and the training curriculum's two
+levers, :meth:`TaskAccess.set_capture_hold` and :meth:`TaskAccess.set_capture_tolerance`.
+:func:`check_actions` is the one rule for an action's validity.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from capture_bench.sensing.camera import Camera
+from capture_bench.sim import kinematics
+from capture_bench.task.observation import TaskDescription, observation_space
+from capture_bench.task.scenarios import Scenario, load_scenario
+from capture_bench.task.step_rule import StepRule
+from capture_bench.task.target_side import scenario_camera
+
+FloatArray = NDArray[np.float64]
+
+
+def resolve_scenario(
+    scenario: str | Path | Scenario, observation_source: str | None = None
+) -> Scenario:
+    """A shipped name, a YAML path or a ``Scenario``, with its estimator source replaced if
+    ``observation_source`` is given (checked)."""
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    if observation_source is not None:
+        sc = sc.replace(estimator={"source": observation_source})
+    return sc
+
+
+def describe_task(scenario: Scenario) -> TaskDescription:
+    """What an env of ``scenario`` publishes for agents: the arm, t_s and epsilon (3,)."""
+    return TaskDescription(
+        arm=kinematics.ArmSpec(),
+        control_period=scenario.control.period,
+        capture_tolerance=np.full(3, scenario.capture_tolerance),
+    )
+
+
+def check_actions(actions: Any, shape: tuple[int, ...], name: str) -> FloatArray:
+    """``actions`` as a float64 array of ``shape``, or ``ValueError`` naming what is wrong.
+
+    Accepts any array-like of real numbers (bool, int or float dtype; lists and tuples too);
+    refuses other types (strings, complex, objects), another shape, and NaN or infinite entries
+    (the message gives the index of the first). Values outside [-1, 1] pass: the envs clip them.
+    """
+    try:
+        raw = np.asarray(actions)
+    except (TypeError, ValueError) as exc:  # ragged nested lists
+        raise ValueError(f"{name} must be an array of shape {shape} of numbers; {exc}") from None
+    if raw.dtype.kind not in "biuf":
+        raise ValueError(
+            f"{name} must be an array of shape {shape} of real numbers; got dtype {raw.dtype} "
+            f"({actions!r})"
+        )
+    if raw.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}; got shape {raw.shape} ({actions!r})")
+    a = raw.astype(np.float64)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        entry = f"{name}[{', '.join(map(str, index))}]"
+        raise ValueError(
+            f"{entry} is {a[index]}; every entry must be a finite number "
+            "(values outside [-1, 1] are clipped)"
+        )
+    return a
+
+
+class CaptureTask:
+    """The task of ``scenario`` as an env plays it, for any number of episodes.
+
+    Args:
+        scenario: a shipped name, a YAML path or a ``Scenario``.
+        observation_source: ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the
+            scenario's).
+        reward: one of :data:`capture_bench.task.rewards.REWARD_MODES` (checked).
+
+    Attributes:
+        scenario: the resolved ``Scenario``.
+        description: what agents may know (:class:`~capture_bench.task.observation.
+            TaskDescription`).
+        rule: the step rule (:class:`~capture_bench.task.step_rule.StepRule`).
+        reward_mode: ``reward``.
+        camera, features: the scenario's camera and the target's feature points (target frame,
+            m, (N, 3)).
+        single_action_space: ``Box(-1, 1, (3,), float32)``; single_observation_space: the
+            observation of one episode (:func:`~capture_bench.task.observation.
+            observation_space`).
+    """
+
+    def __init__(
+        self,
+        scenario: str | Path | Scenario,
+        *,
+        observation_source: str | None = None,
+        reward: str = "dense",
+    ) -> None:
+        self.scenario = resolve_scenario(scenario, observation_source)
+        self.description = describe_task(self.scenario)
+        self.rule = StepRule(self.scenario, self.description, reward)  # checks ``reward``
+        self.reward_mode = reward
+        self.camera: Camera
+        self.camera, self.features = scenario_camera(self.scenario)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self.single_observation_space = observation_space()
+
+    def increments(self, actions: FloatArray) -> FloatArray:
+        """The joint increments M actions (M, 3) request, rad: each entry clipped to [-1, 1],
+        then ``a_i * theta_dot_max_i * t_s``."""
+        clipped = np.minimum(np.maximum(actions, -1.0), 1.0)
+        return self.description.action_to_increment(clipped)
+
+
+class TaskAccess:
+    """The public names of an env's :class:`CaptureTask` (``self.task``), the same on both envs.
+
+    Attributes (read-only): ``scenario``, ``description``, ``rule``, ``reward_mode``: the
+    task's.
+    """
+
+    task: CaptureTask
+
+    @property
+    def scenario(self) -> Scenario:
+        """The env's scenario (its estimator source replaced if the env was given one)."""
+        return self.task.scenario
+
+    @property
+    def description(self) -> TaskDescription:
+        """What agents may know: the arm's constants, t_s and epsilon."""
+        return self.task.description
+
+    @property
+    def rule(self) -> StepRule:
+        """The step rule the env applies."""
+        return self.task.rule
+
+    @property
+    def reward_mode(self) -> str:
+        """``"dense"``, ``"sparse"`` or ``"shaped"``."""
+        return self.task.reward_mode
+
+    def set_capture_hold(self, hold: float) -> None:
+        """Ask a capture to hold ``hold`` s (0: the first entry captures) instead of the
+        scenario's ``capture.hold`` from the next step on: a training curriculum's lever
+        (:class:`capture_bench.training.callbacks.HoldCurriculum`), never an evaluation's. The
+        recorded physical limit stays the scenario's."""
+        self.task.rule.set_hold(hold)
+
+    def set_capture_tolerance(self, tolerance: Any) -> None:
+        """Count a capture at ``tolerance`` (m, a number or (3,)) instead of the scenario's
+        epsilon from the next step on: a training curriculum's lever
+        (:class:`capture_bench.training.callbacks.ToleranceCurriculum`), never an evaluation's.
+        The recorded physical limit stays the scenario's."""
+        self.task.rule.set_tolerance(tolerance)
