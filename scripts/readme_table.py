@@ -63,18 +63,7 @@ def _number(value: Any) -> float:
 
 
 def _ranking(results: dict[str, Any]) -> list[RankingRow]:
-    return [
-        RankingRow(
-            agent=r["agent"],
-            rank=r["rank"],
-            mean_capture_rate=_number(r["mean_capture_rate"]),
-            mean_ratio_median=_number(r["mean_ratio_median"]),
-            scenarios=r["scenarios"],
-            privileged=r["privileged"],
-            mean_relative_speed_median=_number(r["mean_relative_speed_median"]),
-        )
-        for r in results["ranking"]
-    ]
+    return [RankingRow.from_json(r) for r in results["ranking"]]
 
 
 def leaderboard_table(results: dict[str, Any]) -> str:

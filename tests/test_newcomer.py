@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -161,21 +160,7 @@ def _ranking_rows() -> tuple[list[RankingRow], dict[tuple[str, str], float]]:
     """The committed default report's ranking and capture rates (16 agents, 8 scenarios)."""
     payload = json.loads(COMMITTED.read_text())
 
-    def number(value):
-        return math.nan if value is None else float(value)
-
-    rows = [
-        RankingRow(
-            agent=r["agent"],
-            rank=r["rank"],
-            mean_capture_rate=number(r["mean_capture_rate"]),
-            mean_ratio_median=number(r["mean_ratio_median"]),
-            scenarios=r["scenarios"],
-            privileged=r["privileged"],
-            mean_relative_speed_median=number(r["mean_relative_speed_median"]),
-        )
-        for r in payload["ranking"]
-    ]
+    rows = [RankingRow.from_json(r) for r in payload["ranking"]]
     rates = {(r["agent"], r["scenario"]): float(r["capture_rate"]) for r in payload["results"]}
     return rows, rates
 

@@ -204,6 +204,23 @@ class RankingRow:
     privileged: bool
     mean_relative_speed_median: float = math.nan
 
+    @classmethod
+    def from_json(cls, row: dict[str, Any]) -> RankingRow:
+        """A row of ``results.json``'s ``ranking`` (where NaN is written as null)."""
+
+        def number(value: Any) -> float:
+            return math.nan if value is None else float(value)
+
+        return cls(
+            agent=row["agent"],
+            rank=row["rank"],
+            mean_capture_rate=number(row["mean_capture_rate"]),
+            mean_ratio_median=number(row["mean_ratio_median"]),
+            scenarios=row["scenarios"],
+            privileged=row["privileged"],
+            mean_relative_speed_median=number(row["mean_relative_speed_median"]),
+        )
+
 
 def rank_agents(
     summaries: Sequence[Summary], privileged: Iterable[str] = PRIVILEGED_AGENTS
