@@ -57,7 +57,8 @@ class OneLineParser(argparse.ArgumentParser):
     """
 
     def __init__(self, *args: Any, prog: str | None = None, hint: str = "", **kwargs: Any) -> None:
-        super().__init__(*args, prog=None if prog is None else program(prog), **kwargs)
+        kwargs["prog"] = None if prog is None else program(prog)
+        super().__init__(*args, **kwargs)
         self.hint = hint
 
     def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:

@@ -8,7 +8,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from capture_bench.task.scenarios import ConfigError
+from capture_bench.validation import ConfigError
 
 
 def check_writable(directory: str | Path, option: str) -> None:

@@ -14,8 +14,8 @@ from rich.console import Console
 
 from capture_bench.evaluation import cli as evaluate_cli
 from capture_bench.evaluation.aggregate import RankingRow
-from capture_bench.evaluation.provenance import describe_machine, machine, provenance_text
 from capture_bench.evaluation.suites import SUITES_DIR, load_suite, shadowed_suite
+from capture_bench.provenance import describe_machine, machine, provenance_text
 from capture_bench.training import run as train_run
 from capture_bench.training import tune
 

@@ -92,7 +92,7 @@ def test_the_saved_resolved_config_trains_the_same_hyperparameters(tmp_path):
 def test_metadata_names_the_code_the_run_started_from(tmp_path, monkeypatch):
     """A long run outlives commits made while it trains: metadata.json's git is the state
     recorded in config.json at the start, and git_at_save the state when it was saved."""
-    import capture_bench.evaluation.provenance as provenance
+    import capture_bench.provenance as provenance
 
     states = iter([{"commit": "a" * 40, "dirty": False}, {"commit": "b" * 40, "dirty": True}])
     monkeypatch.setattr(provenance, "git_state", lambda *a: next(states))

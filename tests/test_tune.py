@@ -22,14 +22,9 @@ from capture_bench import __main__ as cli
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.training.hyperparameters import load_hyperparameters, validate_hyperparameters
 from capture_bench.training.search_spaces import SAMPLERS, Choice, merge, sample
-from capture_bench.training.tune import (
-    TuneConfig,
-    objective_value,
-    open_study,
-    parse_args,
-    prepare,
-    report_validation,
-)
+from capture_bench.training.tune import open_study, parse_args, prepare
+from capture_bench.training.tune_options import TuneConfig
+from capture_bench.training.tune_trial import objective_value, report_validation
 
 TINY_SAC = """\
 n_envs: 1

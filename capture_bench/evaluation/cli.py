@@ -45,10 +45,10 @@ from capture_bench.evaluation.pipeline import (
     plan_evaluation,
     run_evaluation,
 )
-from capture_bench.evaluation.provenance import git_state
 from capture_bench.evaluation.report import ReportData
 from capture_bench.evaluation.suites import ALL, shadowed_suite
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
+from capture_bench.provenance import git_state
 from capture_bench.task.scenarios import invalid_scenarios
 
 if TYPE_CHECKING:
@@ -62,11 +62,11 @@ def _epilog() -> str:
     """Examples, and what is valid: the built-in agents, shipped models, scenarios, suites and
     the algorithms train.py trains (a broken file is left out here; ``python -m capture_bench
     list`` names it and its error)."""
+    from capture_bench.agents.algorithms import ALGORITHMS
     from capture_bench.evaluation.agents_loading import builtin_names
     from capture_bench.evaluation.suites import list_suites
     from capture_bench.paths import models_dir
     from capture_bench.task.scenarios import list_scenarios
-    from capture_bench.training.hyperparameters import ALGORITHMS
 
     models = sorted(
         f"models/{p.name}" for p in models_dir().glob("*") if (p / "metadata.json").is_file()

@@ -33,19 +33,19 @@ from capture_bench.evaluation.backends import (
     scenario_label,
 )
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError
-from capture_bench.evaluation.provenance import (
-    display_path,
-    file_sha256,
-    git_state,
-    machine,
-    package_versions,
-)
 from capture_bench.evaluation.report import ReportData, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
 from capture_bench.evaluation.video import EpisodeVideo, record_video, write_videos
 from capture_bench.evaluation.watch import choose_episodes
 from capture_bench.files import check_writable, episode_file_name
+from capture_bench.provenance import (
+    display_path,
+    file_sha256,
+    git_state,
+    machine,
+    package_versions,
+)
 from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
 
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2. OSError:

@@ -31,8 +31,8 @@ from capture_bench.evaluation.aggregate import (
     summary_row,
 )
 from capture_bench.evaluation.metrics import Estimate
-from capture_bench.evaluation.provenance import REPRODUCIBILITY, provenance_text
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
+from capture_bench.provenance import REPRODUCIBILITY, provenance_text
 
 if TYPE_CHECKING:
     from capture_bench.evaluation.video import EpisodeVideo

@@ -218,7 +218,7 @@ def report(
     runs: Path, out: Path, scenario: str, algos: list[str], seeds: list[int], command: str
 ) -> Path:
     """Write the report page from the runs in ``runs``; return the markdown file."""
-    from capture_bench.evaluation.provenance import git_state, machine
+    from capture_bench.provenance import git_state, machine
 
     curves = {a: [read_curve(run_path(runs, scenario, a, s), a, s) for s in seeds] for a in algos}
     episodes = {c.episodes for cs in curves.values() for c in cs}

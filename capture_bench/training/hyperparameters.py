@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from capture_bench.agents.algorithms import ALGORITHMS
 from capture_bench.agents.residual import RESIDUAL_BASES
 from capture_bench.task.rewards import REWARD_MODES
 from capture_bench.task.scenarios import CONFIG_DIR, Scenario
@@ -28,8 +29,6 @@ from capture_bench.validation import (
 )
 
 ALGO_DIR = CONFIG_DIR / "algos"
-#: The algorithms train.py trains: SB3's, and TQC from sb3-contrib.
-ALGORITHMS = ("ppo", "a2c", "sac", "td3", "ddpg", "tqc")
 #: Those that learn from a replay buffer (checkpoints keep it; ``learning_starts`` applies).
 OFF_POLICY = ("sac", "td3", "ddpg", "tqc")
 #: Where each algorithm's class lives.

@@ -75,7 +75,7 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
 
 def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Path:
     """Copy the run to ``models/<name>/`` with its model card; return the directory."""
-    from capture_bench.evaluation.provenance import machine
+    from capture_bench.provenance import machine
     from capture_bench.training.mixture import mixture_scenarios
 
     run_dir = Path(run_dir)

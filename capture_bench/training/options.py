@@ -85,7 +85,8 @@ examples:
 algorithms: {algorithms} (configs/algos/<algo>.yaml; TQC from sb3-contrib)
 scenarios:  {scenarios} (configs/scenarios/<name>.yaml, or a YAML path;
             all, or a,b,c: one policy on a mixture)
-evaluate a run beside the built-in agents ({agents}) or a suite ({suites}):
+evaluate a run beside the built-in agents ({agents}),
+on a suite or chosen scenarios (python evaluate.py --help lists the suites):
   python evaluate.py --agents incremental_ik runs/paper-ppo-0 --scenarios paper
 
 A hyper-parameter YAML holds keys for every scenario and, optionally, per-scenario sections
@@ -99,8 +100,7 @@ saved in the run as hyperparameters.yaml (a --config file).
 def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
     """An argument parser generated from :class:`TrainConfig` (each field's doc is its help),
     with examples and the valid algorithms and scenarios after the options."""
-    from capture_bench.evaluation.agents_loading import builtin_names
-    from capture_bench.evaluation.suites import list_suites
+    from capture_bench.agents import AGENTS
     from capture_bench.task.scenarios import list_scenarios
 
     parser = OneLineParser(
@@ -109,8 +109,7 @@ def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
         epilog=EXAMPLES.format(
             algorithms=", ".join(ALGORITHMS),
             scenarios=", ".join(list_scenarios()),
-            agents=", ".join(builtin_names()),
-            suites=", ".join(list_suites()),
+            agents=", ".join(sorted(AGENTS)),
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

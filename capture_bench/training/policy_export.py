@@ -77,7 +77,7 @@ def policy_metadata(
         sb3_files: the directory also holds SB3's ``model.zip`` (+ ``vecnormalize.pkl`` where
             observations are normalised), named in ``model`` and ``vecnormalize``.
     """
-    from capture_bench.evaluation.provenance import git_state, package_versions
+    from capture_bench.provenance import git_state, package_versions
     from capture_bench.training.mixture import is_mixture, mixture_name
 
     mixed = is_mixture(config.scenario)

@@ -239,7 +239,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     note_rounding(config.algo, hp)
     config.run_dir = str(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    from capture_bench.evaluation.provenance import git_state
+    from capture_bench.provenance import git_state
 
     payload = {
         "config": vars(config) | {"resume": None},

@@ -10,14 +10,16 @@ samples (:mod:`capture_bench.training.search_spaces`) merged over those ``train.
 the scenario with (``configs/algos/<algo>.yaml`` and its scenario section, ``--config`` layered
 over them) and validated like any config file, and is validated ``--n-evaluations`` times on
 the first ``--eval-episodes`` validation seeds (never a published evaluation seed). The score of
-a validation (:func:`objective_value`) ranks the capture rate first and, among equal capture
-rates, the median ratio of capture time to the physical limit (lower is better). Trials are
-stored in ``--storage`` (default ``sqlite:///<output>/study.db``); a study with the same name is
-resumed with the settings it was created with (:mod:`capture_bench.training.tune_study`: an
-option left out takes the study's value, another value is refused). At the end (also after
-Ctrl-C) ``--output`` gets ``best.yaml`` (for ``train.py --config``), ``trials.csv``,
-``optimization_history.png`` and ``param_importances.png``, each written atomically. A user's
-mistake is one line on stderr and exit 2, found before anything is written.
+a validation (:func:`~capture_bench.training.tune_trial.objective_value`) ranks the capture rate
+first and, among equal capture rates, the median ratio of capture time to the physical limit
+(lower is better). The options are :class:`~capture_bench.training.tune_options.TuneConfig`.
+Trials are stored in ``--storage`` (default ``sqlite:///<output>/study.db``); a study with the
+same name is resumed with the settings it was created with
+(:mod:`capture_bench.training.tune_study`: an option left out takes the study's value, another
+value is refused). At the end (also after Ctrl-C) ``--output`` gets ``best.yaml`` (for
+``train.py --config``), ``trials.csv``, ``optimization_history.png`` and
+``param_importances.png``, each written atomically. A user's mistake is one line on stderr and
+exit 2, found before anything is written.
 """
 
 from __future__ import annotations
@@ -26,93 +28,27 @@ import argparse
 import dataclasses
 import math
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from capture_bench.argparsing import OneLineParser, program
 from capture_bench.files import check_writable
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
-from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
+from capture_bench.task.scenarios import ConfigError, load_scenario
 from capture_bench.training.hyperparameters import (
     ALGORITHMS,
     OFF_POLICY,
     SB3_N_STEPS,
     resolve_hyperparameters,
 )
-from capture_bench.training.options import option as _opt
 from capture_bench.training.search_spaces import SAMPLERS, Choice
 from capture_bench.training.seeds import check_training_seed
+from capture_bench.training.tune_options import Setup, TuneConfig
 from capture_bench.training.tune_outputs import OUTPUT_FILES, redacted, write_outputs
 from capture_bench.training.tune_study import keep_settings
 
 PROG = program("tune.py")  # capture-bench-tune when run as that console script
 INSTALL_HINT = "pip install 'capture-bench[tune]' (or: pip install 'optuna>=3.4')"
-
-
-@dataclass
-class TuneConfig:
-    """The options of ``tune.py`` (None: from the base YAML, the scenario or the other options)."""
-
-    algo: str = _opt("ppo", f"SB3 algorithm, one of {', '.join(ALGORITHMS)}")
-    scenario: str = _opt("paper", "scenario name (configs/scenarios/<name>.yaml) or YAML path")
-    config: str | None = _opt(
-        None,
-        "base hyper-parameter YAML the samples override, layered over configs/algos/<algo>.yaml "
-        "as train.py layers it (default: that file alone)",
-    )
-    trials: int = _opt(20, "trials to run now, added to the study (0: only rewrite the outputs)")
-    n_timesteps: int | None = _opt(
-        None,
-        "training budget of each trial, environment steps (default: a continued study's, else "
-        "the YAML's total)",
-    )
-    n_evaluations: int = _opt(5, "validations per trial, evenly spaced; each is reported to Optuna")
-    eval_episodes: int | None = _opt(
-        None, "validation episodes (the scenario's first validation seeds; default: the YAML's)"
-    )
-    seed: int | None = _opt(
-        None, "training seed of every trial, one of the scenario's training seeds (default: the "
-        "first); the sampler's seed is this plus the number of trials already in the study"
-    )  # fmt: skip
-    n_startup_trials: int = _opt(
-        5, "trials sampled at random before TPE models the results, and completed before the "
-        "median pruner prunes"
-    )  # fmt: skip
-    keep: str | None = _opt(
-        None, "comma-separated sampled parameters to keep at the base YAML's value instead "
-        "(e.g. net_arch,batch_size)"
-    )  # fmt: skip
-    study_name: str | None = _opt(None, "Optuna study name (default: <scenario>-<algo>)")
-    storage: str | None = _opt(
-        None, "Optuna storage URL, any database URL Optuna accepts (default: "
-        "sqlite:///<output>/study.db)"
-    )  # fmt: skip
-    output: str | None = _opt(None, "output directory (default: runs/tune-<scenario>-<algo>)")
-    vec_env: str = _opt(
-        "batched",
-        "vectorisation of the training envs (as train.py)",
-        ("batched", "dummy", "subproc"),
-    )
-
-
-@dataclass
-class Setup:
-    """A checked :class:`TuneConfig`, resolved: what every trial uses."""
-
-    config: TuneConfig
-    scenario: Scenario
-    base: dict[str, Any]  # the validated base hyper-parameters
-    base_path: Path
-    given: set[str]  # the options given on the command line (the others may take a study's)
-    budget: int  # environment steps per trial, all envs together
-    every: int  # environment steps between validations
-    eval_episodes: int
-    keep: tuple[str, ...]
-    study_name: str
-    storage: str
-    output: Path
-    command: str = ""
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
@@ -140,39 +76,6 @@ def parse_args(argv: list[str] | None) -> tuple[TuneConfig, set[str]]:
     namespace = build_parser().parse_args(argv)
     given = {k for k, v in vars(namespace).items() if v is not None}
     return TuneConfig(**{k: v for k, v in vars(namespace).items() if v is not None}), given
-
-
-def objective_value(capture_rate: float, ratio: float, n_episodes: int) -> float:
-    """The one number Optuna maximises: capture rate first, then the median ratio to the limit.
-
-        score = capture_rate - f(ratio) / (2 n),   f(r) = 1 - 1/max(r, 1) for finite r >= 0,
-                                                   f(r) = 1 where r is NaN or infinite,
-
-    with ``n`` the validation episodes. The capture rate moves in steps of 1/n (one episode);
-    ``f`` lies in [0, 1] and increases with the ratio, so the tie-break is at most 1/(2n) < 1/n:
-    one more captured episode always outranks any ratio, and at equal capture rates a lower ratio
-    scores higher (no capture, ratio NaN, gets the worst tie-break).
-
-    Args:
-        capture_rate: share of the ``n_episodes`` validation episodes captured, in [0, 1].
-        ratio: median over captured episodes of capture time / physical-limit time (>= 1 up to
-            tolerance; NaN where none was captured).
-        n_episodes: validation episodes (>= 1).
-    """
-    tie_break = 1.0 - 1.0 / max(ratio, 1.0) if math.isfinite(ratio) else 1.0
-    return capture_rate - tie_break / (2 * n_episodes)
-
-
-def report_validation(trial: Any, result: dict[str, float], step: int, n_episodes: int) -> bool:
-    """Report validation ``step`` (1, 2, ...) of ``trial`` to Optuna and keep its raw numbers as
-    user attributes (``capture_rate``, ``median_ratio_to_limit``: those of the latest
-    validation); return whether the pruner says to stop the trial."""
-    ratio = float(result.get("median_ratio_to_limit", float("nan")))
-    capture_rate = float(result["capture_rate"])
-    trial.report(objective_value(capture_rate, ratio, n_episodes), step)
-    trial.set_user_attr("capture_rate", capture_rate)
-    trial.set_user_attr("median_ratio_to_limit", ratio if math.isfinite(ratio) else None)
-    return bool(trial.should_prune())
 
 
 def _positive(value: int | None, option: str, low: int = 1) -> None:

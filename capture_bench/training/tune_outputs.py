@@ -18,7 +18,7 @@ import yaml
 from capture_bench.files import atomic_write
 
 if TYPE_CHECKING:
-    from capture_bench.training.tune import Setup
+    from capture_bench.training.tune_options import Setup
 
 OUTPUT_FILES = ("best.yaml", "trials.csv", "optimization_history.png", "param_importances.png")
 
@@ -83,7 +83,7 @@ def best_yaml(trial: Any, setup: Setup) -> str:
         f"{attrs.get('capture_rate')} on {attrs.get('eval_episodes')} validation seeds, "
         f"median ratio to the limit {ratio_text}",
         f"(after {trial.user_attrs.get('n_timesteps')} steps; objective_value in "
-        "capture_bench/training/tune.py).",
+        "capture_bench/training/tune_trial.py).",
         f"Tuned by: {setup.command} (the study's settings, every trial's)",
         f"Train with: python train.py --algo {algo} --scenario {scenario} --config "
         f"{setup.output / 'best.yaml'}",

@@ -16,7 +16,7 @@ from capture_bench.task.scenarios import ConfigError
 from capture_bench.training.search_spaces import describe_space
 
 if TYPE_CHECKING:
-    from capture_bench.training.tune import Setup
+    from capture_bench.training.tune_options import Setup
 
 #: The settings that define a trial -> the option that sets each (None: the code, not an option).
 #: ``config`` is kept beside them, the path the base hyper-parameters came from (for messages

@@ -1,5 +1,6 @@
 """One Optuna trial of ``tune.py``: sample, train on training seeds, validate periodically on
-validation seeds, report each validation and stop where the pruner says.
+validation seeds, score each validation (:func:`objective_value`), report it and stop where the
+pruner says.
 
 Imports Stable-Baselines3 at module level: import this module only where training happens.
 """
@@ -21,7 +22,40 @@ from capture_bench.training.hyperparameters import (
 from capture_bench.training.options import TrainConfig
 from capture_bench.training.run import build_model, build_venv, close_envs, curriculum_callbacks
 from capture_bench.training.search_spaces import merge, sample
-from capture_bench.training.tune import Setup, objective_value, report_validation
+from capture_bench.training.tune_options import Setup
+
+
+def objective_value(capture_rate: float, ratio: float, n_episodes: int) -> float:
+    """The one number Optuna maximises: capture rate first, then the median ratio to the limit.
+
+        score = capture_rate - f(ratio) / (2 n),   f(r) = 1 - 1/max(r, 1) for finite r >= 0,
+                                                   f(r) = 1 where r is NaN or infinite,
+
+    with ``n`` the validation episodes. The capture rate moves in steps of 1/n (one episode);
+    ``f`` lies in [0, 1] and increases with the ratio, so the tie-break is at most 1/(2n) < 1/n:
+    one more captured episode always outranks any ratio, and at equal capture rates a lower ratio
+    scores higher (no capture, ratio NaN, gets the worst tie-break).
+
+    Args:
+        capture_rate: share of the ``n_episodes`` validation episodes captured, in [0, 1].
+        ratio: median over captured episodes of capture time / physical-limit time (>= 1 up to
+            tolerance; NaN where none was captured).
+        n_episodes: validation episodes (>= 1).
+    """
+    tie_break = 1.0 - 1.0 / max(ratio, 1.0) if math.isfinite(ratio) else 1.0
+    return capture_rate - tie_break / (2 * n_episodes)
+
+
+def report_validation(trial: Any, result: dict[str, float], step: int, n_episodes: int) -> bool:
+    """Report validation ``step`` (1, 2, ...) of ``trial`` to Optuna and keep its raw numbers as
+    user attributes (``capture_rate``, ``median_ratio_to_limit``: those of the latest
+    validation); return whether the pruner says to stop the trial."""
+    ratio = float(result.get("median_ratio_to_limit", float("nan")))
+    capture_rate = float(result["capture_rate"])
+    trial.report(objective_value(capture_rate, ratio, n_episodes), step)
+    trial.set_user_attr("capture_rate", capture_rate)
+    trial.set_user_attr("median_ratio_to_limit", ratio if math.isfinite(ratio) else None)
+    return bool(trial.should_prune())
 
 
 class TrialValidation(BaseCallback):

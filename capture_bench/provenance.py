@@ -1,4 +1,5 @@
-"""Provenance of a report: code version, configuration hashes, package versions, the machine."""
+"""Provenance of a report, a training run or a shipped model: code version, file hashes, package
+versions, the machine."""
 
 from __future__ import annotations
 
