@@ -9,9 +9,9 @@ The timed run is the default command with its report written to a temporary dire
 ``reports/default`` is not replaced). After it, the episode wall-clock recorded by the workers
 (steps only: reset and the bound are not counted) is summed per agent and per scenario.
 ``--breakdown N`` instead runs N episodes of every agent x scenario in this process as the
-workers do (every agent on the same seeds, envs made with ``reuse_target_side``, so the first
+workers do (every agent on the same seeds, each agent's episodes as one batch, so the first
 agent's reset records each seed's target side) and splits each episode's time into environment
-reset, environment step, the physical-limit bound, and the agent's ``predict``.
+reset, environment step and the agent's ``predict``.
 """
 
 from __future__ import annotations
@@ -89,53 +89,62 @@ class _Timer:
 
 
 def breakdown(episodes: int, suite: str) -> None:
-    """Split episode time into reset / step / bound / predict, per agent and per scenario."""
+    """Split episode time into env reset / env step / predict, per agent and per scenario, as a
+    worker plays a chunk: every agent on the same ``episodes`` seeds, one batch per agent
+    (:func:`capture_bench.evaluation.backends.run_batch`; the first agent's reset records each
+    seed's target side, the others replay it)."""
     sys.path.insert(0, str(ROOT))
-    from capture_bench.evaluation.agents_loading import build_agent, expand_specs, resolve_agent
-    from capture_bench.evaluation.backends import make_env
-    from capture_bench.evaluation.rollout import run_episode
+    from capture_bench.envs.capture_env import CaptureEnv
+    from capture_bench.envs.vector_env import CaptureVectorEnv
+    from capture_bench.evaluation import backends
+    from capture_bench.evaluation.agents_loading import expand_specs, resolve_agent
     from capture_bench.evaluation.suites import ALL, load_suite
     from capture_bench.task.scenarios import list_scenarios, load_scenario
 
     loaded = load_suite(suite)
     scenarios = list_scenarios() if loaded.scenarios == (ALL,) else list(loaded.scenarios)
     specs = [resolve_agent(s) for s in expand_specs(list(loaded.agents))]
-    header = f"{'agent':26s} {'scenario':10s} {'ms/ep':>7s} {'reset':>7s} {'step':>7s}"
-    print(header + f" {'bound':>7s} {'predict':>7s} {'steps':>6s}   (ms per episode)")
+    header = f"{'agent':28s} {'scenario':10s} {'ms/ep':>7s} {'reset':>7s} {'step':>7s}"
+    print(header + f" {'predict':>7s} {'steps':>6s}   (ms per episode)")
     totals: dict[str, float] = defaultdict(float)
+    originals = {
+        (cls, method): getattr(cls, method)
+        for cls in (CaptureEnv, CaptureVectorEnv)
+        for method in ("reset", "step")
+    }
+    build = backends.build_agent
     for name in scenarios:
-        env = make_env(name, reuse_target_side=True)  # as the evaluation's workers make them
-        base = env.unwrapped
+        seeds = load_scenario(name).evaluation_seeds[:episodes]
         for spec in specs:
             timer = _Timer()
-            bound = timer.wrap("bound", base.physical_limit)
-            base.physical_limit = bound
-            env.reset = timer.wrap("reset", env.reset)
-            env.step = timer.wrap("step", env.step)
-            steps = 0
-            start = time.perf_counter()
-            for seed in load_scenario(name).evaluation_seeds[:episodes]:
-                agent = build_agent(spec, env, seed)
+
+            def timed_agent(*args: Any, timer: _Timer = timer) -> Any:
+                agent = build(*args)
                 agent.predict = timer.wrap("predict", agent.predict)
-                record, _ = run_episode(env, agent, agent_name=spec.label, scenario=name, seed=seed)
-                steps += record.steps
+                return agent
+
+            for (cls, method), func in originals.items():
+                setattr(cls, method, timer.wrap(method, func))
+            backends.build_agent = timed_agent
+            tasks = [backends.EpisodeTask(spec.spec, name, seed) for seed in seeds]
+            start = time.perf_counter()
+            try:
+                records = backends.run_batch(tasks)
+            finally:
+                for (cls, method), func in originals.items():
+                    setattr(cls, method, func)
+                backends.build_agent = build
             elapsed = time.perf_counter() - start
-            del env.reset, env.step, base.physical_limit
             t = {k: 1e3 * v / episodes for k, v in timer.seconds.items()}
-            step_only = t.get("step", 0.0)  # run_episode computes the bound before the steps
+            steps = sum(r.steps for r in records)
             print(
-                f"{spec.label:26s} {name:10s} {1e3 * elapsed / episodes:7.1f} {t['reset']:7.1f} "
-                f"{step_only:7.1f} {t.get('bound', 0.0):7.1f} {t['predict']:7.1f} "
-                f"{steps / episodes:6.1f}"
+                f"{spec.label:28s} {name:10s} {1e3 * elapsed / episodes:7.1f} "
+                f"{t.get('reset', 0.0):7.1f} {t.get('step', 0.0):7.1f} "
+                f"{t.get('predict', 0.0):7.1f} {steps / episodes:6.1f}"
             )
-            for key, value in (
-                ("reset", t["reset"]),
-                ("step", step_only),
-                ("bound", t.get("bound", 0.0)),
-                ("predict", t["predict"]),
-            ):
-                totals[key] += value * episodes
-        env.close()
+            for key in ("reset", "step", "predict"):
+                totals[key] += t.get(key, 0.0) * episodes
+        backends.close_envs()
     grand = sum(totals.values())
     print(
         "\nshare of episode time: "

@@ -386,8 +386,9 @@ def test_the_single_env_equals_the_vector_env_of_one(scenario):
 def test_without_autoreset_sub_envs_play_their_seeds_and_ended_ones_stay_ended():
     """``autoreset_mode=DISABLED``: ``reset(seed=[s0, s1, s2])`` plays in sub-env i the single
     env's episode of seed s_i; episodes of different lengths (a capture, a collision, the time
-    limit) end with the single env's last step, field for field; stepping while one has ended
-    raises and steps nothing; a masked reset with new seeds starts only those."""
+    limit) end with the single env's last step, field for field; a step while some have ended
+    leaves those as they are and steps the others; a masked reset with new seeds starts only
+    those."""
     vector = gym.make_vec(
         "CaptureBench/Paper-v0", 3, vectorization_mode="vector_entry_point",
         autoreset_mode=AutoresetMode.DISABLED,
@@ -420,8 +421,25 @@ def test_without_autoreset_sub_envs_play_their_seeds_and_ended_ones_stay_ended()
                 ends.append((i, int(t[i]), how))
         if not ended:
             continue
-        with pytest.raises(RuntimeError, match=re.escape(f"sub-envs {ended} have ended")):
-            vector.step(actions)  # ended sub-envs stay ended, and nothing steps
+        # a step leaves the ended sub-envs as they are (the others step: replayed below)
+        frozen_obs, rewards, terminated, truncated, info = vector.step(actions)
+        np.testing.assert_array_equal(frozen_obs[ended], out[0][ended])
+        assert not rewards[ended].any() and not (terminated | truncated)[ended].any()
+        assert not any(info[k][ended].any() for k in info if k.startswith("_"))
+        for i in set(range(3)) - set(ended):
+            step = singles[i].step(actions[i])
+            single_obs[i] = step[0]
+            t[i] += 1
+            _assert_step_equal(
+                step,
+                tuple(_row(x, i) for x in (frozen_obs, rewards, terminated, truncated, info)),
+                f"sub-env {i} t {t[i]}",
+            )
+            if step[2] or step[3]:
+                ends.append(
+                    (i, int(t[i]), "capture" if step[4]["is_success"] else step[4]["failure"])
+                )
+                ended.append(i)
         mask = np.zeros(3, dtype=bool)
         mask[ended] = True
         new = [s + 3 if m else None for s, m in zip(seeds, mask, strict=True)]  # unused: None

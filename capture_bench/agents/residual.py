@@ -73,6 +73,13 @@ class ResidualAgent:
         )
         return combine(base, residual, self.scale), state
 
+    def predict_rows(self, observations: NDArray) -> NDArray[np.float32]:
+        """The deterministic action of each of N observations, (N, 16) -> (N, 3), each row
+        what ``predict`` gives that observation alone: the base's batch (its rows are computed
+        as alone) plus the learned part's ``predict_rows``."""
+        base, _ = self.base.predict(observations)
+        return combine(base, self.learned.predict_rows(observations), self.scale)
+
     def reset(self) -> None:
         """Start of an episode for both parts."""
         self.base.reset()

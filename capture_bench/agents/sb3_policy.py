@@ -466,24 +466,47 @@ class SB3Policy:
         only to take its mode: the mean of a diagonal Gaussian is the action net's output.
         The same torch operations on the same numbers, so the same action (tested).
         """
+        return self._deterministic_actions(obs[None]).reshape(self.policy.action_space.shape)
+
+    def _deterministic_actions(self, obs: np.ndarray) -> np.ndarray:
+        """:meth:`_deterministic_action` of each row of ``obs`` (already normalised), in one
+        forward pass of N rows."""
         import torch
         from stable_baselines3.common.policies import BasePolicy
 
         policy = self.policy
         with torch.no_grad():
-            tensor = torch.as_tensor(obs, dtype=torch.float32).unsqueeze(0)
+            tensor = torch.as_tensor(obs, dtype=torch.float32)
             if self._mean_is_action:
                 # the actor's features, shared extractor or not (BasePolicy's method)
                 features = BasePolicy.extract_features(policy, tensor, policy.pi_features_extractor)
                 actions = policy.action_net(policy.mlp_extractor.forward_actor(features))
             else:
                 actions = policy._predict(tensor, deterministic=True)
-        action = actions.numpy().reshape(policy.action_space.shape)
+        action = actions.numpy().reshape(obs.shape[0], *policy.action_space.shape)
         if policy.squash_output:  # as BasePolicy.predict does for a Box action space
             action = policy.unscale_action(action)
         else:
             action = np.clip(action, policy.action_space.low, policy.action_space.high)
         return np.asarray(action, dtype=np.float32)
+
+    def predict_rows(self, observations: np.ndarray) -> np.ndarray:
+        """The deterministic action of each of N observations, shape (N, 16) -> (N, 3), each
+        row bit for bit what ``predict`` gives that observation alone, in one batched forward
+        pass (:mod:`capture_bench.agents.row_exact`; row by row where a layer has no row-exact
+        batched form). For a model declaring sampled actions, ``predict`` of each row in turn
+        (torch's one generator draws in row order)."""
+        from capture_bench.agents.row_exact import row_exact_layers
+
+        obs = np.asarray(observations)
+        if self.sampled:
+            return np.stack([self.predict(row)[0] for row in obs])
+        if self.normalizer is not None:
+            obs = self.normalizer.normalize_obs(obs)
+        with row_exact_layers(self.policy) as exact:
+            if exact:
+                return self._deterministic_actions(obs)
+        return np.stack([self._deterministic_action(row) for row in obs])
 
     def reset(self) -> None:
         """Nothing to forget: recurrent state, if any, is passed through ``predict``."""

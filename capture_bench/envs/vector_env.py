@@ -47,12 +47,13 @@ from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
 from capture_bench.envs.core import CaptureTask, TaskAccess, check_actions
+from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World, limit_joint_increments
-from capture_bench.task.episode import period_count
+from capture_bench.task.episode import EpisodePlan, episode_bounds, period_count
 from capture_bench.task.recording import (
     STEP_TRACKS,
     RecordedEpisode,
@@ -60,7 +61,8 @@ from capture_bench.task.recording import (
     record_episodes,
 )
 from capture_bench.task.scenarios import Scenario
-from capture_bench.task.step_rule import BEFORE_TRACKS, ArmState
+from capture_bench.task.step_rule import BEFORE_TRACKS, OPTIONAL_KEYS, ArmState
+from capture_bench.task.target_side import EpisodeCache, TargetSide
 
 FloatArray = NDArray[np.float64]
 RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs episodes)
@@ -105,6 +107,17 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``AutoresetMode.DISABLED``
             (or their values, ``"NextStep"``, ``"Disabled"``); ``metadata["autoreset_mode"]``
             says which.
+        reference_target_side: record each episode's target side as ``CaptureEnv`` does, row
+            by row to the time limit (its camera frame by frame, its estimator: filterpy's EKF),
+            instead of all episodes at once with the batched filter. The episodes are then the
+            single env's bit for bit in everything the target side gives (estimates, errors,
+            NEES; the batched filter's differ from filterpy's in the last bits); recording costs
+            more (~8 ms per episode) but is done once per seed (:attr:`episode_cache`), which
+            is what the leaderboard wants: every agent on the same seeds.
+        episode_cache: where recordings of seeded episodes are kept by (scenario, seed) and
+            found again (default: the env's own, the latest ``max(16, 2 * num_envs)``). With
+            ``reference_target_side`` the recordings are the single env's, so a
+            ``CaptureEnv`` given the same cache replays them too.
 
     Spaces, rewards, termination and ``info`` are ``CaptureEnv``'s (see its docstring), batched;
     see the module docstring for the format of ``info``. Autoreset, as gymnasium's
@@ -112,13 +125,19 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
 
     * ``NEXT_STEP``: the step after a sub-env's episode ends resets it and returns its first
       observation, reward 0 and no termination.
-    * ``DISABLED``: an ended sub-env stays ended; the caller resets it, alone or with others,
-      with ``reset(seed=..., options={"reset_mask": mask})``, and a ``step()`` while any sub-env
-      has ended and not been reset raises ``RuntimeError`` (naming them) before anything steps
-      (``SyncVectorEnv`` asserts the same). ``reset(seed=[s0, s1, ...])`` then plays, in
-      sub-env i, exactly the episode of ``CaptureEnv(reuse_target_side=True).reset(seed=s_i)``,
-      and an ended sub-env's last observation and ``info`` are those of its last step: a batch
-      of episodes of different lengths, each played to its end once.
+    * ``DISABLED``: an ended sub-env stays ended until the caller resets it, alone or with
+      others, with ``reset(seed=..., options={"reset_mask": mask})``. Until then ``step()``
+      leaves it as it is: its row of the actions is ignored, its observation is that of its
+      last step, its reward 0, ``terminated`` and ``truncated`` False, and no ``info`` key is
+      marked for it (``SyncVectorEnv`` instead asserts that no ended sub-env is stepped; code
+      written for it runs here unchanged). ``reset(seed=[s0, s1, ...])`` plays, in sub-env i,
+      exactly the episode of ``CaptureEnv(reuse_target_side=True).reset(seed=s_i)``: a batch of
+      episodes of different lengths, each played to its end once, as the evaluation plays
+      them.
+
+    Recordings of seeded episodes are kept by seed (:attr:`episode_cache`), so resetting with
+    seeds played before (the evaluation plays every agent on the same seeds) replays their
+    target side instead of recording it again; the episodes are the same either way.
 
     Episodes come from each sub-env's own generator, as gymnasium seeds them, unless
     :meth:`set_episode_seeds` gives each sub-env a stream of episode seeds (what SB3 training
@@ -137,6 +156,8 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         reuse_target_side: bool = True,
         render_mode: str | None = None,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        reference_target_side: bool = False,
+        episode_cache: EpisodeCache | None = None,
     ) -> None:
         if not reuse_target_side:
             raise ValueError(
@@ -172,6 +193,12 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         # The seed of the generator's first episode, until it is recorded (None: unseeded).
         self._generator_seeds: list[int | None] = [None] * n
         self._sources: list[EpisodeSeedSource] | None = None
+        #: Recordings of seeded episodes by (scenario, seed), replayed when a seed comes again.
+        self.episode_cache = (
+            EpisodeCache(max_episodes=max(16, 2 * n), max_limits=0)
+            if episode_cache is None
+            else episode_cache
+        )
         # (episode seed or None, episode) recorded ahead, in the order each sub-env plays them
         self._queues: list[deque[tuple[int | None, RecordedEpisode]]] = [deque() for _ in range(n)]
         self._episode_seeds: list[int | None] = [None] * n
@@ -186,7 +213,15 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         # recording estimates row 0 (the batched cold photogrammetry), then this filter, one
         # row per sub-env, continues it step by step with the frames of ``_images``.
         self._ekf: BatchedTargetEstimator | None = None
-        if sc.estimator.source == "ekf" and LIVE_ESTIMATES_FROM is not None:
+        self._reference: TargetEstimator | None = None
+        if reference_target_side:
+            self._reference = TargetEstimator(
+                self._camera.model,
+                self._features,
+                source=sc.estimator.source,
+                **sc.estimator_settings(),
+            )
+        elif sc.estimator.source == "ekf" and LIVE_ESTIMATES_FROM is not None:
             self._ekf = BatchedTargetEstimator(
                 n, self._camera.model, self._features, **sc.estimator_settings()
             )
@@ -273,13 +308,10 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             raise RuntimeError("CaptureVectorEnv.step() called before reset(); call reset() first")
         n = self.num_envs
         a = check_actions(actions, (n, 3), "actions")
-        resetting = np.flatnonzero(self._ended)
         stepping = np.flatnonzero(~self._ended)
-        if resetting.size and self.autoreset_mode == AutoresetMode.DISABLED:
-            raise RuntimeError(
-                f"sub-envs {resetting.tolist()} have ended and autoreset is disabled: reset "
-                "them first, e.g. reset(seed=..., options={'reset_mask': mask})"
-            )
+        resetting = np.flatnonzero(self._ended)
+        if self.autoreset_mode == AutoresetMode.DISABLED:
+            resetting = resetting[:0]  # ended sub-envs stay as they are
         if resetting.size:
             self._start(resetting, {})
         rewards = np.zeros(n)
@@ -345,19 +377,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         if any(i not in explicit and not self._queues[i] for i in envs.tolist()):
             ahead = self._to_record(envs)
         now = [(i, s, seeding.np_random(s)[0]) for i, s in explicit.items()]
-        jobs = now + ahead
-        recorded = (
-            record_episodes(
-                self.scenario,
-                self._camera,
-                self._features,
-                self.description,
-                [rng for _, _, rng in jobs],
-                estimated_steps=None if self._ekf is None else LIVE_ESTIMATES_FROM,
-            )
-            if jobs
-            else []
-        )
+        recorded = self._record(now + ahead)
         for (i, seed, _), episode in zip(ahead, recorded[len(now) :], strict=True):
             self._queues[i].append((seed, episode))
         played = {
@@ -382,6 +402,53 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             self._ekf.restore(list(rows), FilterRows.stack(list(states)))
         self._steps[envs] = 0
         self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
+
+    def _record(
+        self, jobs: list[tuple[int, int | None, np.random.Generator]]
+    ) -> list[RecordedEpisode]:
+        """The next episode of each job's generator: from :attr:`episode_cache` where its seed
+        was recorded before (the generator then set to its state after that recording), else
+        recorded now, all together (:func:`~capture_bench.task.recording.record_episodes`;
+        one by one as the single env records them with ``reference_target_side``), and kept
+        by seed."""
+        found: list[RecordedEpisode | None] = []
+        for _, seed, rng in jobs:
+            hit = None if seed is None else self.episode_cache.recording((self.scenario, seed))
+            if hit is not None:
+                rng.bit_generator.state = hit[1]
+            found.append(None if hit is None else hit[0])
+        missing = [j for j, episode in enumerate(found) if episode is None]
+        if self._reference is not None:
+            recorded = [self._record_as_single_env(jobs[j][2]) for j in missing]
+        elif missing:
+            recorded = record_episodes(
+                self.scenario,
+                self._camera,
+                self._features,
+                self.description,
+                [jobs[j][2] for j in missing],
+                estimated_steps=None if self._ekf is None else LIVE_ESTIMATES_FROM,
+            )
+        else:
+            recorded = []
+        for j, episode in zip(missing, recorded, strict=True):
+            found[j] = episode
+            _, seed, rng = jobs[j]
+            if seed is not None:
+                key = (self.scenario, seed)
+                self.episode_cache.keep_recording(key, episode, rng.bit_generator.state)
+        return [episode for episode in found if episode is not None]
+
+    def _record_as_single_env(self, rng: np.random.Generator) -> RecordedEpisode:
+        """The next episode of ``rng`` recorded as ``CaptureEnv(reuse_target_side=True)``
+        records it (the same draws, the same code), with its bound."""
+        assert self._reference is not None
+        task = self.task
+        plan = EpisodePlan.draw(task.scenario, self._camera.model, self._features, rng)
+        side = TargetSide.live(plan, self._camera, self._reference, self._features, rng)
+        episode = side.record_all()
+        (episode.bound,) = episode_bounds([plan], self.description)
+        return episode
 
     def _to_record(
         self, envs: NDArray[np.intp]
@@ -539,6 +606,24 @@ _TRACK_DTYPES: dict[str, Any] = {
     **dict.fromkeys(("estimate_valid", "visible", "reachable"), np.bool_),
     "estimator_status": np.int8,
 }
+
+
+def sub_env_infos(info: dict[str, Any], n: int) -> list[dict[str, Any]]:
+    """The n sub-envs' entries of a gymnasium vector ``info`` (``_key`` masks), as the single
+    env gives them: Python scalars, None for the step rule's ``OPTIONAL_KEYS`` where NaN (and for no
+    failure). One ``tolist()`` per key: indexing the arrays element by element costs several
+    times as much."""
+    out: list[dict[str, Any]] = [{} for _ in range(n)]
+    for key, values in info.items():
+        if key.startswith("_"):
+            continue
+        optional = key in OPTIONAL_KEYS
+        for env_info, marked, value in zip(
+            out, info[f"_{key}"].tolist(), values.tolist(), strict=True
+        ):
+            if marked:
+                env_info[key] = None if optional and value != value else value  # NaN: None
+    return out
 
 
 def _scatter(n: int, idx: NDArray[np.intp], value: NDArray) -> NDArray:

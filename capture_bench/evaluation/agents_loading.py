@@ -186,6 +186,11 @@ def _model(spec: AgentSpec) -> Any:
     return _MODEL_CACHE[key]
 
 
+def declares_sampled_actions(spec: AgentSpec) -> bool:
+    """Whether ``spec`` is a model whose card declares sampled actions (loads it, cached)."""
+    return spec.kind == "model" and bool(_model(spec).sampled)
+
+
 def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
     """A fresh agent for one episode on ``env`` (seeded with ``seed`` if stochastic)."""
     if spec.kind == "builtin":

@@ -3,11 +3,13 @@
 Work is a list of :class:`EpisodeTask` (agent spec, scenario, seed: plain, picklable values). It is
 cut into chunks of every agent on a few seeds of one scenario, each chunk runs in one worker, and
 the records come back in the order of the tasks, whatever the backend and whatever order chunks
-finish in. Each worker builds its own environments (one per scenario, cached for the worker's
-life, with ``reuse_target_side``: the target's side of an episode, camera and estimator included,
-is computed once per seed and worker and replayed for the other agents of the chunk) and a fresh
-agent per episode, and every episode starts from ``env.reset(seed=seed)``, so every backend gives
-the same records (apart from the timing columns).
+finish in. In a chunk, each agent's episodes are played together in one batched env
+(:class:`~capture_bench.envs.vector_env.CaptureVectorEnv`, autoreset off: :func:`run_batch`),
+sub-env i from ``reset(seed=s_i)``. Each worker builds its own environments (cached for its life;
+the batched env records each seed's target side, camera and estimator included, as the single
+env does, once, and replays it for the chunk's other agents), so every backend gives the same
+records (apart from the timing columns), and they equal a single ``CaptureEnv``'s, episode by
+episode.
 
 The local pool's workers end with the process that started them, however it ends (``kill -9``
 included), and the forkserver and multiprocessing's resource tracker then end by themselves.
@@ -37,16 +39,27 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from capture_bench.evaluation.agents_loading import AgentSpec, build_agent, resolve_agent
+from capture_bench.evaluation.agents_loading import (
+    AgentSpec,
+    build_agent,
+    declares_sampled_actions,
+    resolve_agent,
+)
 from capture_bench.evaluation.errors import EvaluationError
-from capture_bench.evaluation.rollout import EpisodeRecord, EpisodeTrace, run_episode
+from capture_bench.evaluation.rollout import (
+    EpisodeRecord,
+    EpisodeTrace,
+    run_episode,
+    run_episodes,
+)
 from capture_bench.paths import CHECKOUT_DIR
+from capture_bench.task.target_side import EpisodeCache
 
 BACKENDS = ("serial", "process", "ray")
-#: Seeds per chunk (each with every agent): small enough to balance load and move the progress
-#: bar, large enough that dispatch costs little next to the episodes, and fewer than the envs keep
-#: recorded (``capture_bench.task.target_side.EpisodeCache.max_episodes``, 16 by default).
-SEEDS_PER_CHUNK = 5
+#: Seeds per chunk (each with every agent): the batch each agent plays at once. Large enough that
+#: a batched step costs little per episode, small enough to balance load over the workers and move
+#: the progress bar (the default suite's 8 x 100 seeds make 32 chunks).
+SEEDS_PER_CHUNK = 25
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded.
 PRELOAD = (
@@ -77,6 +90,7 @@ class EpisodeTask:
 
 _ENVS: dict[str, Any] = {}
 _SPECS: dict[tuple[str, bool], AgentSpec] = {}
+_CACHE: list[EpisodeCache] = []
 
 
 def make_env(scenario: str, **kwargs: Any) -> Any:
@@ -110,28 +124,62 @@ def scenario_label(scenario: str) -> str:
 
 def _env(scenario: str) -> Any:
     if scenario not in _ENVS:
-        _ENVS[scenario] = make_env(scenario, reuse_target_side=True)
+        _ENVS[scenario] = make_env(scenario, reuse_target_side=True, episode_cache=_episode_cache())
     return _ENVS[scenario]
 
 
+def _vector_env(scenario: str, n: int) -> Any:
+    """This process's batched env of ``n`` sub-envs of ``scenario``, autoreset off (cached for
+    the process's life, as the single envs are). It records each seed's target side as the
+    single env does (``reference_target_side``), once: the chunk's other agents replay it."""
+    key = f"{scenario}#{n}"
+    if key not in _ENVS:
+        from gymnasium.vector import AutoresetMode
+
+        from capture_bench.envs.vector_env import CaptureVectorEnv
+        from capture_bench.task.scenarios import load_scenario
+
+        _ENVS[key] = CaptureVectorEnv(
+            n,
+            load_scenario(scenario),
+            autoreset_mode=AutoresetMode.DISABLED,
+            reference_target_side=True,
+            episode_cache=_episode_cache(),
+        )
+    return _ENVS[key]
+
+
+def _episode_cache() -> EpisodeCache:
+    """The recordings this process's envs share: a chunk's seeds, recorded once for all its
+    agents, whether they play in the batched env or in the single env (the oracle)."""
+    if not _CACHE:
+        _CACHE.append(EpisodeCache(max_episodes=2 * SEEDS_PER_CHUNK))
+    return _CACHE[0]
+
+
 def close_envs() -> None:
-    """Close and forget this process's cached environments."""
+    """Close and forget this process's cached environments and their recordings."""
     while _ENVS:
         _ENVS.popitem()[1].close()
+    _CACHE.clear()
+
+
+def _spec(task: EpisodeTask) -> AgentSpec:
+    key = (task.agent, task.trust_model)
+    if key not in _SPECS:
+        _SPECS[key] = resolve_agent(task.agent, trust_model=task.trust_model)
+    return _SPECS[key]
 
 
 def run_task(
     task: EpisodeTask, trace: bool = False, env: Any = None
 ) -> tuple[EpisodeRecord, EpisodeTrace | None]:
-    """Run one task in this process (environment cached per scenario, agent built afresh).
+    """Run one task in this process in a single env (cached per scenario; agent built afresh).
 
     ``env``: run on this environment of the task's scenario instead of the cached one (a
     rendering one, :mod:`capture_bench.evaluation.video`), by the same steps: the same episode.
     """
-    key = (task.agent, task.trust_model)
-    if key not in _SPECS:
-        _SPECS[key] = resolve_agent(task.agent, trust_model=task.trust_model)
-    spec = _SPECS[key]
+    spec = _spec(task)
     env = _env(task.scenario) if env is None else env
     agent = build_agent(spec, env, task.seed)
     return run_episode(
@@ -144,9 +192,46 @@ def run_task(
     )
 
 
+def run_batch(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
+    """Run one agent's tasks on one scenario together, in a batched env with autoreset off
+    (:func:`~capture_bench.evaluation.rollout.run_episodes`); their records, in order.
+
+    A ``batched`` agent is built once and asked once per step for every episode. A trained
+    model is built once and asked once per step through ``predict_rows``: one forward pass
+    whose rows are, bit for bit, the model's action for each observation alone
+    (:mod:`capture_bench.agents.row_exact`; torch's plain batched product rounds a row by the
+    batch's height, and the leaderboard's actions must be those the model card replays and a
+    single env gives). Any other agent, a user's class written for one observation, is built
+    once per episode, and each instance is asked with its own episode's observation. Two kinds
+    play their episodes one by one in the single env: a privileged agent (it reads the single
+    env's ground truth) and a model declaring sampled actions (torch's one generator, seeded
+    per episode). Every way gives the single env's records (tested).
+    """
+    first = tasks[0]
+    spec = _spec(first)
+    seeds = [task.seed for task in tasks]
+    if spec.privileged or declares_sampled_actions(spec):
+        return [run_task(task)[0] for task in tasks]
+    env = _vector_env(first.scenario, len(seeds))
+    agent = build_agent(spec, env, seeds[0])
+    if not (getattr(agent, "batched", False) or callable(getattr(agent, "predict_rows", None))):
+        agent = [agent, *(build_agent(spec, env, seed) for seed in seeds[1:])]
+    return run_episodes(
+        env, agent, agent_name=spec.label, scenario=scenario_label(first.scenario), seeds=seeds
+    )
+
+
 def run_chunk(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
-    """Run tasks one after the other in this process; the unit of work of every backend."""
-    return [run_task(task)[0] for task in tasks]
+    """Run a chunk in this process, the unit of work of every backend: each agent's episodes on
+    a scenario as one batch (:func:`run_batch`); the records in task order."""
+    groups: dict[tuple[str, bool, str], list[int]] = {}
+    for index, task in enumerate(tasks):
+        groups.setdefault((task.agent, task.trust_model, task.scenario), []).append(index)
+    records: dict[int, EpisodeRecord] = {}
+    for indices in groups.values():
+        batch = run_batch([tasks[i] for i in indices])
+        records.update(zip(indices, batch, strict=True))
+    return [records[i] for i in range(len(tasks))]
 
 
 def make_chunks(tasks: Sequence[EpisodeTask], seeds: int = SEEDS_PER_CHUNK) -> list[list[int]]:
@@ -191,11 +276,8 @@ def _run_serial(chunks: list[list[EpisodeTask]], progress: Progress) -> list[lis
     results = []
     try:
         for chunk in chunks:
-            records = []
-            for task in chunk:
-                records.append(run_task(task)[0])
-                progress(1)
-            results.append(records)
+            results.append(run_chunk(chunk))
+            progress(len(chunk))
     finally:
         close_envs()
     return results

@@ -1,20 +1,27 @@
-"""One episode of one agent on one seed -> one :class:`EpisodeRecord`.
+"""Episodes of one agent -> one :class:`EpisodeRecord` each.
 
-The loop follows Stable-Baselines3's ``evaluate_policy``: ``reset(seed)``, then ``predict`` /
-``step`` until ``terminated or truncated``. Everything the leaderboard needs is read from the
-environment's ``info`` (see ``docs/architecture.md``); nothing is read from the world directly.
+:func:`run_episodes` plays N episodes of one agent together in a
+:class:`~capture_bench.envs.vector_env.CaptureVectorEnv` with autoreset off, one ``predict`` call
+per step for all of them (an agent that handles one observation at a time gets one instance per
+episode instead); :func:`run_episode` plays one in a single ``CaptureEnv`` (the privileged oracle,
+sampled policies, rendered videos). Both follow Stable-Baselines3's ``evaluate_policy``:
+``reset(seed)``, then ``predict`` / ``step`` until ``terminated or truncated``, and both make the
+record from the environment's ``info`` alone (see ``docs/architecture.md``), by
+:class:`_EpisodeLog`, so an episode's record is the same whichever way it ran (tested).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
 
 from capture_bench.agents.protocol import Agent
+from capture_bench.envs.vector_env import sub_env_infos
 
 CAPTURED = "captured"
 FAILED = "failed"
@@ -131,6 +138,90 @@ def _physical_limit_time(env: Any, info: dict[str, Any]) -> float:
     return float(env.unwrapped.physical_limit().time)
 
 
+class _EpisodeLog:
+    """What an episode's record is made of, gathered step by step from ``info``."""
+
+    def __init__(self, trace: bool = False) -> None:
+        self.pos_sq: list[float] = []
+        self.vel_sq: list[float] = []
+        self.nees: list[float] = []
+        self.saturated = 0
+        self.steps = 0
+        self.series: dict[str, list[Any]] | None = (
+            {k: [] for k in ("time", "distance", "err", "action", "sat")} if trace else None
+        )
+
+    def add(self, info: dict[str, Any], action: Any) -> None:
+        """One step's ``info`` (the single env's form) and the action taken."""
+        self.steps += 1
+        self.pos_sq.append(_float(info, "estimate_position_error") ** 2)
+        self.vel_sq.append(_float(info, "estimate_velocity_error") ** 2)
+        self.nees.append(_float(info, "estimate_nees"))
+        self.saturated += bool(info.get("saturated", False))
+        if self.series is not None:
+            self.series["time"].append(_float(info, "time"))
+            self.series["distance"].append(_float(info, "distance"))
+            self.series["err"].append(_float(info, "estimate_position_error"))
+            self.series["action"].append(np.asarray(action, dtype=float).reshape(-1))
+            self.series["sat"].append(bool(info.get("saturated", False)))
+
+    def record(
+        self,
+        info: dict[str, Any],
+        truncated: bool,
+        limit: float,
+        *,
+        agent_name: str,
+        scenario: str,
+        seed: int,
+        wall_clock_s: float,
+        cpu_s: float,
+    ) -> EpisodeRecord:
+        """The record, from the last step's ``info`` and the episode's physical limit, s."""
+        captured = bool(info.get("is_success", False))
+        failure = "" if captured else (info.get("failure") or ("timeout" if truncated else None))
+        if not captured and not failure:
+            failure = UNSPECIFIED_FAILURE
+        capture_time = _float(info, "capture_time") if captured else math.nan
+        finite = math.isfinite(limit) and limit > 0
+        ratio = capture_time / limit if captured and finite else math.nan
+        finite_nees = [v for v in self.nees if math.isfinite(v)]
+        return EpisodeRecord(
+            agent=agent_name,
+            scenario=scenario,
+            seed=int(seed),
+            outcome=CAPTURED if captured else FAILED,
+            failure=str(failure),
+            capture_time=capture_time,
+            end_time=_float(info, "time"),
+            physical_limit_time=limit,
+            ratio=ratio,
+            capture_time_estimated=_float(info, "capture_time_estimated"),
+            distance_at_capture=_float(info, "distance") if captured else math.nan,
+            relative_speed_at_capture=_float(info, "relative_speed") if captured else math.nan,
+            position_rmse=float(np.sqrt(np.nanmean(self.pos_sq))) if self.pos_sq else math.nan,
+            velocity_rmse=float(np.sqrt(np.nanmean(self.vel_sq))) if self.vel_sq else math.nan,
+            mean_nees=float(np.mean(finite_nees)) if finite_nees else math.nan,
+            path_length=_float(info, "path_length"),
+            saturated_share=self.saturated / self.steps if self.steps else math.nan,
+            steps=self.steps,
+            wall_clock_s=wall_clock_s,
+            cpu_s=cpu_s,
+        )
+
+    def trace(self) -> EpisodeTrace | None:
+        """The per-step series, if kept."""
+        if self.series is None:
+            return None
+        return EpisodeTrace(
+            time=np.array(self.series["time"]),
+            distance=np.array(self.series["distance"]),
+            position_error=np.array(self.series["err"]),
+            action=np.array(self.series["action"]).reshape(self.steps, -1),
+            saturated=np.array(self.series["sat"]),
+        )
+
+
 def run_episode(
     env: Any,
     agent: Agent,
@@ -141,7 +232,7 @@ def run_episode(
     deterministic: bool = True,
     trace: bool = False,
 ) -> tuple[EpisodeRecord, EpisodeTrace | None]:
-    """Run one episode and summarise it.
+    """Run one episode in a single env and summarise it.
 
     Args:
         env: a ``CaptureEnv`` (possibly wrapped, e.g. by ``TimeLimit``).
@@ -162,12 +253,7 @@ def run_episode(
     start, cpu_start = time.perf_counter(), time.process_time()
     state: Any = None
     episode_start = np.ones((1,), dtype=bool)
-    pos_sq: list[float] = []
-    vel_sq: list[float] = []
-    nees: list[float] = []
-    saturated = 0
-    steps = 0
-    series: dict[str, list[Any]] = {k: [] for k in ("time", "distance", "err", "action", "sat")}
+    log = _EpisodeLog(trace)
     terminated = truncated = False
     while not (terminated or truncated):
         action, state = agent.predict(
@@ -175,57 +261,132 @@ def run_episode(
         )
         episode_start = np.zeros((1,), dtype=bool)
         obs, _reward, terminated, truncated, info = env.step(action)
-        steps += 1
-        pos_sq.append(_float(info, "estimate_position_error") ** 2)
-        vel_sq.append(_float(info, "estimate_velocity_error") ** 2)
-        nees.append(_float(info, "estimate_nees"))
-        saturated += bool(info.get("saturated", False))
-        if trace:
-            series["time"].append(_float(info, "time"))
-            series["distance"].append(_float(info, "distance"))
-            series["err"].append(_float(info, "estimate_position_error"))
-            series["action"].append(np.asarray(action, dtype=float).reshape(-1))
-            series["sat"].append(bool(info.get("saturated", False)))
-        if steps >= MAX_STEPS:
+        log.add(info, action)
+        if log.steps >= MAX_STEPS:
             raise RuntimeError(f"episode of {agent_name} on {scenario} seed {seed} never ended")
-
-    captured = bool(info.get("is_success", False))
-    failure = "" if captured else (info.get("failure") or ("timeout" if truncated else None))
-    if not captured and not failure:
-        failure = UNSPECIFIED_FAILURE
-    capture_time = _float(info, "capture_time") if captured else math.nan
-    limit = _physical_limit_time(env, info)
-    ratio = capture_time / limit if captured and math.isfinite(limit) and limit > 0 else math.nan
-    finite_nees = [v for v in nees if math.isfinite(v)]
-    record = EpisodeRecord(
-        agent=agent_name,
+    record = log.record(
+        info,
+        truncated,
+        _physical_limit_time(env, info),
+        agent_name=agent_name,
         scenario=scenario,
-        seed=int(seed),
-        outcome=CAPTURED if captured else FAILED,
-        failure=str(failure),
-        capture_time=capture_time,
-        end_time=_float(info, "time"),
-        physical_limit_time=limit,
-        ratio=ratio,
-        capture_time_estimated=_float(info, "capture_time_estimated"),
-        distance_at_capture=_float(info, "distance") if captured else math.nan,
-        relative_speed_at_capture=_float(info, "relative_speed") if captured else math.nan,
-        position_rmse=float(np.sqrt(np.nanmean(pos_sq))) if pos_sq else math.nan,
-        velocity_rmse=float(np.sqrt(np.nanmean(vel_sq))) if vel_sq else math.nan,
-        mean_nees=float(np.mean(finite_nees)) if finite_nees else math.nan,
-        path_length=_float(info, "path_length"),
-        saturated_share=saturated / steps if steps else math.nan,
-        steps=steps,
+        seed=seed,
         wall_clock_s=time.perf_counter() - start,
         cpu_s=time.process_time() - cpu_start,
     )
-    episode_trace = None
-    if trace:
-        episode_trace = EpisodeTrace(
-            time=np.array(series["time"]),
-            distance=np.array(series["distance"]),
-            position_error=np.array(series["err"]),
-            action=np.array(series["action"]).reshape(steps, -1),
-            saturated=np.array(series["sat"]),
+    return record, log.trace()
+
+
+def run_episodes(
+    env: Any,
+    agent: Agent | Sequence[Agent],
+    *,
+    agent_name: str,
+    scenario: str,
+    seeds: Sequence[int],
+    deterministic: bool = True,
+) -> list[EpisodeRecord]:
+    """Run N episodes of one agent together and summarise each.
+
+    Args:
+        env: a :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` of N = ``len(seeds)``
+            sub-envs with autoreset off (an ended sub-env stays ended).
+        agent: one agent whose ``batched`` is true, asked once per step with every episode's
+            observation, (N, 16), row i for episode i (an ended episode's row holds its last
+            observation, and its action is ignored); or one agent with ``predict_rows`` (a
+            trained model: each row's deterministic action as alone), asked once per step with
+            the running episodes' observations; or N agents, one per episode, each asked with
+            its own episode's observation while the episode runs (the fallback for agents
+            written for one observation).
+        agent_name: label stored in the records.
+        scenario: scenario name stored in the records.
+        seeds: episode seeds, one per sub-env (``env.reset(seed=list(seeds))``).
+        deterministic: passed to ``predict``.
+
+    Returns:
+        One record per seed, in order, each equal to :func:`run_episode`'s for that seed but for
+        the timing columns: the batch's wall-clock and CPU time, shared between its episodes in
+        proportion to their steps.
+    """
+    n = len(seeds)
+    if n != env.num_envs:
+        raise ValueError(f"{n} seeds for a vector env of {env.num_envs} sub-envs")
+    each = isinstance(agent, Sequence)
+    agents: list[Any] = list(agent) if isinstance(agent, Sequence) else [agent]
+    if each and len(agents) != n:
+        raise ValueError(f"{len(agents)} agents for {n} episodes: give one batched agent or N")
+    rows_of = None if each else getattr(agent, "predict_rows", None)
+    if not each and not (getattr(agent, "batched", False) or callable(rows_of)):
+        raise ValueError(
+            f"{agent_name} is not batched (its `batched` is not true and it has no "
+            "predict_rows): give one agent per episode"
         )
-    return record, episode_trace
+    if rows_of is not None and not deterministic:
+        raise ValueError("predict_rows gives deterministic actions: deterministic must be True")
+    for one, seed in zip(agents, seeds, strict=False):
+        seeder = getattr(one, "seed", None)
+        if each and callable(seeder):
+            seeder(seed)
+        one.reset()
+    obs, _info = env.reset(seed=[int(s) for s in seeds])
+    start, cpu_start = time.perf_counter(), time.process_time()
+    logs = [_EpisodeLog() for _ in range(n)]
+    states: list[Any] = [None] * len(agents)
+    running = np.ones(n, dtype=bool)
+    first = True
+    ends: list[tuple[dict[str, Any], bool] | None] = [None] * n
+    actions = np.zeros((n, 3))  # float64: holds float32 and float64 actions exactly
+    while running.any():
+        rows: list[int] = np.flatnonzero(running).tolist()
+        if each:
+            for i in rows:
+                actions[i], states[i] = agents[i].predict(
+                    obs[i],
+                    state=states[i],
+                    episode_start=np.full((1,), first),
+                    deterministic=deterministic,
+                )
+        elif rows_of is not None:  # each row as alone, so only the running episodes' rows
+            actions[rows] = rows_of(obs[rows])
+        else:  # every row, so that row i is always episode i; an ended one's is ignored
+            batch, states[0] = agents[0].predict(
+                obs,
+                state=states[0],
+                episode_start=np.full((n,), first),
+                deterministic=deterministic,
+            )
+            actions[rows] = np.asarray(batch)[rows]
+        first = False
+        obs, _rewards, terminated, truncated, info = env.step(actions)
+        infos = sub_env_infos(info, n)
+        for i in rows:
+            row = infos[i]
+            logs[i].add(row, actions[i])
+            if terminated[i] or truncated[i]:
+                ends[i] = (row, bool(truncated[i]))
+                running[i] = False
+            elif logs[i].steps >= MAX_STEPS:
+                raise RuntimeError(
+                    f"episode of {agent_name} on {scenario} seed {seeds[i]} never ended"
+                )
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu_start
+    total = sum(log.steps for log in logs)
+    records = []
+    for log, end, seed in zip(logs, ends, seeds):
+        assert end is not None
+        row, was_truncated = end
+        share = log.steps / total
+        limit = row.get("physical_limit_time")
+        records.append(
+            log.record(
+                row,
+                was_truncated,
+                math.nan if limit is None else float(limit),
+                agent_name=agent_name,
+                scenario=scenario,
+                seed=seed,
+                wall_clock_s=wall * share,
+                cpu_s=cpu * share,
+            )
+        )
+    return records

@@ -35,9 +35,8 @@ import numpy as np
 from numpy.typing import NDArray
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-from capture_bench.envs.vector_env import CaptureVectorEnv
+from capture_bench.envs.vector_env import CaptureVectorEnv, sub_env_infos
 from capture_bench.task.scenarios import Scenario
-from capture_bench.task.step_rule import OPTIONAL_KEYS
 from capture_bench.training.seeds import TrainingSeedDraw
 
 
@@ -86,7 +85,7 @@ class CaptureSB3VecEnv(VecEnv):
                     draw.reseed(seed)
             self.venv.set_episode_seeds(self._draws)  # discards what the old draws recorded
         obs, info = self.venv.reset()
-        self.reset_infos = env_infos(info, self.num_envs)
+        self.reset_infos = sub_env_infos(info, self.num_envs)
         self._reset_seeds()
         self._reset_options()
         return obs.copy()
@@ -102,7 +101,7 @@ class CaptureSB3VecEnv(VecEnv):
         # never fires: every sub-env steps.
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
         dones = terminated | truncated
-        infos = env_infos(info, self.num_envs)
+        infos = sub_env_infos(info, self.num_envs)
         for env_info, limit in zip(infos, (truncated & ~terminated).tolist(), strict=True):
             env_info["TimeLimit.truncated"] = limit
         if dones.any():
@@ -111,7 +110,7 @@ class CaptureSB3VecEnv(VecEnv):
                 infos[i]["terminal_observation"] = obs[i].copy()
             new_obs, reset_info = self.venv.reset(options={"reset_mask": dones})
             obs = np.where(dones[:, None], new_obs, obs)
-            new_infos = env_infos(reset_info, self.num_envs)
+            new_infos = sub_env_infos(reset_info, self.num_envs)
             for i in ended.tolist():
                 self.reset_infos[i] = new_infos[i]
         return obs.copy(), rewards.astype(np.float32), dones, infos
@@ -163,21 +162,3 @@ class CaptureSB3VecEnv(VecEnv):
     def episode_seeds(self) -> list[int | None]:
         """The training seed of each sub-env's current episode (None before :meth:`reset`)."""
         return self.venv.episode_seeds
-
-
-def env_infos(info: dict[str, Any], n: int) -> list[dict[str, Any]]:
-    """The n sub-envs' entries of a gymnasium vector ``info`` (``_key`` masks), as the single
-    env gives them: Python scalars, None for the :data:`OPTIONAL_KEYS` where NaN (and for no
-    failure). One ``tolist()`` per key: indexing the arrays element by element costs several
-    times as much."""
-    out: list[dict[str, Any]] = [{} for _ in range(n)]
-    for key, values in info.items():
-        if key.startswith("_"):
-            continue
-        optional = key in OPTIONAL_KEYS
-        for env_info, marked, value in zip(
-            out, info[f"_{key}"].tolist(), values.tolist(), strict=True
-        ):
-            if marked:
-                env_info[key] = None if optional and value != value else value  # NaN: None
-    return out

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from capture_bench.envs.vector_env import sub_env_infos
 from capture_bench.training.episode_stats import EpisodeStats, EpisodeTracker
-from capture_bench.training.sb3_vec_env import env_infos
 
 
 def run_validation(
@@ -51,7 +51,7 @@ def run_validation(
         obs, rewards, terminated, truncated, info = venv.step(action)
         # a sub-env past its first episode is fed as not done with reward 0: it is never read
         live = ~done
-        infos = [x if live[i] else {} for i, x in enumerate(env_infos(info, n))]
+        infos = [x if live[i] else {} for i, x in enumerate(sub_env_infos(info, n))]
         ended = (terminated | truncated) & live
         for i, stats in tracker.step(infos, ended, np.where(live, rewards, 0.0)):
             results[i] = stats
