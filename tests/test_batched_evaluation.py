@@ -238,8 +238,16 @@ def test_a_model_without_row_exact_layers_acts_row_by_row(monkeypatch):
     from capture_bench.agents import row_exact
     from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
 
+    import weakref
+
     monkeypatch.setattr(row_exact, "row_exact_forward", lambda layer: None)
+    monkeypatch.setattr(row_exact, "_LAYERS", weakref.WeakKeyDictionary())
     agent = build_agent(resolve_agent("models/ppo-paper"), CaptureEnv("paper"), 0)
     obs = _observations(40)
     alone = np.stack([agent.predict(row)[0] for row in obs])
+    one_by_one = []
+    monkeypatch.setattr(agent, "_deterministic_action", lambda row: one_by_one.append(row) or 0)
+    assert agent.predict_rows(obs).shape == (len(obs),)  # the stand-in's zeros, row by row
+    assert len(one_by_one) == len(obs)
+    monkeypatch.undo()
     np.testing.assert_array_equal(agent.predict_rows(obs), alone)

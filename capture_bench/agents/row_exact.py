@@ -37,6 +37,10 @@ PROBE_ROWS = 64
 Forward = Callable[[Any], Any]
 # layer -> its row-exact forward, or None where no batched form matched (decided once)
 _CHOSEN: weakref.WeakKeyDictionary[Any, Forward | None] = weakref.WeakKeyDictionary()
+# module -> its nn.Linear layers and their row-exact forwards
+_LAYERS: weakref.WeakKeyDictionary[Any, tuple[list[Any], list[Forward | None]]] = (
+    weakref.WeakKeyDictionary()
+)
 
 
 def _products(layer: Any) -> Forward:
@@ -93,10 +97,12 @@ def row_exact_forward(layer: Any) -> Forward | None:
 def row_exact_layers(module: Any) -> Iterator[bool]:
     """Within the block, every ``nn.Linear`` of ``module`` computes each row of a batch as it
     would alone; yields False (and changes nothing) if some layer has no such form."""
-    import torch
+    if module not in _LAYERS:
+        import torch
 
-    layers = [m for m in module.modules() if isinstance(m, torch.nn.Linear)]
-    forwards = [row_exact_forward(layer) for layer in layers]
+        linear = [m for m in module.modules() if isinstance(m, torch.nn.Linear)]
+        _LAYERS[module] = (linear, [row_exact_forward(layer) for layer in linear])
+    layers, forwards = _LAYERS[module]
     if any(forward is None for forward in forwards):
         yield False
         return

@@ -153,17 +153,28 @@ class _EpisodeLog:
 
     def add(self, info: dict[str, Any], action: Any) -> None:
         """One step's ``info`` (the single env's form) and the action taken."""
-        self.steps += 1
-        self.pos_sq.append(_float(info, "estimate_position_error") ** 2)
-        self.vel_sq.append(_float(info, "estimate_velocity_error") ** 2)
-        self.nees.append(_float(info, "estimate_nees"))
-        self.saturated += bool(info.get("saturated", False))
+        self.add_estimates(
+            _float(info, "estimate_position_error"),
+            _float(info, "estimate_velocity_error"),
+            _float(info, "estimate_nees"),
+            bool(info.get("saturated", False)),
+        )
         if self.series is not None:
             self.series["time"].append(_float(info, "time"))
             self.series["distance"].append(_float(info, "distance"))
             self.series["err"].append(_float(info, "estimate_position_error"))
             self.series["action"].append(np.asarray(action, dtype=float).reshape(-1))
             self.series["sat"].append(bool(info.get("saturated", False)))
+
+    def add_estimates(
+        self, position_error: float, velocity_error: float, nees: float, saturated: bool
+    ) -> None:
+        """One step's estimate errors, NEES and saturation (``info``'s values)."""
+        self.steps += 1
+        self.pos_sq.append(position_error**2)
+        self.vel_sq.append(velocity_error**2)
+        self.nees.append(nees)
+        self.saturated += saturated
 
     def record(
         self,
@@ -277,6 +288,10 @@ def run_episode(
     return record, log.trace()
 
 
+#: ``info`` keys an episode's record gathers every step (:meth:`_EpisodeLog.add_estimates`).
+_LOGGED = ("estimate_position_error", "estimate_velocity_error", "estimate_nees", "saturated")
+
+
 def run_episodes(
     env: Any,
     agent: Agent | Sequence[Agent],
@@ -358,12 +373,15 @@ def run_episodes(
             actions[rows] = np.asarray(batch)[rows]
         first = False
         obs, _rewards, terminated, truncated, info = env.step(actions)
-        infos = sub_env_infos(info, n)
-        for i in rows:
-            row = infos[i]
-            logs[i].add(row, actions[i])
-            if terminated[i] or truncated[i]:
-                ends[i] = (row, bool(truncated[i]))
+        columns = zip(*(info[key].tolist() for key in _LOGGED), strict=True)
+        ended = terminated | truncated
+        infos = sub_env_infos(info, n) if ended.any() else []  # the last step's, in full
+        for i, values in enumerate(columns):
+            if not running[i]:
+                continue
+            logs[i].add_estimates(*values)
+            if ended[i]:
+                ends[i] = (infos[i], bool(truncated[i]))
                 running[i] = False
             elif logs[i].steps >= MAX_STEPS:
                 raise RuntimeError(
