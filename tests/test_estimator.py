@@ -11,6 +11,8 @@ from capture_bench.sensing.ekf import (
     TargetEKF,
     measurement,
     measurement_jacobian,
+    process_noise,
+    state_transition,
     transition_matrices,
 )
 from capture_bench.sensing.estimator import DIVERGENCE_FRAMES, TargetEstimator
@@ -43,6 +45,20 @@ def test_transition_matrices_are_eqs_4_5():
     np.testing.assert_allclose(ax[1::2], x[1::2])
     np.testing.assert_allclose(b[0::2], 0.005 * np.eye(6))  # t_s^2 / 2
     np.testing.assert_allclose(b[1::2], 0.1 * np.eye(6))
+
+
+def test_process_noise_is_the_matrix_product_bit_for_bit():
+    """``process_noise`` writes out ``B @ Q @ B.T`` (eq. 5): the same floats, for any t_s."""
+    rng = np.random.default_rng(0)
+    for dt in [0.0, DT, 0.1, 1e-300, 1e3, *rng.uniform(0.0, 0.2, 500)]:
+        variances = (rng.uniform(1e-4, 1.0) ** 2,) * 3 + (rng.uniform(1e-4, 1.0) ** 2,) * 3
+        a, b = transition_matrices(dt)
+        expected = b @ np.diag(variances) @ b.T
+        got = process_noise(dt, variances)
+        assert got.tobytes() == expected.tobytes(), dt
+        reference = np.eye(12)
+        reference[[0, 2, 4, 6, 8, 10], [1, 3, 5, 7, 9, 11]] = dt  # eq. 4
+        assert state_transition(dt).tobytes() == a.tobytes() == reference.tobytes()
 
 
 def test_measurement_jacobian_matches_finite_differences():

@@ -309,7 +309,6 @@ class CaptureEnv(TaskAccess, gym.Env):
         joint_step = self._world.apply_joint_increment(self.task.increments(a), episode.dt[k])
         theta = joint_step.theta[None]
         x_e = kinematics.forward_kinematics_point(joint_step.theta)[None]
-        self._world.set_target_pose(episode.position[k], episode.rotation[k])
         after = episode.rows(k)
         out = self.rule.step(
             self._state,
@@ -329,7 +328,8 @@ class CaptureEnv(TaskAccess, gym.Env):
         self._episode_over = terminated or truncated
         if self._episode_over:
             info["physical_limit_time"] = self.physical_limit().time
-        if self.render_mode is not None:
+        if self.render_mode is not None:  # the target never collides: only images show it
+            self._world.set_target_pose(episode.position[k], episode.rotation[k])
             self._traces["target"].append(episode.position[k])
             self._traces["end_effector"].append(x_e[0])
         obs = self.rule.observe(self._state, _ALL, after)[0]

@@ -24,6 +24,7 @@ which training runs on, uses this module's model and never needs it.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,14 +38,44 @@ POSITION_VELOCITY_INDEX = np.array([0, 2, 4, 1, 3, 5])  # (x, y, z, x_dot, y_dot
 _PV_BLOCK = np.ix_(POSITION_VELOCITY_INDEX, POSITION_VELOCITY_INDEX)
 
 
+_EYE12 = np.eye(12)
+# Flat indices into a (12, 12) matrix: the t_s entries of A (eq. 4), and the 2 x 2 block
+# (q q, q q_dot, q_dot q, q_dot q_dot) of each coordinate q in B Q B' (eq. 5).
+_A_RATE_ENTRIES = POSE_INDEX * 12 + POSE_INDEX + 1
+_BQB_ENTRIES = (POSE_INDEX * 13)[:, None] + np.array([0, 1, 12, 13])
+
+
 def transition_matrices(dt: float) -> tuple[FloatArray, FloatArray]:
     """``A`` (12, 12) and ``B`` (12, 6) of eqs. 4-5 for a sampling interval ``dt`` (s)."""
-    a = np.eye(12)
-    a[POSE_INDEX, POSE_INDEX + 1] = dt  # eq. 4: [[1, t_s], [0, 1]] blocks
     b = np.zeros((12, 6))
     b[POSE_INDEX, np.arange(6)] = 0.5 * dt * dt  # eq. 5: [t_s^2 / 2, t_s] blocks
     b[POSE_INDEX + 1, np.arange(6)] = dt
-    return a, b
+    return state_transition(dt), b
+
+
+def state_transition(dt: float) -> FloatArray:
+    """``A`` (12, 12) of eq. 4 for a sampling interval ``dt`` (s): [[1, t_s], [0, 1]] blocks."""
+    a = _EYE12.copy()
+    a.put(_A_RATE_ENTRIES, dt)
+    return a
+
+
+def process_noise(dt: float, variances: Sequence[float]) -> FloatArray:
+    """``B Q B'`` (12, 12) of eq. 5 for a sampling interval ``dt`` (s) and ``Q = diag(variances)``
+    (sigma_a^2 x3, sigma_alpha^2 x3; (m/s^2)^2 and (rad/s^2)^2).
+
+    B has one non-zero per row (``t_s^2 / 2`` or ``t_s``), so every entry of the matrix product
+    ``B @ Q @ B.T`` is one product ``(b_i q_j) b_l`` and the rest exact zeros: written out, the
+    same floats, bit for bit (``tests/test_estimator.py``), without two matrix products.
+    """
+    half = 0.5 * dt * dt
+    values: list[float] = []
+    for q in variances:
+        half_q, dt_q = half * q, dt * q  # (B Q)[i, j] = b_i q_j
+        values += (half_q * half, half_q * dt, dt_q * half, dt_q * dt)
+    out = np.zeros((12, 12))
+    out.put(_BQB_ENTRIES, values)
+    return out
 
 
 def measurement_sigma(noise_px: float, pixel_pitch: float, noise_floor_px: float) -> float:
@@ -99,7 +130,8 @@ class TargetEKF:
         self.focal_length = float(focal_length)
         n_z = 2 * self.feature_points.shape[0]
         sigma_m = measurement_sigma(noise_px, pixel_pitch, noise_floor_px)
-        self._q = np.diag([sigma_acceleration**2] * 3 + [sigma_angular_acceleration**2] * 3)
+        # Q = cov(omega), diagonal (eq. 5): its six variances
+        self._q = (sigma_acceleration**2,) * 3 + (sigma_angular_acceleration**2,) * 3
         from capture_bench.sensing.lean_ekf import LeanExtendedKalmanFilter  # filterpy (above)
 
         self._kf = LeanExtendedKalmanFilter(dim_x=12, dim_z=n_z)
@@ -155,9 +187,8 @@ class TargetEKF:
         if dt < 0:
             raise ValueError(f"dt must be >= 0, got {dt}")
         if dt != self._dt:
-            a, b = transition_matrices(dt)
-            self._kf.F = a
-            self._kf.Q = b @ self._q @ b.T
+            self._kf.F = state_transition(dt)
+            self._kf.Q = process_noise(dt, self._q)
             self._dt = dt
         self._kf.predict()
 

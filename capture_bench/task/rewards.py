@@ -62,7 +62,7 @@ def reward_terms(
         ``{term: values}`` with the keys of ``REWARD_TERMS[mode]``, in that order.
     """
     if mode == "sparse":
-        return {"reward_capture": np.where(captured, 1.0, 0.0)}
+        return {"reward_capture": _where_flagged(captured, 1.0)}
     if mode == "shaped":
         first = {
             "reward_shaping": SHAPING_GAMMA * potential(distance) - potential(previous_distance)
@@ -72,9 +72,17 @@ def reward_terms(
     return {
         **first,
         "reward_time": TIME_PENALTY + 0.0 * distance,
-        "reward_capture": np.where(captured, CAPTURE_BONUS, 0.0),
-        "reward_failure": np.where(penalised, FAILURE_PENALTY, 0.0),
+        "reward_capture": _where_flagged(captured, CAPTURE_BONUS),
+        "reward_failure": _where_flagged(penalised, FAILURE_PENALTY),
     }
+
+
+def _where_flagged(flags: Values, value: float) -> Values:
+    """``value`` where ``flags`` (bool, (M,)), 0.0 elsewhere: ``np.where(flags, value, 0.0)``'s
+    floats in two calls that together cost a third of its ~2.5 us at one row."""
+    out = np.zeros(flags.shape)
+    out[flags] = value
+    return out
 
 
 def potential(distance: Values) -> Values:

@@ -317,7 +317,8 @@ class StepRule:
             "clipped": clipped,
             "path_length": path_length,
             "target_visible": after["visible"],
-            "estimator_status": _STATUS_NAMES[after["estimator_status"]],
+            # int8 codes: take() costs a third of indexing with them
+            "estimator_status": _STATUS_NAMES.take(after["estimator_status"]),
             **terms,
         }
         state.theta[rows], state.x_e[rows], state.distance[rows] = theta, x_e, distance
@@ -429,15 +430,18 @@ class StepRule:
         frame for more than ``lost_after``); 0 for none. Updates the two timers."""
         dt, going = after["dt"], ~captured
         collided = collides(going)
-        unreachable_for = np.where(after["reachable"], 0.0, state.unreachable_for[rows] + dt)
+        # Each clock adds the step's period and restarts at 0 where its condition is clear (a
+        # masked store: a third of np.where's ~2.5 us at one row).
+        unreachable_for = state.unreachable_for[rows] + dt
+        unreachable_for[after["reachable"]] = 0.0
         state.unreachable_for[rows] = unreachable_for
         failure = np.zeros(captured.size, dtype=np.int64)
         unreachable = unreachable_for > self.lost_after
         if np.count_nonzero(unreachable):
             failure[going & unreachable] = UNREACHABLE
         if self.frames_matter:
-            usable = after["estimator_status"] == _STATUS_OK
-            since = np.where(usable, 0.0, state.since_frame[rows] + dt)
+            since = state.since_frame[rows] + dt
+            since[after["estimator_status"] == _STATUS_OK] = 0.0  # a usable frame
             state.since_frame[rows] = since
             lost = since > self.lost_after
             if np.count_nonzero(lost):
