@@ -235,10 +235,10 @@ def test_a_row_exact_layer_gives_each_row_its_own_result(inputs, outputs):
 
 
 def test_a_model_without_row_exact_layers_acts_row_by_row(monkeypatch):
+    import weakref
+
     from capture_bench.agents import row_exact
     from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
-
-    import weakref
 
     monkeypatch.setattr(row_exact, "row_exact_forward", lambda layer: None)
     monkeypatch.setattr(row_exact, "_LAYERS", weakref.WeakKeyDictionary())

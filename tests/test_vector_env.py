@@ -8,8 +8,6 @@ discrete exactly.
 
 from __future__ import annotations
 
-import re
-
 import gymnasium as gym
 import numpy as np
 import pytest
