@@ -251,3 +251,32 @@ def test_a_model_without_row_exact_layers_acts_row_by_row(monkeypatch):
     assert len(one_by_one) == len(obs)
     monkeypatch.undo()
     np.testing.assert_array_equal(agent.predict_rows(obs), alone)
+
+
+def test_a_recording_the_single_env_made_is_replayed_by_the_batched_env():
+    """Shared recordings go both ways: a seed the single env recorded (without its bound, which
+    it computes lazily) is replayed by the batched env, which adds the bound; an env that does
+    not record as the single env does refuses to share."""
+    from capture_bench.task.target_side import EpisodeCache
+
+    cache = EpisodeCache()
+    single = CaptureEnv("paper", reuse_target_side=True, episode_cache=cache)
+    single.reset(seed=1_000_004)
+    (key,) = cache.recorded_keys()
+    assert cache.recording(key)[0].bound is None
+    vector = CaptureVectorEnv(
+        1,
+        "paper",
+        autoreset_mode=AutoresetMode.DISABLED,
+        reference_target_side=True,
+        episode_cache=cache,
+    )
+    agent = make_agent("incremental_ik", single)
+    (batched,) = run_episodes(vector, agent, agent_name="ik", scenario="paper", seeds=[1_000_004])
+    assert cache.counts()[0] == 1  # replayed, not recorded again
+    alone, _ = run_episode(single, agent, agent_name="ik", scenario="paper", seed=1_000_004)
+    assert batched == alone
+    vector.close()
+    single.close()
+    with pytest.raises(ValueError, match="reference_target_side=True"):
+        CaptureVectorEnv(1, "paper", episode_cache=cache)

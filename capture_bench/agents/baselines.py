@@ -119,36 +119,13 @@ def interception_times(
     return out
 
 
-def interception_time(
-    theta: NDArray,
-    target_position: NDArray,
-    target_velocity: NDArray,
-    description: TaskDescription,
-    horizon: float = 10.0,
-    samples: int = 400,
-    refinements: int = 2,
-) -> float | None:
-    """:func:`interception_times` for one episode (arrays of shape (3,)): tau in seconds, or
-    ``None`` when the path is not met within the horizon."""
-    tau = interception_times(
-        np.asarray(theta, dtype=float)[None],
-        np.asarray(target_position, dtype=float)[None],
-        np.asarray(target_velocity, dtype=float)[None],
-        description,
-        horizon,
-        samples,
-        refinements,
-    )[0]
-    return None if np.isnan(tau) else float(tau)
-
-
 class Intercept(AnalyticController):
     """Aim at the predicted interception point, re-planned every control period.
 
     Classic interception (collision-course / constant-bearing) guidance: rather than chase the
     target, head for the point where the target will be when the pursuer can get there, assuming it
     keeps its estimated velocity (Shneydor 1998, parallel navigation / collision course). The
-    interception time comes from :func:`interception_time`; the end-effector then moves at
+    interception time comes from :func:`interception_times`; the end-effector then moves at
     lambda_max (eq. 18) toward ``P(max(tau, t_s))`` with the same step cap as the paper's
     controller. With no solution within the horizon it falls back to pure pursuit.
 
@@ -265,6 +242,5 @@ __all__ = [
     "Intercept",
     "PurePursuit",
     "RandomAgent",
-    "interception_time",
     "interception_times",
 ]

@@ -35,9 +35,8 @@ from typing import Any
 PROBE_ROWS = 64
 
 Forward = Callable[[Any], Any]
-# layer -> its row-exact forward, or None where no batched form matched (decided once)
-_CHOSEN: weakref.WeakKeyDictionary[Any, Forward | None] = weakref.WeakKeyDictionary()
-# module -> its nn.Linear layers and their row-exact forwards
+# module -> its nn.Linear layers and their row-exact forwards (None: no batched form matched),
+# decided once per module
 _LAYERS: weakref.WeakKeyDictionary[Any, tuple[list[Any], list[Forward | None]]] = (
     weakref.WeakKeyDictionary()
 )
@@ -74,8 +73,6 @@ def _matrix_vector(layer: Any) -> Forward:
 def row_exact_forward(layer: Any) -> Forward | None:
     """The first of ``baddbmm`` products and per-row ``addmv`` whose rows equal ``layer``
     applied to each row alone on :data:`PROBE_ROWS` random rows, or None."""
-    if layer in _CHOSEN:
-        return _CHOSEN[layer]
     import torch
 
     generator = torch.Generator().manual_seed(0)
@@ -89,7 +86,6 @@ def row_exact_forward(layer: Any) -> Forward | None:
             if torch.equal(forward(probe), alone):
                 chosen = forward
                 break
-    _CHOSEN[layer] = chosen
     return chosen
 
 

@@ -356,8 +356,9 @@ class CaptureEnv(TaskAccess, gym.Env):
         """A new trajectory and control periods from ``np_random``, and a target side whose
         steps are computed (and draw the camera's noise) as they come."""
         task = self.task
-        plan = EpisodePlan.draw(task.scenario, self.camera_model, task.features, self.np_random)
-        return TargetSide.live(plan, task.camera, self._estimator, task.features, self.np_random)
+        return TargetSide.draw(
+            task.scenario, task.camera, self._estimator, task.features, self.np_random
+        )
 
     def _recorded_side(self) -> TargetSide:
         """This seed's target side to the time limit, recorded now (as live steps would compute

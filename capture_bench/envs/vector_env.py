@@ -53,7 +53,7 @@ from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World, limit_joint_increments
-from capture_bench.task.episode import EpisodePlan, episode_bounds, period_count
+from capture_bench.task.episode import episode_bounds, period_count
 from capture_bench.task.recording import (
     STEP_TRACKS,
     RecordedEpisode,
@@ -114,10 +114,10 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             NEES; the batched filter's differ from filterpy's in the last bits); recording costs
             more (~8 ms per episode) but is done once per seed (:attr:`episode_cache`), which
             is what the leaderboard wants: every agent on the same seeds.
-        episode_cache: where recordings of seeded episodes are kept by (scenario, seed) and
-            found again (default: the env's own, the latest ``max(16, 2 * num_envs)``). With
-            ``reference_target_side`` the recordings are the single env's, so a
-            ``CaptureEnv`` given the same cache replays them too.
+        episode_cache: with ``reference_target_side``, where recordings of seeded episodes are
+            kept by (scenario, seed) and found again: the recordings are the single env's, so
+            a ``CaptureEnv`` given the same cache replays them too, and this env replays the
+            ones it recorded (default: the env's own, the latest ``max(16, 2 * num_envs)``).
 
     Spaces, rewards, termination and ``info`` are ``CaptureEnv``'s (see its docstring), batched;
     see the module docstring for the format of ``info``. Autoreset, as gymnasium's
@@ -194,6 +194,11 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self._generator_seeds: list[int | None] = [None] * n
         self._sources: list[EpisodeSeedSource] | None = None
         #: Recordings of seeded episodes by (scenario, seed), replayed when a seed comes again.
+        if episode_cache is not None and not reference_target_side:
+            raise ValueError(
+                "episode_cache is shared only with reference_target_side=True (recordings a "
+                "CaptureEnv can replay); without it the env keeps its own"
+            )
         self.episode_cache = (
             EpisodeCache(max_episodes=max(16, 2 * n), max_limits=0)
             if episode_cache is None
@@ -437,18 +442,20 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             if seed is not None:
                 key = (self.scenario, seed)
                 self.episode_cache.keep_recording(key, episode, rng.bit_generator.state)
-        return [episode for episode in found if episode is not None]
+        episodes = [episode for episode in found if episode is not None]
+        unbounded = [episode for episode in episodes if episode.bound is None]
+        if unbounded:  # recorded as the single env records (it computes the bound lazily)
+            bounds = episode_bounds([episode.plan for episode in unbounded], self.description)
+            for episode, bound in zip(unbounded, bounds, strict=True):
+                episode.bound = bound
+        return episodes
 
     def _record_as_single_env(self, rng: np.random.Generator) -> RecordedEpisode:
         """The next episode of ``rng`` recorded as ``CaptureEnv(reuse_target_side=True)``
-        records it (the same draws, the same code), with its bound."""
+        records it (the same draws, the same code; its bound comes after, in :meth:`_record`)."""
         assert self._reference is not None
-        task = self.task
-        plan = EpisodePlan.draw(task.scenario, self._camera.model, self._features, rng)
-        side = TargetSide.live(plan, self._camera, self._reference, self._features, rng)
-        episode = side.record_all()
-        (episode.bound,) = episode_bounds([plan], self.description)
-        return episode
+        sc, camera, features = self.scenario, self._camera, self._features
+        return TargetSide.draw(sc, camera, self._reference, features, rng).record_all()
 
     def _to_record(
         self, envs: NDArray[np.intp]

@@ -90,7 +90,9 @@ class EpisodeTask:
 
 _ENVS: dict[str, Any] = {}
 _SPECS: dict[tuple[str, bool], AgentSpec] = {}
-_CACHE: list[EpisodeCache] = []
+#: The recordings this process's envs share: a chunk's seeds, recorded once for all its agents,
+#: whether they play in the batched env or in the single env (the oracle).
+_RECORDINGS = EpisodeCache(max_episodes=2 * SEEDS_PER_CHUNK)
 
 
 def make_env(scenario: str, **kwargs: Any) -> Any:
@@ -124,7 +126,7 @@ def scenario_label(scenario: str) -> str:
 
 def _env(scenario: str) -> Any:
     if scenario not in _ENVS:
-        _ENVS[scenario] = make_env(scenario, reuse_target_side=True, episode_cache=_episode_cache())
+        _ENVS[scenario] = make_env(scenario, reuse_target_side=True, episode_cache=_RECORDINGS)
     return _ENVS[scenario]
 
 
@@ -144,24 +146,16 @@ def _vector_env(scenario: str, n: int) -> Any:
             load_scenario(scenario),
             autoreset_mode=AutoresetMode.DISABLED,
             reference_target_side=True,
-            episode_cache=_episode_cache(),
+            episode_cache=_RECORDINGS,
         )
     return _ENVS[key]
-
-
-def _episode_cache() -> EpisodeCache:
-    """The recordings this process's envs share: a chunk's seeds, recorded once for all its
-    agents, whether they play in the batched env or in the single env (the oracle)."""
-    if not _CACHE:
-        _CACHE.append(EpisodeCache(max_episodes=2 * SEEDS_PER_CHUNK))
-    return _CACHE[0]
 
 
 def close_envs() -> None:
     """Close and forget this process's cached environments and their recordings."""
     while _ENVS:
         _ENVS.popitem()[1].close()
-    _CACHE.clear()
+    _RECORDINGS.clear()
 
 
 def _spec(task: EpisodeTask) -> AgentSpec:

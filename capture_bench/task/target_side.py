@@ -76,6 +76,20 @@ class TargetSide:
         self._sensors = sensors
 
     @classmethod
+    def draw(
+        cls,
+        scenario: Scenario,
+        camera: Camera,
+        estimator: TargetEstimator,
+        features: FloatArray,
+        rng: np.random.Generator,
+    ) -> TargetSide:
+        """The next episode of ``rng``: its plan drawn (:meth:`EpisodePlan.draw`), then
+        :meth:`live` on it with the same generator."""
+        plan = EpisodePlan.draw(scenario, camera.model, features, rng)
+        return cls.live(plan, camera, estimator, features, rng)
+
+    @classmethod
     def live(
         cls,
         plan: EpisodePlan,
