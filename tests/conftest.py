@@ -40,9 +40,9 @@ def evaluated():
         seen = {}
         original = pipeline.write_report
 
-        def keep(data, root):
+        def keep(data, root, images=None):
             seen["data"] = data
-            return original(data, root)
+            return original(data, root, images)
 
         with pytest.MonkeyPatch.context() as patch:
             patch.setattr(pipeline, "write_report", keep)

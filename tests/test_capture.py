@@ -15,6 +15,7 @@ from capture_bench.task.capture import (
     held_capture,
     inside_intervals,
     inside_intervals_along_arc,
+    inside_intervals_along_arcs,
     row_norms,
 )
 
@@ -253,3 +254,33 @@ def test_the_arc_walk_equals_the_chord_by_chord_walk_exactly():
         assert inside_intervals_along_arc(theta0, delta, target_at, tolerance) == expected
         checked += bool(expected)
     assert checked > 50  # many swings have stays, some several
+
+
+def test_arcs_walked_together_equal_each_walked_alone():
+    """M steps in one call (as the step rule tests every step near its target): each step's
+    stays are the chord-by-chord walk of that step alone, float for float, whatever its
+    neighbours (short and long swings, entering, leaving or missing)."""
+    rng = np.random.default_rng(21)
+    theta0 = rng.uniform([-1.0, 0.6, -0.5], [1.0, 1.6, 0.5], (60, 3))
+    delta = rng.uniform(-0.5, 0.5, (60, 3)) * rng.choice([0.01, 0.1, 1.0], (60, 1))
+    a, b = forward_kinematics(theta0), forward_kinematics(theta0 + delta)
+    wobble = rng.uniform(-2e-3, 2e-3, (60, 3)) * rng.choice([0.0, 1.0, 5.0], (60, 1))
+    miss = rng.uniform(-0.02, 0.02, (60, 3)) * rng.choice([0.0, 1.0], (60, 1))
+    a, b = a + miss, b + miss  # some pass by
+
+    def target(i):
+        return lambda s: (
+            a[i] + np.asarray(s)[:, None] * (b[i] - a[i]) + wobble[i] * np.sin(9 * s)[:, None]
+        )
+
+    tolerance = EPS * 5
+    targets = [target(i) for i in range(60)]
+    together = inside_intervals_along_arcs(theta0, delta, targets, tolerance)
+    alone = [_chord_by_chord(theta0[i], delta[i], targets[i], tolerance) for i in range(60)]
+    assert together == alone
+    assert 10 < sum(map(bool, alone)) < 60
+    order = rng.permutation(60)  # and in another order, with other neighbours
+    shuffled = inside_intervals_along_arcs(
+        theta0[order], delta[order], [targets[i] for i in order], tolerance
+    )
+    assert shuffled == [alone[i] for i in order]

@@ -186,6 +186,37 @@ def test_chunks_hold_every_agent_on_a_few_seeds_of_one_scenario():
         assert len(members) == 3 * len(seeds)  # every agent on each of its seeds
 
 
+def test_chunks_shrink_towards_the_end_for_several_workers():
+    """Guided chunks: large first (fewer batched steps per episode), small last (the workers end
+    together); every (scenario, seed) in exactly one chunk, a scenario's remainder never a
+    sliver; one worker gets the largest chunks."""
+    from capture_bench.evaluation.backends import (
+        MIN_SEEDS_PER_CHUNK,
+        SEEDS_PER_CHUNK,
+        EpisodeTask,
+        make_chunks,
+    )
+
+    scenarios = [f"s{k}" for k in range(8)]
+    tasks = [EpisodeTask(a, s, seed) for a in ("a", "b") for s in scenarios for seed in range(100)]
+
+    def seeds_of(chunks):
+        return [len({tasks[i].seed for i in chunk}) for chunk in chunks]
+
+    assert seeds_of(make_chunks(tasks)) == [SEEDS_PER_CHUNK] * 8
+    for workers in (2, 3, 4, 16):
+        chunks = make_chunks(tasks, workers=workers)
+        sizes = seeds_of(chunks)
+        assert sorted(i for chunk in chunks for i in chunk) == list(range(len(tasks)))
+        assert len(chunks) >= 2 * workers
+        assert min(sizes) >= MIN_SEEDS_PER_CHUNK and max(sizes) <= SEEDS_PER_CHUNK
+        assert sizes[-1] == MIN_SEEDS_PER_CHUNK and sizes[0] >= sizes[-1]
+        for chunk in chunks:
+            members = [tasks[i] for i in chunk]
+            assert len({t.scenario for t in members}) == 1
+            assert len(members) == 2 * len({t.seed for t in members})
+
+
 def test_records_come_back_in_task_order_whatever_the_chunks(monkeypatch):
     """run_tasks groups tasks by scenario and seed; the records still follow the task list (here
     with agents interleaved, a repeated task, and a scenario whose seeds span two chunks)."""

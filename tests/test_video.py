@@ -81,6 +81,20 @@ def test_the_report_shows_the_reference_and_the_best_trained_model_on_one_seed(w
     assert "captured at" in videos[0].caption() and f"seed {first_capture}" in videos[0].caption()
 
 
+def test_two_workers_record_the_same_videos_and_draw_the_same_figures(watched, evaluated, tmp_path):
+    """With the process backend the GIFs are made in worker processes while the figures are
+    drawn beside them: the same bytes as one process makes."""
+    data, folder = watched
+    argv = ["--agents", "incremental_ik,models/ppo-paper,hold", "--scenarios", "paper"]
+    pooled, pooled_folder = evaluated([*argv, "--episodes", "3", "--workers", "2"], tmp_path)
+    assert pooled.provenance["backend"] == {"name": "process", "workers": 2}
+    assert [v.gif for v in pooled.videos] == [v.gif for v in data.videos]
+    pngs = sorted(p.name for p in folder.glob("*.png"))
+    assert pngs and pngs == sorted(p.name for p in pooled_folder.glob("*.png"))
+    for name in pngs:
+        assert (pooled_folder / name).read_bytes() == (folder / name).read_bytes(), name
+
+
 def _ranking(*agents: str) -> list[RankingRow]:
     return [RankingRow(a, k + 1, 0.5, 1.2, 1, False) for k, a in enumerate(agents)]
 

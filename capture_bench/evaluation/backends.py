@@ -56,10 +56,12 @@ from capture_bench.paths import CHECKOUT_DIR
 from capture_bench.task.target_side import EpisodeCache
 
 BACKENDS = ("serial", "process", "ray")
-#: Seeds per chunk (each with every agent): the batch each agent plays at once. Large enough that
-#: a batched step costs little per episode, small enough to balance load over the workers and move
-#: the progress bar (the default suite's 8 x 100 seeds make 32 chunks).
-SEEDS_PER_CHUNK = 25
+#: Most seeds per chunk (each with every agent): the batch each agent plays at once. A batched
+#: step has a fixed cost, so the larger the batch the less each episode pays (the default suite's
+#: grasp scenario, 100 seeds, every agent, one core: ~30% less CPU in one chunk than in four).
+SEEDS_PER_CHUNK = 100
+#: Fewest seeds per chunk where several workers share the work (see :func:`make_chunks`).
+MIN_SEEDS_PER_CHUNK = 25
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded.
 PRELOAD = (
@@ -228,21 +230,41 @@ def run_chunk(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
     return [records[i] for i in range(len(tasks))]
 
 
-def make_chunks(tasks: Sequence[EpisodeTask], seeds: int = SEEDS_PER_CHUNK) -> list[list[int]]:
+def make_chunks(
+    tasks: Sequence[EpisodeTask], seeds: int = SEEDS_PER_CHUNK, workers: int = 1
+) -> list[list[int]]:
     """Indices of ``tasks`` grouped into chunks: every task of one scenario on up to ``seeds`` of
-    its seeds (in the order they first appear), whatever the agent, in task order."""
+    its seeds (in the order they first appear), whatever the agent, in task order.
+
+    With several ``workers`` the chunks shrink towards the end (guided scheduling): a chunk opened
+    while R (scenario, seed) pairs are still to be placed holds up to ``ceil(R / (2 workers))``
+    seeds, at least :data:`MIN_SEEDS_PER_CHUNK` (and at most ``seeds``; a scenario's remainder
+    below that joins the chunk before it), so the workers, taking chunks in order, finish close
+    together: the last chunks are the small ones.
+    """
+    unplaced: dict[str, set[int]] = {}  # scenario -> its seeds not yet in a chunk
+    for task in tasks:
+        unplaced.setdefault(task.scenario, set()).add(task.seed)
+    pairs = sum(map(len, unplaced.values()))
     chunks: list[list[int]] = []
     chunk_of: dict[tuple[str, int], int] = {}  # (scenario, seed) -> chunk
-    filling: dict[str, tuple[int, int]] = {}  # scenario -> (its newest chunk, seeds in it)
+    filling: dict[str, tuple[int, int, int]] = {}  # scenario -> (newest chunk, seeds, its size)
     for index, task in enumerate(tasks):
         key = (task.scenario, task.seed)
         if key not in chunk_of:
-            chunk, count = filling.get(task.scenario, (-1, seeds))
-            if count == seeds:
+            chunk, count, size = filling.get(task.scenario, (-1, 0, 0))
+            if count == size:
+                remaining = pairs - len(chunk_of)
+                guided = -(-remaining // (2 * workers)) if workers > 1 else seeds
+                size = max(1, min(seeds, max(guided, MIN_SEEDS_PER_CHUNK)))
+                left = len(unplaced[task.scenario])
+                if left - size < MIN_SEEDS_PER_CHUNK and left <= seeds:
+                    size = left
                 chunk, count = len(chunks), 0
                 chunks.append([])
-            filling[task.scenario] = (chunk, count + 1)
+            filling[task.scenario] = (chunk, count + 1, size)
             chunk_of[key] = chunk
+            unplaced[task.scenario].discard(task.seed)
         chunks[chunk_of[key]].append(index)
     return chunks
 
@@ -280,12 +302,26 @@ def _run_serial(chunks: list[list[EpisodeTask]], progress: Progress) -> list[lis
 def _run_process(
     chunks: list[list[EpisodeTask]], workers: int, progress: Progress
 ) -> list[list[EpisodeRecord]]:
+    return map_processes(run_chunk, chunks, workers, lambda i: progress(len(chunks[i])))
+
+
+def map_processes(
+    function: Callable[[Any], Any],
+    items: Sequence[Any],
+    workers: int,
+    done: Callable[[int], None] | None = None,
+) -> list[Any]:
+    """``[function(item) for item in items]`` in a pool of ``workers`` local processes (forked
+    from a server that has imported :data:`PRELOAD`, one numerical thread each); ``done(i)`` is
+    called as item i's result arrives. ``function`` and the items must pickle (a module-level
+    function). The workers end with this process however it ends, and on any error here
+    (Ctrl-C, SIGTERM, a failed item) they are killed before the error propagates."""
     method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
     context = multiprocessing.get_context(method)
     if method == "forkserver":  # workers fork from a server that has already imported these
         context.set_forkserver_preload(list(PRELOAD))
-    results: list[list[EpisodeRecord] | None] = [None] * len(chunks)
-    workers = min(workers, len(chunks))
+    results: list[Any] = [None] * len(items)
+    workers = max(1, min(workers, len(items)))
     # Only this process holds `held`: the workers see end-of-file on `watched` when it ends.
     watched, held = context.Pipe(duplex=False)
     pool = ProcessPoolExecutor(
@@ -293,14 +329,15 @@ def _run_process(
     )
     try:
         with _single_threaded_children():  # workers (and the forkserver) start on submit
-            pending = {pool.submit(run_chunk, chunk): i for i, chunk in enumerate(chunks)}
+            pending = {pool.submit(function, item): i for i, item in enumerate(items)}
         while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for future in done:
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in finished:
                 index = pending.pop(future)
                 results[index] = future.result()
-                progress(len(chunks[index]))
-    except BaseException:  # Ctrl-C, SIGTERM, a failed episode: stop now, leave no worker behind
+                if done is not None:
+                    done(index)
+    except BaseException:  # Ctrl-C, SIGTERM, a failed item: stop now, leave no worker behind
         _kill_workers(pool)
         raise
     else:
@@ -308,7 +345,7 @@ def _run_process(
     finally:
         held.close()
         watched.close()
-    return [r for r in results if r is not None]
+    return results
 
 
 def _start_worker(watched: Connection) -> None:
@@ -463,11 +500,13 @@ def run_tasks(
     if workers < 1:
         raise EvaluationError(f"--workers {workers}: expected a whole number >= 1")
     report = progress or (lambda _n: None)
-    indices = make_chunks(tasks)
-    seeds = SEEDS_PER_CHUNK
-    while backend == "process" and len(indices) < workers and seeds > 1:  # keep workers busy
+    parallel = workers if backend == "process" else 1
+    # A Ray cluster's size is its own: small chunks for as many of its CPUs as it has.
+    seeds = MIN_SEEDS_PER_CHUNK if backend == "ray" else SEEDS_PER_CHUNK
+    indices = make_chunks(tasks, seeds, parallel)
+    while len(indices) < parallel and seeds > 1:  # keep workers busy
         seeds -= 1
-        indices = make_chunks(tasks, seeds)
+        indices = make_chunks(tasks, seeds, parallel)
     chunks = [[tasks[i] for i in chunk] for chunk in indices]
     if backend == "serial" or (backend == "process" and workers == 1):
         nested = _run_serial(chunks, report)

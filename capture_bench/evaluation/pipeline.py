@@ -8,9 +8,10 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,12 +29,13 @@ from capture_bench.evaluation.backends import (
     check_ray_cluster,
     close_envs,
     make_env,
+    map_processes,
     run_task,
     run_tasks,
     scenario_label,
 )
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError
-from capture_bench.evaluation.report import ReportData, write_report
+from capture_bench.evaluation.report import ReportData, figures, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
 from capture_bench.evaluation.video import EpisodeVideo, record_video, write_videos
@@ -279,35 +281,66 @@ def record_videos(
     config: EvaluationConfig,
     records: Sequence[EpisodeRecord],
     ranking: Sequence[RankingRow],
+    workers: int = 1,
 ) -> tuple[list[EpisodeVideo], list[EpisodeVideo]]:
     """Record the report's episodes to watch (if the suite has ``videos``) and ``--video``'s
-    episodes, in this process, each episode once; ``records`` are in ``plan.tasks`` order.
+    episodes, each episode once: in this process, or in a pool of ``workers`` local processes
+    (:func:`~capture_bench.evaluation.backends.map_processes`; the same GIFs, an episode's
+    rendering does not depend on where it runs); ``records`` are in ``plan.tasks`` order.
 
     Returns:
         ``(episodes to watch, --video's episodes)``.
     """
     played = {(r.agent, r.scenario, r.seed): (t, r) for t, r in zip(plan.tasks, records)}
-    made: dict[tuple[str, str, int], EpisodeVideo] = {}
-
-    def video(key: tuple[str, str, int]) -> EpisodeVideo:
-        if key not in made:
-            task, record = played[key]
-            made[key] = record_video(task, record.steps)
-        return made[key]
-
-    watched = []
+    watched_keys: list[tuple[str, str, int]] = []
     if plan.suite.videos:
         learned = {s.label for s in plan.agents if s.kind == "model"}
         for w in choose_episodes(records, ranking, plan.suite.reference, learned):
-            watched += [video((agent, w.scenario, w.seed)) for agent in w.agents]
-    requested = []
+            watched_keys += [(agent, w.scenario, w.seed) for agent in w.agents]
+    requested_keys: list[tuple[str, str, int]] = []
     if config.video is not None:
-        requested = [
-            video((r.agent, r.scenario, r.seed))
+        requested_keys = [
+            (r.agent, r.scenario, r.seed)
             for t, r in zip(plan.tasks, records)
             if t.seed in plan.seeds[t.scenario][: config.video_episodes]
         ]
-    return watched, requested
+    keys = list(dict.fromkeys([*watched_keys, *requested_keys]))
+    jobs = [(played[key][0], played[key][1].steps) for key in keys]
+    if workers > 1 and len(jobs) > 1:
+        videos = map_processes(_record_video, jobs, workers)
+    else:
+        videos = [_record_video(job) for job in jobs]
+    made = dict(zip(keys, videos, strict=True))
+    return [made[k] for k in watched_keys], [made[k] for k in requested_keys]
+
+
+class _Background:
+    """``function(*args)`` in a daemon thread (an interrupted evaluation does not wait for it);
+    :meth:`result` waits for its value or raises its error."""
+
+    def __init__(self, function: Callable[..., Any], *args: Any) -> None:
+        self._outcome: tuple[bool, Any] = (False, None)
+
+        def run() -> None:
+            try:
+                self._outcome = (True, function(*args))
+            except BaseException as error:  # handed to the caller of result()
+                self._outcome = (False, error)
+
+        self._thread = threading.Thread(target=run, name="report-figures", daemon=True)
+        self._thread.start()
+
+    def result(self) -> Any:
+        self._thread.join()
+        ok, value = self._outcome
+        if not ok:
+            raise value
+        return value
+
+
+def _record_video(job: tuple[EpisodeTask, int]) -> EpisodeVideo:
+    """:func:`record_video` of ``(task, steps)``, a pool's unit of work."""
+    return record_video(*job)
 
 
 def run_evaluation(
@@ -318,26 +351,21 @@ def run_evaluation(
 ) -> tuple[ReportData, Path]:
     """Run the plan's episodes, aggregate them and write the report.
 
+    With the ``process`` backend the videos are recorded in worker processes while this process
+    draws the report's figures (which do not show them).
+
     Returns:
         ``(report data, report directory)``.
     """
     start = time.perf_counter()
+    backend, workers = config.resolved_backend(), config.resolved_workers()
     records: list[EpisodeRecord] = run_tasks(
-        plan.tasks,
-        config.resolved_backend(),
-        config.resolved_workers(),
-        config.ray_address,
-        progress,
+        plan.tasks, backend, workers, config.ray_address, progress
     )
     summaries = summarise_all(records, plan.suite.reference)
     privileged = {s.label for s in plan.agents if s.privileged}
     ranking = rank_agents(summaries, privileged)
     seconds = time.perf_counter() - start
-    watched, requested = record_videos(plan, config, records, ranking)
-    video_timing = {
-        "videos": len({v.file_name for v in [*watched, *requested]}),  # each recorded once
-        "videos_wall_clock_s": time.perf_counter() - start - seconds,
-    }
     data = ReportData(
         suite=plan.suite.name,
         description=plan.suite.description,
@@ -346,10 +374,23 @@ def run_evaluation(
         records=records,
         summaries=summaries,
         ranking=ranking,
+        provenance={},
+        videos=[],
+    )
+    pool = workers if backend == "process" else 1
+    drawing = _Background(figures, data) if pool > 1 else None
+    watched, requested = record_videos(plan, config, records, ranking, pool)
+    video_timing = {
+        "videos": len({v.file_name for v in [*watched, *requested]}),  # each recorded once
+        "videos_wall_clock_s": time.perf_counter() - start - seconds,
+    }
+    drawn = drawing.result() if drawing is not None else None
+    data = replace(
+        data,
         provenance=_provenance(plan, config, command, seconds, video_timing),
         videos=watched,
     )
-    target = write_report(data, config.out)
+    target = write_report(data, config.out, drawn)
     if config.video is not None:
         write_videos(requested, config.video)
     if config.episode_plots is not None:

@@ -365,11 +365,12 @@ def result_rows(data: ReportData) -> list[dict[str, Any]]:
     return [summary_row(s, reasons) for s in data.summaries]
 
 
-def _write_all(data: ReportData, directory: Path) -> None:
+def _write_all(data: ReportData, directory: Path, images: dict[str, bytes] | None) -> None:
     rows = result_rows(data)
     _write_csv(directory / "results.csv", list(rows[0]), rows)
     _write_csv(directory / "episodes.csv", EPISODE_COLUMNS, [r.as_row() for r in data.records])
-    images = figures(data)
+    if images is None:
+        images = figures(data)
     for name, png in images.items():
         (directory / name).write_bytes(png)
     for video in data.videos:
@@ -397,8 +398,10 @@ def _sanitise(o: Any) -> Any:
     return json_value(o)
 
 
-def write_report(data: ReportData, out_dir: Path) -> Path:
+def write_report(data: ReportData, out_dir: Path, images: dict[str, bytes] | None = None) -> Path:
     """Write the report into ``out_dir/<suite>/`` atomically; returns that directory.
+
+    ``images``: the :func:`figures` of ``data`` if already drawn (they are drawn here if not).
 
     The files are written into a temporary sibling directory that replaces the target only once
     complete; on any error the temporary directory is removed and the old report (if any) stays.
@@ -408,7 +411,7 @@ def write_report(data: ReportData, out_dir: Path) -> Path:
     target = out_dir / data.suite
     staging = Path(tempfile.mkdtemp(prefix=f".{data.suite}.tmp-", dir=out_dir))
     try:
-        _write_all(data, staging)
+        _write_all(data, staging, images)
         os.chmod(staging, 0o755)
         old = None
         if target.exists():

@@ -26,7 +26,7 @@ the hold are per step (a Python loop over the few steps that come near the targe
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -113,28 +113,66 @@ def inside_intervals_along_arc(
     target_at: Callable[[FloatArray], FloatArray],
     tolerance: ArrayLike,
 ) -> list[tuple[float, float]]:
-    """The fractions of one step during which eq. 20 holds along the end-effector's true arc.
+    """The fractions of one step during which eq. 20 holds along the end-effector's true arc:
+    :func:`inside_intervals_along_arcs` for M = 1.
 
     Args:
         theta0: joint angles at the start of the step, rad, (3,).
         delta_theta: joint increment of the step, rad, (3,).
         target_at: X_T at fractions s of the step, (K,) -> (K, 3), global, m.
         tolerance: epsilon, m, (3,) or scalar.
+    """
+    theta = np.asarray(theta0, dtype=float)[None]
+    delta = np.asarray(delta_theta, dtype=float)[None]
+    return inside_intervals_along_arcs(theta, delta, [target_at], tolerance)[0]
+
+
+def inside_intervals_along_arcs(
+    theta0: FloatArray,
+    delta_theta: FloatArray,
+    targets_at: Sequence[Callable[[FloatArray], FloatArray]],
+    tolerance: ArrayLike,
+) -> list[list[tuple[float, float]]]:
+    """The fractions of each of M steps during which eq. 20 holds along the end-effector's true
+    arc.
+
+    Args:
+        theta0: joint angles at the start of each step, rad, (M, 3).
+        delta_theta: joint increment of each step, rad, (M, 3).
+        targets_at: per step, X_T at fractions s of the step, (K,) -> (K, 3), global, m.
+        tolerance: epsilon, m, (3,) or scalar.
 
     Returns:
-        Open intervals ``(lo, hi)`` of s in [0, 1], in order and disjoint, exact to
+        Per step, open intervals ``(lo, hi)`` of s in [0, 1], in order and disjoint, exact to
         ``ARC_RESOLUTION`` along the arc: the arc is cut into chords within ``ARC_RESOLUTION`` of
         it (see the module docstring), each chord's stay is a row of :func:`inside_intervals`,
         and a stay that reaches a chord's end joins the next chord's stay that starts there.
+        Every step's chords are tested in one call, and each row's floats are those of the step
+        alone (the arithmetic is element by element).
     """
-    delta = np.asarray(delta_theta, dtype=float)
-    sag = float(arc_sag_bounds(delta[None])[0])
-    pieces = max(1, math.ceil(math.sqrt(sag / ARC_RESOLUTION)))
-    s = np.linspace(0.0, 1.0, pieces + 1)
-    ee = forward_kinematics(np.asarray(theta0, float) + s[:, None] * delta)
-    relative = ee - target_at(s)
-    # Every chord at once; the walk below visits only the chords with a stay, which are few.
+    sag = arc_sag_bounds(delta_theta)
+    pieces = [max(1, math.ceil(math.sqrt(float(x) / ARC_RESOLUTION))) for x in sag]
+    fractions = [np.linspace(0.0, 1.0, p + 1) for p in pieces]
+    s = np.concatenate(fractions)
+    counts = [p + 1 for p in pieces]
+    theta = np.repeat(theta0, counts, axis=0) + s[:, None] * np.repeat(delta_theta, counts, axis=0)
+    targets = np.concatenate([at(f) for at, f in zip(targets_at, fractions, strict=True)])
+    relative = forward_kinematics(theta) - targets
+    # Every chord at once (the pairs across two steps' points are tested too, and skipped); the
+    # walk below visits only the chords with a stay, which are few.
     los, his = inside_intervals(relative[:-1], relative[1:], tolerance)
+    out: list[list[tuple[float, float]]] = []
+    first = 0  # the step's first point's row
+    for p in pieces:
+        chords = slice(first, first + p)
+        out.append(_joined_stays(los[chords], his[chords], p))
+        first += p + 1
+    return out
+
+
+def _joined_stays(los: FloatArray, his: FloatArray, pieces: int) -> list[tuple[float, float]]:
+    """The stays of one step from its chords' ``(lo, hi)`` (NaN: none), as fractions of the
+    step, a stay reaching a chord's end joined to the next chord's stay from its start."""
     intervals: list[tuple[float, float]] = []
     joins = False  # the last chord with a stay reached its end (so the next chord starts inside)
     for k in np.flatnonzero(~np.isnan(los)).tolist():

@@ -51,7 +51,7 @@ from capture_bench.task.capture import (
     closest_approaches,
     held_capture,
     inside_intervals,
-    inside_intervals_along_arc,
+    inside_intervals_along_arcs,
     row_norms,
 )
 from capture_bench.task.episode import TIME_SLACK, time_limit
@@ -360,18 +360,28 @@ class StepRule:
         steps = np.flatnonzero(near)
         lo, hi = inside_intervals(d0[steps], d1[steps], self.tolerance)
         closest = closest_approaches(d0[steps], d1[steps])
-        for j, i in enumerate(steps.tolist()):
-            if sag[i] > ARC_RESOLUTION:  # along the true arc, where the chord passes near
-                if closest[j] > self.tolerance_radius + sag[i]:
-                    continue
+        stays: dict[int, list[tuple[float, float]]] = {}
+        # Along the true arc where it sags from the chord and the chord passes near; all at once.
+        arcs = [
+            i
+            for j, i in enumerate(steps.tolist())
+            if sag[i] > ARC_RESOLUTION and closest[j] <= self.tolerance_radius + sag[i]
+        ]
+        if arcs:
+
+            def target_at(i: int) -> Callable[[FloatArray], FloatArray]:
                 traj, start, step = trajectory(i), float(t0[i]), float(dt[i])
+                return lambda f: traj.position(start + f * step)
 
-                def target_at(f: FloatArray, traj=traj, start=start, step=step) -> FloatArray:
-                    return traj.position(start + f * step)
-
-                intervals = inside_intervals_along_arc(
-                    theta0[i], applied[i], target_at, self.tolerance
-                )
+            along = inside_intervals_along_arcs(
+                theta0[arcs], applied[arcs], [target_at(i) for i in arcs], self.tolerance
+            )
+            stays = dict(zip(arcs, along, strict=True))
+        for j, i in enumerate(steps.tolist()):
+            if sag[i] > ARC_RESOLUTION:
+                if i not in stays:  # the chord passes too far for the arc to enter the box
+                    continue
+                intervals = stays[i]
             elif math.isnan(lo[j]):
                 continue
             else:

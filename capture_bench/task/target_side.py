@@ -185,7 +185,8 @@ class EpisodeCache:
     anything an agent does, so every agent evaluated on the same seed has the same recording and
     the same bound (it costs ~8 ms per episode). An evaluation runs every agent on a few seeds at
     a time in one worker, so a few recordings suffice (``max_episodes``, least recently used
-    dropped first; ~1 MB each); bounds are small (``max_limits``, all dropped when full).
+    dropped first; ~60 KB each at 200 steps); bounds are small (``max_limits``, all dropped when
+    full).
     Each env uses :data:`DEFAULT_EPISODE_CACHE` unless given another; :meth:`clear` empties it.
     """
 
