@@ -138,6 +138,55 @@ def test_lean_filter_equals_filterpy_step_for_step():
         lean.update(h(truth), jac, h)
 
 
+def test_an_update_on_the_points_seen_is_the_reduced_filter_exactly():
+    """A frame with points not found (NaN rows): TargetEKF.update equals eq. 7 written out with
+    only the seen points' rows of h, H and R (numpy's inverse), for every subset of 1-3 points;
+    the prediction is kept for the rest, and with every point seen it is the usual update."""
+    rng = np.random.default_rng(3)
+    truth = np.array([0.02, 0.02, 1.2, -0.01, -0.01, 0.005, 0.4, 0.05, -0.3, -0.03, 0.6, 0.04])
+    z_all = measurement(truth, FEATURES, F) + rng.normal(scale=PITCH, size=8)
+    subsets = [[0], [2], [1, 3], [0, 1, 2], [1, 2, 3], [0, 1, 2, 3]]
+    for seen in subsets:
+        ekf = TargetEKF(FEATURES, focal_length=F, pixel_pitch=PITCH)
+        ekf.initialise([0.0, 1.19, 0.0, 0.38, -0.28, 0.62])
+        ekf.predict(DT)
+        x, p = ekf.x.copy(), ekf.P.copy()
+        rows = np.ravel([[2 * i, 2 * i + 1] for i in seen])
+        h = measurement(x, FEATURES, F)[rows]
+        big_h = measurement_jacobian(x, FEATURES, F)[rows]
+        r = ekf.R[np.ix_(rows, rows)]
+        s = big_h @ p @ big_h.T + r
+        k = p @ big_h.T @ np.linalg.inv(s)
+        y = z_all[rows] - h
+        i_kh = np.eye(12) - k @ big_h
+        image = np.full((4, 2), np.nan)
+        image[seen] = z_all.reshape(4, 2)[seen]
+        ekf.update(image)
+        np.testing.assert_allclose(ekf.x, x + k @ y, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(ekf.P, i_kh @ p @ i_kh.T + k @ r @ k.T, rtol=1e-7, atol=1e-15)
+        assert ekf.nis == pytest.approx(y @ np.linalg.solve(s, y), rel=1e-7)
+
+
+def test_a_frame_missing_a_point_updates_but_never_initialises():
+    model = camera_model()
+    estimator = TargetEstimator(model, FEATURES, source="ekf", noise_px=1.0)
+    position = np.array([0.4, 0.1, 0.4])
+    image = model.project(model.to_camera(markers(position)))
+    partial = image.copy()
+    partial[2] = np.nan
+    zero = np.zeros(3)
+    assert estimator.update(Frame(partial), DT, zero, zero).status == "initialising"
+    assert estimator.update(Frame(image), DT, zero, zero).status == "ok"
+    before = estimator.ekf.x.copy()
+    assert estimator.update(Frame(partial), DT, zero, zero).status == "ok"
+    assert not np.array_equal(estimator.ekf.x, before)
+    predicting = TargetEstimator(model, FEATURES, source="ekf", partial_frames="predict")
+    predicting.update(Frame(image), DT, zero, zero)
+    assert predicting.update(Frame(partial), DT, zero, zero).status == "predicting"
+    with pytest.raises(ValueError, match="partial_frames"):
+        TargetEstimator(model, FEATURES, partial_frames="guess")
+
+
 def test_ekf_converges_on_drifting_tumbling_target():
     """Constant velocity and Euler rates in the camera frame (the model exactly), 1 px noise."""
     p0, v = np.array([0.02, 1.2, -0.01]), np.array([0.02, -0.01, 0.005])

@@ -101,7 +101,7 @@ def step_both(
             statuses.append(None)
             continue
         image = images[i]
-        frame = Frame(image.copy()) if np.isfinite(image).all() else None
+        frame = Frame(image.copy()) if np.isfinite(image).all(axis=1).any() else None
         ref = est.update(frame, float(dts[i]), np.zeros(3), np.zeros(3))
         statuses.append(ref.status)
         where = f"env {i}"
@@ -152,18 +152,47 @@ def test_batch_equals_single_estimators_on_scenarios(name, target):
         assert np.ptp(seq.dts) > 0.03
 
 
+@pytest.mark.parametrize("rule", ["update", "predict"])
+def test_frames_missing_some_points_follow_the_same_rule_in_both(rule):
+    """Rendered-camera frames: markers not found (NaN rows), in runs of steps, one to three at a
+    time, before and after the filters start; the batch equals the single estimators under
+    either rule, and a frame missing a point never initialises a filter."""
+    n, steps = 5, 60
+    seq = Sequences("paper", n, steps, seed=11)
+    rng = np.random.default_rng(5)
+    for i in range(n):
+        for _ in range(6):
+            start, length = rng.integers(0, steps), rng.integers(1, 8)
+            hidden = rng.choice(4, size=rng.integers(1, 4), replace=False)
+            seq.images[start : start + length, i, hidden] = np.nan
+    seq.images[:4, 0, 1] = np.nan  # env 0 starts with a marker hidden: it must wait
+    kwargs = dict(
+        noise_px=seq.noise_px,
+        sigma_acceleration=seq.sigmas[0],
+        sigma_angular_acceleration=seq.sigmas[1],
+        partial_frames=rule,
+    )
+    batch = BatchedTargetEstimator(n, seq.model, seq.features, **kwargs)
+    singles = [TargetEstimator(seq.model, seq.features, **kwargs) for _ in range(n)]
+    statuses = [step_both(batch, singles, z, dt)[1] for z, dt in zip(seq.images, seq.dts)]
+    assert [row[0] for row in statuses[:4]] == ["initialising"] * 4
+    partial = np.isnan(seq.images).any(axis=(2, 3)) & ~np.isnan(seq.images).all(axis=(2, 3))
+    after_start = [statuses[k][i] for k, i in zip(*np.nonzero(partial)) if k > 5]
+    assert after_start and set(after_start) == ({"ok"} if rule == "update" else {"predicting"})
+
+
 def test_envs_that_start_without_frames_initialise_later():
     n, steps = 4, 40
     seq = Sequences("paper", n, steps, seed=3)
     for i, start in enumerate((0, 3, 11, 25)):
         seq.images[:start, i] = np.nan
-    seq.images[5, 1, 2, 0] = np.inf  # one non-finite value: no frame
+    seq.images[5, 1, 2, 0] = np.inf  # one non-finite value: that point not seen
     statuses = run_sequences(seq, n)
     for i, start in enumerate((0, 3, 11, 25)):
         column = [row[i] for row in statuses]
         assert column[:start] == ["initialising"] * start
         assert column[start] == "ok"
-    assert statuses[5][1] == "predicting"
+    assert statuses[5][1] == "ok"  # updated with the three points seen
 
 
 def test_divergence_and_reinitialisation():

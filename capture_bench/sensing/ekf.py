@@ -195,15 +195,29 @@ class TargetEKF:
     def update(self, image_points: ArrayLike | None) -> None:
         """Correct with one image (eq. 7); None (lost frame) leaves the prediction as it is.
 
+        A point whose row is NaN (a marker not found) is left out of the update: its rows of H
+        are zero and its innovation is zero, so S is block diagonal, its columns of K are zero and
+        the update is the one with the seen points' rows of eq. 6 alone (the NIS then has
+        2 x seen degrees of freedom).
+
         Args:
-            image_points: measured ``[x_m, z_m]`` of the feature points, metres, shape (4, 2).
+            image_points: measured ``[x_m, z_m]`` of the feature points, metres, shape (4, 2);
+                NaN rows for points not seen (at least one seen).
         """
         if image_points is None:
             self._kf.update(None, self.jacobian, self.measure)
             self.nis = float("nan")
             return
         z = np.asarray(image_points, dtype=float).reshape(-1)
-        self._kf.update(z, self.jacobian, self.measure)
+        missing = np.isnan(z)
+        if missing.any():
+            kf = self._kf
+            h_seen = self.jacobian(kf.x).copy()  # caches h(X) for measure() at kf.x
+            h_seen[missing] = 0.0
+            z = np.where(missing, self._hx, z)  # z - h(X) = 0 where not seen
+            kf.update(z, lambda _x: h_seen, self.measure)
+        else:
+            self._kf.update(z, self.jacobian, self.measure)
         y = self._kf.y
         self.nis = float(y @ self._kf.SI @ y)
         x = self._kf.x

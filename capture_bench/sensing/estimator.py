@@ -5,7 +5,10 @@ Three sources, chosen by name:
 * ``"ekf"`` (the paper): the first frame whose photogrammetry solution is accepted initialises the
   :class:`~capture_bench.sensing.ekf.TargetEKF` (that step reports the photogrammetry position, zero
   velocity and the prior covariance); afterwards each step is ``predict(dt)`` then ``update`` with
-  the frame (a missing frame is a predict-only step).
+  the frame (a missing frame is a predict-only step). A frame in which some feature points
+  were not found (the rendered camera's; NaN rows) updates with the points seen, or is a
+  predict-only step with ``partial_frames="predict"``; it never initialises (photogrammetry needs
+  every point).
 * ``"photogrammetry"`` (raw-measurement ablation): the per-frame pose, warm-started from the
   previous solution; velocity by finite difference of consecutive solutions over the time between
   them (zero after the first solution); no covariance. Without a frame the last solution is held.
@@ -47,6 +50,8 @@ from capture_bench.sensing.sources import SOURCES
 FloatArray = NDArray[np.float64]
 
 STATUSES = ("ok", "predicting", "initialising", "diverged")
+#: What the EKF does with a frame missing some feature points (see :class:`TargetEstimator`).
+PARTIAL_FRAME_RULES = ("update", "predict")
 NIS_LIMIT = 100.0
 DIVERGENCE_FRAMES = 5
 ACCEPT_RESIDUAL_SIGMAS = 5.0
@@ -119,6 +124,10 @@ class TargetEstimator:
         noise_px: image noise the estimator assumes, pixels (sets the EKF's R and acceptance).
         sigma_acceleration: EKF process noise sigma_a, m/s^2.
         sigma_angular_acceleration: EKF process noise sigma_alpha, rad/s^2.
+        partial_frames: what the ``"ekf"`` source does with a frame in which some feature
+            points were not found (NaN rows; the rendered camera's): ``"update"`` (default)
+            corrects a running filter with the points seen, ``"predict"`` treats the frame as
+            lost (a predict-only step). Either way such a frame cannot initialise the filter.
     """
 
     def __init__(
@@ -129,9 +138,15 @@ class TargetEstimator:
         noise_px: float = 1.0,
         sigma_acceleration: float = 0.01,
         sigma_angular_acceleration: float = 0.01,
+        partial_frames: str = "update",
     ) -> None:
         if source not in SOURCES:
             raise ValueError(f"unknown estimator source {source!r}; valid sources: {SOURCES}")
+        if partial_frames not in PARTIAL_FRAME_RULES:
+            raise ValueError(
+                f"unknown partial_frames {partial_frames!r}; valid: {PARTIAL_FRAME_RULES}"
+            )
+        self.partial_frames = partial_frames
         self.camera_model = camera_model
         self.feature_points = np.array(feature_points, dtype=float).reshape(-1, 3)
         self.source = source
@@ -194,7 +209,13 @@ class TargetEstimator:
             image = np.asarray(frame.image_points, dtype=float)
             # A finite sum proves every entry finite (one reduction instead of two).
             finite = math.isfinite(image.sum()) or bool(np.isfinite(image).all())
-            if image.shape != (self.feature_points.shape[0], 2) or not finite:
+            if image.shape != (self.feature_points.shape[0], 2):
+                image = None
+            elif not finite:
+                seen = np.isfinite(image).all(axis=1)
+                if self.source == "ekf" and self.partial_frames == "update" and seen.any():
+                    image = np.where(seen[:, None], image, np.nan)  # a point: both or neither
+                    return self._update_ekf_partial(image, dt)
                 image = None
         if self.source == "photogrammetry":
             return self._update_photogrammetry(image, dt)
@@ -242,13 +263,23 @@ class TargetEstimator:
             return self._declare_diverged(image)
         return self._ekf_estimate("ok")
 
+    def _update_ekf_partial(self, image: FloatArray, dt: float) -> TargetEstimate:
+        """An EKF step with some feature points not seen (NaN rows): a running filter updates
+        with the seen ones (:meth:`TargetEKF.update`); photogrammetry, which needs every point,
+        cannot (re)initialise from such a frame."""
+        if not self.ekf.initialised or self.diverged:
+            return self._try_initialise(None, "diverged" if self.diverged else "initialising")
+        return self._update_ekf(image, dt)
+
     def _declare_diverged(self, image: FloatArray | None) -> TargetEstimate:
         self.diverged = True
         return self._try_initialise(image, "diverged")
 
     def _try_initialise(self, image: FloatArray | None, failed_status: str) -> TargetEstimate:
-        """Initialise the EKF from photogrammetry of ``image`` (paper: photogrammetry first)."""
-        sol = None if image is None else self.solve(image, None)
+        """Initialise the EKF from photogrammetry of ``image`` (paper: photogrammetry first); a
+        frame with a point not seen cannot."""
+        complete = image is not None and not np.isnan(image).any()
+        sol = self.solve(image, None) if complete else None
         if sol is None:
             return _invalid(failed_status)
         self.last_solution = sol

@@ -49,6 +49,7 @@ from capture_bench.sensing.estimator import (
     DIVERGENCE_FRAMES,
     NIS_LIMIT,
     NOISE_FLOOR_PX,
+    PARTIAL_FRAME_RULES,
     STATUSES,
     acceptance_residual,
     solution_accepted,
@@ -196,9 +197,15 @@ class BatchedTargetEstimator:
         noise_px: float = 1.0,
         sigma_acceleration: float = 0.01,
         sigma_angular_acceleration: float = 0.01,
+        partial_frames: str = "update",
     ) -> None:
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n}")
+        if partial_frames not in PARTIAL_FRAME_RULES:
+            raise ValueError(
+                f"unknown partial_frames {partial_frames!r}; valid: {PARTIAL_FRAME_RULES}"
+            )
+        self.partial_frames = partial_frames
         self.n = int(n)
         self.camera_model = camera_model
         self.feature_points = np.array(feature_points, dtype=float).reshape(-1, 3)
@@ -282,8 +289,9 @@ class BatchedTargetEstimator:
         """One step of every active estimator.
 
         Args:
-            images: (n, N, 2) measured ``[x_m, z_m]`` per env, metres; an env whose image has any
-                non-finite value has no frame this step (``TargetEstimator.update(None, ...)``).
+            images: (n, N, 2) measured ``[x_m, z_m]`` per env, metres; NaN rows for points not
+                seen, which a running filter leaves out of its update (``partial_frames``, as
+                ``TargetEstimator``; every row NaN: no frame this step).
             dt: (n,) time since each env's previous step, s (a scalar applies to all).
             active: (n,) bool, the envs to step (default all); the others keep their state.
 
@@ -302,8 +310,13 @@ class BatchedTargetEstimator:
             raise ValueError(f"dt must be >= 0, got {dts[act].min()}")
         # A finite sum proves every entry finite (one reduction instead of two).
         has_frame = np.isfinite(z.sum(axis=(1, 2)))
+        complete = has_frame  # every point seen: a frame photogrammetry can initialise from
         if not has_frame.all():
-            has_frame = np.isfinite(z).all(axis=(1, 2))
+            seen = np.isfinite(z).all(axis=2)  # (n, N): a point is seen with both coordinates
+            complete = seen.all(axis=1)
+            has_frame = seen.any(axis=1) if self.partial_frames == "update" else complete
+            if has_frame.any() and not complete[has_frame].all():
+                z = np.where(seen[:, :, None], z, np.nan)
         running = act & self.initialised & ~self.diverged
         fails = np.zeros(n, dtype=bool)  # diverged during this step's predict or update
         if running.any():
@@ -313,7 +326,7 @@ class BatchedTargetEstimator:
         if starting.any():
             self.diverged |= fails
             self._status[starting] = np.where(self.diverged[starting], DIVERGED, INITIALISING)
-            self._try_initialise(starting & has_frame, z)
+            self._try_initialise(starting & complete, z)
         return self._estimates(act)
 
     # -- steps --------------------------------------------------------------------------------
@@ -386,12 +399,16 @@ class BatchedTargetEstimator:
         rj, depth = project_poses(x[:, :6], self._table, 0.0, np.zeros(m, dtype=bool))
         h = rj[:, 0].transpose(0, 2, 1).reshape(m, n_z)  # (x_m1, z_m1, x_m2, ...)
         jac = rj[:, 1:].transpose(0, 3, 2, 1).reshape(m, n_z, 6)  # J = dh/dq: H = [J, 0]
+        y = images.reshape(m, n_z) - h  # innovation z - h(X)
+        missing = np.isnan(y)
+        if missing.any():  # points not seen: their rows of H and of the innovation are zero
+            jac[missing] = 0.0
+            y[missing] = 0.0
         jac_t = np.ascontiguousarray(jac.transpose(0, 2, 1))
         pht = p[:, :, :6] @ jac_t  # P H' (m, 12, 8)
         s = jac @ pht[:, :6] + self._r_matrix  # S = H P H' + R
         lower, factored = _cholesky(s)
         l_inv = _lower_inverse(lower)
-        y = images.reshape(m, n_z) - h  # innovation z - h(X)
         w = (l_inv @ y[:, :, None])[:, :, 0]  # L^-1 y
         nis = np.einsum("ij,ij->i", w, w)  # y' S^-1 y
         k = pht @ (l_inv.transpose(0, 2, 1) @ l_inv)  # K = P H' S^-1
