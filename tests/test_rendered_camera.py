@@ -63,14 +63,7 @@ ARM_CLEARANCE_Y = -0.06  # m: every arm surface has global y >= -0.05 at any pos
 
 def default_camera() -> CameraModel:
     """The scenarios' default camera (CameraConfig), 1.2 m in front of the workspace."""
-    cfg = CameraConfig()
-    return CameraModel.looking_at(
-        cfg.position,
-        cfg.look_at,
-        focal_length=cfg.focal_length,
-        pixel_pitch=cfg.pixel_pitch,
-        resolution=cfg.resolution,
-    )
+    return CameraConfig().model()
 
 
 MODEL = default_camera()

@@ -28,6 +28,7 @@ from capture_bench.envs.core import (
     resolve_scenario,
 )
 from capture_bench.sensing.estimator import TargetEstimator
+from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World
@@ -169,6 +170,17 @@ class CaptureEnv(TaskAccess, gym.Env):
     :class:`~capture_bench.task.target_side.EpisodeCache` that keeps recorded target sides and
     physical-limit bounds by (scenario, seed); default the process-wide
     ``capture_bench.task.target_side.DEFAULT_EPISODE_CACHE`` (``clear()`` empties it).
+    ``render_view``: what ``render()`` shows: ``"scene"`` (pybullet's view of the world with the
+    target's and end-effector's traces) or ``"camera"`` (the rendered camera's own image scaled to
+    ``render_size``, with the markers found, the missing ones and the estimated capture point
+    drawn on it; scenarios with ``camera.mode: rendered`` only, and their default).
+
+    ## Rendered camera
+    With ``camera.mode: rendered`` the frames are pybullet images of the whole scene, the arm
+    included, and the markers are found in their pixels
+    (:mod:`capture_bench.sensing.scene_camera`): the target's side depends on the actions, so it
+    is computed step by step (``reuse_target_side`` then keeps, by seed, what the camera saw of
+    the target alone, and renders again only the frames the arm may reach).
 
     ## Version History
     * v0: initial release.
@@ -186,10 +198,21 @@ class CaptureEnv(TaskAccess, gym.Env):
         render_size: tuple[int, int] = (640, 480),
         reuse_target_side: bool = False,
         episode_cache: EpisodeCache | None = None,
+        render_view: str | None = None,
     ) -> None:
         self.task = task = CaptureTask(
             scenario, observation_source=observation_source, reward=reward
         )  # checks ``reward``
+        rendered = task.scenario.camera.mode == "rendered"
+        views = ("scene", "camera") if rendered else ("scene",)
+        self.render_view = (
+            ("camera" if rendered else "scene") if render_view is None else render_view
+        )
+        if self.render_view not in views:
+            raise ValueError(
+                f"render_view must be one of {views} for scenario {task.scenario.name!r} "
+                f"(camera.mode {task.scenario.camera.mode!r}); got {render_view!r}"
+            )
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
@@ -208,6 +231,10 @@ class CaptureEnv(TaskAccess, gym.Env):
         self._estimator = TargetEstimator(
             self.camera_model, task.features, source=sc.estimator.source, **sc.estimator_settings()
         )
+        # camera.mode "rendered": frames rendered with the arm in them, the markers found in
+        # pixels (built on first use: it opens a pybullet world of its own)
+        self.rendered = rendered
+        self._scene_camera: RenderedSceneCamera | None = None
         self._world: World | None = None
         self._closed = False
         self._side: TargetSide | None = None  # this episode's target side
@@ -281,9 +308,16 @@ class CaptureEnv(TaskAccess, gym.Env):
         if self._world is None:
             self._world = World(self.task.features, render_mode=self.render_mode)
         self._key = None if seed is None else (self.scenario, int(seed))
-        self._side = self._recorded_side() if self.reuse_target_side else self._live_side()
+        if self.rendered:
+            self._side = self._rendered_side()
+        elif self.reuse_target_side:
+            self._side = self._recorded_side()
+        else:
+            self._side = self._live_side()
         self._steps = 0
         self._time = 0.0
+        home = self.description.arm.home
+        self._side.arm_at = lambda _t: home
         episode = self._side.through(0)
         info = scalar_info(self.rule.start(self._state, _ALL, episode.position[:1]))
         self._world.reset(self.description.arm.home, episode.position[0], episode.rotation[0])
@@ -305,8 +339,11 @@ class CaptureEnv(TaskAccess, gym.Env):
             raise RuntimeError("the episode has ended; call env.reset() before step()")
         a = check_actions(action, (3,), "action")
         k = self._steps + 1
-        episode = self._side.through(k)  # the target's side (a live one draws from np_random)
-        joint_step = self._world.apply_joint_increment(self.task.increments(a), episode.dt[k])
+        side = self._side
+        theta0 = self._state.theta[0].copy()
+        joint_step = self._world.apply_joint_increment(self.task.increments(a), side.episode.dt[k])
+        side.arm_at = joint_path(theta0, joint_step.theta, self._time, float(side.episode.time[k]))
+        episode = side.through(k)  # the target's side (a live one draws from np_random)
         theta = joint_step.theta[None]
         x_e = kinematics.forward_kinematics_point(joint_step.theta)[None]
         after = episode.rows(k)
@@ -338,10 +375,26 @@ class CaptureEnv(TaskAccess, gym.Env):
     def render(self) -> NDArray[np.uint8] | None:
         if self.render_mode is None or self._world is None:
             return None
-        traces = {k: np.array(v) for k, v in self._traces.items()}
         width, height = self.render_size
+        if self.render_view == "camera":
+            return self._camera_view() if self.render_mode == "rgb_array" else None
+        traces = {k: np.array(v) for k, v in self._traces.items()}
         image = self._world.render(width, height, traces=traces)
         return image if self.render_mode == "rgb_array" else None
+
+    def _camera_view(self) -> NDArray[np.uint8]:
+        """The rendered camera's image of this step with its detections and the estimate."""
+        if self._scene_camera is None or self._side is None:
+            raise RuntimeError("call reset() before render()")
+        episode, k = self._side.episode, self._steps
+        return self._scene_camera.view(
+            self.joint_angles,
+            episode.position[k],
+            episode.rotation[k],
+            self.render_size,
+            self._scene_camera.last_detections,
+            episode.estimate_position[k],
+        )
 
     def close(self) -> None:
         """Disconnect the pybullet world; safe twice. ``step()`` then raises; ``reset()`` opens a
@@ -350,6 +403,9 @@ class CaptureEnv(TaskAccess, gym.Env):
         if self._world is not None:
             self._world.close()
             self._world = None
+        if self._scene_camera is not None:
+            self._scene_camera.close()
+            self._scene_camera = None
 
     # -- the episode's target side ---------------------------------------------------------------
     def _live_side(self) -> TargetSide:
@@ -359,6 +415,20 @@ class CaptureEnv(TaskAccess, gym.Env):
         return TargetSide.draw(
             task.scenario, task.camera, self._estimator, task.features, self.np_random
         )
+
+    def _rendered_side(self) -> TargetSide:
+        """A live side whose frames come from the rendered camera. With
+        :attr:`reuse_target_side` and a seed, the camera keeps what it saw of the target alone
+        in :attr:`episode_cache` by (scenario, seed) and renders again only a frame the arm may
+        reach (:class:`~capture_bench.sensing.scene_camera.RenderedSceneCamera`)."""
+        if self._scene_camera is None:
+            self._scene_camera = RenderedSceneCamera.for_scenario(self.task.scenario)
+        camera = self._scene_camera
+        shared = self.reuse_target_side and self._key is not None
+        camera.target_only = self.episode_cache.scene_frames(self._key) if shared else None
+        task = self.task
+        rng = self.np_random
+        return TargetSide.draw(task.scenario, camera, self._estimator, task.features, rng)
 
     def _recorded_side(self) -> TargetSide:
         """This seed's target side to the time limit, recorded now (as live steps would compute

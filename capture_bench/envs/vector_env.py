@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 from capture_bench.envs.core import CaptureTask, TaskAccess, check_actions
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
+from capture_bench.sensing.scene_camera import RenderedSceneCamera, SceneCameraView, joint_path
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
@@ -194,10 +195,11 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self._generator_seeds: list[int | None] = [None] * n
         self._sources: list[EpisodeSeedSource] | None = None
         #: Recordings of seeded episodes by (scenario, seed), replayed when a seed comes again.
-        if episode_cache is not None and not reference_target_side:
+        rendered = sc.camera.mode == "rendered"
+        if episode_cache is not None and not (reference_target_side or rendered):
             raise ValueError(
                 "episode_cache is shared only with reference_target_side=True (recordings a "
-                "CaptureEnv can replay); without it the env keeps its own"
+                "CaptureEnv can replay) or a rendered camera; without it the env keeps its own"
             )
         self.episode_cache = (
             EpisodeCache(max_episodes=max(16, 2 * n), max_limits=0)
@@ -219,7 +221,24 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         # row per sub-env, continues it step by step with the frames of ``_images``.
         self._ekf: BatchedTargetEstimator | None = None
         self._reference: TargetEstimator | None = None
-        if reference_target_side:
+        # camera.mode "rendered": each sub-env's target side is live (its frames show the arm):
+        # a view of one shared rendered camera and the single env's estimator per sub-env
+        self._sides: list[TargetSide | None] | None = None
+        self._scene: RenderedSceneCamera | None = None
+        if rendered:
+            self._scene = RenderedSceneCamera.for_scenario(sc)
+            self._views = [SceneCameraView(self._scene) for _ in range(n)]
+            self._estimators = [
+                TargetEstimator(
+                    self._camera.model,
+                    self._features,
+                    source=sc.estimator.source,
+                    **sc.estimator_settings(),
+                )
+                for _ in range(n)
+            ]
+            self._sides = [None] * n
+        elif reference_target_side:
             self._reference = TargetEstimator(
                 self._camera.model,
                 self._features,
@@ -372,12 +391,18 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         if self._world is not None:
             self._world.close()
             self._world = None
+        if self._scene is not None:
+            self._scene.close()
+            self._scene = None
 
     # -- episodes -------------------------------------------------------------------------------
     def _start(self, envs: NDArray[np.intp], explicit: dict[int, int]) -> None:
         """Begin the next episode of each sub-env in ``envs``: that of the seed ``explicit[i]``
         where given (seed sources only), else the next recorded one (recording a batch for
         every sub-env short of episodes when one of them has none)."""
+        if self._sides is not None:
+            self._start_rendered(envs, explicit)
+            return
         ahead: list[tuple[int, int | None, np.random.Generator]] = []
         if any(i not in explicit and not self._queues[i] for i in envs.tolist()):
             ahead = self._to_record(envs)
@@ -407,6 +432,59 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             self._ekf.restore(list(rows), FilterRows.stack(list(states)))
         self._steps[envs] = 0
         self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
+
+    def _start_rendered(self, envs: NDArray[np.intp], explicit: dict[int, int]) -> None:
+        """:meth:`_start` with the rendered camera: each sub-env's next episode as a live target
+        side (``CaptureEnv``'s, drawn from the same generator: the explicit seed, the seed
+        source's next, or the sub-env's own), rows filled as steps come (:meth:`_fill_rows`);
+        frames of the target alone kept by seed in :attr:`episode_cache`."""
+        assert self._sides is not None
+        sc, features = self.scenario, self._features
+        home = self.description.arm.home
+        for i in envs.tolist():
+            if i in explicit or self._sources is not None:
+                seed = explicit[i] if i in explicit else int(self._sources[i].next())  # type: ignore[index]
+                rng = seeding.np_random(seed)[0]
+            else:
+                seed, rng = self._generator_seeds[i], self._rngs[i]
+                self._generator_seeds[i] = None  # its later episodes continue the generator
+            assert rng is not None
+            key = None if seed is None else (sc, seed)
+            view = self._views[i]
+            view.target_only = None if key is None else self.episode_cache.scene_frames(key)
+            side = TargetSide.draw(sc, view, self._estimators[i], features, rng)
+            side.arm_at = lambda _t: home
+            episode = side.through(0)
+            bound = None if key is None else self.episode_cache.limit(key)
+            if bound is None:
+                (bound,) = episode_bounds([episode.plan], self.description)
+                if key is not None:
+                    self.episode_cache.keep_limit(key, bound)
+            episode.bound = bound
+            self._sides[i] = side
+            self._episodes[i] = episode
+            self._episode_seeds[i] = seed
+            self._load_tracks(i, episode)
+            self._bound[i] = bound.time
+            self._live_from[i] = episode.time.size
+        self._steps[envs] = 0
+        self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
+
+    def _fill_rows(
+        self, idx: NDArray[np.intp], k: NDArray[np.int64], theta0: FloatArray, theta: FloatArray
+    ) -> None:
+        """Row k[j] of sub-env idx[j]'s live target side (rendered camera), the arm moving from
+        ``theta0[j]`` to ``theta[j]`` during the step, copied into the tracks."""
+        assert self._sides is not None
+        times = self._tracks["time"]
+        for j, i in enumerate(idx.tolist()):
+            side = self._sides[i]
+            assert side is not None
+            t0, t1 = float(times[i, k[j] - 1]), float(times[i, k[j]])
+            side.arm_at = joint_path(theta0[j], theta[j], t0, t1)
+            episode = side.through(int(k[j]))
+            for name in STEP_TRACKS:
+                self._tracks[name][i, k[j]] = getattr(episode, name)[k[j]]
 
     def _record(
         self, jobs: list[tuple[int, int | None, np.random.Generator]]
@@ -507,12 +585,15 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             live = k >= self._live_from[idx]
             if live.any():
                 self._estimate(idx[live], k[live])
-        before = {name: tracks[name][idx, k - 1] for name in BEFORE_TRACKS}
-        after = {name: track[idx, k] for name, track in tracks.items()}
         # The world: rate and joint limits (World.apply_joint_increment's, batched).
         request = self.task.increments(action)
         theta0 = self._state.theta[idx]
-        theta, clipped, saturated = limit_joint_increments(theta0, request, after["dt"], arm)
+        dt = tracks["dt"][idx, k]
+        theta, clipped, saturated = limit_joint_increments(theta0, request, dt, arm)
+        if self._sides is not None and m:  # rendered: the frames show the arm where it is now
+            self._fill_rows(idx, k, theta0, theta)
+        before = {name: tracks[name][idx, k - 1] for name in BEFORE_TRACKS}
+        after = {name: track[idx, k] for name, track in tracks.items()}
         x_e = kinematics.forward_kinematics(theta)
 
         def collides(ask: NDArray[np.bool_]) -> NDArray[np.bool_]:

@@ -201,12 +201,13 @@ def run_batch(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
     once per episode, and each instance is asked with its own episode's observation. Two kinds
     play their episodes one by one in the single env: a privileged agent (it reads the single
     env's ground truth) and a model declaring sampled actions (torch's one generator, seeded
-    per episode). Every way gives the single env's records (tested).
+    per episode). So does every agent on a scenario with the rendered camera. Every way gives
+    the single env's records (tested).
     """
     first = tasks[0]
     spec = _spec(first)
     seeds = [task.seed for task in tasks]
-    if spec.privileged or declares_sampled_actions(spec):
+    if spec.privileged or declares_sampled_actions(spec) or _rendered(first.scenario):
         return [run_task(task)[0] for task in tasks]
     env = _vector_env(first.scenario, len(seeds))
     agent = build_agent(spec, env, seeds[0])
@@ -215,6 +216,15 @@ def run_batch(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
     return run_episodes(
         env, agent, agent_name=spec.label, scenario=scenario_label(first.scenario), seeds=seeds
     )
+
+
+def _rendered(scenario: str) -> bool:
+    """Whether the scenario's camera is rendered: its frames show the arm, so each episode runs
+    in the worker's single env, which renders each seed's target-only frames once for all the
+    chunk's agents (:mod:`capture_bench.sensing.scene_camera`)."""
+    from capture_bench.task.scenarios import load_scenario
+
+    return load_scenario(scenario).camera.mode == "rendered"
 
 
 def run_chunk(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:

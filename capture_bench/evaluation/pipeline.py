@@ -129,8 +129,8 @@ class Plan:
 
 
 def _scenario_names(suite: Suite) -> list[str]:
-    if suite.scenarios == (ALL,):  # every valid scenario; the CLI names the invalid files skipped
-        return list_scenarios()
+    if suite.scenarios == (ALL,):  # every valid analytic one; the CLI names invalid files skipped
+        return list_scenarios(camera="analytic")
     known = list_scenarios()
     for name in suite.scenarios:
         if is_scenario_file(name):  # a scenario YAML by path, as train.py --scenario takes

@@ -43,7 +43,8 @@ class Suite:
             (:func:`shadowed_suite`); reports go to ``reports/<name>/``.
         description: one line for people.
         agents: agent specs, in report order.
-        scenarios: scenario names, in report order; ``("all",)`` means every shipped scenario.
+        scenarios: scenario names, in report order; ``("all",)`` means every shipped scenario
+            with the analytic camera (rendered ones are named: the ``vision`` suite).
         episodes: episodes per agent x scenario = the first ``episodes`` published evaluation
             seeds of each scenario.
         reference: the agent every other one is compared with, seed by seed.

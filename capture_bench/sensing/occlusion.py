@@ -59,14 +59,49 @@ def hidden_markers(
     gap = np.linalg.norm(image.centre[:, None, :] - image.centre[None, :, :], axis=-1)
     nearer = depth[None, :] < depth[:, None]  # [i, j]: marker j is nearer the lens than i
     hidden |= np.any(nearer & (gap < reach[:, None] + reach[None, :] - margin_px), axis=1)
+    if obstacles:
+        hidden |= obstacles_may_hide(model, centres_global, radius, obstacles, margin_px)
+    return hidden
+
+
+def obstacles_may_hide(
+    model: CameraModel,
+    centres_global: ArrayLike,
+    radius: float,
+    obstacles: Sequence[ArrayLike],
+    margin_px: float = MARGIN_PX,
+) -> NDArray[np.bool_]:
+    """Markers that one of the ``obstacles`` may (partly) hide, whatever the markers do to each
+    other: :func:`hidden_markers`' obstacle test applied to every marker.
+
+    Args:
+        model: the camera.
+        centres_global: marker centres, global, metres, shape (N, 3).
+        radius: marker radius, metres.
+        obstacles: each a set of points, global, metres, shape (M, 3), whose convex hull contains
+            the obstacle (an arm link's bounding box corners).
+        margin_px: clearance required between images, pixels.
+
+    Returns:
+        (N,) True where an obstacle's image comes within ``margin_px`` of marker i's and the
+        obstacle reaches nearer the lens than the marker's far side; every marker when an
+        obstacle point is not beyond the lens.
+    """
+    centres_cam = model.to_camera(np.asarray(centres_global, dtype=float).reshape(-1, 3))
+    image = sphere_image(centres_cam, radius, model)
+    reach = image.semi_major + margin_px
+    depth = centres_cam[:, 1]
+    hidden = np.zeros(len(centres_cam), dtype=bool)
     for points in obstacles:
         cam = model.to_camera(np.asarray(points, dtype=float).reshape(-1, 3))
         if not np.all(model.in_front(cam)):
             return np.ones(len(centres_cam), dtype=bool)
+        near = cam[:, 1].min()
         hull = cv2.convexHull(pixel_of(cam, model).astype(np.float32))
         for i in np.flatnonzero(~hidden):
-            if cam[:, 1].min() >= depth[i] + radius:  # wholly behind the marker
+            if near >= depth[i] + radius or not np.isfinite(reach[i]):
+                hidden[i] |= not np.isfinite(reach[i])
                 continue
             inside = cv2.pointPolygonTest(hull, tuple(map(float, image.centre[i])), True)
-            hidden[i] = inside > -reach[i]  # signed distance: > 0 inside the hull
+            hidden[i] = inside > -reach[i]
     return hidden

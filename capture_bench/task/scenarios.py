@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.paths import config_dir
+from capture_bench.sensing.camera import RENDERED_DETECTION_SIGMA_PX, CameraModel
 from capture_bench.sensing.sources import SOURCES
 from capture_bench.validation import ConfigError, Rule, check_mapping, is_file, read_mapping
 
@@ -25,6 +26,8 @@ NON_NEGATIVE = (0.0, math.inf, True)
 
 
 OBSERVATION_SOURCES = SOURCES
+#: How the camera makes its frames (``camera.mode``).
+CAMERA_MODES = ("analytic", "rendered")
 
 
 def _f(
@@ -61,6 +64,39 @@ class CameraConfig:
     noise_px: float = _f(1.0, "Gaussian image noise sigma, px", NON_NEGATIVE)
     dropout: float = _f(0.0, "probability that a frame is lost, 0-1", (0.0, 1.0, True))
     latency_frames: int = _f(0, "whole frames of latency", NON_NEGATIVE)
+    mode: str = _f(
+        "analytic",
+        "analytic: the markers' centres projected by eq. 2 plus noise_px; rendered: pybullet"
+        " renders the camera's image and the markers are found in its pixels (noise_px unused)",
+        choices=CAMERA_MODES,
+    )
+    marker_radius: float = _f(
+        0.005, "sphere marker radius (rendered), m; larger ones hide each other more", POSITIVE
+    )
+    target_block: bool = _f(False, "a grey block between the markers that can hide them (rendered)")
+    light_direction: tuple[float, float, float] = _f(
+        (0.0, 0.0, 0.0), "where the light comes from, global (rendered; all 0: from the lens)"
+    )
+    light_intensity: float = _f(1.0, "diffuse light, 1 = default (rendered)", NON_NEGATIVE)
+    image_noise: float = _f(
+        0.0, "sensor noise sigma added to each pixel, grey levels 0-255 (rendered)", NON_NEGATIVE
+    )
+    exposure: float = _f(
+        0.0,
+        "exposure time, s: motion blur over [t - exposure, t] (rendered; 0: none)",
+        NON_NEGATIVE,
+    )
+
+    def model(self) -> CameraModel:
+        """The camera's geometry: looking from ``position`` at ``look_at`` with these
+        intrinsics."""
+        return CameraModel.looking_at(
+            self.position,
+            self.look_at,
+            focal_length=self.focal_length,
+            pixel_pitch=self.pixel_pitch,
+            resolution=self.resolution,
+        )
 
 
 @dataclass(frozen=True)
@@ -171,9 +207,12 @@ class Scenario:
 
     def estimator_settings(self) -> dict[str, float]:
         """What the estimator assumes (pixel noise, process noise), as the keyword arguments of
-        ``TargetEstimator`` and ``BatchedTargetEstimator``."""
+        ``TargetEstimator`` and ``BatchedTargetEstimator``. The pixel noise is ``noise_px``
+        with the analytic camera, and the detector's measured centroid error with the rendered
+        one (``RENDERED_DETECTION_SIGMA_PX``; the EKF floors it at ``NOISE_FLOOR_PX``)."""
+        rendered = self.camera.mode == "rendered"
         return {
-            "noise_px": self.camera.noise_px,
+            "noise_px": RENDERED_DETECTION_SIGMA_PX if rendered else self.camera.noise_px,
             "sigma_acceleration": self.estimator.sigma_acceleration,
             "sigma_angular_acceleration": self.estimator.sigma_angular_acceleration,
         }
@@ -195,11 +234,15 @@ def scenario_files() -> list[Path]:
     return sorted(SCENARIO_DIR.glob("*.yaml"))
 
 
-def list_scenarios() -> list[str]:
-    """Names of the shipped scenarios that load, sorted. An invalid file is left out here (it
-    breaks only itself); :func:`invalid_scenarios` says which and why."""
+def list_scenarios(camera: str | None = None) -> list[str]:
+    """Names of the shipped scenarios that load, sorted; with ``camera``, those whose
+    ``camera.mode`` is that. An invalid file is left out here (it breaks only itself);
+    :func:`invalid_scenarios` says which and why."""
     invalid = invalid_scenarios()
-    return [p.stem for p in scenario_files() if p.stem not in invalid]
+    names = [p.stem for p in scenario_files() if p.stem not in invalid]
+    if camera is None:
+        return names
+    return [name for name in names if load_scenario(name).camera.mode == camera]
 
 
 def invalid_scenarios() -> dict[str, str]:

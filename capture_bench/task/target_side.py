@@ -23,16 +23,16 @@ seeded generator, in an order no action changes).
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench.sensing.camera import Camera, CameraModel
+from capture_bench.sensing.camera import Camera, CameraModel, Frame
 from capture_bench.sensing.estimator import STATUSES, TargetEstimator
 from capture_bench.sim import kinematics
-from capture_bench.sim.target_motion import FEATURE_POINTS
+from capture_bench.sim.target_motion import FEATURE_POINTS, TargetTrajectory
 from capture_bench.task.episode import EpisodePlan
 from capture_bench.task.physical_limit import PhysicalLimit
 from capture_bench.task.recording import RecordedEpisode, estimate_errors_scalar
@@ -40,20 +40,39 @@ from capture_bench.task.scenarios import Scenario
 
 FloatArray = NDArray[np.float64]
 EpisodeKey = tuple[Scenario, int]  # (scenario, seed)
+ArmAt = Callable[[float], FloatArray]  # t, s -> the arm's joint angles then, rad, (3,)
+
+
+class SceneCamera(Protocol):
+    """A camera whose frame depends on the whole scene, the arm included (the rendered camera,
+    :class:`capture_bench.sensing.scene_camera.RenderedSceneCamera`): what a live
+    :class:`TargetSide` asks instead of :meth:`Camera.capture` of the feature points."""
+
+    model: CameraModel
+    last_visible: bool
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Start an episode (its draws from ``rng`` come right after the plan's)."""
+        ...
+
+    def capture_scene(
+        self,
+        k: int,
+        time: float,
+        trajectory: TargetTrajectory,
+        arm_at: ArmAt,
+        rng: np.random.Generator,
+    ) -> Frame | None:
+        """Frame k (taken at ``time``, s), the target on ``trajectory`` and the arm at
+        ``arm_at(t)``; the frame delivered now, as :meth:`Camera.capture` returns it."""
+        ...
 
 
 def scenario_camera(scenario: Scenario) -> tuple[Camera, FloatArray]:
     """The scenario's camera (model, noise, drop-out, latency) and the target's feature points
     (target frame, m, (N, 3))."""
     cam = scenario.camera
-    model = CameraModel.looking_at(
-        cam.position,
-        cam.look_at,
-        focal_length=cam.focal_length,
-        pixel_pitch=cam.pixel_pitch,
-        resolution=cam.resolution,
-    )
-    camera = Camera(model, cam.noise_px, cam.dropout, cam.latency_frames)
+    camera = Camera(cam.model(), cam.noise_px, cam.dropout, cam.latency_frames)
     return camera, FEATURE_POINTS[scenario.target.feature_points]
 
 
@@ -69,17 +88,21 @@ class TargetSide:
         self,
         episode: RecordedEpisode,
         filled: int,
-        sensors: tuple[Camera, TargetEstimator, FloatArray, np.random.Generator] | None = None,
+        sensors: tuple[Camera | SceneCamera, TargetEstimator, FloatArray, np.random.Generator]
+        | None = None,
     ) -> None:
         self.episode = episode
         self.filled = filled  # rows 0 .. filled - 1 hold values
         self._sensors = sensors
+        #: The arm's joint angles at a time of the current step (a scene camera's frame shows
+        #: the arm): set by the env before :meth:`through` asks for the step's row.
+        self.arm_at: ArmAt | None = None
 
     @classmethod
     def draw(
         cls,
         scenario: Scenario,
-        camera: Camera,
+        camera: Camera | SceneCamera,
         estimator: TargetEstimator,
         features: FloatArray,
         rng: np.random.Generator,
@@ -93,7 +116,7 @@ class TargetSide:
     def live(
         cls,
         plan: EpisodePlan,
-        camera: Camera,
+        camera: Camera | SceneCamera,
         estimator: TargetEstimator,
         features: FloatArray,
         rng: np.random.Generator,
@@ -122,9 +145,19 @@ class TargetSide:
             nees=np.full(n, np.nan),
             bound=None,
         )
-        camera.reset()
+        if isinstance(camera, Camera):
+            camera.reset()
+        else:
+            camera.reset(rng)
         estimator.reset()
         return cls(episode, 0, (camera, estimator, features, rng))
+
+    @property
+    def needs_arm(self) -> bool:
+        """Whether the rows depend on the arm (a scene camera): the env then sets
+        :attr:`arm_at` before asking for each step's row, and the side cannot be recorded
+        ahead of the steps."""
+        return self._sensors is not None and not isinstance(self._sensors[0], Camera)
 
     @classmethod
     def replay(cls, episode: RecordedEpisode) -> TargetSide:
@@ -144,7 +177,13 @@ class TargetSide:
         return self.episode
 
     def record_all(self) -> RecordedEpisode:
-        """Every row to the time limit (a live side computes them now; its sensors are dropped)."""
+        """Every row to the time limit (a live side computes them now; its sensors are dropped).
+        Not for a side whose rows depend on the arm (:attr:`needs_arm`): ``RuntimeError``."""
+        if self.needs_arm:
+            raise RuntimeError(
+                "a rendered camera's frames show the arm, so its target side cannot be recorded "
+                "ahead of the steps"
+            )
         episode = self.through(self.episode.time.size - 1)
         self._sensors = None
         return episode
@@ -160,8 +199,12 @@ class TargetSide:
         x_t, v_t, rotation = ep.plan.trajectory.state(time)
         if ep.plan.scenario.estimator.source == "truth":
             frame = None
-        else:
+        elif isinstance(camera, Camera):
             frame = camera.capture(x_t + features @ rotation.T, rng)
+        else:
+            if self.arm_at is None:
+                raise RuntimeError("a scene camera's row needs the arm: set arm_at first")
+            frame = camera.capture_scene(k, time, ep.plan.trajectory, self.arm_at, rng)
         est = estimator.update(frame, dt, x_t, v_t)
         ep.position[k], ep.velocity[k], ep.rotation[k] = x_t, v_t, rotation
         if frame is not None:
@@ -198,6 +241,8 @@ class EpisodeCache:
             OrderedDict()
         )
         self._limits: dict[EpisodeKey, PhysicalLimit] = {}
+        # What a rendered camera saw of the target alone, by frame, filled as frames are asked
+        self._scene_frames: OrderedDict[EpisodeKey, dict[int, Any]] = OrderedDict()
 
     def recording(self, key: EpisodeKey) -> tuple[RecordedEpisode, Mapping[str, Any]] | None:
         """The recorded episode of ``key`` and the generator's state after recording it, or
@@ -214,6 +259,19 @@ class EpisodeCache:
         self._episodes[key] = (episode, rng_state)
         if len(self._episodes) > self.max_episodes:
             self._episodes.popitem(last=False)
+
+    def scene_frames(self, key: EpisodeKey) -> dict[int, Any]:
+        """The store of a rendered camera's target-only frames of ``key`` (frame index -> what
+        :class:`~capture_bench.sensing.scene_camera.RenderedSceneCamera` keeps), empty at
+        first and filled by the camera; kept for the ``max_episodes`` latest keys."""
+        found = self._scene_frames.get(key)
+        if found is None:
+            found = self._scene_frames[key] = {}
+            if len(self._scene_frames) > self.max_episodes:
+                self._scene_frames.popitem(last=False)
+        else:
+            self._scene_frames.move_to_end(key)
+        return found
 
     def counts(self) -> tuple[int, int]:
         """(recordings kept, bounds kept): what the cache holds now."""
@@ -239,6 +297,7 @@ class EpisodeCache:
         """Forget every recording and bound."""
         self._episodes.clear()
         self._limits.clear()
+        self._scene_frames.clear()
 
 
 #: The process-wide cache every env uses unless given its own.

@@ -31,13 +31,17 @@ def is_mixture(spec: str) -> bool:
 
 
 def mixture_scenarios(spec: str) -> list[Scenario]:
-    """The scenarios of a ``--scenario`` spec: one, every shipped one (``all``), or a
-    comma-separated list (each a name or a YAML path).
+    """The scenarios of a ``--scenario`` spec: one, every shipped one with the analytic camera
+    (``all``), or a comma-separated list (each a name or a YAML path).
 
     Raises:
         ConfigError: an unknown scenario, an empty or repeated name.
     """
-    names = list_scenarios() if spec == ALL else [part.strip() for part in spec.split(",")]
+    names = (
+        list_scenarios(camera="analytic")
+        if spec == ALL
+        else [part.strip() for part in spec.split(",")]
+    )
     if any(not name for name in names):
         raise ConfigError(
             f"--scenario {spec!r}: an empty name in the list; expected names separated by commas"

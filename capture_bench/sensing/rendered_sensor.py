@@ -1,0 +1,608 @@
+"""The rendered camera as a sensor: pybullet draws what the eye-to-hand camera sees, the colour-blob
+detector finds the markers, and the frame carries their eq. 2 image-plane points.
+
+:class:`RenderedCamera` is a sibling of :class:`~capture_bench.sensing.camera.Camera`: the same
+drop-out and latency, frames usable wherever a ``Frame`` is, but points measured in an image, so
+a marker hidden (by the arm, another marker, the block), too small or cut by the sensor's edge is
+a NaN row with the detector's reason, never a guess.
+
+**Windows (the fast path).** Each marker's window bounds its sphere's exact image (the disc of the
+ellipse's semi-major axis, :func:`~capture_bench.sensing.pixels.sphere_image`) at every sub-frame
+instant, plus ``WINDOW_MARGIN_PX``, cut to the sensor; with motion blur one window bounds them
+all. A marker not wholly beyond the near plane at every instant, or whose window misses the
+sensor, is missing (``no_blob``) without rendering, in both paths. Before each window, the shapes
+whose bounding spheres cannot reach it are hidden (:func:`window_keeps`; alpha 0, which
+TinyRenderer skips): the pixels stay the same and a capture costs ~10 % less. Measured by
+``bench_rendered_sensor.py`` (one core of a shared machine, default settings, target 0.9-1.4 m,
+arm in view): 2.4-2.6 ms a capture (385-420/s): rendering 1.6 ms (~0.4 ms of it the four
+``getCameraImage`` calls before any pixel, the rest ~200 ns per pixel of marker or arm shaded),
+detection 0.3 ms, windows, culling, exact-float re-detections and bookkeeping 0.5 ms; the full
+frame 60-70 ms. One window over all four markers takes twice as long to render (the arm behind
+them is costly to shade); merging overlapping windows measured no gain.
+
+**Windowed = full frame** (``windowed=False``), because:
+
+* every pixel of marker i's colour lies in marker i's window: the sphere mesh lies inside the
+  sphere (every marker pixel's centre >= 0.04 px inside the semi-major disc, measured 0.3-4 m),
+  no other surface has a marker's hue and saturation (:mod:`capture_bench.sim.markers`), and a
+  blurred mean of colours can only fall in a band where some marker passed (a green marker over
+  the blue arm makes cyan), which the one blur window covers;
+* the detector adds the window's origin to a crop-relative centroid before the crop's offset,
+  which rounds like the full frame's single sum only when the origin is 0 or in the centroid's
+  binade ``[2^k, 2^(k+1))``; otherwise (:func:`exact_origin`, ~20 % of markers, 5 % of the time)
+  the marker is detected again from the window cut at ``2^k`` or padded with black to 0.
+
+No window rule equalises TinyRenderer's float32 rasterisation through each window's own frustum:
+a pixel centre on a triangle's edge to float32 precision may be drawn in one and not the other.
+Measured over 2800 markers (0.6-2 m, the arm at home or at random joint angles): 6 had one edge
+pixel more or less (centroid <= 0.028 px off); status and found mask never differed; every other
+centroid was the same float. Image noise of 8 grey levels speckles the arm's shaded blue into the
+cyan band (~80 single pixels a full frame, never 4 together in 10 frames; none at 4 grey levels):
+speckle outside the windows widens the full frame's crop or joins a missing marker's blob there.
+Over 240 markers at 8 grey levels, 7 centroids differed in their last bit (1e-13 px) and 2
+missing markers' areas (one ``too_small`` there, ``no_blob`` here).
+
+**Image noise**: Gaussian, ``image_noise`` grey levels, on every RGB channel, then rounded and
+clipped to uint8; the value at channel c of pixel (u, v) of frame ``frame_index`` is a pure
+function of ``(key, frame_index, (v * width + u) * 3 + c)`` (:func:`pixel_noise`), so a window's
+noise is the full frame's. :meth:`RenderedCamera.reset` draws the episode's key;
+:meth:`~RenderedCamera.capture` draws only the drop-out uniform, whatever the geometry.
+
+**Motion blur**: the mean of ``blur_subframes`` renders over ``[t - exposure_s, t]``, noise added
+after. The blob is where the marker stayed long enough to keep its saturation (>= 3 of 4
+sub-frames over white), so its centroid is the mean position, behind eq. 2 at t by half the
+exposure's motion: 0.48 px RMS per axis at 20 ms and 0.05 m/s. A smear over ~half the marker's
+image radius fails the fill test (``partial``): at 1.2 m and 20 ms, found at 0.2 m/s (7 px),
+partial at 0.3 m/s (10.7 px).
+
+**Light**: ``light_direction`` is where the light comes from (pybullet's ``lightDirection``,
+:class:`~capture_bench.sensing.render_camera.Lighting`'s source); ``light_intensity`` scales the
+diffuse coefficient (0.4), the ambient one stays 0.6. The detector thresholds hue and saturation,
+which shading keeps, and value, which ambient light alone keeps >= 0.6 x 0.8 x 255 = 122 grey
+levels on every marker. Measured: all markers of 200 unoccluded poses found, with the same error,
+at intensity 1, 0.3 and 0 and lit from +x, -x, +z or behind the target; detection would start
+losing markers only with an ambient coefficient below ~0.19 (V < 39 on an unlit side).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from capture_bench._quiet import quiet_c_output
+from capture_bench.sensing.camera import RENDERED_DETECTION_SIGMA_PX, CameraModel, Frame
+from capture_bench.sensing.detector import FOUND, MARKER_BANDS, NO_BLOB, Detections, detect_markers
+from capture_bench.sensing.pixels import pixel_to_image_plane, principal_point, sphere_image
+from capture_bench.sensing.render_camera import (
+    NEAR_PLANE,
+    Lighting,
+    Window,
+    check_window,
+    render_frame,
+)
+from capture_bench.sim.markers import BLOCK_COLOUR, MARKER_COLOURS, MARKER_RADIUS, block_extent
+from capture_bench.sim.world import World
+
+with quiet_c_output():  # pybullet prints its build time on import
+    import pybullet
+
+FloatArray = NDArray[np.float64]
+PoseAt = Callable[[float], tuple[FloatArray, FloatArray]]  # t -> (capture point (3,), R_gt (3, 3))
+ThetaAt = Callable[[float], FloatArray]  # t -> joint angles, rad, (3,)
+Scene = tuple[FloatArray, FloatArray, FloatArray, FloatArray]  # markers (N, 3), theta, p, R_gt
+
+# Detection error, pixels (measured: sensing.camera.RENDERED_DETECTION_SIGMA_PX's comment).
+DETECTION_SIGMA_PX = RENDERED_DETECTION_SIGMA_PX
+WINDOW_MARGIN_PX = 2  # pixels of clearance around each marker's image, >= 2 (exact_origin)
+
+_GAMMA = 0x9E3779B97F4A7C15  # splitmix64's increment (2^64 / golden ratio)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How the rendered camera draws and reads its images.
+
+    Attributes:
+        marker_radius: radius of the sphere markers, metres, > 0.
+        target_block: draw the grey block between the markers (it hides markers in about half
+            of random orientations); False: the target is its four markers.
+        light_direction: where the light comes from, global (unit or not); None: from the lens.
+        light_intensity: scale of the diffuse term, >= 0 (0: ambient light only).
+        image_noise: sensor noise, standard deviation in grey levels (0-255) per RGB channel.
+        exposure_s: motion blur: the image is the mean of ``blur_subframes`` renders at instants
+            evenly spaced over ``[t - exposure_s, t]``, seconds, >= 0 (0: one render at t).
+        blur_subframes: renders averaged when ``exposure_s > 0``, >= 2.
+        windowed: render only windows around the markers (the fast path); False: the full frame
+            (the reference).
+    """
+
+    marker_radius: float = MARKER_RADIUS
+    target_block: bool = False
+    light_direction: tuple[float, float, float] | None = None
+    light_intensity: float = 1.0
+    image_noise: float = 0.0
+    exposure_s: float = 0.0
+    blur_subframes: int = 4
+    windowed: bool = True
+
+    def __post_init__(self) -> None:
+        checks = {
+            "marker_radius": self.marker_radius > 0.0,
+            "light_direction": self.light_direction is None
+            or (
+                np.shape(self.light_direction) == (3,) and np.linalg.norm(self.light_direction) > 0
+            ),
+            "light_intensity": self.light_intensity >= 0.0,
+            "image_noise": self.image_noise >= 0.0,
+            "exposure_s": self.exposure_s >= 0.0,
+            "blur_subframes": int(self.blur_subframes) == self.blur_subframes >= 2,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise ValueError(f"RenderSettings.{name} is out of range: {getattr(self, name)!r}")
+
+    def lighting(self) -> Lighting:
+        """The :class:`~capture_bench.sensing.render_camera.Lighting` these settings mean."""
+        source: tuple[float, float, float] | None = None
+        if self.light_direction is not None:
+            x, y, z = np.asarray(self.light_direction, dtype=float)
+            norm = float(np.sqrt(x * x + y * y + z * z))
+            source = (float(x) / norm, float(y) / norm, float(z) / norm)
+        return Lighting(source=source, diffuse=Lighting().diffuse * self.light_intensity)
+
+    def instants(self, time: float) -> FloatArray:
+        """The sub-frame instants of an image taken at ``time``, seconds, shape (S,)."""
+        if self.exposure_s == 0.0:
+            return np.array([float(time)])
+        return np.linspace(time - self.exposure_s, time, self.blur_subframes)
+
+
+@dataclass
+class RenderedFrame(Frame):
+    """A delivered rendered image: a :class:`~capture_bench.sensing.camera.Frame` whose missing
+    markers are NaN rows of ``image_points``.
+
+    Attributes:
+        found: (N,) True where the marker was found.
+        status: (N,) the detector's ``FOUND`` or reason (``detector.STATUS_NAMES``).
+    """
+
+    found: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    status: NDArray[np.int8] = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+
+
+def _mix64(z: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """splitmix64's finaliser, elementwise (uint64 arithmetic wraps modulo 2^64)."""
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+def pixel_noise(key: int, frame_index: int, window: Window, width: int) -> FloatArray:
+    """Standard normals for the pixels of ``window``, each a pure function of its pixel.
+
+    With ``mix`` splitmix64's finaliser and ``G`` its odd increment (arithmetic modulo 2^64),
+    the frame's seed is ``s = mix(key + (frame_index + 1) G)`` and channel c of full-frame pixel
+    (u, v), counter ``n = (v * width + u) * 3 + c``, hashes to ``h = mix(s + (n + 1) G)``; its
+    high and low 32 bits are the uniforms ``a`` in (0, 1) and ``b`` of one Box-Muller normal
+    ``sqrt(-2 ln a) cos(2 pi b)`` (|value| <= 6.7).
+
+    Args:
+        key, frame_index: the episode's noise key and the image's index, integers (mod 2^64).
+        window: ``(u0, u1, v0, v1)``, full-frame pixels.
+        width: the sensor's width, pixels.
+
+    Returns:
+        Standard normals, shape ``(v1 - v0, u1 - u0, 3)``.
+    """
+    u0, u1, v0, v1 = window
+    seed = _mix64(np.array([(key + (frame_index + 1) * _GAMMA) % 2**64], dtype=np.uint64))
+    counter = (
+        (np.arange(v0, v1, dtype=np.uint64) * np.uint64(3 * width))[:, None, None]
+        + (np.arange(u0, u1, dtype=np.uint64) * np.uint64(3))[None, :, None]
+        + np.arange(1, 4, dtype=np.uint64)
+    )
+    h = _mix64(seed + counter * np.uint64(_GAMMA))
+    a = ((h >> np.uint64(32)).astype(float) + 0.5) * 2.0**-32
+    b = (h & np.uint64(0xFFFFFFFF)).astype(float) * 2.0**-32
+    return np.sqrt(-2.0 * np.log(a)) * np.cos(2.0 * np.pi * b)
+
+
+def marker_windows(
+    model: CameraModel, centres_cam: ArrayLike, radius: float, margin: float = WINDOW_MARGIN_PX
+) -> list[Window | None]:
+    """Each marker's window: the pixels within ``margin`` of its sphere's image (the disc of the
+    ellipse's semi-major axis) at any sub-frame instant, cut to the sensor.
+
+    Args:
+        model: the camera.
+        centres_cam: marker centres, camera frame, metres, at each instant, shape (S, N, 3).
+        radius: marker radius, metres.
+        margin: clearance, pixels.
+
+    Returns:
+        N windows ``(u0, u1, v0, v1)``; None for a marker whose sphere is not wholly beyond the
+        near plane at some instant, or whose window misses the sensor.
+    """
+    c = np.asarray(centres_cam, dtype=float)
+    image = sphere_image(c.reshape(-1, 3), radius, model)
+    reach = (image.semi_major + margin).reshape(*c.shape[:2], 1)
+    centre = image.centre.reshape(*c.shape[:2], 2)
+    lo = np.maximum(np.floor(np.min(centre - reach, axis=0)), 0.0)  # (N, 2): u0, v0
+    hi = np.minimum(np.ceil(np.max(centre + reach, axis=0)) + 1.0, model.resolution)
+    beyond = np.all(c[:, :, 1] - model.focal_length - radius > NEAR_PLANE, axis=0)
+    keep = (beyond & np.all(lo < hi, axis=1)).tolist()
+    lo_list, hi_list = np.nan_to_num(lo).tolist(), np.nan_to_num(hi).tolist()
+    return [
+        (int(a[0]), int(b[0]), int(a[1]), int(b[1])) if k else None
+        for k, a, b in zip(keep, lo_list, hi_list)
+    ]
+
+
+def exact_origin(start: int, own_start: int, value: float) -> int | None:
+    """Where, on one axis, the detector's image must start for its centroid ``value`` to be the
+    full frame's float (module docstring); None when ``start`` already gives it.
+
+    Args:
+        start: the image's first pixel on this axis, full frame.
+        own_start: the first pixel of the marker's own window (its image starts
+            ``WINDOW_MARGIN_PX`` later), or ``start`` when its colour may be anywhere in the image.
+        value: the centroid found from ``start``, pixels.
+
+    Returns:
+        None if ``start`` is 0 or in the binade of ``value`` (of ``int(value) + 1``, so a value
+        a hair below a power of two counts as above it); else that binade's power of two where
+        the image may be cut there (``start < 2^k <= own_start + WINDOW_MARGIN_PX - 1``); else
+        0 (pad the image to the sensor's edge).
+    """
+    top = int(value) + 1
+    if start == 0 or start.bit_length() == top.bit_length():
+        return None
+    power = 1 << (top.bit_length() - 1)
+    return power if start < power <= own_start + WINDOW_MARGIN_PX - 1 else 0
+
+
+def _rebase(image: NDArray[np.uint8], old: Sequence[int], new: Sequence[int]) -> NDArray[np.uint8]:
+    """A window's image starting at full-frame pixel ``old`` ``(u, v)`` made to start at ``new``:
+    cut where ``new`` is later, padded with black where it is earlier."""
+    du, dv = old[0] - new[0], old[1] - new[1]
+    image = image[max(-dv, 0) :, max(-du, 0) :]
+    return np.pad(image, ((max(dv, 0), 0), (max(du, 0), 0), (0, 0)))
+
+
+def detect_exactly(
+    image: NDArray[np.uint8],
+    model: CameraModel,
+    start: tuple[int, int],
+    members: Sequence[int],
+    owns: Sequence[tuple[int, int]],
+) -> Detections:
+    """:func:`~capture_bench.sensing.detector.detect_markers` on the image of a window starting at
+    full-frame pixel ``start`` ``(u0, v0)``, for markers ``members`` (indices of
+    ``MARKER_BANDS``), each found centroid found again where :func:`exact_origin` asks (``owns``:
+    each member's ``own_start`` on both axes)."""
+    part = detect_markers(image, model, start, [MARKER_BANDS[i] for i in members])
+    for k, (i, own) in enumerate(zip(members, owns)):
+        if part.status[k] != FOUND:
+            continue
+        moved = [exact_origin(s, o, p) for s, o, p in zip(start, own, part.pixels[k])]
+        if moved != [None, None]:
+            u, v = (s if m is None else m for s, m in zip(start, moved))
+            new = (u, v)
+            again = detect_markers(_rebase(image, start, new), model, new, [MARKER_BANDS[i]])
+            part.pixels[k], part.areas[k] = again.pixels[0], again.areas[0]
+            part.status[k] = again.status[0]
+    return part
+
+
+def window_keeps(
+    model: CameraModel, windows: Sequence[Window], centres_cam: FloatArray, radii: FloatArray
+) -> NDArray[np.bool_]:
+    """Which spheres (centres in the camera frame, metres, (K, 3); radii (K,)) may show in each
+    window: all but those wholly beyond the near plane and wholly outside one of the four
+    planes through the lens and the window's outer pixel edges, moved a pixel outwards.
+
+    Returns:
+        (W, K) booleans.
+    """
+    u0, u1, v0, v1 = np.asarray(windows, dtype=float).reshape(-1, 4).T[:, :, None]  # (W, 1)
+    cu, cv = principal_point(model)
+    x, depth, z = centres_cam[:, 0], centres_cam[:, 1] - model.focal_length, centres_cam[:, 2]
+    scale = model.pixel_pitch / model.focal_length
+    inside = np.full((len(windows), len(radii)), np.inf)  # signed distance into the frustum, m
+    for slope, along, sign in [
+        (scale * (u0 - 1.5 - cu), x, 1.0),  # left edge: x / depth >= slope
+        (scale * (u1 + 0.5 - cu), x, -1.0),  # right edge
+        (scale * (cv - v1 - 0.5), z, 1.0),  # bottom edge: z / depth >= slope
+        (scale * (cv - v0 + 1.5), z, -1.0),  # top edge
+    ]:
+        inside = np.minimum(inside, sign * (along - slope * depth) / np.hypot(1.0, slope))
+    return ~((inside < -radii) & (depth - radii > NEAR_PLANE))
+
+
+class _Culling:
+    """Bounding spheres of the visual shapes a window may skip (the arm's moving links, the
+    target's markers and block) and their visibility: a hidden shape has alpha 0, which
+    TinyRenderer skips, so a window costs less to render and its pixels stay the same. Without
+    ``block`` the target's block is hidden for good."""
+
+    def __init__(self, world: World, features: FloatArray, radius: float, block: bool) -> None:
+        bullet = world.client
+        self._links, self._arm = [0, 1, 2, 3], world.arm
+        self._states, self._matrix = bullet.getLinkStates, bullet.getMatrixFromQuaternion
+        self._change = bullet.changeVisualShape
+        self.rows = [(world.target, -1, i, MARKER_COLOURS[i]) for i in range(len(features))]
+        local, radii = [*features], [radius] * len(features)
+        if block:
+            centre, extent = block_extent(features, radius)
+            self.rows.append((world.target, -1, len(features), BLOCK_COLOUR))
+            local.append(centre)
+            radii.append(float(np.linalg.norm(extent)))
+        else:  # create_marked_target adds the block after the markers: never draw it
+            invisible = (*BLOCK_COLOUR[:3], 0.0)
+            self._change(world.target, -1, shapeIndex=len(features), rgbaColor=invisible)
+        self._target_rows = len(self.rows)
+        count: dict[int, int] = {}
+        for data in bullet.getVisualShapeData(world.arm):
+            link, geometry, dims = data[1], data[2], data[3]
+            count[link] = count.get(link, -1) + 1
+            if link in self._links:  # the fixed base column is always drawn
+                self.rows.append((world.arm, link, count[link], data[7]))
+                local.append(data[5])
+                half = 0.5 * dims[0]  # cylinders and capsules: (length, radius)
+                bound = {
+                    pybullet.GEOM_SPHERE: dims[0],
+                    pybullet.GEOM_CYLINDER: np.hypot(half, dims[1]),
+                    pybullet.GEOM_CAPSULE: half + dims[1],
+                }
+                radii.append(float(bound.get(geometry, np.inf)))  # any other: always drawn
+        self._local, self.radii = np.array(local, dtype=float), np.array(radii)
+        self._owner = [self._links.index(row[1]) for row in self.rows[self._target_rows :]]
+        self._local_target, self._local_arm = np.split(self._local, [self._target_rows])
+        self._shown = np.ones(len(self.rows), dtype=bool)
+
+    def centres(self, position: FloatArray, rotation: FloatArray) -> FloatArray:
+        """The spheres' centres, global, metres, (K, 3), for the target's pose and the arm's
+        joints as set now."""
+        states = self._states(self._arm, self._links, computeForwardKinematics=1)
+        frames = np.array([self._matrix(state[5]) for state in states]).reshape(-1, 3, 3)
+        origins = np.array([state[4] for state in states])
+        arm = origins[self._owner] + np.einsum("kij,kj->ki", frames[self._owner], self._local_arm)
+        return np.concatenate([position + self._local_target @ rotation.T, arm])
+
+    def show(self, keep: NDArray[np.bool_]) -> None:
+        """Draw the shapes where ``keep`` is True, hide the others (changing only what changes)."""
+        for j in np.flatnonzero(keep != self._shown).tolist():
+            body, link, index, rgba = self.rows[j]
+            alpha = 1.0 if keep[j] else 0.0
+            self._change(body, link, shapeIndex=index, rgbaColor=(*rgba[:3], alpha))
+        self._shown = keep
+
+
+class RenderedCamera:
+    """The sensor: render the scene (windows around the markers, or the full frame), find the
+    markers, and deliver their image-plane points with :class:`Camera`'s drop-out and latency.
+
+    It owns a :class:`~capture_bench.sim.world.World` (arm, floor and marked target; with
+    ``target_block=False`` the block is drawn with alpha 0, which TinyRenderer skips).
+
+    Args:
+        model: the camera geometry.
+        features: the four feature points (marker centres) in the target frame, metres, (4, 3).
+        settings: how to render and detect.
+        dropout: probability in [0, 1) that a frame is lost.
+        latency_frames: a frame taken at capture k is delivered by capture k + latency_frames.
+
+    Attributes:
+        last_visible: whether every marker centre was in front of the lens and on the sensor at
+            the latest capture (geometry, as :attr:`Camera.last_visible`).
+        last_dropped: whether the latest capture was lost to drop-out.
+        last_detections: the detector's answer for the latest capture (None when dropped: no
+            image is rendered then).
+    """
+
+    def __init__(
+        self,
+        model: CameraModel,
+        features: ArrayLike,
+        settings: RenderSettings | None = None,
+        dropout: float = 0.0,
+        latency_frames: int = 0,
+    ) -> None:
+        if not 0.0 <= dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {dropout}")
+        if latency_frames < 0 or int(latency_frames) != latency_frames:
+            raise ValueError(f"latency_frames must be an integer >= 0, got {latency_frames}")
+        self.model = model
+        self.settings = RenderSettings() if settings is None else settings
+        self.features = np.array(features, dtype=float)
+        if self.features.shape != (len(MARKER_BANDS), 3):
+            raise ValueError(f"features must have shape (4, 3), got {self.features.shape}")
+        self.dropout = float(dropout)
+        self.latency_frames = int(latency_frames)
+        self._lighting = self.settings.lighting()
+        self._world = World(self.features, marker_radius=self.settings.marker_radius)
+        self._culling = _Culling(
+            self._world, self.features, self.settings.marker_radius, self.settings.target_block
+        )
+        self._pipeline: deque[RenderedFrame | None] = deque()
+        self._count = 0
+        self._noise_key = 0
+        self.last_visible = True
+        self.last_dropped = False
+        self.last_detections: Detections | None = None
+
+    @property
+    def noise_key(self) -> int:
+        """The episode's image-noise key (:func:`pixel_noise`), set by :meth:`reset`."""
+        return self._noise_key
+
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        """Empty the latency pipeline, forget the last capture and, given ``rng``, draw the
+        episode's noise key: one ``rng.integers(0, 2**64, dtype=np.uint64)`` (without: key 0)."""
+        self._pipeline.clear()
+        self._count = 0
+        self._noise_key = 0 if rng is None else int(rng.integers(0, 2**64, dtype=np.uint64))
+        self.last_visible = True
+        self.last_dropped = False
+        self.last_detections = None
+
+    def capture(
+        self,
+        pose_at: PoseAt,
+        time: float,
+        theta_at: ThetaAt,
+        rng: np.random.Generator,
+        frame_index: int,
+    ) -> RenderedFrame | None:
+        """Take one image and return the frame due now, if any.
+
+        Draws exactly one uniform from ``rng`` (drop-out), first, whatever happens; a dropped
+        image is not rendered.
+
+        Args:
+            pose_at: ``pose_at(t)`` -> (capture point, global, metres, (3,); R_gt, (3, 3)); asked
+                at the sub-frame instants (only at ``time`` without blur).
+            time: the instant the image is taken (its exposure ends), seconds.
+            theta_at: ``theta_at(t)`` -> the arm's joint angles, rad, (3,); asked likewise.
+            rng: the generator for drop-out.
+            frame_index: the image's index for the noise (:func:`pixel_noise`).
+
+        Returns:
+            The frame captured ``latency_frames`` calls ago (None while the pipeline fills), or
+            None when that frame was dropped or had no marker found.
+        """
+        lost = bool(rng.random() < self.dropout)
+        position, rotation = pose_at(time)
+        points = np.asarray(position) + self.features @ np.asarray(rotation).T
+        self.last_visible = bool(self.model.visible(self.model.to_camera(points)).all())
+        self.last_dropped = lost
+        self.last_detections = frame = None
+        if not lost:
+            found = self.last_detections = self.detect(pose_at, time, theta_at, frame_index)
+            if found.found.any():
+                points = pixel_to_image_plane(found.pixels, self.model)
+                frame = RenderedFrame(points, True, self._count, found.found, found.status)
+        self._count += 1
+        self._pipeline.append(frame)
+        if len(self._pipeline) > self.latency_frames:
+            return self._pipeline.popleft()
+        return None
+
+    def detect(
+        self, pose_at: PoseAt, time: float, theta_at: ThetaAt, frame_index: int
+    ) -> Detections:
+        """Render the image taken at ``time`` and find the markers in it (no drop-out, no
+        latency): windows or the full frame, as ``settings.windowed`` says (module docstring)."""
+        scenes = self._scenes(pose_at, time, theta_at)
+        centres = np.stack([self.model.to_camera(scene[0]) for scene in scenes])
+        windows = marker_windows(self.model, centres, self.settings.marker_radius)
+        n = len(windows)
+        out = Detections(
+            np.full((n, 2), np.nan), np.zeros(n, np.int64), np.full(n, NO_BLOB, np.int8)
+        )
+        looked = [i for i, w in enumerate(windows) if w is not None]
+        if not self.settings.windowed:
+            whole = detect_markers(self._images(scenes, [None], frame_index)[0], self.model)
+            results = [(looked, whole.pixels[looked], whole.areas[looked], whole.status[looked])]
+        else:
+            own = {i: (w[0], w[2]) for i, w in enumerate(windows) if w is not None}
+            jobs = [(w, [i]) for i, w in enumerate(windows) if w is not None]
+            if len(scenes) > 1 and looked:  # motion blur: one window over every marker
+                u0, u1, v0, v1 = zip(*(w for w, _ in jobs))
+                box = (min(u0), max(u1), min(v0), max(v1))
+                jobs, own = [(box, looked)], dict.fromkeys(looked, (box[0], box[2]))
+            images = self._images(scenes, [w for w, _ in jobs], frame_index)
+            results = []
+            for (w, members), image in zip(jobs, images):
+                owns = [own[i] for i in members]
+                part = detect_exactly(image, self.model, (w[0], w[2]), members, owns)
+                results.append((members, part.pixels, part.areas, part.status))
+        for members, pixels, areas, status in results:
+            out.pixels[members], out.areas[members], out.status[members] = pixels, areas, status
+        return out
+
+    def image(
+        self,
+        pose_at: PoseAt,
+        time: float,
+        theta_at: ThetaAt,
+        frame_index: int,
+        window: Window | None = None,
+    ) -> NDArray[np.uint8]:
+        """What the sensor records at ``time``: RGB, uint8, ``(v1 - v0, u1 - u0, 3)`` for
+        ``window`` ``(u0, u1, v0, v1)``, the full frame for None; blurred and noisy as the
+        settings say. A window's pixels are the full frame's (but for TinyRenderer's float32 edge
+        pixels, module docstring)."""
+        return self.images(pose_at, time, theta_at, frame_index, [window])[0]
+
+    def images(
+        self,
+        pose_at: PoseAt,
+        time: float,
+        theta_at: ThetaAt,
+        frame_index: int,
+        windows: Sequence[Window | None],
+    ) -> list[NDArray[np.uint8]]:
+        """:meth:`image` of several windows of one image, the scene set once per sub-frame."""
+        return self._images(self._scenes(pose_at, time, theta_at), windows, frame_index)
+
+    def _scenes(self, pose_at: PoseAt, time: float, theta_at: ThetaAt) -> list[Scene]:
+        """``(marker centres, global, (N, 3); theta; capture point; R_gt)`` per sub-frame."""
+        scenes = []
+        for t in self.settings.instants(time):
+            position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
+            theta = np.asarray(theta_at(float(t)), dtype=float)
+            scenes.append((position + self.features @ rotation.T, theta, position, rotation))
+        return scenes
+
+    def _images(
+        self, scenes: Sequence[Scene], windows: Sequence[Window | None], frame_index: int
+    ) -> list[NDArray[np.uint8]]:
+        """Render each window at each sub-frame, average, add the noise, round to uint8."""
+        full = [check_window(w, self.model) for w in windows]
+        if not full:
+            return []
+        sums: list[NDArray[np.uint8] | FloatArray] = []
+        try:
+            for k, (_, theta, position, rotation) in enumerate(scenes):
+                self._world.set_joint_positions(theta.tolist())
+                self._world.set_target_pose(position, rotation)
+                spheres = self.model.to_camera(self._culling.centres(position, rotation))
+                keeps = window_keeps(self.model, full, spheres, self._culling.radii)
+                for j, window in enumerate(full):
+                    self._culling.show(keeps[j])
+                    image = render_frame(self._world.client, self.model, window, self._lighting)
+                    if len(scenes) == 1:
+                        sums.append(image)
+                    elif k == 0:
+                        sums.append(image.astype(float))
+                    else:
+                        sums[j] += image
+        finally:  # leave every shape drawn, for whoever renders the world next
+            self._culling.show(np.ones(len(self._culling.radii), dtype=bool))
+        noise = self.settings.image_noise
+        if len(scenes) == 1 and noise == 0.0:
+            return [np.asarray(s, dtype=np.uint8) for s in sums]
+        out = []
+        for window, total in zip(full, sums):
+            value = np.asarray(total, dtype=float) / len(scenes)
+            if noise > 0.0:
+                width = self.model.resolution[0]
+                value = value + noise * pixel_noise(self._noise_key, frame_index, window, width)
+            out.append(np.clip(np.rint(value), 0, 255).astype(np.uint8))
+        return out
+
+    def close(self) -> None:
+        """Release the pybullet client. Safe to call more than once."""
+        self._world.close()
+
+    def __enter__(self) -> RenderedCamera:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()

@@ -1,0 +1,308 @@
+"""The rendered camera in an episode: frames of the whole scene, the arm included, each rendered
+once per seed where the arm cannot reach it.
+
+A rendered frame shows the arm, so the target's side of an episode depends on the agent's
+actions: a frame in which the arm hides a marker differs from one in which it does not. What the
+arm can change is known without rendering: an arm link can only hide a marker whose image its own
+image comes near (:func:`~capture_bench.sensing.occlusion.obstacles_may_hide`, each link's
+bounding box from pybullet, a margin of ``MARGIN_PX``). Everything else the detector reads (the
+markers' pixels; the windows, which depend on the markers alone) is the same with the arm or
+without it. So :class:`RenderedSceneCamera` detects frame k of a seed
+
+* **with the arm**, rendered now, where a link may hide a marker at any of the frame's sub-frame
+  instants (or where no ``target_only`` store is given: the reference path, every frame rendered
+  with the arm);
+* **without it** otherwise: the target-only detection of frame k, rendered once (the arm moved far
+  out of view) and kept in ``target_only``, a store shared by every episode of that seed
+  (:meth:`capture_bench.task.target_side.EpisodeCache.scene_frames`): the leaderboard plays every
+  agent on the same seeds, and the first one renders what the others reuse.
+
+Both give the same detections for a frame the arm cannot reach (``tests/test_scene_camera.py``
+plays episodes both ways and compares them frame by frame). The random stream is the sensor's
+(:class:`~capture_bench.sensing.rendered_sensor.RenderedCamera`): one key per episode at
+:meth:`reset`, one drop-out uniform per frame, whatever is rendered.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from capture_bench.sensing.camera import CameraModel, Frame
+from capture_bench.sensing.detector import Detections
+from capture_bench.sensing.occlusion import MARGIN_PX, obstacles_may_hide
+from capture_bench.sensing.rendered_sensor import (
+    PoseAt,
+    RenderedCamera,
+    RenderSettings,
+    ThetaAt,
+)
+from capture_bench.sim.target_motion import FEATURE_POINTS, TargetTrajectory
+
+FloatArray = NDArray[np.float64]
+#: Where the arm goes while the target alone is rendered: far below the floor, out of every view.
+AWAY = (0.0, 0.0, -1000.0)
+_CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=float)
+
+
+class RenderedSceneCamera(RenderedCamera):
+    """A :class:`RenderedCamera` that takes an episode's frames (``capture_scene``, the live
+    target side's call) and reuses target-only detections where the arm cannot reach.
+
+    Attributes:
+        target_only: frame index -> the detections of the target alone, for the seed being
+            played (filled as frames are asked for); None: every frame rendered with the arm.
+        renders: frames rendered with the arm / without it since construction (counts).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.target_only: dict[int, Detections] | None = None
+        self.renders = {"with_arm": 0, "target_only": 0, "reused": 0}
+        client = self._world.client
+        self._links = list(range(-1, client.getNumJoints(self._world.arm)))
+
+    @classmethod
+    def for_scenario(cls, scenario: Any, windowed: bool = True) -> RenderedSceneCamera:
+        """The camera of a scenario with ``camera.mode: rendered`` (its pose, intrinsics,
+        drop-out, latency and rendering keys)."""
+        cam = scenario.camera
+        model = cam.model()
+        light = tuple(float(v) for v in cam.light_direction)
+        settings = RenderSettings(
+            marker_radius=cam.marker_radius,
+            target_block=cam.target_block,
+            light_direction=light if any(light) else None,
+            light_intensity=cam.light_intensity,
+            image_noise=cam.image_noise,
+            exposure_s=cam.exposure,
+            windowed=windowed,
+        )
+        features = FEATURE_POINTS[scenario.target.feature_points]
+        return cls(model, features, settings, cam.dropout, cam.latency_frames)
+
+    def capture_scene(
+        self,
+        k: int,
+        time: float,
+        trajectory: TargetTrajectory,
+        arm_at: ThetaAt,
+        rng: np.random.Generator,
+    ) -> Frame | None:
+        """Frame k of the episode, taken at ``time`` (s) of the target on ``trajectory`` with
+        the arm at ``arm_at(t)``: :meth:`RenderedCamera.capture` (drop-out, latency)."""
+
+        def pose_at(t: float) -> tuple[FloatArray, FloatArray]:
+            return trajectory.position(t), trajectory.rotation(t)
+
+        return self.capture(pose_at, time, arm_at, rng, k)
+
+    def detect(
+        self, pose_at: PoseAt, time: float, theta_at: ThetaAt, frame_index: int
+    ) -> Detections:
+        """The markers found in frame ``frame_index``: rendered with the arm where it may hide
+        one (or without a ``target_only`` store), else the target-only detection (module
+        docstring)."""
+        store = self.target_only
+        if store is None or self.arm_may_hide(pose_at, time, theta_at):
+            self.renders["with_arm"] += 1
+            return super().detect(pose_at, time, theta_at, frame_index)
+        found = store.get(frame_index)
+        if found is None:
+            self.renders["target_only"] += 1
+            with self._arm_away():
+                found = super().detect(pose_at, time, theta_at, frame_index)
+            store[frame_index] = found
+        else:
+            self.renders["reused"] += 1
+        return found
+
+    def arm_may_hide(self, pose_at: PoseAt, time: float, theta_at: ThetaAt) -> bool:
+        """Whether a link of the arm may hide a marker at any sub-frame instant of the image
+        taken at ``time`` (conservative: each link's axis-aligned bounding box)."""
+        radius = self.settings.marker_radius
+        for t in self.settings.instants(time):
+            position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
+            centres = position + self.features @ rotation.T
+            boxes = self.link_boxes(theta_at(float(t)))
+            if obstacles_may_hide(self.model, centres, radius, boxes, MARGIN_PX).any():
+                return True
+        return False
+
+    def link_boxes(self, theta: FloatArray) -> list[FloatArray]:
+        """The 8 corners of each arm link's bounding box (pybullet's AABB) at joint angles
+        ``theta``, global, metres: one (8, 3) array per link."""
+        world = self._world
+        world.set_joint_positions(np.asarray(theta, dtype=float))
+        aabb = world.client.getAABB
+        boxes = []
+        for link in self._links:
+            low, high = (np.asarray(v, dtype=float) for v in aabb(world.arm, link))
+            boxes.append(low + _CORNERS * (high - low))
+        return boxes
+
+    def view(
+        self,
+        theta: FloatArray,
+        position: FloatArray,
+        rotation: FloatArray,
+        size: tuple[int, int],
+        detections: Detections | None = None,
+        estimate: FloatArray | None = None,
+    ) -> NDArray[np.uint8]:
+        """What this camera sees, scaled to ``size`` (width, height, pixels; the sensor's aspect
+        is kept by the caller), with the markers found drawn over it (a green ring on each found
+        centroid, a red cross where a missing marker's eq. 2 projection falls) and the estimated
+        capture point (a yellow cross, eq. 2 of ``estimate``, global, m).
+
+        Args:
+            theta: the arm's joint angles, rad, (3,).
+            position, rotation: the target's capture point (global, m) and R_gt.
+            size: the image's (width, height), pixels.
+            detections: the markers found (full-sensor pixels), or None for none drawn.
+            estimate: the estimated capture point, global, m, or None.
+        """
+        import cv2
+
+        from capture_bench.sensing.pixels import image_plane_to_pixel
+        from capture_bench.sensing.render_camera import render_frame
+
+        model = self.model
+        width, height = int(size[0]), int(size[1])
+        scale = model.resolution[0] / width
+        small = CameraModel(
+            model.position,
+            model.rotation,
+            focal_length=model.focal_length,
+            pixel_pitch=model.pixel_pitch * scale,
+            resolution=(width, height),
+        )
+        world = self._world
+        world.set_joint_positions(np.asarray(theta, dtype=float))
+        world.set_target_pose(np.asarray(position, dtype=float), np.asarray(rotation, dtype=float))
+        image = np.ascontiguousarray(render_frame(world.client, small, None, self._lighting))
+        if detections is not None:
+            centres = position + self.features @ np.asarray(rotation).T
+            truth = image_plane_to_pixel(model.project(model.to_camera(centres)), model)
+            for i, found in enumerate(detections.found.tolist()):
+                if found:
+                    u, v = (detections.pixels[i] + 0.5) / scale - 0.5
+                    cv2.circle(image, (round(u), round(v)), 6, (0, 200, 0), 1, cv2.LINE_8)
+                elif np.isfinite(truth[i]).all():
+                    u, v = (truth[i] + 0.5) / scale - 0.5
+                    _cross(image, u, v, (220, 0, 0))
+        if estimate is not None and np.isfinite(estimate).all():
+            cam = model.to_camera(np.asarray(estimate, dtype=float)[None])
+            if model.in_front(cam).all():
+                u, v = (image_plane_to_pixel(model.project(cam), model)[0] + 0.5) / scale - 0.5
+                _cross(image, u, v, (230, 180, 0))
+        return image
+
+    @contextlib.contextmanager
+    def _arm_away(self) -> Iterator[None]:
+        """The arm moved out of view (:data:`AWAY`) for the duration."""
+        client, arm = self._world.client, self._world.arm
+        # pybullet places a base by its centre of mass: put back exactly the pose it reports
+        home, orientation = client.getBasePositionAndOrientation(arm)
+        client.resetBasePositionAndOrientation(arm, AWAY, orientation)
+        try:
+            yield
+        finally:
+            client.resetBasePositionAndOrientation(arm, home, orientation)
+
+
+def joint_path(theta0: FloatArray, theta1: FloatArray, t0: float, t1: float) -> ThetaAt:
+    """The joints during a step: linear from ``theta0`` at ``t0`` to ``theta1`` at ``t1``, s
+    (the joints move at constant rates within a step), held at either end outside it."""
+    start, delta, span = np.array(theta0, dtype=float), np.asarray(theta1) - theta0, t1 - t0
+
+    def at(t: float) -> FloatArray:
+        s = 1.0 if span <= 0.0 else min(max((t - t0) / span, 0.0), 1.0)
+        return start + s * delta
+
+    return at
+
+
+def _cross(image: NDArray[np.uint8], u: float, v: float, colour: tuple[int, int, int]) -> None:
+    """A small diagonal cross centred on pixel (u, v), drawn in place."""
+    import cv2
+
+    a, b = round(u), round(v)
+    cv2.line(image, (a - 4, b - 4), (a + 4, b + 4), colour, 1, cv2.LINE_8)
+    cv2.line(image, (a - 4, b + 4), (a + 4, b - 4), colour, 1, cv2.LINE_8)
+
+
+#: A camera's per-episode state: what :meth:`RenderedCamera.reset` and ``capture`` change.
+_EPISODE_STATE = (
+    "_pipeline",
+    "_count",
+    "_noise_key",
+    "last_visible",
+    "last_dropped",
+    "last_detections",
+    "target_only",
+)
+
+
+class SceneCameraView:
+    """One episode's rendered camera over a :class:`RenderedSceneCamera` that many share (the
+    batched env's sub-envs: one pybullet world, ~28 MB, renders for all): its own latency
+    pipeline, frame count, noise key, last detections and target-only store, swapped into the
+    shared camera for each call. Used where a :class:`RenderedSceneCamera` is (the
+    :class:`~capture_bench.task.target_side.SceneCamera` calls)."""
+
+    def __init__(self, camera: RenderedSceneCamera) -> None:
+        self.camera = camera
+        self.model = camera.model
+        self._state = {name: getattr(camera, name) for name in _EPISODE_STATE}
+        self._state["_pipeline"] = type(camera._pipeline)()
+        self._state["target_only"] = None
+
+    @property
+    def target_only(self) -> dict[int, Detections] | None:
+        return self._state["target_only"]
+
+    @target_only.setter
+    def target_only(self, store: dict[int, Detections] | None) -> None:
+        self._state["target_only"] = store
+
+    @property
+    def last_visible(self) -> bool:
+        return bool(self._state["last_visible"])
+
+    @property
+    def last_detections(self) -> Detections | None:
+        return self._state["last_detections"]
+
+    def reset(self, rng: np.random.Generator) -> None:
+        with self._active():
+            self.camera.reset(rng)
+
+    def capture_scene(
+        self,
+        k: int,
+        time: float,
+        trajectory: TargetTrajectory,
+        arm_at: ThetaAt,
+        rng: np.random.Generator,
+    ) -> Frame | None:
+        with self._active():
+            return self.camera.capture_scene(k, time, trajectory, arm_at, rng)
+
+    @contextlib.contextmanager
+    def _active(self) -> Iterator[None]:
+        """This view's episode state in the shared camera for the duration (then taken back)."""
+        camera = self.camera
+        saved = {name: getattr(camera, name) for name in _EPISODE_STATE}
+        for name, value in self._state.items():
+            setattr(camera, name, value)
+        try:
+            yield
+        finally:
+            self._state = {name: getattr(camera, name) for name in _EPISODE_STATE}
+            for name, value in saved.items():
+                setattr(camera, name, value)

@@ -1,0 +1,178 @@
+"""The rendered camera in an episode: the fast path (target-only frames rendered once per seed and
+reused where the arm cannot reach, windows) against rendering every frame in full with the arm,
+episode by episode."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from capture_bench.agents import make_agent
+from capture_bench.envs.capture_env import CaptureEnv
+from capture_bench.sensing.scene_camera import RenderedSceneCamera
+from capture_bench.task.scenarios import load_scenario
+from capture_bench.task.target_side import EpisodeCache
+
+
+def _play(env: CaptureEnv, agent_name: str, seed: int) -> list[tuple]:
+    """Every step of one episode: observation, reward, flags and the target-side info."""
+    obs, _ = env.reset(seed=seed)
+    agent = make_agent(agent_name, env)
+    steps = [(obs.tolist(),)]
+    done = False
+    while not done:
+        action, _ = agent.predict(obs)
+        obs, reward, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+        steps.append(
+            (
+                obs.tolist(),
+                reward,
+                terminated,
+                truncated,
+                info["failure"],
+                info["estimator_status"],
+                info["target_visible"],
+                info["capture_time"],
+                env._scene_camera.last_detections.found.tolist(),
+            )
+        )
+    return steps
+
+
+@pytest.fixture(scope="module")
+def reference_env():
+    """Every frame rendered in full (1280 x 960) with the arm, no store: the reference."""
+    env = CaptureEnv("grasp_rendered")
+    env._scene_camera = RenderedSceneCamera.for_scenario(env.task.scenario, windowed=False)
+    yield env
+    env.close()
+
+
+def test_reused_target_frames_and_windows_play_the_episodes_of_full_frames(reference_env):
+    """Two agents on the same seeds: the first renders each frame of the target alone once, the
+    second reuses them; each frame the arm may reach is rendered with it. Both play exactly the
+    episodes the full-frame reference plays, the arm hiding markers on the way."""
+    cache = EpisodeCache()
+    fast = CaptureEnv("grasp_rendered", reuse_target_side=True, episode_cache=cache)
+    seeds = load_scenario("grasp_rendered").evaluation_seeds[:2]
+    hidden = 0
+    try:
+        for agent in ("incremental_ik", "pure_pursuit"):
+            for seed in seeds:
+                expected = _play(reference_env, agent, seed)
+                assert _play(fast, agent, seed) == expected, (agent, seed)
+                hidden += sum(1 for step in expected[1:] if not all(step[-1]))
+        renders = fast._scene_camera.renders
+        assert renders["reused"] > 0 and renders["with_arm"] > 0 and renders["target_only"] > 0
+    finally:
+        fast.close()
+    assert hidden > 0  # some frames had a marker hidden (by the arm, as it holds the target)
+
+
+def test_a_frame_the_arm_covers_is_rendered_with_it():
+    """The arm's bounding boxes decide: a marker behind the end-effector is reported hidden by
+    the geometric test and missing in the image, one far from the arm is not."""
+    sc = load_scenario("paper_rendered")
+    camera = RenderedSceneCamera.for_scenario(sc)
+    try:
+        home = np.array(sc_home())
+        boxes = camera.link_boxes(home)
+        tip = boxes[-1].mean(axis=0)  # the end-effector link's box centre
+        lens = camera.model.position
+        behind = tip + 0.3 * (tip - lens) / np.linalg.norm(tip - lens)  # markers behind the tip
+        rotation = np.eye(3)
+
+        def pose_at(_t, where=behind):
+            return where, rotation
+
+        assert camera.arm_may_hide(pose_at, 0.0, lambda _t: home)
+        found = camera.detect(pose_at, 0.0, lambda _t: home, 0)
+        assert not found.found[0]
+        far = behind + np.array([0.0, 0.0, 0.45])
+        assert not camera.arm_may_hide(lambda _t: (far, rotation), 0.0, lambda _t: home)
+    finally:
+        camera.close()
+
+
+def sc_home():
+    from capture_bench.sim.kinematics import HOME
+
+    return HOME
+
+
+def test_the_batched_env_plays_the_single_envs_rendered_episodes():
+    """CaptureVectorEnv with the rendered camera (one shared renderer, a camera view and an
+    estimator per sub-env): the same records as the single env on the same seeds, the episodes
+    ending at different steps."""
+    from gymnasium.vector import AutoresetMode
+
+    from capture_bench.envs.vector_env import CaptureVectorEnv
+    from capture_bench.evaluation.rollout import TIMING_COLUMNS, run_episode, run_episodes
+
+    seeds = load_scenario("paper_rendered").evaluation_seeds[:3]
+
+    def fields(record):
+        return {k: v for k, v in record.as_row().items() if k not in TIMING_COLUMNS}
+
+    vector = CaptureVectorEnv(3, "paper_rendered", autoreset_mode=AutoresetMode.DISABLED)
+    single = CaptureEnv("paper_rendered")
+    try:
+        agent = make_agent("incremental_ik", vector)
+        batched = run_episodes(
+            vector, agent, agent_name="ik", scenario="paper_rendered", seeds=seeds
+        )
+        for seed, record in zip(seeds, batched, strict=True):
+            alone, _ = run_episode(
+                single,
+                make_agent("incremental_ik", single),
+                agent_name="ik",
+                scenario="paper_rendered",
+                seed=seed,
+            )
+            assert fields(record) == fields(alone), seed
+        assert len({r.steps for r in batched}) > 1
+    finally:
+        vector.close()
+        single.close()
+
+
+def test_rgb_array_shows_the_cameras_view_with_what_was_found():
+    """render() of a rendered scenario: the camera's own image at render_size, a green ring on
+    each marker found and the estimated capture point (yellow); the scene view on request; an
+    analytic scenario has no camera view (one line naming the valid views)."""
+    env = CaptureEnv("paper_rendered", render_mode="rgb_array", render_size=(320, 240))
+    try:
+        obs, _ = env.reset(seed=load_scenario("paper_rendered").evaluation_seeds[1])
+        agent = make_agent("incremental_ik", env)
+        for _ in range(5):
+            obs, *_ = env.step(agent.predict(obs)[0])
+        image = env.render()
+        assert image.shape == (240, 320, 3) and image.dtype == np.uint8
+        ring = (image[..., 0] == 0) & (image[..., 1] == 200) & (image[..., 2] == 0)
+        assert ring.sum() > 20  # four rings of radius 6 px
+        yellow = (image[..., 0] == 230) & (image[..., 1] == 180) & (image[..., 2] == 0)
+        assert yellow.any()
+    finally:
+        env.close()
+    scene = CaptureEnv("paper_rendered", render_mode="rgb_array", render_view="scene")
+    assert scene.render_view == "scene"
+    scene.close()
+    with pytest.raises(ValueError, match="render_view must be one of"):
+        CaptureEnv("paper", render_view="camera")
+
+
+def test_train_py_trains_on_a_rendered_scenario(tmp_path):
+    """train.py with the rendered camera: the batched env, two sub-envs sharing one renderer,
+    a 64-step PPO run whose model is written."""
+    import train
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(
+        "n_envs: 2\ntotal_timesteps: 64\npolicy_kwargs: {net_arch: [16]}\nn_steps: 32\n"
+        "batch_size: 32\nn_epochs: 1\ncheckpoint_freq: 64\n"
+    )
+    run_dir = tmp_path / "run"
+    argv = ["--algo", "ppo", "--scenario", "paper_rendered", "--config", str(config)]
+    assert train.main([*argv, "--run-dir", str(run_dir)]) == 0
+    assert (run_dir / "policy.pt").is_file()
