@@ -282,3 +282,17 @@ def test_a_failed_report_leaves_the_previous_one_and_no_staging_directory(tmp_pa
     with pytest.raises(RuntimeError):
         write_report(_report_data("fresh"), tmp_path)
     assert not (tmp_path / "fresh").exists()
+
+
+def test_figure_groups_split_every_figure_once_and_an_unknown_name_is_refused():
+    from capture_bench.evaluation.report import figure_groups, figure_names, figures
+
+    data = _report_data()
+    names = figure_names(data)
+    for groups in (1, 2, 4, 50):
+        split = figure_groups(data, groups)
+        assert sorted(n for group in split for n in group) == sorted(names)
+        assert 1 <= len(split) <= min(groups, len(names)) and all(split)
+    assert figure_groups(data, 4)[0][0] == "ratio_to_limit.png"  # the costliest leads
+    with pytest.raises(ValueError, match="no figure named 'nope.png'"):
+        figures(data, ["nope.png"])

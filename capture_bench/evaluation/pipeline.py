@@ -8,7 +8,6 @@
 from __future__ import annotations
 
 import os
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -35,7 +34,7 @@ from capture_bench.evaluation.backends import (
     scenario_label,
 )
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError
-from capture_bench.evaluation.report import ReportData, figures, write_report
+from capture_bench.evaluation.report import ReportData, figure_groups, figures, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
 from capture_bench.evaluation.video import EpisodeVideo, record_video, write_videos
@@ -53,6 +52,7 @@ from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenari
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2. OSError:
 #: a named path that cannot even be looked at ("File name too long", "Permission denied").
 INPUT_ERRORS: tuple[type[Exception], ...] = (EvaluationError, ConfigError, PolicyLoadError, OSError)
+VideoKey = tuple[str, str, int]  # (agent, scenario, seed)
 
 
 @dataclass(frozen=True)
@@ -276,71 +276,60 @@ def write_episode_plots(plan: Plan, directory: Path) -> list[Path]:
     return written
 
 
-def record_videos(
+def video_jobs(
     plan: Plan,
     config: EvaluationConfig,
     records: Sequence[EpisodeRecord],
     ranking: Sequence[RankingRow],
-    workers: int = 1,
-) -> tuple[list[EpisodeVideo], list[EpisodeVideo]]:
-    """Record the report's episodes to watch (if the suite has ``videos``) and ``--video``'s
-    episodes, each episode once: in this process, or in a pool of ``workers`` local processes
-    (:func:`~capture_bench.evaluation.backends.map_processes`; the same GIFs, an episode's
-    rendering does not depend on where it runs); ``records`` are in ``plan.tasks`` order.
-
-    Returns:
-        ``(episodes to watch, --video's episodes)``.
-    """
+) -> tuple[list[VideoKey], list[VideoKey], list[tuple[EpisodeTask, int]]]:
+    """The report's episodes to watch (if the suite has ``videos``) and ``--video``'s episodes
+    (``records`` in ``plan.tasks`` order): their keys (agent, scenario, seed), and the jobs that
+    record them, each episode once: ``(task, its length in steps)`` for :func:`record_video`."""
     played = {(r.agent, r.scenario, r.seed): (t, r) for t, r in zip(plan.tasks, records)}
-    watched_keys: list[tuple[str, str, int]] = []
+    watched: list[VideoKey] = []
     if plan.suite.videos:
         learned = {s.label for s in plan.agents if s.kind == "model"}
         for w in choose_episodes(records, ranking, plan.suite.reference, learned):
-            watched_keys += [(agent, w.scenario, w.seed) for agent in w.agents]
-    requested_keys: list[tuple[str, str, int]] = []
+            watched += [(agent, w.scenario, w.seed) for agent in w.agents]
+    requested: list[VideoKey] = []
     if config.video is not None:
-        requested_keys = [
+        requested = [
             (r.agent, r.scenario, r.seed)
             for t, r in zip(plan.tasks, records)
             if t.seed in plan.seeds[t.scenario][: config.video_episodes]
         ]
-    keys = list(dict.fromkeys([*watched_keys, *requested_keys]))
-    jobs = [(played[key][0], played[key][1].steps) for key in keys]
-    if workers > 1 and len(jobs) > 1:
-        videos = map_processes(_record_video, jobs, workers)
-    else:
-        videos = [_record_video(job) for job in jobs]
-    made = dict(zip(keys, videos, strict=True))
-    return [made[k] for k in watched_keys], [made[k] for k in requested_keys]
+    keys = list(dict.fromkeys([*watched, *requested]))
+    return watched, requested, [(played[key][0], played[key][1].steps) for key in keys]
 
 
-class _Background:
-    """``function(*args)`` in a daemon thread (an interrupted evaluation does not wait for it);
-    :meth:`result` waits for its value or raises its error."""
-
-    def __init__(self, function: Callable[..., Any], *args: Any) -> None:
-        self._outcome: tuple[bool, Any] = (False, None)
-
-        def run() -> None:
-            try:
-                self._outcome = (True, function(*args))
-            except BaseException as error:  # handed to the caller of result()
-                self._outcome = (False, error)
-
-        self._thread = threading.Thread(target=run, name="report-figures", daemon=True)
-        self._thread.start()
-
-    def result(self) -> Any:
-        self._thread.join()
-        ok, value = self._outcome
-        if not ok:
-            raise value
-        return value
+def make_report_media(
+    data: ReportData, jobs: Sequence[tuple[EpisodeTask, int]], workers: int
+) -> tuple[list[EpisodeVideo], dict[str, bytes] | None]:
+    """The GIFs of ``jobs`` (in their order) and, with several ``workers``, the report's figures:
+    all in a pool of local processes (:func:`~capture_bench.evaluation.backends.map_processes`:
+    the figures split in groups of about equal cost, then the GIFs, as one list of work), else
+    the GIFs in this process and the figures left for :func:`write_report`. Either way the same
+    bytes: an episode renders, and a figure draws, the same wherever it runs."""
+    if workers <= 1:
+        return [_report_job(("video", job)) for job in jobs], None
+    groups = figure_groups(data, 2 * workers)
+    work: list[tuple[str, Any]] = [("figures", (data, group)) for group in groups]
+    work += [("video", job) for job in jobs]
+    done = map_processes(_report_job, work, workers)
+    drawn: dict[str, bytes] = {}
+    for images in done[: len(groups)]:
+        drawn.update(images)
+    return done[len(groups) :], drawn
 
 
-def _record_video(job: tuple[EpisodeTask, int]) -> EpisodeVideo:
-    """:func:`record_video` of ``(task, steps)``, a pool's unit of work."""
-    return record_video(*job)
+def _report_job(job: tuple[str, Any]) -> Any:
+    """One piece of the report's media, a pool's unit of work: ``("video", (task, steps))`` ->
+    :class:`EpisodeVideo`, or ``("figures", (data, names))`` -> {name: PNG bytes}."""
+    kind, payload = job
+    if kind == "video":
+        return record_video(*payload)
+    data, names = payload
+    return figures(data, names)
 
 
 def run_evaluation(
@@ -351,8 +340,8 @@ def run_evaluation(
 ) -> tuple[ReportData, Path]:
     """Run the plan's episodes, aggregate them and write the report.
 
-    With the ``process`` backend the videos are recorded in worker processes while this process
-    draws the report's figures (which do not show them).
+    With the ``process`` backend the GIFs and the figures are made by worker processes
+    (:func:`make_report_media`).
 
     Returns:
         ``(report data, report directory)``.
@@ -377,17 +366,17 @@ def run_evaluation(
         provenance={},
         videos=[],
     )
-    pool = workers if backend == "process" else 1
-    drawing = _Background(figures, data) if pool > 1 else None
-    watched, requested = record_videos(plan, config, records, ranking, pool)
-    video_timing = {
-        "videos": len({v.file_name for v in [*watched, *requested]}),  # each recorded once
-        "videos_wall_clock_s": time.perf_counter() - start - seconds,
+    watched_keys, requested_keys, jobs = video_jobs(plan, config, records, ranking)
+    videos, drawn = make_report_media(data, jobs, workers if backend == "process" else 1)
+    made = dict(zip(list(dict.fromkeys([*watched_keys, *requested_keys])), videos, strict=True))
+    watched, requested = [made[k] for k in watched_keys], [made[k] for k in requested_keys]
+    media_timing = {
+        "videos": len(made),  # each recorded once
+        "media_wall_clock_s": time.perf_counter() - start - seconds,
     }
-    drawn = drawing.result() if drawing is not None else None
     data = replace(
         data,
-        provenance=_provenance(plan, config, command, seconds, video_timing),
+        provenance=_provenance(plan, config, command, seconds, media_timing),
         videos=watched,
     )
     target = write_report(data, config.out, drawn)

@@ -314,30 +314,53 @@ def figure_names(data: ReportData) -> list[str]:
     return [*SUMMARY_FIGURES, *survival, "failures_by_reason.png", "ratio_to_limit.png"]
 
 
-def figures(data: ReportData) -> dict[str, bytes]:
-    """Render every figure: file name -> PNG bytes; one colour per agent throughout."""
+def figures(data: ReportData, names: Sequence[str] | None = None) -> dict[str, bytes]:
+    """Render the figures ``names`` (default every one, :func:`figure_names`): file name -> PNG
+    bytes; one colour per agent throughout. Each figure depends on ``data`` alone, so any split
+    of the names draws the same bytes."""
+    wanted = figure_names(data) if names is None else list(names)
     agents = _agents(data)
     colours = plots.agent_colours(agents, data.reference)
     scenarios = _scenarios(data)
-    rate, ratio = summary.heatmap_cells(data.summaries, agents, scenarios)
-    out = {
-        "summary_heatmap.png": plots.heatmap_figure(rate, ratio, agents, scenarios),
-        "summary_ranking.png": plots.ranking_figure(
+
+    def survival(scenario: str) -> bytes:
+        cells = [s for s in data.summaries if s.scenario == scenario]
+        return plots.survival_figure(scenario, cells, colours, data.reference)
+
+    def heatmap() -> bytes:
+        rate, ratio = summary.heatmap_cells(data.summaries, agents, scenarios)
+        return plots.heatmap_figure(rate, ratio, agents, scenarios)
+
+    draw = {
+        "summary_heatmap.png": heatmap,
+        "summary_ranking.png": lambda: plots.ranking_figure(
             summary.ranking_intervals(data.records, data.ranking), colours
         ),
-        "summary_improvement.png": plots.improvement_figure(
+        "summary_improvement.png": lambda: plots.improvement_figure(
             summary.probability_of_improvement(data.records, agents), agents
         ),
+        **{f"survival_{sc}.png": (lambda sc=sc: survival(sc)) for sc in scenarios},
+        "failures_by_reason.png": lambda: plots.failures_figure(
+            data.summaries, failure_reasons(data.summaries)
+        ),
+        "ratio_to_limit.png": lambda: plots.ratio_figure(data.records, colours, data.reference),
     }
-    for scenario in scenarios:
-        cells = [s for s in data.summaries if s.scenario == scenario]
-        out[f"survival_{scenario}.png"] = plots.survival_figure(
-            scenario, cells, colours, data.reference
-        )
-    out["failures_by_reason.png"] = plots.failures_figure(
-        data.summaries, failure_reasons(data.summaries)
-    )
-    out["ratio_to_limit.png"] = plots.ratio_figure(data.records, colours, data.reference)
+    unknown = [name for name in wanted if name not in draw]
+    if unknown:
+        raise ValueError(f"no figure named {unknown[0]!r}; the report's: {', '.join(draw)}")
+    return {name: draw[name]() for name in wanted}
+
+
+def figure_groups(data: ReportData, groups: int) -> list[list[str]]:
+    """:func:`figure_names` in ``groups`` lists of about equal drawing time, to draw in as many
+    processes: the costliest figures (the ratio box plots, the probability of improvement and
+    its bootstrap, the failure bars) each lead a group, the others dealt round."""
+    names = figure_names(data)
+    heavy = ["ratio_to_limit.png", "summary_improvement.png", "failures_by_reason.png"]
+    order = [n for n in heavy if n in names] + [n for n in names if n not in heavy]
+    out: list[list[str]] = [[] for _ in range(max(1, min(groups, len(order))))]
+    for k, name in enumerate(order):
+        out[k % len(out)].append(name)
     return out
 
 

@@ -152,9 +152,14 @@ def inside_intervals_along_arcs(
     """
     sag = arc_sag_bounds(delta_theta)
     pieces = [max(1, math.ceil(math.sqrt(float(x) / ARC_RESOLUTION))) for x in sag]
-    fractions = [np.linspace(0.0, 1.0, p + 1) for p in pieces]
-    s = np.concatenate(fractions)
     counts = [p + 1 for p in pieces]
+    # np.linspace(0, 1, p + 1) of every step at once, as numpy computes it: i * (1 / p), the
+    # last point set to 1
+    index = np.arange(sum(counts)) - np.repeat(np.cumsum(counts) - counts, counts)
+    s = index * np.repeat(1.0 / np.array(pieces, dtype=float), counts)
+    ends = np.cumsum(counts) - 1
+    s[ends] = 1.0
+    fractions = np.split(s, ends[:-1] + 1)
     theta = np.repeat(theta0, counts, axis=0) + s[:, None] * np.repeat(delta_theta, counts, axis=0)
     targets = np.concatenate([at(f) for at, f in zip(targets_at, fractions, strict=True)])
     relative = forward_kinematics(theta) - targets
