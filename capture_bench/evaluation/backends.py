@@ -63,11 +63,15 @@ SEEDS_PER_CHUNK = 100
 #: Fewest seeds per chunk where several workers share the work (see :func:`make_chunks`).
 MIN_SEEDS_PER_CHUNK = 25
 
-#: Modules the forkserver imports once, so that each worker starts with them loaded.
+#: Modules the forkserver imports once, so that each worker starts with them loaded: the
+#: episodes' and the report media's (GIFs, matplotlib figures).
 PRELOAD = (
     "capture_bench.evaluation.backends",
     "capture_bench.envs.capture_env",
     "capture_bench.agents",
+    "capture_bench.evaluation.pipeline",
+    "matplotlib.pyplot",
+    "PIL.Image",
 )
 
 #: Not shipped to Ray workers with the checkout.
@@ -284,12 +288,15 @@ def make_chunks(
 #: spawned worker) starts with, not set inside the worker. (Torch's threads are set where a model
 #: is loaded: ``agents_loading._model``.)
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+#: And matplotlib's headless backend, for the ``matplotlib.pyplot`` of :data:`PRELOAD` (a GUI
+#: backend has no business in a forked worker).
+WORKER_ENV = {**SINGLE_THREAD_ENV, "MPLBACKEND": "Agg"}
 
 
 @contextlib.contextmanager
 def _single_threaded_children() -> Iterator[None]:
-    """Set :data:`SINGLE_THREAD_ENV` (where the user has not) while worker processes start."""
-    added = {k: v for k, v in SINGLE_THREAD_ENV.items() if k not in os.environ}
+    """Set :data:`WORKER_ENV` (where the user has not) while worker processes start."""
+    added = {k: v for k, v in WORKER_ENV.items() if k not in os.environ}
     os.environ.update(added)
     try:
         yield
@@ -315,6 +322,27 @@ def _run_process(
     return map_processes(run_chunk, chunks, workers, lambda i: progress(len(chunks[i])))
 
 
+def _process_context() -> Any:
+    """The start method's context: forkserver (preloading :data:`PRELOAD`) where there is one,
+    else spawn."""
+    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    context = multiprocessing.get_context(method)
+    if method == "forkserver":  # workers fork from a server that has already imported these
+        context.set_forkserver_preload(list(PRELOAD))
+    return context
+
+
+def prestart_workers() -> None:
+    """Start the forkserver now, so that it imports :data:`PRELOAD` while this process plans
+    the evaluation (two cores: side by side); the first pool's workers then fork at once.
+    Nothing where there is no forkserver. The server ends with this process."""
+    if _process_context().get_start_method() == "forkserver":
+        import multiprocessing.forkserver
+
+        with _single_threaded_children():
+            multiprocessing.forkserver.ensure_running()
+
+
 def map_processes(
     function: Callable[[Any], Any],
     items: Sequence[Any],
@@ -326,10 +354,7 @@ def map_processes(
     called as item i's result arrives. ``function`` and the items must pickle (a module-level
     function). The workers end with this process however it ends, and on any error here
     (Ctrl-C, SIGTERM, a failed item) they are killed before the error propagates."""
-    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-    context = multiprocessing.get_context(method)
-    if method == "forkserver":  # workers fork from a server that has already imported these
-        context.set_forkserver_preload(list(PRELOAD))
+    context = _process_context()
     results: list[Any] = [None] * len(items)
     workers = max(1, min(workers, len(items)))
     # Only this process holds `held`: the workers see end-of-file on `watched` when it ends.

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 
 from capture_bench.argparsing import OneLineParser, program
 from capture_bench.evaluation.aggregate import RankingRow
-from capture_bench.evaluation.backends import BACKENDS
+from capture_bench.evaluation.backends import BACKENDS, prestart_workers
 from capture_bench.evaluation.pipeline import (
     INPUT_ERRORS,
     EvaluationConfig,
@@ -319,6 +319,8 @@ def _main(argv: list[str] | None) -> int:
         return int(exc.code or 0)
     command = " ".join(["python", PROG, *(shlex.quote(a) for a in argv)])
     try:
+        if config.resolved_backend() == "process":
+            prestart_workers()  # the workers' imports while this process plans
         plan = plan_evaluation(config)
     except INPUT_ERRORS as exc:
         message = " ".join(str(exc).split())
