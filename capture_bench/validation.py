@@ -71,7 +71,7 @@ class Rule:
             order = (
                 " [low, high] with low <= high" if self.length == 2 and self.item == "float" else ""
             )
-            return f"a list of {self.length} {what}{order}"
+            return f"a list of {self.length} {what}{order}{self._range()}"
         if kind == "names":
             also = f", or {' or '.join(map(repr, self.choices))}" if self.choices else ""
             return "a non-empty list of names" + also
@@ -145,8 +145,9 @@ def _check_numbers(rule: Rule, value: Any) -> tuple[bool, Any]:
     if not isinstance(value, (list, tuple)) or len(value) != rule.length:
         return False, None
     items = []
+    item = Rule(rule.item, rule.low, rule.high, rule.low_inclusive)  # each item in the range
     for v in value:
-        ok, number = _CHECKS[rule.item](Rule(rule.item), v)
+        ok, number = _CHECKS[rule.item](item, v)
         if not ok:
             return False, None
         items.append(number)

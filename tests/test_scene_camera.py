@@ -112,8 +112,8 @@ def test_the_batched_env_plays_the_single_envs_rendered_episodes():
 
     seeds = load_scenario("paper_rendered").evaluation_seeds[:3]
 
-    def fields(record):
-        return {k: v for k, v in record.as_row().items() if k not in TIMING_COLUMNS}
+    def fields(record):  # repr: NaN equals NaN there
+        return {k: repr(v) for k, v in record.as_row().items() if k not in TIMING_COLUMNS}
 
     vector = CaptureVectorEnv(3, "paper_rendered", autoreset_mode=AutoresetMode.DISABLED)
     single = CaptureEnv("paper_rendered")
@@ -176,3 +176,78 @@ def test_train_py_trains_on_a_rendered_scenario(tmp_path):
     argv = ["--algo", "ppo", "--scenario", "paper_rendered", "--config", str(config)]
     assert train.main([*argv, "--run-dir", str(run_dir)]) == 0
     assert (run_dir / "policy.pt").is_file()
+
+
+def test_env_checkers_pass_on_a_rendered_scenario():
+    from gymnasium.utils.env_checker import check_env as gymnasium_check
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+
+    env = CaptureEnv("paper_rendered")
+    try:
+        gymnasium_check(env, skip_render_check=True)
+        sb3_check(env, warn=True)
+    finally:
+        env.close()
+
+
+def test_the_same_seed_plays_the_same_rendered_rollout_twice_and_on_any_worker_count():
+    """Rendered episodes through the evaluation's backends: in this process, again, and on two
+    worker processes, the same records (timing aside)."""
+    from capture_bench.evaluation.backends import EpisodeTask, close_envs, run_tasks
+    from capture_bench.evaluation.rollout import TIMING_COLUMNS
+
+    seeds = load_scenario("paper_rendered").evaluation_seeds[1:3]
+    tasks = [
+        EpisodeTask(agent, "paper_rendered", seed)
+        for agent in ("incremental_ik", "pure_pursuit")
+        for seed in seeds
+    ]
+
+    def rows(records):  # repr: NaN equals NaN there
+        return [
+            {k: repr(v) for k, v in r.as_row().items() if k not in TIMING_COLUMNS} for r in records
+        ]
+
+    try:
+        first = rows(run_tasks(tasks, "serial"))
+        assert rows(run_tasks(tasks, "serial")) == first
+        assert rows(run_tasks(tasks, "process", workers=2)) == first
+    finally:
+        close_envs()
+
+
+@pytest.mark.parametrize(
+    ("camera", "key"),
+    [
+        ("mode: photo", "camera.mode"),
+        ("resolution: [0, 960]", "camera.resolution"),
+        ("marker_radius: -1", "camera.marker_radius"),
+    ],
+)
+def test_a_bad_camera_value_is_one_line_naming_the_key(camera, key, tmp_path, capsys):
+    from evaluate import main
+
+    path = tmp_path / "bad.yaml"
+    path.write_text(f"description: bad\ncamera:\n  {camera}\n")
+    assert main(["--scenarios", str(path), "--agents", "hold", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and key in err[0] and "Traceback" not in err[0], err
+
+
+def test_the_gif_of_a_rendered_scenario_shows_the_cameras_view():
+    """The report's episodes to watch on a rendered scenario: the camera's own view, the
+    markers found ringed green."""
+    import io
+
+    from PIL import Image
+
+    from capture_bench.evaluation.backends import EpisodeTask
+    from capture_bench.evaluation.video import record_video
+
+    seed = load_scenario("paper_rendered").evaluation_seeds[1]
+    video = record_video(EpisodeTask("incremental_ik", "paper_rendered", seed), steps=None)
+    with Image.open(io.BytesIO(video.gif)) as gif:
+        gif.seek(3)
+        frame = np.asarray(gif.convert("RGB"))
+    ring = (frame[..., 0] < 40) & (frame[..., 1] > 170) & (frame[..., 2] < 40)
+    assert ring.sum() > 20

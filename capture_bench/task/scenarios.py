@@ -60,7 +60,9 @@ class CameraConfig:
     )
     focal_length: float = _f(0.008, "focal length f, m", POSITIVE)
     pixel_pitch: float = _f(3.75e-6, "pixel pitch, m", POSITIVE)
-    resolution: tuple[int, int] = _f((1280, 960), "sensor width, height, px")
+    resolution: tuple[int, int] = _f(
+        (1280, 960), "sensor width, height, px", (1, math.inf, True)
+    )
     noise_px: float = _f(1.0, "Gaussian image noise sigma, px", NON_NEGATIVE)
     dropout: float = _f(0.0, "probability that a frame is lost, 0-1", (0.0, 1.0, True))
     latency_frames: int = _f(0, "whole frames of latency", NON_NEGATIVE)
@@ -310,7 +312,10 @@ def _schema(cls: type) -> dict[str, Any]:
             schema[f.name] = _schema(kind)
         elif typing.get_origin(kind) is tuple:
             items = typing.get_args(kind)
-            schema[f.name] = Rule("numbers", length=len(items), item=items[0].__name__)
+            low, high, inclusive = meta.get("bounds") or (-math.inf, math.inf, True)
+            schema[f.name] = Rule(
+                "numbers", low, high, inclusive, length=len(items), item=items[0].__name__
+            )
         elif kind is str:
             choices = meta.get("choices")
             schema[f.name] = Rule("choice", choices=choices) if choices else Rule("string")
