@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from capture_bench.sensing.camera import CameraModel, Frame
 from capture_bench.sensing.detector import Detections
 from capture_bench.sensing.occlusion import MARGIN_PX, obstacles_may_hide
+from capture_bench.sensing.pixels import pixel_of, sphere_image
 from capture_bench.sensing.rendered_sensor import (
     PoseAt,
     RenderedCamera,
@@ -124,12 +125,25 @@ class RenderedSceneCamera(RenderedCamera):
     def arm_may_hide(self, pose_at: PoseAt, time: float, theta_at: ThetaAt) -> bool:
         """Whether a link of the arm may hide a marker at any sub-frame instant of the image
         taken at ``time`` (conservative: each link's axis-aligned bounding box)."""
-        radius = self.settings.marker_radius
+        radius, model = self.settings.marker_radius, self.model
         for t in self.settings.instants(time):
             position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
             centres = position + self.features @ rotation.T
             boxes = self.link_boxes(theta_at(float(t)))
-            if obstacles_may_hide(self.model, centres, radius, boxes, MARGIN_PX).any():
+            # A first screen, all links at once: a link whose image's bounding rectangle stays
+            # clear of every marker's image (plus the margin) cannot hide one.
+            cam = model.to_camera(np.concatenate(boxes))
+            if not np.all(model.in_front(cam)):
+                return True
+            pixels = pixel_of(cam, model).reshape(len(boxes), -1, 2)
+            image = sphere_image(model.to_camera(centres), radius, model)
+            reach = (image.semi_major + MARGIN_PX)[None, :, None]
+            low, high = pixels.min(axis=1)[:, None, :], pixels.max(axis=1)[:, None, :]
+            near = ((image.centre >= low - reach) & (image.centre <= high + reach)).all(axis=2)
+            if not near.any():
+                continue
+            close = [box for box, hit in zip(boxes, near.any(axis=1), strict=True) if hit]
+            if obstacles_may_hide(model, centres, radius, close, MARGIN_PX).any():
                 return True
         return False
 
