@@ -52,7 +52,9 @@ def test_the_mixture_steps_as_its_parts_side_by_side():
 
 
 def test_the_spec_names_every_or_some_scenarios():
-    assert [s.name for s in mixture_scenarios("all")] == list_scenarios()
+    analytic = list_scenarios(camera="analytic")  # "all": the analytic camera's scenarios
+    assert [s.name for s in mixture_scenarios("all")] == analytic
+    assert "paper_rendered" in list_scenarios() and "paper_rendered" not in analytic
     assert [s.name for s in mixture_scenarios("paper, grasp")] == ["paper", "grasp"]
     assert is_mixture("all") and is_mixture("paper,grasp") and not is_mixture("paper")
     assert mixture_name("paper,grasp") == "paper+grasp" and mixture_name("all") == "all"

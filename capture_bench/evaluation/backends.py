@@ -64,13 +64,13 @@ SEEDS_PER_CHUNK = 100
 MIN_SEEDS_PER_CHUNK = 25
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded: the
-#: episodes' and the report media's (GIFs, matplotlib figures).
+#: episodes' and the report media's (not ``matplotlib.pyplot``: imported there before
+#: :mod:`capture_bench.evaluation.plots` selects its backend, it drew one figure in other bytes).
 PRELOAD = (
     "capture_bench.evaluation.backends",
     "capture_bench.envs.capture_env",
     "capture_bench.agents",
     "capture_bench.evaluation.pipeline",
-    "matplotlib.pyplot",
     "PIL.Image",
 )
 
@@ -288,15 +288,12 @@ def make_chunks(
 #: spawned worker) starts with, not set inside the worker. (Torch's threads are set where a model
 #: is loaded: ``agents_loading._model``.)
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-#: And matplotlib's headless backend, for the ``matplotlib.pyplot`` of :data:`PRELOAD` (a GUI
-#: backend has no business in a forked worker).
-WORKER_ENV = {**SINGLE_THREAD_ENV, "MPLBACKEND": "Agg"}
 
 
 @contextlib.contextmanager
 def _single_threaded_children() -> Iterator[None]:
-    """Set :data:`WORKER_ENV` (where the user has not) while worker processes start."""
-    added = {k: v for k, v in WORKER_ENV.items() if k not in os.environ}
+    """Set :data:`SINGLE_THREAD_ENV` (where the user has not) while worker processes start."""
+    added = {k: v for k, v in SINGLE_THREAD_ENV.items() if k not in os.environ}
     os.environ.update(added)
     try:
         yield
