@@ -189,3 +189,18 @@ def test_the_imager_refuses_work_after_close():
     imager.close()
     with pytest.raises(RuntimeError, match="closed"):
         imager.render(np.zeros(3), np.zeros(3), np.eye(3))
+
+
+def test_the_benchmark_runs_and_prints_its_rows(capsys):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "benchmarks" / "bench_pixels.py"
+    spec = importlib.util.spec_from_file_location("bench_pixels", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    bench.main(["--num-envs", "2", "--seconds", "0.2", "--size", "36", "36"])
+    rows = capsys.readouterr().out.splitlines()
+    assert rows[1].split()[:2] == ["N", "pixels"]
+    n, *figures = rows[2].split()
+    assert n == "2" and all(float(f) > 0 for f in figures)
