@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from capture_bench.envs.core import (
     CaptureTask,
+    Observation,
     TaskAccess,
     check_actions,
     describe_task,
@@ -29,6 +30,7 @@ from capture_bench.envs.core import (
 )
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
+from capture_bench.sensing.workspace_image import IMAGE_SIZE, WorkspaceImager
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World
@@ -111,6 +113,21 @@ class CaptureEnv(TaskAccess, gym.Env):
     While the estimator has no estimate yet (e.g. during camera latency), the target entries
     repeat the end-effector position with zero velocity.
 
+    With ``observation_source="pixels"`` the agent sees no estimate but
+    ``Dict(image=Box(0, 255, (3, H, W), uint8), state=Box(-10, 10, (7,), float32))``:
+    ``image`` is the camera's view of a crop around the workspace (the arm at its joints, the
+    target at its true pose with its grey block and 10 mm markers), rendered at ``image_size``
+    (W, H) = (84, 84) by default (:mod:`capture_bench.sensing.workspace_image`: which crop, how
+    it is sampled); ``state`` is what the arm knows without vision:
+
+    | index | quantity (global frame)     | unit | scale |
+    |-------|-----------------------------|------|-------|
+    | 0–2   | joint angles Θ              | rad  | π     |
+    | 3–5   | end-effector position X_E   | m    | 1 m   |
+    | 6     | last real control period dt | s    | t_s   |
+
+    The scenario's estimator still runs: ``info`` and the metrics are the same as with it.
+
     ## Rewards
     ``reward="dense"`` (default): ``reward_progress = 10 (d_prev − d)`` (d: true distance, m),
     ``reward_time = −0.01`` per step, ``reward_capture = +5`` on capture, ``reward_failure = −5`` on
@@ -149,8 +166,12 @@ class CaptureEnv(TaskAccess, gym.Env):
 
     ## Arguments
     ``scenario``: a shipped name (``capture_bench.task.scenarios.list_scenarios()``), a YAML path
-    or a ``Scenario``. ``observation_source``: ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
-    (default: the scenario's). ``reward``: ``"dense"``, ``"sparse"`` or ``"shaped"``.
+    or a ``Scenario``. ``observation_source``: what the agent observes: an estimator source,
+    ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the scenario's), or ``"pixels"``
+    (the image and the arm's state; the scenario's estimator runs for ``info``); anything else:
+    ``ConfigError`` (a ``ValueError``). ``image_size``: with ``"pixels"``, the image's (width,
+    height), pixels, default (84, 84); two whole numbers from 1 to 924 (the largest crop of the
+    shipped camera), else ``ValueError``. ``reward``: ``"dense"``, ``"sparse"`` or ``"shaped"``.
     ``render_mode``: ``"rgb_array"`` or ``"human"``. ``render_size``: (width, height) of the image
     ``render()`` returns, pixels, default (640, 480) (a video of many episodes asks for less:
     pybullet's TinyRenderer takes ~50 ms a frame at 640 x 480, ~12 ms at 320 x 240); two whole
@@ -199,10 +220,11 @@ class CaptureEnv(TaskAccess, gym.Env):
         reuse_target_side: bool = False,
         episode_cache: EpisodeCache | None = None,
         render_view: str | None = None,
+        image_size: tuple[int, int] = IMAGE_SIZE,
     ) -> None:
         self.task = task = CaptureTask(
-            scenario, observation_source=observation_source, reward=reward
-        )  # checks ``reward``
+            scenario, observation_source=observation_source, reward=reward, image_size=image_size
+        )  # checks ``observation_source``, ``reward`` and ``image_size``
         rendered = task.scenario.camera.mode == "rendered"
         views = ("scene", "camera") if rendered else ("scene",)
         self.render_view = (
@@ -235,6 +257,8 @@ class CaptureEnv(TaskAccess, gym.Env):
         # pixels (built on first use: it opens a pybullet world of its own)
         self.rendered = rendered
         self._scene_camera: RenderedSceneCamera | None = None
+        # observation_source "pixels": the image's renderer (built on first use: its own world)
+        self._imager: WorkspaceImager | None = None
         self._world: World | None = None
         self._closed = False
         self._side: TargetSide | None = None  # this episode's target side
@@ -302,7 +326,7 @@ class CaptureEnv(TaskAccess, gym.Env):
     # -- gymnasium API --------------------------------------------------------------------------
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    ) -> tuple[Observation, dict[str, Any]]:
         super().reset(seed=seed)
         self._closed = False
         if self._world is None:
@@ -326,11 +350,9 @@ class CaptureEnv(TaskAccess, gym.Env):
             "end_effector": [self._state.x_e[0].copy()],
         }
         self._episode_over = False
-        return self.rule.observe(self._state, _ALL, episode.rows(0))[0], info
+        return self._observe(0, episode.rows(0)), info
 
-    def step(
-        self, action: NDArray
-    ) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
+    def step(self, action: NDArray) -> tuple[Observation, float, bool, bool, dict[str, Any]]:
         if self._closed:
             raise RuntimeError("CaptureEnv.step() called after close(); the env is closed")
         if self._world is None or self._side is None:
@@ -369,7 +391,7 @@ class CaptureEnv(TaskAccess, gym.Env):
             self._world.set_target_pose(episode.position[k], episode.rotation[k])
             self._traces["target"].append(episode.position[k])
             self._traces["end_effector"].append(x_e[0])
-        obs = self.rule.observe(self._state, _ALL, after)[0]
+        obs = self._observe(k, after)
         return obs, out.reward.item(0), terminated, truncated, info
 
     def render(self) -> NDArray[np.uint8] | None:
@@ -406,6 +428,27 @@ class CaptureEnv(TaskAccess, gym.Env):
         if self._scene_camera is not None:
             self._scene_camera.close()
             self._scene_camera = None
+        if self._imager is not None:
+            self._imager.close()
+            self._imager = None
+
+    def _observe(self, k: int, now: dict[str, NDArray]) -> Observation:
+        """The observation at step ``k`` (``now``: the target side's row k): the estimate's
+        vector, or with pixels the image of the arm and of the true target, and the state."""
+        if not self.task.pixels:
+            return self.rule.observe(self._state, _ALL, now)[0]
+        if self._imager is None:
+            self._imager = self.task.imager()
+        episode = self.recorded_episode
+        obs = self.task.pixel_observation(
+            self._imager,
+            self._state,
+            _ALL,
+            episode.position[k : k + 1],
+            episode.rotation[k : k + 1],
+            now["dt"],
+        )
+        return {"image": obs["image"][0], "state": obs["state"][0]}
 
     # -- the episode's target side ---------------------------------------------------------------
     def _live_side(self) -> TargetSide:

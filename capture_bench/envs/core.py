@@ -20,22 +20,35 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from capture_bench.sensing.camera import Camera
+from capture_bench.sensing.rendered_sensor import RenderSettings
+from capture_bench.sensing.sources import ENV_OBSERVATIONS, PIXELS
+from capture_bench.sensing.workspace_image import IMAGE_SIZE, WorkspaceImager, check_image_size
 from capture_bench.sim import kinematics
-from capture_bench.task.observation import TaskDescription, observation_space
+from capture_bench.task.observation import (
+    TaskDescription,
+    encode_state,
+    observation_space,
+    pixel_observation_space,
+)
 from capture_bench.task.scenarios import Scenario, load_scenario
-from capture_bench.task.step_rule import StepRule
+from capture_bench.task.step_rule import ArmState, StepRule
 from capture_bench.task.target_side import scenario_camera
+from capture_bench.validation import ConfigError
 
 FloatArray = NDArray[np.float64]
+#: An observation: the estimate's vector, (16,) (or (N, 16) for N episodes), or with pixels
+#: ``{"image": (3, H, W) uint8, "state": (7,) float32}`` (each with a leading N).
+Observation = NDArray[np.float32] | dict[str, NDArray]
 
 
 def resolve_scenario(
     scenario: str | Path | Scenario, observation_source: str | None = None
 ) -> Scenario:
     """A shipped name, a YAML path or a ``Scenario``, with its estimator source replaced if
-    ``observation_source`` is given (checked)."""
+    ``observation_source`` is an estimator source (checked; ``"pixels"`` keeps the scenario's
+    estimator, which then runs for ``info`` only)."""
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    if observation_source is not None:
+    if observation_source is not None and observation_source != PIXELS:
         sc = sc.replace(estimator={"source": observation_source})
     return sc
 
@@ -84,9 +97,14 @@ class CaptureTask:
 
     Args:
         scenario: a shipped name, a YAML path or a ``Scenario``.
-        observation_source: ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the
-            scenario's).
+        observation_source: an estimator source, ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
+            (default: the scenario's), whose estimate the agent observes; or ``"pixels"``: the
+            agent observes the camera's image and the arm's state
+            (:func:`~capture_bench.task.observation.pixel_observation_space`) and the scenario's
+            estimator runs for ``info`` only.
         reward: one of :data:`capture_bench.task.rewards.REWARD_MODES` (checked).
+        image_size: with ``"pixels"``, the image's (width, height), pixels (checked, whatever
+            the source: :func:`~capture_bench.sensing.workspace_image.check_image_size`).
 
     Attributes:
         scenario: the resolved ``Scenario``.
@@ -98,7 +116,8 @@ class CaptureTask:
             m, (N, 3)).
         single_action_space: ``Box(-1, 1, (3,), float32)``; single_observation_space: the
             observation of one episode (:func:`~capture_bench.task.observation.
-            observation_space`).
+            observation_space`, or the pixel ``Dict``).
+        pixels: whether the agent observes pixels; image_size: (width, height), pixels.
     """
 
     def __init__(
@@ -107,15 +126,56 @@ class CaptureTask:
         *,
         observation_source: str | None = None,
         reward: str = "dense",
+        image_size: tuple[int, int] = IMAGE_SIZE,
     ) -> None:
+        if observation_source is not None and observation_source not in ENV_OBSERVATIONS:
+            raise ConfigError(
+                f"observation_source {observation_source!r} is not valid; expected one of "
+                f"{', '.join(ENV_OBSERVATIONS)} (or None: the scenario's estimator)"
+            )
         self.scenario = resolve_scenario(scenario, observation_source)
         self.description = describe_task(self.scenario)
         self.rule = StepRule(self.scenario, self.description, reward)  # checks ``reward``
         self.reward_mode = reward
         self.camera: Camera
         self.camera, self.features = scenario_camera(self.scenario)
+        self.pixels = observation_source == PIXELS
+        self.image_size = check_image_size(image_size, self.camera.model)
         self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
-        self.single_observation_space = observation_space()
+        self.single_observation_space: spaces.Space = (
+            pixel_observation_space(self.image_size) if self.pixels else observation_space()
+        )
+
+    def imager(self) -> WorkspaceImager:
+        """A renderer of this task's pixel observation (it opens a pybullet world: the caller
+        closes it), lit as the scenario's camera keys say."""
+        cam = self.scenario.camera
+        x, y, z = (float(v) for v in cam.light_direction)
+        settings = RenderSettings(
+            light_direction=(x, y, z) if any((x, y, z)) else None,
+            light_intensity=cam.light_intensity,
+        )
+        model = self.camera.model
+        return WorkspaceImager(model, self.features, self.image_size, settings.lighting())
+
+    def pixel_observation(
+        self,
+        imager: WorkspaceImager,
+        state: ArmState,
+        rows: Any,
+        position: FloatArray,
+        rotation: FloatArray,
+        dt: FloatArray,
+    ) -> dict[str, NDArray]:
+        """The pixel observation of episodes ``rows`` of ``state`` (M of them): the image of
+        their arm and of the target at ``position`` (M, 3) and ``rotation`` (M, 3, 3), and their
+        state with the last real periods ``dt`` (M,), s: ``image`` (M, 3, H, W), ``state``
+        (M, 7)."""
+        theta = state.theta[rows]
+        return {
+            "image": imager.render_batch(theta, position, rotation),
+            "state": encode_state(theta, state.x_e[rows], dt, self.description.control_period),
+        }
 
     def increments(self, actions: FloatArray) -> FloatArray:
         """The joint increments M actions (M, 3) request, rad: each entry clipped to [-1, 1],

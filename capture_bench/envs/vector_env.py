@@ -30,6 +30,9 @@ Differences from N single envs, all in the format only:
   ``failure`` and ``estimator_status`` are object arrays of the single env's values. A sub-env
   that autoresets reports its reset ``info`` (``time``, ``distance``) that step.
 * No rendering, and no privileged API (oracle agents use the single env).
+* With ``observation_source="pixels"`` one renderer, with one pybullet world, draws every
+  sub-env's image in turn (:class:`~capture_bench.sensing.workspace_image.WorkspaceImager`),
+  stacked as ``image`` (N, 3, H, W) beside ``state`` (N, 7).
 """
 
 from __future__ import annotations
@@ -46,10 +49,11 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from capture_bench.envs.core import CaptureTask, TaskAccess, check_actions
+from capture_bench.envs.core import CaptureTask, Observation, TaskAccess, check_actions
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, SceneCameraView, joint_path
+from capture_bench.sensing.workspace_image import IMAGE_SIZE, WorkspaceImager
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
@@ -101,7 +105,10 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         scenario: a shipped name, a YAML path or a ``Scenario`` (as ``CaptureEnv``).
         observation_source: ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the
             scenario's). ``"photogrammetry"`` runs its estimator episode by episode (slower).
+            ``"pixels"``: the camera's image and the arm's state, as ``CaptureEnv``'s; the
+            scenario's estimator runs for ``info``.
         reward: ``"dense"`` or ``"sparse"``.
+        image_size: with ``"pixels"``, the image's (width, height), pixels (as ``CaptureEnv``).
         reuse_target_side: must be True (accepted so that ``make_vec(id, n,
             reuse_target_side=True)`` means the same for every vectorization mode).
         render_mode: must be None (the vector env does not render).
@@ -159,6 +166,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         reference_target_side: bool = False,
         episode_cache: EpisodeCache | None = None,
+        image_size: tuple[int, int] = IMAGE_SIZE,
     ) -> None:
         if not reuse_target_side:
             raise ValueError(
@@ -175,8 +183,8 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         mode = _autoreset_mode(autoreset_mode)
         self.task = task = CaptureTask(
-            scenario, observation_source=observation_source, reward=reward
-        )  # checks ``reward``
+            scenario, observation_source=observation_source, reward=reward, image_size=image_size
+        )  # checks ``observation_source``, ``reward`` and ``image_size``
         sc = task.scenario
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
@@ -190,6 +198,8 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         # One pybullet world answers every sub-env's collision query in turn (a world per
         # sub-env would cost ~28 MB each): the joints are set before each query.
         self._world: World | None = World(self._features)
+        # observation_source "pixels": one renderer draws every sub-env's image in turn
+        self._imager: WorkspaceImager | None = task.imager() if task.pixels else None
         self._rngs: list[np.random.Generator | None] = [None] * n
         # The seed of the generator's first episode, until it is recorded (None: unseeded).
         self._generator_seeds: list[int | None] = [None] * n
@@ -268,7 +278,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         *,
         seed: int | list[int | None] | None = None,
         options: dict[str, Any] | None = None,
-    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
+    ) -> tuple[Observation, dict[str, Any]]:
         """Reset the sub-envs (``options["reset_mask"]``: only those marked).
 
         ``seed``: an int s seeds sub-env i with s + i, as ``SyncVectorEnv`` does; a list gives
@@ -316,9 +326,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
 
     def step(
         self, actions: NDArray
-    ) -> tuple[
-        NDArray[np.float32], FloatArray, NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]
-    ]:
+    ) -> tuple[Observation, FloatArray, NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:
         """Step every sub-env with its row of ``actions``, shape (num_envs, 3), in [-1, 1].
 
         Out-of-range values are clipped; a wrong shape, a non-numeric dtype or a NaN/infinite
@@ -394,6 +402,9 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         if self._scene is not None:
             self._scene.close()
             self._scene = None
+        if self._imager is not None:
+            self._imager.close()
+            self._imager = None
 
     # -- episodes -------------------------------------------------------------------------------
     def _start(self, envs: NDArray[np.intp], explicit: dict[int, int]) -> None:
@@ -660,12 +671,21 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         for name, value in zip(("position_error", "velocity_error", "nees"), errors, strict=True):
             tracks[name][idx, k] = value
 
-    def _observe(self) -> NDArray[np.float32]:
+    def _observe(self) -> Observation:
         """The observation of every sub-env at its current step (the last real period: that of
-        the step just taken, t_s at reset)."""
+        the step just taken, t_s at reset); with pixels, the images of the arms and of the true
+        targets, and the states."""
         rows, k = np.arange(self.num_envs), self._steps
-        now = {name: self._tracks[name][rows, k] for name in _OBSERVED}
-        return self.rule.observe(self._state, slice(None), now)
+        if self._imager is None:
+            now = {name: self._tracks[name][rows, k] for name in _OBSERVED}
+            return self.rule.observe(self._state, slice(None), now)
+        rotation = np.stack(
+            [episode.rotation[j] for episode, j in zip(self._episodes, k.tolist(), strict=True)]  # type: ignore[union-attr]
+        )
+        position, dt = self._tracks["position"][rows, k], self._tracks["dt"][rows, k]
+        return self.task.pixel_observation(
+            self._imager, self._state, slice(None), position, rotation, dt
+        )
 
     def _mask(self, envs: NDArray[np.intp]) -> NDArray[np.bool_]:
         """(N,) True at ``envs``."""

@@ -20,6 +20,11 @@ row ``v``.
   ``(u, v)`` shows the scene at the centre of pixel ``(u, v)`` of
   :mod:`~capture_bench.sensing.pixels`. Without the shift the image is off by half a pixel in
   ``u`` and in ``v``.
+* **Scaled windows**: a window of ``s w x s h`` sensor pixels (s a whole number) can be rendered
+  directly at ``w x h`` (:func:`render_frame`'s ``size``): the frustum is the window's, shifted by
+  half an *image* pixel, so image pixel ``(i, j)`` (row, column) shows the scene at the centre of
+  its ``s x s`` block of sensor pixels, which for odd s is the centre of the window's
+  full-density pixel ``(s i + s // 2, s j + s // 2)``.
 
 Matrices are column-major 16-tuples, as ``computeViewMatrix`` and ``computeProjectionMatrixFOV``
 return them and ``getCameraImage`` takes them.
@@ -29,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -181,6 +187,20 @@ class Lighting:
     shadow: bool = False
 
 
+def window_scale(window: Window, size: tuple[int, int]) -> int:
+    """How many sensor pixels a side of an image pixel spans when ``window`` ``(u0, u1, v0, v1)``
+    is rendered at ``size`` ``(width, height)``: the whole number s with ``u1 - u0 = s width``
+    and ``v1 - v0 = s height``; ``ValueError`` if there is none."""
+    u0, u1, v0, v1 = window
+    width, height = int(size[0]), int(size[1])
+    s = (u1 - u0) // width if width >= 1 else 0
+    if s < 1 or (u1 - u0, v1 - v0) != (s * width, s * height):
+        raise ValueError(
+            f"window {window} is not a whole number of times the size {size} on both axes"
+        )
+    return s
+
+
 def render_frame(
     bullet: BulletClient,
     model: CameraModel,
@@ -188,6 +208,7 @@ def render_frame(
     lighting: Lighting | None = None,
     near: float = NEAR_PLANE,
     far: float = FAR_PLANE,
+    size: tuple[int, int] | None = None,
 ) -> NDArray[np.uint8]:
     """What the camera sees: the scene in ``bullet`` rendered by TinyRenderer (no GL needed).
 
@@ -198,30 +219,53 @@ def render_frame(
             None for the full frame.
         lighting: the light; None for ``Lighting()``.
         near, far: clipping distances from the lens, metres.
+        size: ``(width, height)`` to render the window at, pixels, the window being s times
+            that on both axes (:func:`window_scale`; module docstring, scaled windows); None:
+            full pixel density (s = 1).
 
     Returns:
         RGB image, uint8, shape ``(v1 - v0, u1 - u0, 3)`` (``(height, width, 3)`` for the full
-        frame); its pixel ``[i, j]`` is the full frame's pixel ``[v0 + i, u0 + j]``.
+        frame); its pixel ``[i, j]`` is the full frame's pixel ``[v0 + i, u0 + j]``. With
+        ``size``: shape ``(height, width, 3)``, pixel ``[i, j]`` sampled at the centre of the
+        full frame's pixels ``[v0 + s i .. v0 + s i + s - 1, u0 + s j .. u0 + s j + s - 1]``.
     """
+    request = camera_image_request(model, window, lighting, near, far, size)
+    width, height = request["width"], request["height"]
+    _, _, rgba, _, _ = bullet.getCameraImage(**request)
+    return np.ascontiguousarray(np.reshape(rgba, (height, width, 4))[..., :3], dtype=np.uint8)
+
+
+def camera_image_request(
+    model: CameraModel,
+    window: Window | None = None,
+    lighting: Lighting | None = None,
+    near: float = NEAR_PLANE,
+    far: float = FAR_PLANE,
+    size: tuple[int, int] | None = None,
+) -> dict[str, Any]:
+    """The keyword arguments of ``getCameraImage`` with which :func:`render_frame` renders (its
+    arguments, the same meaning): computed once where many frames of one view are rendered.
+    ``width`` and ``height`` are the image's, pixels; the buffer comes back RGBA."""
     u0, u1, v0, v1 = check_window(window, model)
     light = Lighting() if lighting is None else lighting
     source = lens_position(model) if light.source is None else np.asarray(light.source, float)
-    width, height = u1 - u0, v1 - v0
-    _, _, rgba, _, _ = bullet.getCameraImage(
-        width,
-        height,
-        viewMatrix=view_matrix(model),
-        projectionMatrix=projection_matrix(model, (u0, u1, v0, v1), near, far),
-        lightDirection=[float(v) for v in source],
-        lightColor=[float(v) for v in light.colour],
-        lightDistance=float(light.distance),
-        shadow=int(light.shadow),
-        lightAmbientCoeff=float(light.ambient),
-        lightDiffuseCoeff=float(light.diffuse),
-        lightSpecularCoeff=float(light.specular),
-        renderer=pybullet.ER_TINY_RENDERER,
-    )
-    return np.ascontiguousarray(np.reshape(rgba, (height, width, 4))[..., :3], dtype=np.uint8)
+    width, height = (u1 - u0, v1 - v0) if size is None else (int(size[0]), int(size[1]))
+    s = 1 if size is None else window_scale((u0, u1, v0, v1), (width, height))
+    offset = TINY_RENDERER_SAMPLE_OFFSET * s
+    return {
+        "width": width,
+        "height": height,
+        "viewMatrix": view_matrix(model),
+        "projectionMatrix": projection_matrix(model, (u0, u1, v0, v1), near, far, offset),
+        "lightDirection": [float(v) for v in source],
+        "lightColor": [float(v) for v in light.colour],
+        "lightDistance": float(light.distance),
+        "shadow": int(light.shadow),
+        "lightAmbientCoeff": float(light.ambient),
+        "lightDiffuseCoeff": float(light.diffuse),
+        "lightSpecularCoeff": float(light.specular),
+        "renderer": pybullet.ER_TINY_RENDERER,
+    }
 
 
 def window_around(centre: tuple[float, float], half_size: int, model: CameraModel) -> Window:

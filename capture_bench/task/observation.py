@@ -16,6 +16,19 @@ index  quantity (global frame)                          unit      scale
 12-14  predicted relative vector X^_T' - X_E (eq. 13)   m         0.5 m
 15     last real control period dt                      s         t_s
 =====  ===============================================  ========  ===========
+
+The pixel observation (``observation_source="pixels"``) is a ``Dict`` instead
+(:func:`pixel_observation_space`): ``image``, the camera's uint8 image, channel-first
+(:mod:`capture_bench.sensing.workspace_image`), and ``state``, what the agent knows without
+vision (:func:`encode_state`, float32, shape (7,), scaled as above):
+
+=====  ===============================================  ========  ===========
+index  quantity (global frame)                          unit      scale
+=====  ===============================================  ========  ===========
+0-2    joint angles Theta                               rad       pi rad
+3-5    end-effector position X_E                        m         1 m
+6      last real control period dt                      s         t_s
+=====  ===============================================  ========  ===========
 """
 
 from __future__ import annotations
@@ -94,6 +107,40 @@ class Observation:
 def observation_space() -> spaces.Box:
     """The observation space: Box(-10, 10, (16,), float32)."""
     return spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, (OBSERVATION_SIZE,), np.float32)
+
+
+STATE_SIZE = 7  # the pixel observation's ``state``: Theta (3), X_E (3), dt (1)
+_STATE_INVERSE_SCALES = 1.0 / np.repeat([ANGLE_SCALE, POSITION_SCALE, 1.0], [3, 3, 1])
+
+
+def pixel_observation_space(image_size: tuple[int, int]) -> spaces.Dict:
+    """The pixel observation's space for an image of ``image_size`` (width, height), pixels:
+    ``Dict(image=Box(0, 255, (3, height, width), uint8), state=Box(-10, 10, (7,), float32))``."""
+    width, height = image_size
+    return spaces.Dict(
+        {
+            "image": spaces.Box(0, 255, (3, height, width), np.uint8),
+            "state": spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, (STATE_SIZE,), np.float32),
+        }
+    )
+
+
+def encode_state(
+    joint_angles: ArrayLike,
+    ee_position: ArrayLike,
+    last_period: ArrayLike,
+    control_period: float,
+) -> NDArray[np.float32]:
+    """The pixel observation's ``state`` (module docstring): Theta / pi, X_E / 1 m and
+    dt / t_s, clipped to [-10, 10]. Shapes: (3,), (3,) and a float -> (7,); (M, 3), (M, 3) and
+    (M,) -> (M, 7)."""
+    period = np.asarray(last_period, dtype=float) / control_period
+    raw = np.concatenate(
+        (np.asarray(joint_angles, float), np.asarray(ee_position, float), period[..., None]), -1
+    )
+    state = raw * _STATE_INVERSE_SCALES
+    np.clip(state, -OBSERVATION_BOUND, OBSERVATION_BOUND, out=state)
+    return state.astype(np.float32)
 
 
 def encode_observation(
