@@ -60,9 +60,7 @@ class CameraConfig:
     )
     focal_length: float = _f(0.008, "focal length f, m", POSITIVE)
     pixel_pitch: float = _f(3.75e-6, "pixel pitch, m", POSITIVE)
-    resolution: tuple[int, int] = _f(
-        (1280, 960), "sensor width, height, px", (1, math.inf, True)
-    )
+    resolution: tuple[int, int] = _f((1280, 960), "sensor width, height, px", (1, math.inf, True))
     noise_px: float = _f(1.0, "Gaussian image noise sigma, px", NON_NEGATIVE)
     dropout: float = _f(0.0, "probability that a frame is lost, 0-1", (0.0, 1.0, True))
     latency_frames: int = _f(0, "whole frames of latency", NON_NEGATIVE)
