@@ -82,16 +82,28 @@ def test_the_report_shows_the_reference_and_the_best_trained_model_on_one_seed(w
 
 
 def test_two_workers_record_the_same_videos_and_draw_the_same_figures(watched, evaluated, tmp_path):
-    """With the process backend the GIFs are made in worker processes while the figures are
-    drawn beside them: the same bytes as one process makes."""
-    data, folder = watched
+    """With the process backend the GIFs and the figures are made in worker processes: the
+    same bytes as one process makes (a fresh ``evaluate.py --workers 1``, as a user runs it: this
+    test process has drawn other reports' figures before)."""
+    import subprocess
+    import sys
+
+    data, _ = watched
     argv = ["--agents", "incremental_ik,models/ppo-paper,hold", "--scenarios", "paper"]
-    pooled, pooled_folder = evaluated([*argv, "--episodes", "3", "--workers", "2"], tmp_path)
+    argv += ["--episodes", "3"]
+    pooled, pooled_folder = evaluated([*argv, "--workers", "2"], tmp_path / "pooled")
     assert pooled.provenance["backend"] == {"name": "process", "workers": 2}
     assert [v.gif for v in pooled.videos] == [v.gif for v in data.videos]
+    serial = tmp_path / "serial"
+    done = subprocess.run(
+        [sys.executable, "evaluate.py", *argv, "--workers", "1", "--out", str(serial)],
+        cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    (folder,) = [p for p in serial.iterdir() if p.is_dir()]
     pngs = sorted(p.name for p in folder.glob("*.png"))
     assert pngs and pngs == sorted(p.name for p in pooled_folder.glob("*.png"))
-    for name in pngs:
+    for name in [*pngs, *(v.file_name for v in pooled.videos)]:
         assert (pooled_folder / name).read_bytes() == (folder / name).read_bytes(), name
 
 
