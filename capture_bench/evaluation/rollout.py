@@ -210,8 +210,8 @@ class _EpisodeLog:
             capture_time_estimated=_float(info, "capture_time_estimated"),
             distance_at_capture=_float(info, "distance") if captured else math.nan,
             relative_speed_at_capture=_float(info, "relative_speed") if captured else math.nan,
-            position_rmse=float(np.sqrt(np.nanmean(self.pos_sq))) if self.pos_sq else math.nan,
-            velocity_rmse=float(np.sqrt(np.nanmean(self.vel_sq))) if self.vel_sq else math.nan,
+            position_rmse=_root_mean(self.pos_sq),
+            velocity_rmse=_root_mean(self.vel_sq),
             mean_nees=float(np.mean(finite_nees)) if finite_nees else math.nan,
             path_length=_float(info, "path_length"),
             saturated_share=self.saturated / self.steps if self.steps else math.nan,
@@ -408,3 +408,12 @@ def run_episodes(
             )
         )
     return records
+
+
+def _root_mean(squares: list[float]) -> float:
+    """sqrt of the mean of the ``squares`` that are not NaN (numpy's ``nanmean``), NaN where all
+    are (an episode whose estimator never had an estimate), without numpy's warning."""
+    values = np.asarray(squares, dtype=float)
+    if np.isnan(values).all():  # an empty list too
+        return math.nan
+    return float(np.sqrt(np.nanmean(values)))
