@@ -1,5 +1,6 @@
 """Shared fixtures: environments that are always closed; an evaluation's report and its data."""
 
+import os
 import tempfile
 from pathlib import Path
 
@@ -12,6 +13,9 @@ import capture_bench  # noqa: F401  (registers the environments)
 # The fuzz tests use no example database (CI sees the same inputs every run); Hypothesis's own
 # caches (constants, Unicode tables) go to the temporary folder, not a .hypothesis/ in the checkout.
 set_hypothesis_home_dir(Path(tempfile.gettempdir()) / "capture-bench-hypothesis")
+# A test's own model.learn() without a logger: SB3 makes an empty folder per call in the temporary
+# folder unless SB3_LOGDIR names one; one shared folder instead.
+os.environ.setdefault("SB3_LOGDIR", str(Path(tempfile.gettempdir()) / "capture-bench-sb3-logs"))
 
 
 @pytest.fixture

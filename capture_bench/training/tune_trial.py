@@ -12,6 +12,7 @@ from typing import Any
 
 import optuna
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
 
 from capture_bench.training.callbacks import Progress
 from capture_bench.training.hyperparameters import (
@@ -142,6 +143,9 @@ def run_trial(trial: Any, setup: Setup) -> float:
     interrupted = False
     try:
         model = build_model(config, hp, venv, tensorboard_log=None)
+        # A logger that writes nothing: SB3's default makes an empty folder in the temp
+        # directory for every trial.
+        model.set_logger(Logger(None, []))
         callbacks = [progress, validation, *curriculum_callbacks(config, hp)]
         model.learn(total_timesteps=setup.budget, callback=callbacks)
     except KeyboardInterrupt:  # Optuna records the trial as failed and re-raises it
