@@ -34,7 +34,7 @@ from capture_bench.sensing.workspace_image import IMAGE_SIZE, WorkspaceImager
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World
-from capture_bench.task.episode import EpisodePlan, episode_bounds
+from capture_bench.task.episode import EpisodePlan
 from capture_bench.task.physical_limit import PhysicalLimit
 from capture_bench.task.recording import RecordedEpisode
 from capture_bench.task.scenarios import Scenario
@@ -273,13 +273,8 @@ class CaptureEnv(TaskAccess, gym.Env):
         """The episode's lower bound on capture time (computed once per episode, lazily; kept in
         :attr:`episode_cache` by (scenario, seed) after a seeded reset)."""
         episode = self.recorded_episode
-        if episode.bound is None and self._key is not None:
-            episode.bound = self.episode_cache.limit(self._key)
         if episode.bound is None:
-            (bound,) = episode_bounds([episode.plan], self.description)
-            if self._key is not None:
-                self.episode_cache.keep_limit(self._key, bound)
-            episode.bound = bound
+            episode.bound = self.episode_cache.bound_of(self._key, episode.plan, self.description)
         return episode.bound
 
     @property
@@ -362,9 +357,11 @@ class CaptureEnv(TaskAccess, gym.Env):
         a = check_actions(action, (3,), "action")
         k = self._steps + 1
         side = self._side
-        theta0 = self._state.theta[0].copy()
+        theta0 = self._state.theta[0].copy() if side.needs_arm else None
         joint_step = self._world.apply_joint_increment(self.task.increments(a), side.episode.dt[k])
-        side.arm_at = joint_path(theta0, joint_step.theta, self._time, float(side.episode.time[k]))
+        if theta0 is not None:  # a rendered frame shows the arm during the step
+            t1 = float(side.episode.time[k])
+            side.arm_at = joint_path(theta0, joint_step.theta, self._time, t1)
         episode = side.through(k)  # the target's side (a live one draws from np_random)
         theta = joint_step.theta[None]
         x_e = kinematics.forward_kinematics_point(joint_step.theta)[None]

@@ -466,12 +466,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             side = TargetSide.draw(sc, view, self._estimators[i], features, rng)
             side.arm_at = lambda _t: home
             episode = side.through(0)
-            bound = None if key is None else self.episode_cache.limit(key)
-            if bound is None:
-                (bound,) = episode_bounds([episode.plan], self.description)
-                if key is not None:
-                    self.episode_cache.keep_limit(key, bound)
-            episode.bound = bound
+            episode.bound = bound = self.episode_cache.bound_of(key, episode.plan, self.description)
             self._sides[i] = side
             self._episodes[i] = episode
             self._episode_seeds[i] = seed

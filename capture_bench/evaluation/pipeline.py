@@ -281,10 +281,11 @@ def video_jobs(
     config: EvaluationConfig,
     records: Sequence[EpisodeRecord],
     ranking: Sequence[RankingRow],
-) -> tuple[list[VideoKey], list[VideoKey], list[tuple[EpisodeTask, int]]]:
+) -> tuple[list[VideoKey], list[VideoKey], dict[VideoKey, tuple[EpisodeTask, int]]]:
     """The report's episodes to watch (if the suite has ``videos``) and ``--video``'s episodes
     (``records`` in ``plan.tasks`` order): their keys (agent, scenario, seed), and the jobs that
-    record them, each episode once: ``(task, its length in steps)`` for :func:`record_video`."""
+    record them, each episode once, by key: ``(task, its length in steps)`` for
+    :func:`record_video`."""
     played = {(r.agent, r.scenario, r.seed): (t, r) for t, r in zip(plan.tasks, records)}
     watched: list[VideoKey] = []
     if plan.suite.videos:
@@ -298,8 +299,8 @@ def video_jobs(
             for t, r in zip(plan.tasks, records)
             if t.seed in plan.seeds[t.scenario][: config.video_episodes]
         ]
-    keys = list(dict.fromkeys([*watched, *requested]))
-    return watched, requested, [(played[key][0], played[key][1].steps) for key in keys]
+    keys = dict.fromkeys([*watched, *requested])
+    return watched, requested, {key: (played[key][0], played[key][1].steps) for key in keys}
 
 
 def make_report_media(
@@ -367,8 +368,10 @@ def run_evaluation(
         videos=[],
     )
     watched_keys, requested_keys, jobs = video_jobs(plan, config, records, ranking)
-    videos, drawn = make_report_media(data, jobs, workers if backend == "process" else 1)
-    made = dict(zip(list(dict.fromkeys([*watched_keys, *requested_keys])), videos, strict=True))
+    videos, drawn = make_report_media(
+        data, list(jobs.values()), workers if backend == "process" else 1
+    )
+    made = dict(zip(jobs, videos, strict=True))
     watched, requested = [made[k] for k in watched_keys], [made[k] for k in requested_keys]
     media_timing = {
         "videos": len(made),  # each recorded once

@@ -33,7 +33,8 @@ from capture_bench.sensing.camera import Camera, CameraModel, Frame
 from capture_bench.sensing.estimator import STATUSES, TargetEstimator
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import FEATURE_POINTS, TargetTrajectory
-from capture_bench.task.episode import EpisodePlan
+from capture_bench.task.episode import EpisodePlan, episode_bounds
+from capture_bench.task.observation import TaskDescription
 from capture_bench.task.physical_limit import PhysicalLimit
 from capture_bench.task.recording import RecordedEpisode, estimate_errors_scalar
 from capture_bench.task.scenarios import Scenario
@@ -284,6 +285,20 @@ class EpisodeCache:
     def limit(self, key: EpisodeKey) -> PhysicalLimit | None:
         """The physical-limit bound computed for ``key``, or None."""
         return self._limits.get(key)
+
+    def bound_of(
+        self, key: EpisodeKey | None, plan: EpisodePlan, description: TaskDescription
+    ) -> PhysicalLimit:
+        """The physical-limit bound of ``plan``: the one kept for ``key``, else computed now
+        (:func:`~capture_bench.task.episode.episode_bounds`) and kept for ``key`` (None: an
+        unseeded episode, not kept)."""
+        found = None if key is None else self.limit(key)
+        if found is not None:
+            return found
+        (bound,) = episode_bounds([plan], description)
+        if key is not None:
+            self.keep_limit(key, bound)
+        return bound
 
     def keep_limit(self, key: EpisodeKey, limit: PhysicalLimit) -> None:
         """Keep a bound for ``key`` (its joint angles become read-only: shared)."""
