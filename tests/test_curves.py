@@ -97,3 +97,24 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, expected):
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and expected in err, err
     assert not (tmp_path / "out" / "learning_curves.md").exists()
+
+
+def test_the_pixel_arm_trains_on_pixels_beside_the_estimate_fed_arm(tmp_path):
+    argv = ["--train", "--algos", "ppo", "--pixels", "--seeds", "0",
+            "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out")]  # fmt: skip
+    argv += [f"--set={item}" for item in TINY]
+    assert main(argv) == 0
+    saved = json.loads((tmp_path / "runs" / "paper-ppo-pixels-0" / "config.json").read_text())
+    assert saved["config"]["observation_source"] == "pixels"
+    assert saved["hyperparameters"]["policy"] == "MultiInputPolicy"
+    numbers = json.loads((tmp_path / "out" / "curves.json").read_text())
+    assert set(numbers["curves"]) == {"ppo", "ppo-pixels"}
+    page = (tmp_path / "out" / "learning_curves.md").read_text()
+    assert "| PPO-PIXELS |" in page and "| PPO |" in page
+
+
+def test_an_algorithm_without_pixel_hyperparameters_is_one_line(tmp_path, capsys):
+    argv = ["--algos", "a2c", "--pixels", "--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "configs/pixels/ppo.yaml" in err, err

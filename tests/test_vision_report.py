@@ -13,7 +13,6 @@ from test_evaluation_metrics import _report_data, record
 
 from capture_bench.evaluation.aggregate import rank_agents, summarise_all
 from capture_bench.evaluation.report import (
-    VISION_HEADER,
     ReportData,
     figure_names,
     html_page,
@@ -22,6 +21,7 @@ from capture_bench.evaluation.report import (
 )
 from capture_bench.evaluation.suites import load_suite
 from capture_bench.evaluation.vision import (
+    HEADER,
     TEXT,
     TITLE,
     left_out_text,
@@ -45,17 +45,21 @@ def _paired(agent: str = "incremental_ik", seeds: int = 20) -> list:
     return recs
 
 
-def _data(recs: list) -> ReportData:
+def _data(recs: list, suite: str = "vision", models: dict | None = None) -> ReportData:
+    """A report of ``recs``, ``models`` the provenance's trained models (label -> entry)."""
     summaries = summarise_all(recs)
+    provenance: dict = {"seeds": {}}
+    if models is not None:
+        provenance["config_hashes"] = {"models": models}
     return ReportData(
-        suite="vision-synthetic",
+        suite=f"{suite}-synthetic",
         description="synthetic records",
-        command="python evaluate.py --suite vision",
+        command=f"python evaluate.py --suite {suite}",
         reference="incremental_ik",
         records=recs,
         summaries=summaries,
         ranking=rank_agents(summaries),
-        provenance={"seeds": {}},
+        provenance=provenance,
     )
 
 
@@ -87,17 +91,17 @@ def test_twins_are_the_shipped_rendered_scenarios_with_the_same_seeds():
 
 def test_the_paired_difference_and_its_interval_are_right():
     (c,) = vision_comparisons(_paired())
-    assert (c.agent, c.analytic, c.rendered, c.seeds) == (
+    assert (c.subject, c.a, c.b, c.seeds) == (
         "incremental_ik",
         "paper",
         "paper_rendered",
         20,
     )
-    assert (c.captured_analytic, c.captured_rendered) == (20, 15)
-    assert (c.only_analytic, c.only_rendered, c.both_captured) == (5, 0, 15)
-    assert c.capture_rate_analytic.value == 1.0 and c.capture_rate_rendered.value == 0.75
+    assert (c.captured_a, c.captured_b) == (20, 15)
+    assert (c.only_a, c.only_b, c.both_captured) == (5, 0, 15)
+    assert c.capture_rate_a.value == 1.0 and c.capture_rate_b.value == 0.75
     # Wilson (1927) for 15/20: [0.5313, 0.8881]
-    rate = c.capture_rate_rendered
+    rate = c.capture_rate_b
     assert (rate.low, rate.high) == pytest.approx((0.5313, 0.8881), abs=1e-4)
 
     diff = c.capture_rate_difference
@@ -111,11 +115,11 @@ def test_the_paired_difference_and_its_interval_are_right():
     assert diff.low < -0.25 < diff.high < 0.0  # the seeds tell the cameras apart
 
     both = [s for s in range(20) if s not in LOST]
-    assert c.ratio_median_analytic.value == pytest.approx(np.median(2.0 + 0.05 * np.arange(20)))
+    assert c.ratio_median_a.value == pytest.approx(np.median(2.0 + 0.05 * np.arange(20)))
     rendered = [2.0 + 0.05 * s + 0.5 + 0.01 * s for s in both]
-    assert c.ratio_median_rendered.value == pytest.approx(np.median(rendered))
+    assert c.ratio_median_b.value == pytest.approx(np.median(rendered))
     assert c.ratio_difference.value == pytest.approx(np.median([0.5 + 0.01 * s for s in both]))
-    for est in (c.ratio_median_analytic, c.ratio_median_rendered, c.ratio_difference):
+    for est in (c.ratio_median_a, c.ratio_median_b, c.ratio_difference):
         assert est.low <= est.value <= est.high and est.low < est.high
 
 
@@ -123,8 +127,8 @@ def test_seeds_in_one_scenario_of_the_pair_only_are_left_out_and_named():
     recs = [r for r in _paired(seeds=10) if not (r.scenario == "paper_rendered" and r.seed >= 8)]
     recs.append(record("incremental_ik", 42, 2.0, scenario="paper_rendered"))
     (c,) = vision_comparisons(recs)
-    assert c.seeds == 8 and c.unpaired_analytic == (8, 9) and c.unpaired_rendered == (42,)
-    assert (c.captured_analytic, c.captured_rendered) == (8, 6)  # seeds 3 and 7 lost
+    assert c.seeds == 8 and c.unpaired_a == (8, 9) and c.unpaired_b == (42,)
+    assert (c.captured_a, c.captured_b) == (8, 6)  # seeds 3 and 7 lost
     assert c.capture_rate_difference.value == pytest.approx(-2 / 8)
     text = left_out_text([c])
     assert "incremental_ik: 2 seeds of paper only (8, 9)" in text
@@ -141,7 +145,7 @@ def test_no_twin_or_no_common_seed_gives_no_comparison():
     # pure_pursuit ran both scenarios but on different seeds: no row for it
     apart = [record("pure_pursuit", s, 1.0, scenario="paper") for s in range(3)]
     apart += [record("pure_pursuit", s, 1.0, scenario="paper_rendered") for s in range(3, 6)]
-    assert [c.agent for c in vision_comparisons(_paired() + apart)] == ["incremental_ik"]
+    assert [c.subject for c in vision_comparisons(_paired() + apart)] == ["incremental_ik"]
     assert vision_comparisons(apart) == []
     assert TITLE not in markdown(_data(apart + drift))
 
@@ -152,7 +156,7 @@ def test_the_markdown_html_and_json_hold_the_section(tmp_path):
     md = markdown(data)
     lines = md.splitlines()
     assert f"## {TITLE}" in lines and TEXT in lines and "### paper vs paper_rendered" in lines
-    header = "| " + " | ".join(VISION_HEADER) + " |"
+    header = "| " + " | ".join(HEADER) + " |"
     start = lines.index(header)
     rows = lines[start + 2 : start + 4]
     assert rows[0].startswith("| incremental_ik (reference) | 20 | 20/20 = 1.00 [")
@@ -181,7 +185,7 @@ def test_a_report_without_rendered_scenarios_has_no_section(tmp_path):
     data = _report_data()
     assert vision_comparisons(data.records) == []
     md = markdown(data)
-    assert TITLE not in md and " | ".join(VISION_HEADER) not in md
+    assert TITLE not in md and " | ".join(HEADER) not in md
     assert TITLE not in html_page(data, _images(data))
     target = write_report(data, tmp_path, images=_images(data))
     payload = json.loads((target / "results.json").read_text())

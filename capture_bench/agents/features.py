@@ -25,7 +25,11 @@ import gymnasium as gym
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor
+from stable_baselines3.common.torch_layers import (
+    BaseFeaturesExtractor,
+    CombinedExtractor,
+    FlattenExtractor,
+)
 
 from capture_bench.task.observation import OBSERVATION_SIZE, RELATIVE_SCALE, SLICES
 
@@ -69,8 +73,11 @@ class RelativeLogDistance(BaseFeaturesExtractor):
         return torch.cat((observations, r / d, log_d), dim=1)
 
 
-#: Declared name -> features extractor class (``flatten``: SB3's default, the raw observation).
+#: Declared name -> features extractor class (``flatten``: SB3's default for a Box observation,
+#: the raw observation; ``combined``: SB3's default for a ``Dict`` one, the pixel observation's
+#: image through SB3's NatureCNN beside the flattened arm state).
 FEATURE_EXTRACTORS: dict[str, type[BaseFeaturesExtractor]] = {
     "flatten": FlattenExtractor,
     "relative_log_distance": RelativeLogDistance,
+    "combined": CombinedExtractor,
 }

@@ -15,6 +15,9 @@ So a capture-bench model directory stores a policy as
       weights: policy.pt
       policy_kwargs: {net_arch: ..., activation_fn: tanh, log_std_init: -1.0, ...}
       observation_space: {type: Box, shape: [16], dtype: float32, low: [...], high: [...]}
+                         # or, for the pixel observation, {type: Dict, spaces: {image: {type:
+                         # Box, shape: [3, 84, 84], dtype: uint8, low: 0, high: 255}, state:
+                         # a flat Box as above}}
       action_space: {type: Box, shape: [3], dtype: float32, low: [...], high: [...]}
       normalization: null | {mean: [...], var: [...], epsilon: 1e-8, clip_obs: 10.0}
 
@@ -54,6 +57,18 @@ POLICY_CLASSES: dict[str, tuple[str, str]] = {
     "DDPG": ("stable_baselines3.td3.policies", "TD3Policy"),
     "TQC": ("sb3_contrib.tqc.policies", "TQCPolicy"),
 }
+
+#: Algorithm -> (module, class) of the SB3 policy that acts for it on a ``Dict`` observation.
+MULTI_INPUT_POLICY_CLASSES: dict[str, tuple[str, str]] = {
+    "PPO": ("stable_baselines3.common.policies", "MultiInputActorCriticPolicy"),
+    "A2C": ("stable_baselines3.common.policies", "MultiInputActorCriticPolicy"),
+    "SAC": ("stable_baselines3.sac.policies", "MultiInputPolicy"),
+    "TD3": ("stable_baselines3.td3.policies", "MultiInputPolicy"),
+    "DDPG": ("stable_baselines3.td3.policies", "MultiInputPolicy"),
+    "TQC": ("sb3_contrib.tqc.policies", "MultiInputPolicy"),
+}
+#: An image Box's declaration: channel-first uint8 with one bound for every entry.
+IMAGE_DTYPE = "uint8"
 
 #: Declared activation name -> torch.nn class name.
 ACTIVATIONS = {
@@ -152,8 +167,10 @@ class PolicyDeclaration:
     Attributes:
         algorithm: SB3 algorithm name, a key of :data:`POLICY_CLASSES`.
         policy_kwargs: keyword arguments of the policy class, JSON values (activation by name).
-        observation_space, action_space: Box declarations (type, shape, dtype, low, high).
-        normalization: frozen observation statistics, or None.
+        observation_space: a Box declaration (type, shape, dtype, low, high), or a Dict one
+            (type, spaces: name -> Box declaration).
+        action_space: a Box declaration.
+        normalization: frozen observation statistics (of a Box observation), or None.
     """
 
     algorithm: str
@@ -161,6 +178,11 @@ class PolicyDeclaration:
     observation_space: dict[str, Any]
     action_space: dict[str, Any]
     normalization: ObservationNormalizer | None
+
+    @property
+    def multi_input(self) -> bool:
+        """Whether the policy reads a ``Dict`` observation (the pixel observation)."""
+        return self.observation_space["type"] == "Dict"
 
 
 # --------------------------------------------------------------------------- validation
@@ -203,7 +225,9 @@ def _check_net_arch(value: Any, where: str) -> None:
     )
 
 
-def _check_policy_kwargs(kwargs: Any, algorithm: str, where: str) -> dict[str, Any]:
+def _check_policy_kwargs(
+    kwargs: Any, algorithm: str, where: str, multi_input: bool = False
+) -> dict[str, Any]:
     if not isinstance(kwargs, dict):
         raise _fail(where, "policy_kwargs", kwargs, "a mapping of policy keyword arguments")
     for key, value in kwargs.items():
@@ -222,7 +246,8 @@ def _check_policy_kwargs(kwargs: Any, algorithm: str, where: str) -> dict[str, A
             raise _fail(where, name, value, "a finite number")
         elif key in _INT_KWARGS and not (_is_int(value) and 1 <= value <= 1000):
             raise _fail(where, name, value, "an integer in 1..1000")
-    accepted = set(inspect.signature(_policy_class(algorithm, where).__init__).parameters)
+    policy_class = _policy_class(algorithm, where, multi_input)
+    accepted = set(inspect.signature(policy_class.__init__).parameters)
     accepted.add("features_extractor")  # declared by name, built as features_extractor_class
     for key in kwargs:
         if key not in accepted:
@@ -254,9 +279,41 @@ def _check_box(value: Any, key: str, where: str) -> dict[str, Any]:
     return value
 
 
-def _check_normalization(value: Any, size: int, where: str) -> ObservationNormalizer | None:
+def _check_image_box(value: dict[str, Any], key: str, where: str) -> dict[str, Any]:
+    shape = value.get("shape")
+    if not (
+        isinstance(shape, list) and len(shape) == 3 and all(_is_int(n) and n >= 1 for n in shape)
+    ):
+        raise _fail(where, f"{key}.shape", shape, "[channels, height, width] (an image Box)")
+    if value.get("dtype") != IMAGE_DTYPE:
+        raise _fail(where, f"{key}.dtype", value.get("dtype"), f"{IMAGE_DTYPE} (an image Box)")
+    if value.get("low") != 0 or value.get("high") != 255:
+        bounds = [value.get("low"), value.get("high")]
+        raise _fail(where, f"{key}.low/high", bounds, "0 and 255 (an image Box)")
+    return value
+
+
+def _check_observation_space(value: Any, where: str) -> dict[str, Any]:
+    """A flat Box, or a Dict of named Boxes each flat or an image (the pixel observation)."""
+    key = "observation_space"
+    if not (isinstance(value, dict) and value.get("type") == "Dict"):
+        return _check_box(value, key, where)
+    spaces = value.get("spaces")
+    if not (isinstance(spaces, dict) and spaces and all(isinstance(k, str) for k in spaces)):
+        raise _fail(where, f"{key}.spaces", spaces, "a mapping of names to Box declarations")
+    for name, box in spaces.items():
+        if isinstance(box, dict) and isinstance(box.get("shape"), list) and len(box["shape"]) == 3:
+            _check_image_box(box, f"{key}.spaces.{name}", where)
+        else:
+            _check_box(box, f"{key}.spaces.{name}", where)
+    return value
+
+
+def _check_normalization(value: Any, size: int | None, where: str) -> ObservationNormalizer | None:
     if value is None:
         return None
+    if size is None:
+        raise _fail(where, "normalization", value, "null for a Dict observation")
     if not isinstance(value, dict) or set(value) != {"mean", "var", "epsilon", "clip_obs"}:
         raise _fail(where, "normalization", value, "null or {mean, var, epsilon, clip_obs}")
     for key in ("mean", "var"):
@@ -289,16 +346,18 @@ def parse_declaration(data: dict[str, Any], where: str) -> PolicyDeclaration:
     algorithm = str(data.get("algorithm", "")).upper()
     if algorithm not in POLICY_CLASSES:
         raise _fail(where, "algorithm", data.get("algorithm"), ", ".join(POLICY_CLASSES))
-    observation_space = _check_box(data.get("observation_space"), "observation_space", where)
+    observation_space = _check_observation_space(data.get("observation_space"), where)
     action_space = _check_box(data.get("action_space"), "action_space", where)
+    multi_input = observation_space["type"] == "Dict"
+    size = None if multi_input else observation_space["shape"][0]
     return PolicyDeclaration(
         algorithm=algorithm,
-        policy_kwargs=_check_policy_kwargs(data.get("policy_kwargs", {}), algorithm, where),
+        policy_kwargs=_check_policy_kwargs(
+            data.get("policy_kwargs", {}), algorithm, where, multi_input
+        ),
         observation_space=observation_space,
         action_space=action_space,
-        normalization=_check_normalization(
-            data.get("normalization"), observation_space["shape"][0], where
-        ),
+        normalization=_check_normalization(data.get("normalization"), size, where),
     )
 
 
@@ -312,8 +371,10 @@ def _feature_extractors() -> dict[str, Any]:
     return FEATURE_EXTRACTORS
 
 
-def _policy_class(algorithm: str, where: str) -> Any:
-    module_name, class_name = POLICY_CLASSES[algorithm]
+def _policy_class(algorithm: str, where: str, multi_input: bool = False) -> Any:
+    module_name, class_name = (MULTI_INPUT_POLICY_CLASSES if multi_input else POLICY_CLASSES)[
+        algorithm
+    ]
     try:
         return getattr(importlib.import_module(module_name), class_name)
     except ImportError:
@@ -326,7 +387,12 @@ def _policy_class(algorithm: str, where: str) -> Any:
 def _box(declared: dict[str, Any]) -> Any:
     from gymnasium import spaces
 
+    if declared["type"] == "Dict":
+        return spaces.Dict({name: _box(box) for name, box in declared["spaces"].items()})
     dtype = np.dtype(declared["dtype"])
+    if len(declared["shape"]) > 1:  # an image: one bound for every entry
+        shape = tuple(declared["shape"])
+        return spaces.Box(declared["low"], declared["high"], shape=shape, dtype=dtype)
     low = np.array(declared["low"], dtype=dtype)
     high = np.array(declared["high"], dtype=dtype)
     return spaces.Box(low=low, high=high, dtype=dtype)
@@ -349,7 +415,7 @@ def build_policy(declaration: PolicyDeclaration, where: str) -> Any:
         kwargs["activation_fn"] = getattr(nn, ACTIVATIONS[kwargs["activation_fn"]])
     if "features_extractor" in kwargs:
         kwargs["features_extractor_class"] = _feature_extractors()[kwargs.pop("features_extractor")]
-    policy_class = _policy_class(declaration.algorithm, where)
+    policy_class = _policy_class(declaration.algorithm, where, declaration.multi_input)
     with torch.random.fork_rng(devices=[]):
         try:
             policy = policy_class(
@@ -433,8 +499,22 @@ def _activation_name(activation: Any) -> str:
 def _space_json(space: Any) -> dict[str, Any]:
     from gymnasium import spaces
 
+    if isinstance(space, spaces.Dict):
+        return {"type": "Dict", "spaces": {k: _space_json(v) for k, v in space.spaces.items()}}
+    image = (
+        isinstance(space, spaces.Box)
+        and len(space.shape) == 3
+        and space.dtype == np.dtype(IMAGE_DTYPE)
+        and bool((space.low == 0).all() and (space.high == 255).all())
+    )
+    if image:
+        shape = [int(n) for n in space.shape]
+        return {"type": "Box", "shape": shape, "dtype": IMAGE_DTYPE, "low": 0, "high": 255}
     if not isinstance(space, spaces.Box) or len(space.shape) != 1:
-        raise PolicyLoadError(f"only flat Box spaces can be declared, not {space}")
+        raise PolicyLoadError(
+            f"only flat Box spaces, uint8 images (0-255) and Dicts of them can be declared, "
+            f"not {space}"
+        )
     return {
         "type": "Box",
         "shape": [int(space.shape[0])],

@@ -46,6 +46,7 @@ import numpy as np
 import yaml
 
 from capture_bench.agents.policy_file import (
+    MULTI_INPUT_POLICY_CLASSES,
     POLICY_CLASSES,
     ObservationNormalizer,
     PolicyDeclaration,
@@ -55,6 +56,8 @@ from capture_bench.agents.policy_file import (
     parse_declaration,
     read_weights,
 )
+from capture_bench.sensing.sources import PIXELS
+from capture_bench.sensing.workspace_image import IMAGE_SIZE
 
 ALGORITHMS = tuple(POLICY_CLASSES)
 METADATA_FILES = ("metadata.json", "metadata.yaml", "metadata.yml")
@@ -98,6 +101,21 @@ class ModelMetadata:
     vecnormalize_file: Path | None = None
     residual: tuple[str, float] | None = None
     actions: str = "deterministic"
+
+    @property
+    def image_size(self) -> tuple[int, int] | None:
+        """The (width, height) of the images the policy sees, where it observes pixels
+        (``observation_source: pixels``, or a declared ``Dict`` observation with an image);
+        None where it observes an estimate."""
+        declared = self.declaration.observation_space if self.declaration else None
+        if declared is not None and declared["type"] == "Dict":
+            for box in declared["spaces"].values():
+                if len(box["shape"]) == 3:
+                    _, height, width = box["shape"]
+                    return (width, height)
+        if self.observation_source == PIXELS:  # an SB3 .zip only: the env's default image
+            return IMAGE_SIZE
+        return None
 
     @property
     def files(self) -> list[Path]:
@@ -283,8 +301,12 @@ def load_policy(metadata: ModelMetadata, trust_model: bool = False) -> LoadedPol
     return load_trusted(metadata)
 
 
-#: The SB3 policy class each algorithm's ``.zip`` holds.
-_POLICY_CLASS_NAMES = {algorithm: name for algorithm, (_, name) in POLICY_CLASSES.items()}
+#: The SB3 policy classes each algorithm's ``.zip`` may hold (a Box or a Dict observation).
+_POLICY_CLASS_NAMES = [
+    (algorithm, name)
+    for table in (POLICY_CLASSES, MULTI_INPUT_POLICY_CLASSES)
+    for algorithm, (_, name) in table.items()
+]
 
 
 def _zip_policy_class(model_file: Path) -> tuple[str, set[str]] | None:
@@ -308,7 +330,7 @@ def _check_zip_algorithm(metadata: ModelMetadata) -> None:
     if found is None:
         return
     class_name, keys = found
-    held = [a for a, name in _POLICY_CLASS_NAMES.items() if name == class_name]
+    held = [a for a, name in _POLICY_CLASS_NAMES if name == class_name]
     if "PPO" in held:  # PPO and A2C share ActorCriticPolicy; only PPO saves a clip range
         held = ["PPO"] if "clip_range" in keys else [a for a in held if a != "PPO"]
     if metadata.algorithm not in held:
@@ -397,6 +419,15 @@ def check_spaces(model: Any, observation_space: Any, action_space: Any, where: s
         ("observation", model.observation_space, observation_space),
         ("action", model.action_space, action_space),
     ):
+        pixels = [type(space).__name__ == "Dict" for space in (ours, theirs)]
+        if kind == "observation" and pixels[0] != pixels[1]:
+            sees, needs = ("the camera's pixels", "estimate") if pixels[0] else (
+                "the estimate", "pixels")  # fmt: skip
+            fix = "observation_source='pixels'" if pixels[0] else "an estimator source"
+            raise PolicyLoadError(
+                f"{where}: the model observes {sees} ({_describe(ours)}), the environment gives "
+                f"the {needs} ({_describe(theirs)}); make the environment with {fix}"
+            )
         if not _same_box(ours, theirs):
             raise PolicyLoadError(
                 f"{where}: model {kind} space {_describe(ours)} does not match the "
@@ -498,6 +529,10 @@ class SB3Policy:
         (torch's one generator draws in row order)."""
         from capture_bench.agents.row_exact import row_exact_layers
 
+        if isinstance(observations, dict):  # pixels: a convolution's rows depend on the batch
+            n = len(next(iter(observations.values())))
+            rows = ({key: value[i] for key, value in observations.items()} for i in range(n))
+            return np.stack([self.predict(row)[0] for row in rows])
         obs = np.asarray(observations)
         if self.sampled:
             return np.stack([self.predict(row)[0] for row in obs])

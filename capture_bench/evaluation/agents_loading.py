@@ -27,6 +27,7 @@ from typing import Any
 
 from capture_bench.evaluation.errors import AgentSpecError
 from capture_bench.paths import models_dir
+from capture_bench.sensing.sources import PIXELS
 
 MODELS_DIR = models_dir()  # models/: see capture_bench.paths
 MODELS_GLOB = "models/*"
@@ -48,6 +49,9 @@ class AgentSpec:
         privileged: the agent reads ground truth (the oracle): reported, not ranked.
         trust_model: a model may be loaded from an SB3 ``.zip`` (unpickled) where the directory
             has no safe form; the user opted in.
+        image_size: (width, height) of the images a model that observes the camera's pixels
+            sees (its episodes play in envs with ``observation_source="pixels"``); None for
+            every agent that observes the estimate.
     """
 
     spec: str
@@ -56,6 +60,13 @@ class AgentSpec:
     target: str
     privileged: bool = False
     trust_model: bool = False
+    image_size: tuple[int, int] | None = None
+
+    def env_options(self) -> dict[str, Any]:
+        """The env keyword arguments this agent's episodes play with (what it observes)."""
+        if self.image_size is None:
+            return {}
+        return {"observation_source": PIXELS, "image_size": self.image_size}
 
 
 def builtin_names() -> list[str]:
@@ -106,8 +117,11 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
             label = candidate.resolve().name
             if label in builtin_names():
                 label = f"model:{label}"
-            label += _model_kind(candidate)
-            return AgentSpec(spec, label, "model", str(candidate.resolve()), False, trust_model)
+            kind, image_size = _model_kind(candidate)
+            return AgentSpec(
+                spec, label + kind, "model", str(candidate.resolve()), False, trust_model,
+                image_size,
+            )  # fmt: skip
         if candidate.suffix == ".zip" and candidate.is_file():
             raise AgentSpecError(
                 f"agent {spec!r}: name the model's directory ({candidate.parent}), which must "
@@ -128,20 +142,23 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
     raise AgentSpecError(f"unknown agent {spec!r}; {_valid_specs()}")
 
 
-def _model_kind(directory: Path) -> str:
+def _model_kind(directory: Path) -> tuple[str, tuple[int, int] | None]:
     """What a model row says beside its name: `` (hybrid)`` for a residual on an analytic
-    controller, `` (sampled)`` for a model card declaring sampled actions (nothing for the
-    leaderboard's rule, deterministic actions); a bad metadata file is reported later."""
+    controller, `` (pixels)`` for a policy that sees the camera's image, `` (sampled)`` for a
+    model card declaring sampled actions (nothing for the leaderboard's rule, deterministic
+    actions); and the size of the images it sees (None: it sees the estimate). A bad metadata
+    file is reported later."""
     from capture_bench.agents.policy_file import PolicyLoadError
     from capture_bench.agents.sb3_policy import read_metadata
 
     try:
         metadata = read_metadata(directory)
     except PolicyLoadError:
-        return ""
-    return (" (hybrid)" if metadata.residual else "") + (
-        " (sampled)" if metadata.actions == "sampled" else ""
-    )
+        return "", None
+    size = metadata.image_size
+    sampled = metadata.actions == "sampled"
+    words = [(metadata.residual, "hybrid"), (size, "pixels"), (sampled, "sampled")]
+    return "".join(f" ({word})" for flag, word in words if flag), size
 
 
 def _python_factory(target: str) -> Any:

@@ -130,17 +130,25 @@ def scenario_label(scenario: str) -> str:
     return scenario
 
 
-def _env(scenario: str) -> Any:
-    if scenario not in _ENVS:
-        _ENVS[scenario] = make_env(scenario, reuse_target_side=True, episode_cache=_RECORDINGS)
-    return _ENVS[scenario]
+def _env(scenario: str, spec: AgentSpec) -> Any:
+    """This process's single env of ``scenario`` for ``spec``'s observation (the estimate, or
+    the camera's pixels), cached."""
+    options = spec.env_options()
+    key = f"{scenario}{options}"
+    if key not in _ENVS:
+        _ENVS[key] = make_env(
+            scenario, reuse_target_side=True, episode_cache=_RECORDINGS, **options
+        )
+    return _ENVS[key]
 
 
-def _vector_env(scenario: str, n: int) -> Any:
-    """This process's batched env of ``n`` sub-envs of ``scenario``, autoreset off (cached for
-    the process's life, as the single envs are). It records each seed's target side as the
-    single env does (``reference_target_side``), once: the chunk's other agents replay it."""
-    key = f"{scenario}#{n}"
+def _vector_env(scenario: str, n: int, spec: AgentSpec) -> Any:
+    """This process's batched env of ``n`` sub-envs of ``scenario`` for ``spec``'s observation,
+    autoreset off (cached for the process's life, as the single envs are). It records each
+    seed's target side as the single env does (``reference_target_side``), once: the chunk's
+    other agents replay it."""
+    options = spec.env_options()
+    key = f"{scenario}#{n}{options}"
     if key not in _ENVS:
         from gymnasium.vector import AutoresetMode
 
@@ -153,6 +161,7 @@ def _vector_env(scenario: str, n: int) -> Any:
             autoreset_mode=AutoresetMode.DISABLED,
             reference_target_side=True,
             episode_cache=_RECORDINGS,
+            **options,
         )
     return _ENVS[key]
 
@@ -164,7 +173,8 @@ def close_envs() -> None:
     _RECORDINGS.clear()
 
 
-def _spec(task: EpisodeTask) -> AgentSpec:
+def task_spec(task: EpisodeTask) -> AgentSpec:
+    """The task's agent spec, resolved once per process."""
     key = (task.agent, task.trust_model)
     if key not in _SPECS:
         _SPECS[key] = resolve_agent(task.agent, trust_model=task.trust_model)
@@ -179,8 +189,8 @@ def run_task(
     ``env``: run on this environment of the task's scenario instead of the cached one (a
     rendering one, :mod:`capture_bench.evaluation.video`), by the same steps: the same episode.
     """
-    spec = _spec(task)
-    env = _env(task.scenario) if env is None else env
+    spec = task_spec(task)
+    env = _env(task.scenario, spec) if env is None else env
     agent = build_agent(spec, env, task.seed)
     return run_episode(
         env,
@@ -209,11 +219,11 @@ def run_batch(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
     the single env's records (tested).
     """
     first = tasks[0]
-    spec = _spec(first)
+    spec = task_spec(first)
     seeds = [task.seed for task in tasks]
     if spec.privileged or declares_sampled_actions(spec) or _rendered(first.scenario):
         return [run_task(task)[0] for task in tasks]
-    env = _vector_env(first.scenario, len(seeds))
+    env = _vector_env(first.scenario, len(seeds), spec)
     agent = build_agent(spec, env, seeds[0])
     if not (getattr(agent, "batched", False) or callable(getattr(agent, "predict_rows", None))):
         agent = [agent, *(build_agent(spec, env, seed) for seed in seeds[1:])]

@@ -200,12 +200,16 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     to_check = [s for s in specs if s.kind != "builtin"]
     if to_check:
         for name in scenarios:
-            env = make_env(name)
+            envs: dict[str, Any] = {}  # each spec checked in the env it plays in
             try:
                 for spec in to_check:
-                    check_agent(spec, env, name)
+                    key = str(spec.env_options())
+                    if key not in envs:
+                        envs[key] = make_env(name, **spec.env_options())
+                    check_agent(spec, envs[key], name)
             finally:
-                env.close()
+                for env in envs.values():
+                    env.close()
     tasks = [
         EpisodeTask(spec.spec, name, seed, spec.trust_model)
         for spec in specs

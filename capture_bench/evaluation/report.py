@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from capture_bench.evaluation import plots, summary, vision, watch
+from capture_bench.evaluation import pixel_comparison, plots, summary, vision, watch
 from capture_bench.evaluation.aggregate import (
     RANKING_RULE,
     RankingRow,
@@ -31,6 +31,7 @@ from capture_bench.evaluation.aggregate import (
     summary_row,
 )
 from capture_bench.evaluation.metrics import Estimate
+from capture_bench.evaluation.paired import Paired, PairedSection
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
 from capture_bench.provenance import REPRODUCIBILITY, provenance_text
 
@@ -186,44 +187,40 @@ NOTES = (
 )
 
 
-VISION_HEADER = (
-    "agent",
-    "paired seeds",
-    "capture rate, analytic",
-    "capture rate, rendered",
-    "Δ capture rate",
-    "captured by analytic only / rendered only / both",
-    "median ratio, analytic",
-    "median ratio, rendered",
-    "paired Δ ratio",
-)
-
-
-def vision_cells(c: vision.VisionComparison, reference: str) -> list[str]:
-    """One row of a rendered-vs-analytic table (:mod:`capture_bench.evaluation.vision`)."""
+def paired_cells(c: Paired, first: str, reference: str) -> list[str]:
+    """One row of a paired table (:mod:`capture_bench.evaluation.paired`), labelled by the
+    comparison's attribute ``first``."""
+    label = getattr(c, first)
     return [
-        c.agent + (" (reference)" if c.agent == reference else ""),
+        label + (" (reference)" if label == reference else ""),
         str(c.seeds),
-        f"{c.captured_analytic}/{c.seeds} = {fmt_estimate(c.capture_rate_analytic)}",
-        f"{c.captured_rendered}/{c.seeds} = {fmt_estimate(c.capture_rate_rendered)}",
+        f"{c.captured_a}/{c.seeds} = {fmt_estimate(c.capture_rate_a)}",
+        f"{c.captured_b}/{c.seeds} = {fmt_estimate(c.capture_rate_b)}",
         fmt_estimate(c.capture_rate_difference),
-        f"{c.only_analytic} / {c.only_rendered} / {c.both_captured}",
-        fmt_estimate(c.ratio_median_analytic),
-        fmt_estimate(c.ratio_median_rendered),
+        f"{c.only_a} / {c.only_b} / {c.both_captured}",
+        fmt_estimate(c.ratio_median_a),
+        fmt_estimate(c.ratio_median_b),
         fmt_estimate(c.ratio_difference),
     ]
 
 
-def vision_tables(data: ReportData) -> tuple[str, list[tuple[str, list[list[str]]]]]:
-    """The rendered-vs-analytic section (:mod:`capture_bench.evaluation.vision`): the sentence
-    naming the seeds left out ("" if none) and (``X vs X_rendered``, rows) per twin pair
-    evaluated on common seeds; no tables, no section."""
-    comparisons = vision.vision_comparisons(data.records)
-    tables: dict[str, list[list[str]]] = {}
-    for c in comparisons:
-        rows = tables.setdefault(f"{c.analytic} vs {c.rendered}", [])
-        rows.append(vision_cells(c, data.reference))
-    return vision.left_out_text(comparisons), list(tables.items())
+def paired_sections(data: ReportData) -> list[PairedSection]:
+    """The report's paired sections, where it holds what they compare: rendered against
+    analytic vision (:mod:`capture_bench.evaluation.vision`), pixels against the estimate
+    (:mod:`capture_bench.evaluation.pixel_comparison`)."""
+    models = data.provenance.get("config_hashes", {}).get("models", {})
+    found = (
+        vision.section(data.records),
+        pixel_comparison.section(data.records, data.reference, models),
+    )
+    return [s for s in found if s is not None]
+
+
+def _section_tables(section: PairedSection, reference: str) -> list[tuple[str, list[list[str]]]]:
+    return [
+        (title, [paired_cells(c, section.first, reference) for c in comparisons])
+        for title, comparisons in section.tables
+    ]
 
 
 def _md_table(header: Sequence[str], rows: list[list[str]]) -> list[str]:
@@ -275,11 +272,11 @@ def markdown(data: ReportData) -> str:
         lines += ["", f"## {scenario}", ""]
         lines += _md_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells])
         lines += ["", *_md_table(DETAIL_HEADER, [detail_cells(s) for s in cells])]
-    left_out, tables = vision_tables(data)
-    if tables:
-        lines += ["", f"## {vision.TITLE}", "", vision.TEXT, *(["", left_out] if left_out else [])]
-        for title, rows in tables:
-            lines += ["", f"### {title}", "", *_md_table(VISION_HEADER, rows)]
+    for section in paired_sections(data):
+        left_out = ["", section.left_out] if section.left_out else []
+        lines += ["", f"## {section.title}", "", section.text, *left_out]
+        for title, rows in _section_tables(section, data.reference):
+            lines += ["", f"### {title}", "", *_md_table(section.header, rows)]
     lines += ["", *watch.markdown_lines(data.videos)]
     lines += [f"Figures: {', '.join(figure_names(data))} (in this directory).", ""]
     lines += ["## Provenance", "", provenance_text(data.provenance), "", REPRODUCIBILITY, ""]
@@ -408,12 +405,11 @@ def html_page(data: ReportData, images: dict[str, bytes]) -> str:
         parts.append(f"<h2>{esc(scenario)}</h2>")
         parts.append(_html_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells]))
         parts.append(_html_table(DETAIL_HEADER, [detail_cells(s) for s in cells]))
-    left_out, tables = vision_tables(data)
-    if tables:
-        parts.append(f"<h2>{esc(vision.TITLE)}</h2><p>{esc(vision.TEXT)}</p>")
-        parts += [f"<p>{esc(left_out)}</p>"] if left_out else []
-        for title, rows in tables:
-            parts.append(f"<h3>{esc(title)}</h3>" + _html_table(VISION_HEADER, rows))
+    for section in paired_sections(data):
+        parts.append(f"<h2>{esc(section.title)}</h2><p>{esc(section.text)}</p>")
+        parts += [f"<p>{esc(section.left_out)}</p>"] if section.left_out else []
+        for title, rows in _section_tables(section, data.reference):
+            parts.append(f"<h3>{esc(title)}</h3>" + _html_table(section.header, rows))
     parts.append(watch.html_section(data.videos))
     parts.append("<h2>Figures</h2>")
     parts += [
@@ -460,9 +456,8 @@ def _write_all(data: ReportData, directory: Path, images: dict[str, bytes] | Non
         "results": rows,
         "provenance": data.provenance,
     }
-    comparisons = vision.vision_comparisons(data.records)
-    if comparisons:  # only where the report holds a scenario and its rendered twin
-        payload["vision"] = [vision.comparison_row(c) for c in comparisons]
+    for section in paired_sections(data):  # only where the report holds what they compare
+        payload[section.key] = section.rows()
     text = json.dumps(_sanitise(payload), indent=2, default=str, allow_nan=False)
     (directory / "results.json").write_text(text + "\n")
 

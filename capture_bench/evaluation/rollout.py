@@ -356,13 +356,13 @@ def run_episodes(
         if each:
             for i in rows:
                 actions[i], states[i] = agents[i].predict(
-                    obs[i],
+                    _rows(obs, i),
                     state=states[i],
                     episode_start=np.full((1,), first),
                     deterministic=deterministic,
                 )
         elif rows_of is not None:  # each row as alone, so only the running episodes' rows
-            actions[rows] = rows_of(obs[rows])
+            actions[rows] = rows_of(_rows(obs, rows))
         else:  # every row, so that row i is always episode i; an ended one's is ignored
             batch, states[0] = agents[0].predict(
                 obs,
@@ -408,6 +408,14 @@ def run_episodes(
             )
         )
     return records
+
+
+def _rows(obs: Any, index: Any) -> Any:
+    """Rows ``index`` of a batch of observations: an array's, or each entry's of a dict (the
+    pixel observation's image and state)."""
+    if isinstance(obs, dict):
+        return {key: value[index] for key, value in obs.items()}
+    return obs[index]
 
 
 def _root_mean(squares: list[float]) -> float:

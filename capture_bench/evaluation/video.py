@@ -26,7 +26,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from capture_bench.evaluation.backends import EpisodeTask, make_env, run_task
+from capture_bench.evaluation.backends import EpisodeTask, make_env, run_task, task_spec
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.files import atomic_write, episode_file_name
 
@@ -124,7 +124,13 @@ def record_video(
             long episode to :data:`MAX_FRAMES`; None renders every step.
         size: frame (width, height), pixels.
     """
-    env = make_env(task.scenario, reuse_target_side=True, render_mode="rgb_array", render_size=size)
+    env = make_env(
+        task.scenario,
+        reuse_target_side=True,
+        render_mode="rgb_array",
+        render_size=size,
+        **task_spec(task).env_options(),
+    )
     recorder = FrameRecorder(env, frame_stride(steps))
     try:
         record, _ = run_task(task, env=recorder)

@@ -283,6 +283,7 @@ class Progress(BaseCallback):
             ``estimate_position_error_m`` (m).
         """
         from capture_bench.envs.vector_env import CaptureVectorEnv
+        from capture_bench.training.hyperparameters import image_size
         from capture_bench.training.mixture import mixture_scenarios
         from capture_bench.training.validation_run import run_validation
 
@@ -298,6 +299,7 @@ class Progress(BaseCallback):
                     scenario,
                     observation_source=self.config.observation_source,
                     reward=self.hp["reward"],
+                    image_size=image_size(self.hp),
                 )
             env = self._envs[scenario.name]
             predictor: Any = self.model

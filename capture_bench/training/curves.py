@@ -13,6 +13,11 @@ seeds, and writes one report page, ``learning_curves.md`` and a self-contained
   did, and how many did);
 * the machine the runs were measured on.
 
+With ``--pixels`` each algorithm has a second arm, ``<algo>-pixels``: the same algorithm trained
+on the camera's pixels (``--observation-source pixels --config configs/pixels/<algo>.yaml``), its
+runs validated on the same seeds, so the page draws the pixel-fed and the estimate-fed curves
+side by side.
+
 Every number comes from the runs' ``validations.csv`` (written by train.py's periodic
 validation: :data:`capture_bench.training.policy_export.VALIDATIONS_FILE`), so the page is
 regenerated without training again. Validation seeds only: nothing here reads a published
@@ -353,15 +358,30 @@ def run_path(runs: Path, scenario: str, algo: str, seed: int) -> Path:
     return runs / f"{scenario}-{algo}-{seed}"
 
 
+PIXEL_ARM = "-pixels"  # an arm <algo>-pixels: <algo> trained on the camera's pixels
+
+
+def arm_options(arm: str) -> tuple[str, list[str]]:
+    """The algorithm of an arm (``ppo``, or ``ppo-pixels``) and the train.py options it adds."""
+    if not arm.endswith(PIXEL_ARM):
+        return arm, []
+    from capture_bench.training.run import pixel_config
+
+    algo = arm.removesuffix(PIXEL_ARM)
+    return algo, ["--observation-source", "pixels", "--config", str(pixel_config(algo))]
+
+
 def train_runs(
-    runs: Path, scenario: str, algos: list[str], seeds: list[int], extra: list[str]
+    runs: Path, scenario: str, arms: list[str], seeds: list[int], extra: list[str]
 ) -> int:
-    """Train (or resume) every run that has not finished; the first non-zero exit status."""
+    """Train (or resume) every run of each arm that has not finished; the first non-zero exit
+    status."""
     from capture_bench.training.run import main as train_main
 
-    for algo in algos:
+    for arm in arms:
+        algo, options = arm_options(arm)
         for seed in seeds:
-            run_dir = run_path(runs, scenario, algo, seed)
+            run_dir = run_path(runs, scenario, arm, seed)
             if (run_dir / "metadata.json").is_file():
                 print(f"{run_dir}: finished; kept")
                 continue
@@ -377,6 +397,7 @@ def train_runs(
                     str(seed),
                     "--run-dir",
                     str(run_dir),
+                    *options,
                     *extra,
                 ]
             status = train_main(argv)
@@ -410,6 +431,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="SEED",
         help="training seeds (default: 0 1 2)",
     )
+    parser.add_argument(
+        "--pixels",
+        action="store_true",
+        help="a second arm per algorithm, <algo>-pixels, trained on the camera's pixels "
+        "(configs/pixels/<algo>.yaml; ppo and a2c)",
+    )
     parser.add_argument("--scenario", default="paper", help="scenario (default: paper)")
     parser.add_argument(
         "--runs", default="runs/curves", help="run directories (default: runs/curves)"
@@ -440,14 +467,22 @@ def main(argv: list[str] | None = None) -> int:
             check_training_seed(seed, load_scenario(args.scenario))
         runs, out = Path(args.runs), Path(args.out)
         check_writable(out, "--out")
+        arms = list(args.algos) + [a + PIXEL_ARM for a in args.algos if args.pixels]
+        for arm in arms:
+            _, options = arm_options(arm)
+            if options and not Path(options[-1]).is_file():
+                raise ConfigError(
+                    f"--pixels: {arm.removesuffix(PIXEL_ARM)} has no pixel hyper-parameters "
+                    f"({options[-1]} is missing); ppo has configs/pixels/ppo.yaml"
+                )
         if args.train:
             check_writable(runs, "--runs")
             extra = [f"--set={item}" for item in args.overrides or []]
-            status = train_runs(runs, args.scenario, list(args.algos), list(args.seeds), extra)
+            status = train_runs(runs, args.scenario, arms, list(args.seeds), extra)
             if status:
                 return status
         command = "python -m capture_bench curves " + " ".join(args_list)
-        page = report(runs, out, args.scenario, list(args.algos), list(args.seeds), command)
+        page = report(runs, out, args.scenario, arms, list(args.seeds), command)
     except ConfigError as exc:
         print(f"curves: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2

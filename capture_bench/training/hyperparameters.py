@@ -45,6 +45,13 @@ SB3_N_STEPS = {"ppo": 2048, "a2c": 5}
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 
 
+#: SB3 policy names a file may give: ``MlpPolicy`` for the estimate's Box observation,
+#: ``MultiInputPolicy`` for the pixel observation's ``Dict`` (train.py pairs each with its source).
+POLICIES = ("MlpPolicy", "MultiInputPolicy")
+#: The features extractor each policy reads its observation with, where the file gives none.
+DEFAULT_FEATURES = {"MlpPolicy": "flatten", "MultiInputPolicy": "combined"}
+DICT_FEATURES = ("combined",)  # those that read a Dict observation
+
 # Counts SB3 and numpy hold as machine integers: at most 2**53 (exact as a float, fits an int64).
 MOST = 2**53
 POS_INT, NONNEG_INT = Rule("int", 1, MOST), Rule("int", 0, MOST)
@@ -52,7 +59,8 @@ UNIT, NONNEG = Rule("float", 0.0, 1.0), Rule("float", 0.0)
 TRAINING_KEYS = {
     "n_envs": POS_INT,
     "total_timesteps": POS_INT,
-    "policy": Rule("choice", choices=("MlpPolicy",)),
+    # MultiInputPolicy: the pixel observation's Dict (image and arm state), with ``combined``
+    "policy": Rule("choice", choices=POLICIES),
     "policy_kwargs": Rule("mapping"),
     "normalize": Rule("bool"),
     "reward": Rule("choice", choices=REWARD_MODES),
@@ -71,6 +79,8 @@ TRAINING_KEYS = {
     "curriculum_hold": Rule("float", 0.0, 10.0),
     "curriculum_steps": POS_INT,
     "curriculum_delay": NONNEG_INT,  # steps at the starting value before either curriculum moves
+    # with observation_source pixels: the image's side, pixels (square; 924 at most, the crop's)
+    "image_size": Rule("int", 8, 924),
 }
 #: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
 CURRICULA = ("curriculum_tolerance", "curriculum_hold")
@@ -132,7 +142,7 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
 }
 #: Features the network computes from the observation: the keys of
 #: capture_bench.agents.features.FEATURE_EXTRACTORS (which imports torch; tests check they agree).
-FEATURES = ("flatten", "relative_log_distance")
+FEATURES = ("flatten", "relative_log_distance", "combined")
 _NET = {
     "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
     "features_extractor": Rule("choice", choices=FEATURES),
@@ -171,7 +181,7 @@ def validate_hyperparameters(
     required = dict.fromkeys(("n_envs", "total_timesteps"), POS_INT.describe())
     out = check_mapping(data, _schema(algo), source, required=required)
     features = out.get("policy_kwargs", {}).get("features_extractor", "flatten")
-    if features != "flatten" and out.get("normalize"):
+    if features not in ("flatten", *DICT_FEATURES) and out.get("normalize"):
         raise ConfigError(
             f"{source}: key 'policy_kwargs.features_extractor': {features!r}"
             + (f" (from {features_from}, under this file)" if features_from else "")
@@ -180,6 +190,15 @@ def validate_hyperparameters(
         )
     out.setdefault("policy", "MlpPolicy")
     out.setdefault("policy_kwargs", {})
+    dict_policy = out["policy"] == "MultiInputPolicy"
+    if dict_policy != (features in DICT_FEATURES) and "features_extractor" in out["policy_kwargs"]:
+        fits = [f for f in FEATURES if (f in DICT_FEATURES) == dict_policy]
+        raise ConfigError(
+            f"{source}: key 'policy_kwargs.features_extractor': {features!r}"
+            + (f" (from {features_from}, under this file)" if features_from else "")
+            + f" does not read the observation of policy {out['policy']}; valid: "
+            + ", ".join(fits)
+        )
     out.setdefault("normalize", False)
     out.setdefault("reward", "dense")
     out.setdefault("checkpoint_freq", 0)
@@ -406,6 +425,15 @@ def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
 
         kwargs["action_noise"] = NormalActionNoise(np.zeros(3), np.full(3, hp["action_noise_std"]))
     return kwargs
+
+
+def image_size(hp: dict[str, Any]) -> tuple[int, int]:
+    """The pixel observation's (width, height): ``image_size`` (square) where ``hp`` gives it,
+    else the env's default."""
+    from capture_bench.sensing.workspace_image import IMAGE_SIZE
+
+    side = hp.get("image_size")
+    return IMAGE_SIZE if side is None else (side, side)
 
 
 def _linear(initial: float) -> Any:

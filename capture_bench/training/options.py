@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from capture_bench.argparsing import OneLineParser
+from capture_bench.sensing.sources import ENV_OBSERVATIONS
 from capture_bench.task.rewards import REWARD_MODES
-from capture_bench.task.scenarios import OBSERVATION_SOURCES
 from capture_bench.training.hyperparameters import ALGORITHMS
 
 
@@ -52,7 +52,10 @@ class TrainConfig:
         None, "seed; must be one of the scenario's training seeds (default: the first)"
     )
     observation_source: str | None = _opt(
-        None, "target estimate the agent sees (default: the scenario's)", OBSERVATION_SOURCES
+        None,
+        "what the agent sees: a target estimate (default: the scenario's), or pixels: the "
+        "camera's image and the arm's state (with --config configs/pixels/<algo>.yaml)",
+        ENV_OBSERVATIONS,
     )
     run_dir: str | None = _opt(
         None,

@@ -33,7 +33,8 @@ from typing import Any
 from capture_bench.argparsing import program
 from capture_bench.files import atomic_write, check_writable
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
-from capture_bench.task.scenarios import OBSERVATION_SOURCES, ConfigError, load_scenario
+from capture_bench.sensing.sources import ENV_OBSERVATIONS, PIXELS
+from capture_bench.task.scenarios import CONFIG_DIR, ConfigError, load_scenario
 from capture_bench.training.checkpoint import (
     CheckpointError,
     list_checkpoints,
@@ -45,6 +46,7 @@ from capture_bench.training.hyperparameters import (
     CURRICULA,
     OFF_POLICY,
     algorithm_class,
+    image_size,
     planned_steps,
     resolve_hyperparameters,
     sb3_kwargs,
@@ -135,10 +137,10 @@ def _read_run_config(run_dir: Path) -> tuple[dict, TrainConfig]:
             or value < (1 if key == "n_envs" else 0)
         ):
             raise ConfigError(f"{saved}: key 'config.{key}' is {value!r}; valid: a whole number")
-    if old.observation_source is not None and old.observation_source not in OBSERVATION_SOURCES:
+    if old.observation_source is not None and old.observation_source not in ENV_OBSERVATIONS:
         raise ConfigError(  # None: a mixture, where each scenario keeps its own estimate
             f"{saved}: key 'config.observation_source' is {old.observation_source!r}; "
-            f"valid: {', '.join(OBSERVATION_SOURCES)}, or null for a mixture"
+            f"valid: {', '.join(ENV_OBSERVATIONS)}, or null for a mixture"
         )
     try:
         mixture_scenarios(str(old.scenario))  # one scenario, or a mixture ("all", "a,b")
@@ -221,6 +223,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     else:
         config.observation_source = config.observation_source or scenario.estimator.source
         check_curricula(hp, scenario)
+    check_observation(config, hp)
     kind = config.algo if hp["residual"] == "none" else f"{config.algo}-residual"
     name = mixture_name(config.scenario) if mixed else scenario.name
     if config.run_dir is None:
@@ -260,6 +263,53 @@ def free_run_dir(default: Path) -> Path:
         number += 1
         candidate = default.with_name(f"{default.name}_{number}")
     return candidate
+
+
+def pixel_config(algo: str) -> Path:
+    """The shipped hyper-parameters of ``algo`` on pixels (``configs/pixels/<algo>.yaml``; only
+    some algorithms have one)."""
+    return CONFIG_DIR / "pixels" / f"{algo}.yaml"
+
+
+def check_observation(config: TrainConfig, hp: dict) -> None:
+    """The policy fits what the agent observes: ``MultiInputPolicy`` (a CNN on the image beside
+    the arm state) for ``pixels``, ``MlpPolicy`` for an estimate; pixels train on-policy (an
+    off-policy replay buffer of 84 x 84 images would hold tens of GB), on one scenario, without a
+    residual base (it reads the estimate) and without ``normalize`` (the policy scales the image,
+    the state is of order one)."""
+    pixels = config.observation_source == PIXELS
+    given = f"--observation-source {config.observation_source}"
+    if pixels and is_mixture(config.scenario):
+        raise ConfigError(f"{given}: train pixels on one scenario, not {config.scenario}")
+    if pixels and config.algo in OFF_POLICY:
+        raise ConfigError(
+            f"{given}: {config.algo} keeps a replay buffer of images (tens of GB at 84 x 84); "
+            "train pixels with ppo or a2c"
+        )
+    from capture_bench.provenance import display_path
+
+    shipped = pixel_config(config.algo)
+    hint = f" (--config {display_path(shipped)})" if pixels and shipped.is_file() else ""
+    if pixels and hp["policy"] != "MultiInputPolicy":
+        raise ConfigError(
+            f"{given}: the agent sees a Dict (image, state), which policy {hp['policy']} cannot "
+            f"read; use policy MultiInputPolicy with features_extractor combined{hint}"
+        )
+    if not pixels and hp["policy"] == "MultiInputPolicy" and config.observation_source:
+        raise ConfigError(
+            f"policy MultiInputPolicy reads the pixel observation; train it with "
+            f"--observation-source pixels, or use MlpPolicy for {config.observation_source}"
+        )
+    for key, bad in (("residual", "none"), ("normalize", False)):
+        if pixels and hp[key] != bad:
+            raise ConfigError(
+                f"{given}: {key} {hp[key]} is not available with pixels; set {key}: {bad}"
+            )
+    if "image_size" in hp and not pixels:
+        raise ConfigError(
+            f"key 'image_size' sizes the pixel observation; train with --observation-source "
+            f"pixels, or drop it for {config.observation_source}"
+        )
 
 
 def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
@@ -395,7 +445,7 @@ def note_rounding(algo: str, hp: dict, done: int = 0) -> None:
               f"rounded up to {end}")  # fmt: skip
 
 
-def make_env(config: TrainConfig, reward: str, rank: int, subprocess: bool) -> Any:
+def make_env(config: TrainConfig, hp: dict, rank: int, subprocess: bool) -> Any:
     """A thunk building environment ``rank``: CaptureEnv with training seeds only."""
 
     def thunk() -> Any:
@@ -405,7 +455,12 @@ def make_env(config: TrainConfig, reward: str, rank: int, subprocess: bool) -> A
         from capture_bench.envs.capture_env import CaptureEnv
 
         scenario = load_scenario(config.scenario)
-        env = CaptureEnv(scenario, observation_source=config.observation_source, reward=reward)
+        env = CaptureEnv(
+            scenario,
+            observation_source=config.observation_source,
+            reward=hp["reward"],
+            image_size=image_size(hp),
+        )
         return TrainingSeeds(env, scenario, seed=(config.seed or 0) * 1000 + rank)
 
     return thunk
@@ -443,10 +498,11 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
             seed=config.seed or 0,
             observation_source=config.observation_source,
             reward=hp["reward"],
+            image_size=image_size(hp),
         )
     else:
         subprocess = config.vec_env == "subproc"
-        fns = [make_env(config, hp["reward"], i, subprocess) for i in range(n_envs)]
+        fns = [make_env(config, hp, i, subprocess) for i in range(n_envs)]
         venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
     venv = VecMonitor(venv)
     if hp["residual"] != "none":  # a hybrid: the policy's action is a residual on the base

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
 from capture_bench.envs.vector_env import CaptureVectorEnv, sub_env_infos
+from capture_bench.sensing.workspace_image import IMAGE_SIZE
 from capture_bench.task.scenarios import Scenario
 from capture_bench.training.seeds import TrainingSeedDraw
 
@@ -48,12 +49,15 @@ class CaptureSB3VecEnv(VecEnv):
         scenario: a shipped name, a YAML path or a ``Scenario``.
         seed: seeds the episode draws: sub-env i's with ``seed * 1000 + i``.
         observation_source: ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the
-            scenario's).
+            scenario's), or ``"pixels"``.
         reward: ``"dense"`` or ``"sparse"``.
+        image_size: with ``"pixels"``, the image's (width, height), pixels.
 
-    Observations: float32, (N, *single observation shape); actions: (N, 3) in [-1, 1] (as
-    ``CaptureEnv``). ``get_attr``/``set_attr``/``env_method`` reach the batched env's attributes,
-    the same for every sub-env, plus ``episode_seed`` (per sub-env, as ``TrainingSeeds``'s);
+    Observations: float32, (N, *single observation shape), or with pixels a dict of such arrays
+    (``image`` uint8 (N, 3, H, W), ``state`` float32 (N, 7)), each row of which is replaced
+    on a same-step reset; actions: (N, 3) in [-1, 1] (as ``CaptureEnv``).
+    ``get_attr``/``set_attr``/``env_method`` reach the batched env's attributes, the same for
+    every sub-env, plus ``episode_seed`` (per sub-env, as ``TrainingSeeds``'s);
     ``env_is_wrapped`` is False (no gymnasium wrapper inside).
     """
 
@@ -65,9 +69,14 @@ class CaptureSB3VecEnv(VecEnv):
         seed: int = 0,
         observation_source: str | None = None,
         reward: str = "dense",
+        image_size: tuple[int, int] = IMAGE_SIZE,
     ) -> None:
         self.venv = CaptureVectorEnv(
-            n_envs, scenario, observation_source=observation_source, reward=reward
+            n_envs,
+            scenario,
+            observation_source=observation_source,
+            reward=reward,
+            image_size=image_size,
         )
         self._draws = [TrainingSeedDraw(self.venv.scenario, seed * 1000 + i) for i in range(n_envs)]
         self.venv.set_episode_seeds(self._draws)
@@ -88,7 +97,7 @@ class CaptureSB3VecEnv(VecEnv):
         self.reset_infos = sub_env_infos(info, self.num_envs)
         self._reset_seeds()
         self._reset_options()
-        return obs.copy()
+        return _copy(obs)
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = actions
@@ -107,13 +116,13 @@ class CaptureSB3VecEnv(VecEnv):
         if dones.any():
             ended = np.flatnonzero(dones)
             for i in ended.tolist():
-                infos[i]["terminal_observation"] = obs[i].copy()
+                infos[i]["terminal_observation"] = _row(obs, i)
             new_obs, reset_info = self.venv.reset(options={"reset_mask": dones})
-            obs = np.where(dones[:, None], new_obs, obs)
+            obs = _replace_rows(obs, new_obs, dones)
             new_infos = sub_env_infos(reset_info, self.num_envs)
             for i in ended.tolist():
                 self.reset_infos[i] = new_infos[i]
-        return obs.copy(), rewards.astype(np.float32), dones, infos
+        return _copy(obs), rewards.astype(np.float32), dones, infos
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
         """Re-seed draw i with ``seed + i`` at the next :meth:`reset` (SB3's rule; a random
@@ -162,3 +171,27 @@ class CaptureSB3VecEnv(VecEnv):
     def episode_seeds(self) -> list[int | None]:
         """The training seed of each sub-env's current episode (None before :meth:`reset`)."""
         return self.venv.episode_seeds
+
+
+Batch = NDArray | dict[str, NDArray]  # (N, ...) observations, or a dict of them (pixels)
+
+
+def _copy(obs: Batch) -> Batch:
+    if isinstance(obs, dict):
+        return {key: value.copy() for key, value in obs.items()}
+    return obs.copy()
+
+
+def _row(obs: Batch, i: int) -> Any:
+    """Sub-env i's observation, copied (a dict of rows with pixels)."""
+    if isinstance(obs, dict):
+        return {key: value[i].copy() for key, value in obs.items()}
+    return obs[i].copy()
+
+
+def _replace_rows(obs: Batch, new: Batch, rows: NDArray[np.bool_]) -> Batch:
+    """``obs`` with the rows in ``rows`` taken from ``new``."""
+    if isinstance(obs, dict):
+        return {key: _replace_rows(value, new[key], rows) for key, value in obs.items()}
+    mask = rows.reshape(-1, *([1] * (obs.ndim - 1)))
+    return np.where(mask, new, obs)
