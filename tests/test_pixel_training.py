@@ -186,3 +186,29 @@ def test_a_declared_image_must_be_uint8_from_0_to_255(pixel_run):
     meta["normalization"] = {"mean": [0.0], "var": [1.0], "epsilon": 1e-8, "clip_obs": 10.0}
     with pytest.raises(PolicyLoadError, match="null for a Dict"):
         parse_declaration(meta, "m")
+
+
+def test_models_glob_leaves_pixel_models_to_be_named(pixel_run, tmp_path):
+    import shutil
+
+    from capture_bench.evaluation.agents_loading import expand_specs
+
+    shutil.copytree(pixel_run, tmp_path / "px", ignore=shutil.ignore_patterns("checkpoints", "tb"))
+    shutil.copytree("models/ppo-paper", tmp_path / "ppo-paper")
+    found = expand_specs(["incremental_ik", "models/*"], tmp_path)
+    assert found == ["incremental_ik", str(tmp_path / "ppo-paper")]
+    assert expand_specs([str(tmp_path / "px")], tmp_path) == [str(tmp_path / "px")]
+
+
+def test_shipping_a_pixel_run_writes_a_card_that_replays_in_pixel_envs(pixel_run, tmp_path):
+    from test_model_cards import _check_replay
+    from test_safe_models import _assert_same_actions
+
+    from capture_bench.training.model_card import ship
+
+    target = ship(pixel_run, "px", episodes=2, out=tmp_path / "models")
+    card = json.loads((target / "metadata.json").read_text())["model_card"]
+    _check_replay(target, card, count=2)
+    metadata = read_metadata(target)
+    safe, trusted = load_policy(metadata), load_trusted(metadata)
+    _assert_same_actions(SB3Policy(safe.policy), SB3Policy(trusted.policy))

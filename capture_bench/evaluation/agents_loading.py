@@ -88,10 +88,16 @@ def shipped_models(models_dir: Path = MODELS_DIR) -> list[str]:
 
 
 def expand_specs(specs: list[str], models_dir: Path = MODELS_DIR) -> list[str]:
-    """Replace ``models/*`` by every shipped model directory; drop duplicates, keep order."""
+    """Replace ``models/*`` by every shipped model directory whose model observes the estimate
+    (a model that sees the camera's pixels renders an image every step, tens of times an
+    estimate-fed step's work: it is named on its own, as the ``pixels`` suite does); drop
+    duplicates, keep order."""
     out: list[str] = []
+    glob: list[str] = []
+    if MODELS_GLOB in specs:
+        glob = [m for m in shipped_models(models_dir) if _model_kind(Path(m))[1] is None]
     for spec in specs:
-        for item in shipped_models(models_dir) if spec == MODELS_GLOB else [spec]:
+        for item in glob if spec == MODELS_GLOB else [spec]:
             if item not in out:
                 out.append(item)
     return out

@@ -23,6 +23,7 @@ from typing import Any
 
 from capture_bench.files import atomic_write
 from capture_bench.paths import models_dir
+from capture_bench.sensing.sources import PIXELS
 from capture_bench.task.scenarios import ConfigError, load_scenario
 from capture_bench.training.policy_export import BEST_DIR, VALIDATION_FILE
 
@@ -49,11 +50,16 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
     from capture_bench.training.episode_stats import summarize
     from capture_bench.training.validation_run import run_validation
 
-    loaded = load_policy(read_metadata(model_dir))
+    metadata = read_metadata(model_dir)
+    loaded = load_policy(metadata)
+    size = metadata.image_size  # a policy that sees pixels plays in pixel envs
+    options: dict[str, Any] = (
+        {} if size is None else {"observation_source": PIXELS, "image_size": size}
+    )
     played = []
     for start in range(0, len(seeds), CARD_BATCH):
         batch = seeds[start : start + CARD_BATCH]
-        env = CaptureVectorEnv(len(batch), scenario)
+        env = CaptureVectorEnv(len(batch), scenario, **options)
         try:
             played += run_validation(loaded.agent("card", env.description), env, batch)
         finally:
