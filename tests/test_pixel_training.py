@@ -164,6 +164,8 @@ def test_a_pixel_model_in_an_estimate_env_and_the_reverse_are_one_line(pixel_run
         (["--set", "policy=MultiInputPolicy", "--set", "policy_kwargs.features_extractor=combined"],
          ["--observation-source pixels"]),
         (["--set", "image_size=64"], ["image_size", "pixels"]),
+        (["--scenario", "all", "--set", "policy=MultiInputPolicy",
+          "--set", "policy_kwargs.features_extractor=combined"], ["--observation-source pixels"]),
         (["--set", "policy=MultiInputPolicy"], ["features_extractor", "combined"]),
     ],
 )  # fmt: skip

@@ -295,10 +295,11 @@ def check_observation(config: TrainConfig, hp: dict) -> None:
             f"{given}: the agent sees a Dict (image, state), which policy {hp['policy']} cannot "
             f"read; use policy MultiInputPolicy with features_extractor combined{hint}"
         )
-    if not pixels and hp["policy"] == "MultiInputPolicy" and config.observation_source:
+    if not pixels and hp["policy"] == "MultiInputPolicy":
+        seen = config.observation_source or "each scenario's estimate"
         raise ConfigError(
             f"policy MultiInputPolicy reads the pixel observation; train it with "
-            f"--observation-source pixels, or use MlpPolicy for {config.observation_source}"
+            f"--observation-source pixels, or use MlpPolicy for {seen}"
         )
     for key, bad in (("residual", "none"), ("normalize", False)):
         if pixels and hp[key] != bad:
@@ -306,9 +307,10 @@ def check_observation(config: TrainConfig, hp: dict) -> None:
                 f"{given}: {key} {hp[key]} is not available with pixels; set {key}: {bad}"
             )
     if "image_size" in hp and not pixels:
+        seen = config.observation_source or "each scenario's estimate"
         raise ConfigError(
             f"key 'image_size' sizes the pixel observation; train with --observation-source "
-            f"pixels, or drop it for {config.observation_source}"
+            f"pixels, or drop it for {seen}"
         )
 
 
