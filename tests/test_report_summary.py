@@ -85,3 +85,15 @@ def test_every_summary_plot_is_written_and_embedded_first(report):
         assert f"![{name}]({name})" in md
     assert max(positions) < html.index("<h2>Overall ranking</h2>")  # the summary comes first
     assert summary_text(data) in html and 'src="http' not in html
+
+
+def test_the_u_statistic_is_scipys_exactly():
+    from scipy.stats import mannwhitneyu
+
+    from capture_bench.evaluation.summary import mann_whitney_u
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        x = np.round(rng.uniform(0, 1, rng.integers(1, 120)), 1) * (rng.uniform(size=1) > 0.2)
+        y = np.round(rng.uniform(0, 1, rng.integers(1, 120)), 1)  # ties, zeros (failures)
+        assert mann_whitney_u(x, y) == mannwhitneyu(x, y, alternative="two-sided").statistic
