@@ -173,13 +173,26 @@ REPRODUCIBILITY = (
 
 def provenance_text(provenance: Mapping[str, Any]) -> str:
     """Where and from what code a report was computed, in one sentence (fields that an older
-    ``results.json`` lacks are left out)."""
+    ``results.json`` lacks are left out); for a merged report (``merged_from``), its source
+    reports', those computed on the same code and machine named together."""
+    sources = provenance.get("merged_from")
+    if not sources:
+        return f"Computed{_computed(provenance)}."
+    groups: dict[str, list[str]] = {}
+    for source in sources:
+        groups.setdefault(_computed(source), []).append(str(source.get("report")))
+    parts = [f"{', '.join(reports)}, computed{where}" for where, reports in groups.items()]
+    return f"Merged from {len(sources)} reports: {'; '.join(parts)}."
+
+
+def _computed(provenance: Mapping[str, Any]) -> str:
+    """`` at commit <sha> on <machine>``: the code and the machine of one computation."""
     git = provenance.get("git") or {}
     code = ""
     if git.get("commit"):
         code = f" at commit {str(git['commit'])[:12]}"
         code += " with uncommitted changes" if git.get("dirty") else ""
-    return f"Computed{code} on {describe_machine(provenance)}."
+    return f"{code} on {describe_machine(provenance)}"
 
 
 def file_sha256(path: Path) -> str:

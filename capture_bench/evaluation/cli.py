@@ -7,6 +7,7 @@
     python evaluate.py --workers 1           # serially, in this process (default: every CPU)
     python evaluate.py --suite quick --video videos/   # also a GIF of each agent's first episode
     python evaluate.py --backend ray --ray-address auto
+    python evaluate.py --merge reports/custom-1 reports/custom-2   # reports of several machines
 
 Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures),
 replacing the previous report only once the new one is complete; with the suite's ``videos`` (the
@@ -22,6 +23,9 @@ or any file is written. Ctrl-C (SIGINT) or SIGTERM stops every worker and exits 
 writing nothing and leaving the previous report as it was. The summary table printed at the end
 fits the terminal (80 columns in a pipe or a CI log: then without the per-scenario columns).
 Models load without unpickling anything (``--trust-model`` to allow an SB3 ``.zip``).
+``--merge DIR DIR ...`` plays no episode: it merges finished reports into
+``<out>/merged-<hash>/`` once they are checked to be mergeable
+(:mod:`capture_bench.evaluation.merge`), or refuses in one line.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from typing import TYPE_CHECKING
 from capture_bench.argparsing import OneLineParser, program
 from capture_bench.evaluation.aggregate import RankingRow
 from capture_bench.evaluation.backends import BACKENDS, prestart_workers
+from capture_bench.evaluation.merge import plan_merge
 from capture_bench.evaluation.pipeline import (
     INPUT_ERRORS,
     EvaluationConfig,
@@ -45,7 +50,7 @@ from capture_bench.evaluation.pipeline import (
     plan_evaluation,
     run_evaluation,
 )
-from capture_bench.evaluation.report import ReportData
+from capture_bench.evaluation.report import ReportData, write_report
 from capture_bench.evaluation.suites import ALL, shadowed_suite
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.provenance import git_state
@@ -80,6 +85,7 @@ def _epilog() -> str:
         "  python evaluate.py --agents my_agents:MyController   # your own class",
         "  python evaluate.py --agents models/ppo-paper --scenarios paper --episodes 5 \\",
         "      --video videos/ --video-episodes 2               # GIFs of the first 2 episodes",
+        "  python evaluate.py --merge reports/custom-a reports/custom-b   # merge finished reports",
         "",
         f"built-in agents: {', '.join(builtin_names())}",
         f"shipped models:  {', '.join(models) or 'none'}",
@@ -102,7 +108,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--suite",
-        default="default",
         help="suite name in configs/suites/ or a suite YAML path (default: default)",
     )
     parser.add_argument(
@@ -164,7 +169,32 @@ def build_parser() -> argparse.ArgumentParser:
         help="load a model directory that has no safe policy.pt from its SB3 .zip; a .zip holds "
         "pickled Python objects, which can run code when loaded: only for models you trust",
     )
+    parser.add_argument(
+        "--merge",
+        nargs="+",
+        type=Path,
+        metavar="DIR",
+        help="merge reports written by evaluate.py (e.g. one agent per machine) into one, "
+        "OUT/merged-<hash>/, once they are checked to have played the same scenario files, seeds "
+        "and code; plays no episode (only --out applies)",
+    )
     return parser
+
+
+#: The options that choose or play episodes, which ``--merge`` (no episode played) refuses.
+EPISODE_OPTIONS = (
+    "--suite",
+    "--agents",
+    "--scenarios",
+    "--episodes",
+    "--workers",
+    "--backend",
+    "--ray-address",
+    "--episode-plots",
+    "--video",
+    "--video-episodes",
+    "--trust-model",
+)
 
 
 def _split(values: list[str] | None) -> list[str] | None:
@@ -173,8 +203,8 @@ def _split(values: list[str] | None) -> list[str] | None:
     return [item for value in values for item in value.split(",") if item]
 
 
-def parse_config(argv: list[str]) -> EvaluationConfig:
-    """Parse the command line into a typed config."""
+def parse_arguments(argv: list[str]) -> argparse.Namespace:
+    """Parse the command line, refusing options that do not go together."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.video_episodes is not None and args.video is None:
@@ -182,8 +212,29 @@ def parse_config(argv: list[str]) -> EvaluationConfig:
             f"--video-episodes {args.video_episodes} records episodes only with --video DIR; "
             "add --video DIR (the folder for the GIFs) or drop --video-episodes"
         )
+    if args.merge is not None:
+        given = [
+            o
+            for o in EPISODE_OPTIONS
+            if getattr(args, o[2:].replace("-", "_")) not in (None, False)
+        ]
+        if given:
+            parser.error(
+                f"--merge combines finished reports and plays no episode, so {given[0]} does "
+                "not apply; drop it (--out is the one option --merge takes)"
+            )
+    return args
+
+
+def parse_config(argv: list[str]) -> EvaluationConfig:
+    """Parse the command line into a typed config."""
+    return evaluation_config(parse_arguments(argv))
+
+
+def evaluation_config(args: argparse.Namespace) -> EvaluationConfig:
+    """The typed config of parsed options (not ``--merge``)."""
     return EvaluationConfig(
-        suite=args.suite,
+        suite="default" if args.suite is None else args.suite,
         agents=_split(args.agents),
         scenarios=_split(args.scenarios),
         episodes=args.episodes,
@@ -310,22 +361,42 @@ def _where_note(config: EvaluationConfig, plan: Plan) -> str | None:
     return None
 
 
+def _refuse(prog: str, exc: Exception) -> int:
+    """Bad input: one line on stderr; the exit status 2."""
+    message = " ".join(str(exc).split())
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _merge(directories: list[Path], out: Path, command: str, prog: str) -> int:
+    """``--merge``: check the reports, then write their merged report into ``out``."""
+    try:
+        data, notes = plan_merge(directories, out, command)
+    except INPUT_ERRORS as exc:
+        return _refuse(prog, exc)
+    for note in notes:
+        print(f"{prog}: note: {note}", file=sys.stderr)
+    _print_summary(data, write_report(data, out))
+    return 0
+
+
 def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     prog = program(PROG)
     try:
-        config = parse_config(argv)
+        args = parse_arguments(argv)
     except SystemExit as exc:  # --help, or a malformed option (already reported in one line)
         return int(exc.code or 0)
     command = " ".join(["python", PROG, *(shlex.quote(a) for a in argv)])
+    if args.merge is not None:
+        return _merge(args.merge, args.out, command, prog)
+    config = evaluation_config(args)
     try:
         if config.resolved_backend() == "process":
             prestart_workers()  # the workers' imports while this process plans
         plan = plan_evaluation(config)
     except INPUT_ERRORS as exc:
-        message = " ".join(str(exc).split())
-        print(f"{prog}: error: {message}", file=sys.stderr)
-        return 2
+        return _refuse(prog, exc)
     if plan.suite.scenarios == (ALL,):  # "every scenario": say which invalid files were left out
         for name, error in invalid_scenarios().items():
             print(f"{prog}: note: skipping invalid scenario {name!r}: {error}", file=sys.stderr)

@@ -30,6 +30,7 @@ from capture_bench.evaluation.aggregate import (
     failure_reasons,
     summary_row,
 )
+from capture_bench.evaluation.errors import EvaluationError
 from capture_bench.evaluation.metrics import Estimate
 from capture_bench.evaluation.paired import Paired, PairedSection
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
@@ -233,10 +234,12 @@ def _scenarios(data: ReportData) -> list[str]:
 
 
 def _title(data: ReportData, quote: str) -> str:
-    """``default suite``, or ``custom-<hash> (custom selection)``: never a suite's name for a
-    narrowed run."""
+    """``default suite``, ``custom-<hash> (custom selection)`` or ``merged-<hash> (merged
+    reports)``: never a suite's name for a narrowed run or a merge."""
     if data.suite.startswith("custom-"):
         return f"{quote}{data.suite}{quote} (a custom selection, not a suite as defined)"
+    if data.suite.startswith("merged-"):
+        return f"{quote}{data.suite}{quote} (reports merged from several evaluations)"
     return f"{quote}{data.suite}{quote} suite"
 
 
@@ -427,6 +430,25 @@ def _write_csv(path: Path, columns: Sequence[str], rows: list[dict[str, Any]]) -
         writer.writeheader()
         for row in rows:
             writer.writerow({k: csv_value(v) for k, v in row.items()})
+
+
+def read_episodes(path: Path) -> list[EpisodeRecord]:
+    """The records of an ``episodes.csv`` that :func:`write_report` wrote, in the file's order,
+    every field as written (:meth:`EpisodeRecord.from_row`). Raises :class:`EvaluationError`
+    naming the file, and the line and column, where it cannot be read."""
+    try:
+        with open(path, newline="") as handle:
+            reader = csv.DictReader(handle)
+            records = []
+            for row in reader:
+                try:
+                    records.append(EpisodeRecord.from_row(row))
+                except ValueError as exc:
+                    raise EvaluationError(f"{path}: line {reader.line_num}: {exc}") from None
+            return records
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise EvaluationError(f"{path}: cannot be read ({reason})") from None
 
 
 def result_rows(data: ReportData) -> list[dict[str, Any]]:

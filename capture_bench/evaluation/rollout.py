@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any
+from typing import Any, get_type_hints
 
 import numpy as np
 
@@ -95,9 +95,38 @@ class EpisodeRecord:
         """The record as a flat dict in column order."""
         return asdict(self)
 
+    @classmethod
+    def from_row(cls, row: Mapping[str, str | None]) -> EpisodeRecord:
+        """The record of one ``episodes.csv`` row as :class:`csv.DictReader` reads it: the inverse
+        of :meth:`as_row` written through ``report.csv_value`` (floats in repr, NaN as an empty
+        cell), every field exact. Raises ValueError naming a missing or unreadable column."""
+        values: dict[str, Any] = {}
+        for name, kind in _FIELD_TYPES.items():
+            text = row.get(name)
+            if text is None:
+                raise ValueError(f"no column {name!r}")
+            try:
+                values[name] = _cell(text, kind)
+            except ValueError:
+                raise ValueError(
+                    f"column {name!r}: {text!r} cannot be read as {kind.__name__}"
+                ) from None
+        return cls(**values)
+
 
 EPISODE_COLUMNS: tuple[str, ...] = tuple(f.name for f in fields(EpisodeRecord))
 TIMING_COLUMNS: frozenset[str] = frozenset({"wall_clock_s", "cpu_s"})
+#: Each column's Python type (str, int or float), in column order.
+_FIELD_TYPES: dict[str, type] = get_type_hints(EpisodeRecord)
+
+
+def _cell(text: str, kind: type) -> Any:
+    """A CSV cell's value as ``kind``: an empty float cell is NaN, a float is read from its repr."""
+    if kind is float:
+        return math.nan if text == "" else float(text)
+    if kind in (int, str):
+        return kind(text)
+    raise TypeError(f"no reader for a {kind.__name__} column")
 
 
 @dataclass(frozen=True)
