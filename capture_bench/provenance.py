@@ -25,6 +25,7 @@ PACKAGES = (
     "stable-baselines3",
     "torch",
     "matplotlib",
+    "rliable",
     "ray",
 )
 #: CPU instruction sets that decide which BLAS and numpy kernels run (hence the rounding).

@@ -60,6 +60,51 @@ def test_the_numbers_are_the_runs_validations(page):
     assert 0.0 <= numbers["baseline"]["capture_rate"] <= 1.0
 
 
+def test_the_rliable_numbers_are_rliables_over_the_runs_training_seeds(page):
+    """IQM, optimality gap and mean of each algorithm's final validation mean_score over its
+    training seeds, and P(PPO > A2C), equal rliable called directly on those scores."""
+    from rliable import library, metrics
+
+    from capture_bench.rliable_stats import AGGREGATES, REPS, SEED, seeded_global_numpy
+
+    numbers = json.loads((page / "out" / "curves.json").read_text())["rliable"]
+    assert numbers["unit_of_replication"] == "training seed" and numbers["left_out"] == {}
+    finals = {}
+    for algo in ("ppo", "a2c"):
+        last = []
+        for seed in (0, 1):
+            with open(page / "runs" / f"paper-{algo}-{seed}" / "validations.csv") as handle:
+                last.append([float(list(csv.DictReader(handle))[-1]["mean_score"])])
+        finals[algo] = np.array(last)
+        assert numbers["algorithms"][algo]["final_scores"] == finals[algo][:, 0].tolist()
+
+        def aggregates(x):
+            return np.array([metrics.aggregate_iqm(x), metrics.aggregate_optimality_gap(x, 1.0),
+                             metrics.aggregate_mean(x)])  # fmt: skip
+
+        with seeded_global_numpy(SEED):  # np.random.seed(SEED), as rliable's users do
+            points, intervals = library.get_interval_estimates(
+                {algo: finals[algo]}, aggregates, reps=REPS
+            )
+        for k, figure in enumerate(AGGREGATES):
+            row = numbers["algorithms"][algo][figure]
+            assert [row["value"], row["low"], row["high"]] == [
+                points[algo][k], intervals[algo][0, k], intervals[algo][1, k]
+            ]  # fmt: skip
+    with seeded_global_numpy(SEED):
+        points, intervals = library.get_interval_estimates(
+            {"x,y": (finals["ppo"], finals["a2c"])}, metrics.probability_of_improvement, reps=REPS
+        )
+    (pair,) = numbers["probability_of_improvement"]
+    assert (pair["x"], pair["y"]) == ("ppo", "a2c")
+    assert [pair["value"], pair["low"], pair["high"]] == [
+        points["x,y"],
+        *np.ravel(intervals["x,y"]),
+    ]
+    md = (page / "out" / "learning_curves.md").read_text()
+    assert "Aggregate statistics over training seeds (rliable)" in md and "| PPO | A2C |" in md
+
+
 def test_an_existing_finished_run_is_kept_and_the_page_regenerates_without_training(page, capsys):
     before = (page / "runs" / "paper-ppo-0" / "metadata.json").read_bytes()
     argv = ["--algos", "ppo", "--seeds", "0", "1", "--runs", str(page / "runs"),

@@ -69,6 +69,8 @@ def test_summary_by_hand():
     assert result["capture_rate"] == 0.5
     assert result["median_capture_time"] == pytest.approx(0.4)  # median of 0.3 and 0.5
     assert result["median_ratio_to_limit"] == pytest.approx(1.5)  # the one finite ratio
+    # scores: 1 / 1.5 for the bounded capture, 1 for the unbounded one, 0 for each failure
+    assert result["mean_score"] == pytest.approx((1 / 1.5 + 1.0) / 4)
     assert result["failure/collision"] == 0.25 and result["failure/timeout"] == 0.25
     assert result["failure/target_lost"] == 0 and result["failure/unreachable"] == 0
     assert result["estimate_position_error_m"] == pytest.approx((0.03 + 0.1 + 0.4) / 3)
@@ -82,7 +84,13 @@ def test_nothing_to_compute_on_is_nan_and_left_out_of_the_log():
     failed = summarize([stats_of(EPISODES[2])])  # a timeout without an estimate
     assert math.isnan(failed["median_capture_time"]) and math.isnan(failed["median_ratio_to_limit"])
     logged = finite_items(failed)
-    assert set(logged) == {"capture_rate", "mean_reward", *(f"failure/{r}" for r in FAILURES)}
+    assert failed["mean_score"] == 0.0  # a failure scores 0
+    assert set(logged) == {
+        "capture_rate",
+        "mean_score",
+        "mean_reward",
+        *(f"failure/{r}" for r in FAILURES),
+    }
     assert "mean_reward" not in summarize([episode_stats(EPISODES[0][0][-1], [])])  # no rewards
 
 

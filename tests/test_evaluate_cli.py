@@ -129,8 +129,8 @@ def test_quick_suite_writes_every_file_with_consistent_aggregates(quick_report):
     parser.close()
     pngs = [s for s in parser.sources if s.startswith("data:image/png;base64,")]
     gifs = [s for s in parser.sources if s.startswith("data:image/gif;base64,")]
-    assert len(pngs) == 7  # 3 summary figures, 2 survival, failures, ratio
-    assert len(gifs) == 2 and len(parser.sources) == 9  # the reference on paper and tumbling
+    assert len(pngs) == 8  # 3 summary figures, the performance profile, 2 survival, failures, ratio
+    assert len(gifs) == 2 and len(parser.sources) == 10  # the reference on paper and tumbling
     assert len(list(quick_report.glob("incremental_ik_*_seed*.gif"))) == 2
 
 

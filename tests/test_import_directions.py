@@ -44,6 +44,7 @@ STAGES: dict[str, tuple[str, int]] = {
             "argparsing",
             "interrupts",
             "_quiet",
+            "rliable_stats",
         )
     },
     "sim": ("sim", 1),

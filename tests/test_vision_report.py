@@ -197,6 +197,7 @@ def test_a_report_without_rendered_scenarios_has_no_section(tmp_path):
         "ranking",
         "results",
         "provenance",
+        "rliable",  # every report has it (tests/test_rliable_stats.py)
     }
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from capture_bench import rliable_stats
 from capture_bench.agents.sb3_policy import PolicyLoadError, read_metadata
 from capture_bench.evaluation.agents_loading import (
     AgentSpec,
@@ -169,6 +170,8 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
 
     The output folders are checked writable last, so bad input of any kind costs no episode and
     leaves no file."""
+    if not rliable_stats.installed():  # the report's aggregate statistics
+        raise EvaluationError(rliable_stats.MISSING)
     config.resolved_backend()
     suite = narrow(load_suite(config.suite), config.agents, config.scenarios, config.episodes)
     scenarios = _scenario_names(suite)

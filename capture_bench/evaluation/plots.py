@@ -6,7 +6,8 @@
 * ratio to the physical limit: per scenario, the distribution of capture time / bound per agent;
 * one episode: distance, estimate error and actions vs time (``--episode-plots``);
 * the summary (:mod:`capture_bench.evaluation.summary`): the agent x scenario heatmap, the
-  ranking with intervals, the probability-of-improvement matrix.
+  ranking with intervals, the probability-of-improvement matrix;
+* rliable's performance profiles (:mod:`capture_bench.evaluation.rliable_report`).
 
 Every agent has one colour in every figure (:func:`agent_colours`: the Okabe-Ito colour-blind-safe
 palette in the agents' order), and the reference agent (the paper's controller) is drawn black
@@ -241,6 +242,29 @@ def improvement_figure(matrix: np.ndarray, agents: Sequence[str]) -> bytes:
     ax.set_yticks(range(n), agents)
     fig.colorbar(image, ax=ax, label="P(row beats column)", fraction=0.04)
     ax.set_title("Probability of improvement (per-episode score, averaged over scenarios)")
+    return _png(fig)
+
+
+def performance_profile_figure(
+    profiles: dict[str, Any], colours: dict[str, str], reference: str | None = None
+) -> bytes:
+    """rliable's performance profiles (:class:`capture_bench.rliable_stats.Profile` per agent):
+    the share of an agent's episodes scoring above each threshold tau, with its 95% stratified
+    bootstrap band; the reference emphasised, the legend outside the curves."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(10.0, 5.6))
+    for agent, profile in profiles.items():
+        emphasis = agent == reference
+        ax.plot(profile.taus, profile.share, color=colours[agent], label=agent,
+                lw=2.6 if emphasis else 1.5, zorder=3 if emphasis else 2)  # fmt: skip
+        ax.fill_between(profile.taus, profile.low, profile.high, color=colours[agent], alpha=0.12)
+    ax.set_xlabel("score threshold τ (score = physical limit / capture time; 0 for a failure)")
+    ax.set_ylabel("share of episodes with score > τ")
+    ax.set_xlim(0.0, 1.0)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title("Performance profile (rliable): every scenario's episodes, 95% bootstrap bands")
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    ax.grid(alpha=0.3)
     return _png(fig)
 
 

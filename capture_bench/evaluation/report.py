@@ -3,9 +3,9 @@
 Files: ``leaderboard.md`` (headed by the command that regenerates it), ``leaderboard.html`` (one
 self-contained file, figures embedded as base64 PNG and the episodes to watch as base64 GIF),
 ``results.csv`` (one row per agent x scenario), ``episodes.csv`` (one row per episode),
-``results.json`` (rows, ranking, provenance), the PNG figures and the GIFs. Everything is written
-into a temporary directory next to the target and renamed into place at the end, so a failed run
-never leaves a half-written report.
+``results.json`` (rows, ranking, the rliable statistics, provenance), the PNG figures and the
+GIFs. Everything is written into a temporary directory next to the target and renamed into place
+at the end, so a failed run never leaves a half-written report.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from capture_bench.evaluation import pixel_comparison, plots, summary, vision, watch
+from capture_bench.evaluation import pixel_comparison, plots, rliable_report, summary, vision, watch
 from capture_bench.evaluation.aggregate import (
     RANKING_RULE,
     RankingRow,
@@ -33,6 +33,7 @@ from capture_bench.evaluation.aggregate import (
 from capture_bench.evaluation.errors import EvaluationError
 from capture_bench.evaluation.metrics import Estimate
 from capture_bench.evaluation.paired import Paired, PairedSection
+from capture_bench.evaluation.rliable_report import RliableSection
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
 from capture_bench.provenance import REPRODUCIBILITY, provenance_text
 
@@ -40,6 +41,8 @@ if TYPE_CHECKING:
     from capture_bench.evaluation.video import EpisodeVideo
 
 CSV_FILES = ("results.csv", "episodes.csv")
+#: The section "Aggregate statistics (rliable)": its numbers, or None and why it has none.
+RliableNumbers = tuple[RliableSection | None, str | None]
 
 
 @dataclass(frozen=True)
@@ -243,8 +246,10 @@ def _title(data: ReportData, quote: str) -> str:
     return f"{quote}{data.suite}{quote} suite"
 
 
-def markdown(data: ReportData) -> str:
-    """The leaderboard in Markdown, headed by the command that regenerates it."""
+def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
+    """The leaderboard in Markdown, headed by the command that regenerates it; ``rliable``: the
+    :func:`rliable_numbers` of ``data`` if already computed."""
+    stats, why = rliable_numbers(data) if rliable is None else rliable
     lines = [
         f"# capture-bench leaderboard: {_title(data, '`')}",
         "",
@@ -269,7 +274,16 @@ def markdown(data: ReportData) -> str:
         *_md_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
         "",
         NOTES,
+        "",
+        f"## {rliable_report.TITLE}",
+        "",
     ]
+    if stats is None:
+        lines.append(f"Left out: {why}.")
+    else:
+        rows = rliable_rows(data, stats)
+        lines += [rliable_report.text(stats), "", *_md_table(rliable_report.HEADER, rows)]
+        lines += ["", f"![{rliable_report.FIGURE}]({rliable_report.FIGURE})"]
     for scenario in _scenarios(data):
         cells = [s for s in data.summaries if s.scenario == scenario]
         lines += ["", f"## {scenario}", ""]
@@ -308,10 +322,38 @@ def summary_text(data: ReportData) -> str:
     )
 
 
+def rliable_numbers(data: ReportData) -> RliableNumbers:
+    """The section "Aggregate statistics (rliable)" (:mod:`capture_bench.evaluation.rliable_report`)
+    of ``data``: ``(its numbers, None)``, or ``(None, why the records make no score matrices)``."""
+    agents = _agents(data)
+    reason = rliable_report.unavailable(data.records, agents)
+    if reason is not None:
+        return None, reason
+    return rliable_report.compute(data.records, agents, data.reference), None
+
+
+def rliable_rows(data: ReportData, section: RliableSection) -> list[list[str]]:
+    """The rows of the rliable table, agents labelled as in the ranking."""
+    privileged = {r.agent for r in data.ranking if r.privileged}
+
+    def label(agent: str) -> str:
+        if agent == data.reference:
+            return f"{agent} (reference)"
+        return agent + (" (privileged)" if agent in privileged else "")
+
+    return [rliable_report.cells(section, agent, label(agent)) for agent in section.agents]
+
+
+def _has_profile(data: ReportData) -> bool:
+    return rliable_report.unavailable(data.records, _agents(data)) is None
+
+
 def figure_names(data: ReportData) -> list[str]:
-    """File names of the figures, in display order (the summary's first)."""
+    """File names of the figures, in display order (the summary's first, then the performance
+    profile where the rliable section has numbers)."""
     survival = [f"survival_{scenario}.png" for scenario in _scenarios(data)]
-    return [*SUMMARY_FIGURES, *survival, "failures_by_reason.png", "ratio_to_limit.png"]
+    profile = [rliable_report.FIGURE] if _has_profile(data) else []
+    return [*SUMMARY_FIGURES, *profile, *survival, "failures_by_reason.png", "ratio_to_limit.png"]
 
 
 def figures(data: ReportData, names: Sequence[str] | None = None) -> dict[str, bytes]:
@@ -339,6 +381,9 @@ def figures(data: ReportData, names: Sequence[str] | None = None) -> dict[str, b
         "summary_improvement.png": lambda: plots.improvement_figure(
             summary.probability_of_improvement(data.records, agents), agents
         ),
+        rliable_report.FIGURE: lambda: plots.performance_profile_figure(
+            rliable_report.profiles(data.records, agents), colours, data.reference
+        ),
         **{f"survival_{sc}.png": (lambda sc=sc: survival(sc)) for sc in scenarios},
         "failures_by_reason.png": lambda: plots.failures_figure(
             data.summaries, failure_reasons(data.summaries)
@@ -353,10 +398,16 @@ def figures(data: ReportData, names: Sequence[str] | None = None) -> dict[str, b
 
 def figure_groups(data: ReportData, groups: int) -> list[list[str]]:
     """:func:`figure_names` in ``groups`` lists of about equal drawing time, to draw in as many
-    processes: the costliest figures (the ratio box plots, the probability of improvement and
-    its bootstrap, the failure bars) each lead a group, the others dealt round."""
+    processes: the costliest figures (the ratio box plots, the performance profile with rliable's
+    import and bootstrap, the probability of improvement and its bootstrap, the failure bars) each
+    lead a group, the others dealt round."""
     names = figure_names(data)
-    heavy = ["ratio_to_limit.png", "summary_improvement.png", "failures_by_reason.png"]
+    heavy = [
+        "ratio_to_limit.png",
+        rliable_report.FIGURE,
+        "summary_improvement.png",
+        "failures_by_reason.png",
+    ]
     order = [n for n in heavy if n in names] + [n for n in names if n not in heavy]
     out: list[list[str]] = [[] for _ in range(max(1, min(groups, len(order))))]
     for k, name in enumerate(order):
@@ -386,9 +437,13 @@ def _img(name: str, png: bytes) -> str:
     return watch.embedded_figure(png, "image/png", name)
 
 
-def html_page(data: ReportData, images: dict[str, bytes]) -> str:
-    """The leaderboard as one self-contained HTML page (images inlined as base64)."""
+def html_page(
+    data: ReportData, images: dict[str, bytes], rliable: RliableNumbers | None = None
+) -> str:
+    """The leaderboard as one self-contained HTML page (images inlined as base64); ``rliable``:
+    the :func:`rliable_numbers` of ``data`` if already computed."""
     esc = html.escape
+    stats, why = rliable_numbers(data) if rliable is None else rliable
     parts = [
         "<!DOCTYPE html>",
         f'<html lang="en"><head><meta charset="utf-8"><title>capture-bench: {esc(data.suite)}'
@@ -402,7 +457,14 @@ def html_page(data: ReportData, images: dict[str, bytes]) -> str:
         f"<h2>Overall ranking</h2><p>{esc(RANKING_RULE)}</p>",
         _html_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
         f"<p>{esc(NOTES)}</p>",
+        f"<h2>{esc(rliable_report.TITLE)}</h2>",
     ]
+    if stats is None:
+        parts.append(f"<p>Left out: {esc(str(why))}.</p>")
+    else:
+        parts.append(f"<p>{esc(rliable_report.text(stats))}</p>")
+        parts.append(_html_table(rliable_report.HEADER, rliable_rows(data, stats)))
+        parts.append(_img(rliable_report.FIGURE, images[rliable_report.FIGURE]))
     for scenario in _scenarios(data):
         cells = [s for s in data.summaries if s.scenario == scenario]
         parts.append(f"<h2>{esc(scenario)}</h2>")
@@ -415,9 +477,8 @@ def html_page(data: ReportData, images: dict[str, bytes]) -> str:
             parts.append(f"<h3>{esc(title)}</h3>" + _html_table(section.header, rows))
     parts.append(watch.html_section(data.videos))
     parts.append("<h2>Figures</h2>")
-    parts += [
-        _img(name, images[name]) for name in figure_names(data) if name not in SUMMARY_FIGURES
-    ]
+    shown = {*SUMMARY_FIGURES, rliable_report.FIGURE}
+    parts += [_img(name, images[name]) for name in figure_names(data) if name not in shown]
     parts.append(f"<h2>Provenance</h2><p>{esc(provenance_text(data.provenance))}</p>")
     parts.append(f"<p>{esc(REPRODUCIBILITY)}</p>")
     parts.append("</body></html>")
@@ -467,8 +528,9 @@ def _write_all(data: ReportData, directory: Path, images: dict[str, bytes] | Non
         (directory / name).write_bytes(png)
     for video in data.videos:
         (directory / video.file_name).write_bytes(video.gif)
-    (directory / "leaderboard.md").write_text(markdown(data))
-    (directory / "leaderboard.html").write_text(html_page(data, images))
+    rliable = rliable_numbers(data)
+    (directory / "leaderboard.md").write_text(markdown(data, rliable))
+    (directory / "leaderboard.html").write_text(html_page(data, images, rliable))
     payload = {
         "suite": data.suite,
         "command": data.command,
@@ -478,6 +540,7 @@ def _write_all(data: ReportData, directory: Path, images: dict[str, bytes] | Non
         "results": rows,
         "provenance": data.provenance,
     }
+    payload[rliable_report.KEY] = rliable_report.payload(*rliable)
     for section in paired_sections(data):  # only where the report holds what they compare
         payload[section.key] = section.rows()
     text = json.dumps(_sanitise(payload), indent=2, default=str, allow_nan=False)

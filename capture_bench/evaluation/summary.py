@@ -11,8 +11,10 @@ plot and the probability-of-improvement matrix at the top of the HTML show, as n
 * **probability of improvement** P(X > Y), rliable's definition (Agarwal et al. 2021): per
   scenario, the Mann-Whitney U statistic of X's episode scores against Y's over n * m (ties count
   1/2: :func:`mann_whitney_u`, ``scipy.stats.mannwhitneyu``'s statistic), averaged over
-  scenarios. An episode's score is physical limit / capture time, in (0, 1], and 0 for a
-  failure, so a capture beats a failure and a faster capture a slower one.
+  scenarios. An episode's score (:func:`capture_bench.task.score.episode_score`) is physical
+  limit / capture time, in (0, 1], and 0 for a failure, so a capture beats a failure and a
+  faster capture a slower one. rliable's own statistics of the same scores, with intervals, are
+  a section of the report (:mod:`capture_bench.evaluation.rliable_report`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 
 from capture_bench.evaluation.aggregate import RankingRow, Summary
 from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.task.score import episode_score
 
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
@@ -50,13 +53,10 @@ def _by_cell(records: Sequence[EpisodeRecord]) -> dict[tuple[str, str], dict[int
 
 
 def score(record: EpisodeRecord) -> float:
-    """physical limit / capture time for a capture with a finite positive bound (1 where the
-    bound is not finite: a capture the bound says is impossible counts as fastest), 0 for a
-    failure."""
-    if record.outcome != "captured":
-        return 0.0
-    ratio = record.ratio
-    return 1.0 / ratio if math.isfinite(ratio) and ratio > 0 else 1.0
+    """The episode's score (:func:`capture_bench.task.score.episode_score`): physical limit /
+    capture time for a capture with a finite positive bound (1 where the bound is not finite: a
+    capture the bound says is impossible counts as fastest), 0 for a failure."""
+    return episode_score(record.outcome == "captured", record.ratio)
 
 
 def ranking_intervals(

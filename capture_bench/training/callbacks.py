@@ -5,14 +5,15 @@ TensorBoard scalars written beside SB3's own (the statistics of
 :mod:`capture_bench.training.episode_stats`, NaN ones left out):
 
 * ``rollout/capture_rate``, ``rollout/median_capture_time`` (s), ``rollout/median_ratio_to_limit``,
-  ``rollout/failure/<reason>`` (each of ``timeout``, ``collision``, ``target_lost``,
-  ``unreachable``), ``rollout/estimate_position_error_m`` (m): over the training episodes that
-  ended since the logger last wrote (:class:`RolloutMetrics`; SB3 writes after every rollout for
-  PPO and A2C, every ``log_interval`` episodes for SAC and TD3). SB3's ``rollout/success_rate`` is
-  instead over the last 100 episodes.
+  ``rollout/mean_score``, ``rollout/failure/<reason>`` (each of ``timeout``, ``collision``,
+  ``target_lost``, ``unreachable``), ``rollout/estimate_position_error_m`` (m): over the
+  training episodes that ended since the logger last wrote (:class:`RolloutMetrics`; SB3 writes
+  after every rollout for PPO and A2C, every ``log_interval`` episodes for SAC and TD3). SB3's
+  ``rollout/success_rate`` is instead over the last 100 episodes.
 * ``eval/capture_rate``, ``eval/mean_reward``, ``eval/median_capture_time`` (s),
-  ``eval/median_ratio_to_limit``, ``eval/failure/<reason>``, ``eval/estimate_position_error_m``
-  (m): over the periodic validation's episodes (:class:`Progress`).
+  ``eval/median_ratio_to_limit``, ``eval/mean_score``, ``eval/failure/<reason>``,
+  ``eval/estimate_position_error_m`` (m): over the periodic validation's episodes
+  (:class:`Progress`).
 
 Imports Stable-Baselines3 at module level: import this module only where SB3 is needed.
 """
@@ -279,8 +280,8 @@ class Progress(BaseCallback):
         Returns:
             :func:`~capture_bench.training.episode_stats.summarize`'s statistics of the episodes:
             ``capture_rate``, ``mean_reward``, ``median_capture_time`` (s),
-            ``median_ratio_to_limit`` (NaN if nothing captured), ``failure/<reason>``,
-            ``estimate_position_error_m`` (m).
+            ``median_ratio_to_limit`` (NaN if nothing captured), ``mean_score``,
+            ``failure/<reason>``, ``estimate_position_error_m`` (m).
         """
         from capture_bench.envs.vector_env import CaptureVectorEnv
         from capture_bench.training.hyperparameters import image_size

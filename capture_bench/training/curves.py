@@ -11,6 +11,10 @@ seeds, and writes one report page, ``learning_curves.md`` and a self-contained
 * "time to baseline": per algorithm, the environment steps and the wall-clock time at which each
   seed's validation capture rate first reached ``incremental_ik``'s (median over the seeds that
   did, and how many did);
+* aggregate statistics over the training seeds (rliable,
+  :mod:`capture_bench.training.seed_statistics`): per algorithm the IQM, optimality gap and mean
+  of the runs' final mean per-episode score with stratified bootstrap intervals, and the
+  probability of improvement between algorithms; the unit of replication is the training seed;
 * the machine the runs were measured on.
 
 With ``--pixels`` each algorithm has a second arm, ``<algo>-pixels``: the same algorithm trained
@@ -39,21 +43,26 @@ from typing import Any
 
 import numpy as np
 
+from capture_bench import rliable_stats
 from capture_bench.argparsing import OneLineParser
 from capture_bench.files import atomic_write, check_writable
 from capture_bench.task.scenarios import ConfigError, load_scenario
+from capture_bench.training import seed_statistics
 from capture_bench.training.policy_export import VALIDATIONS_FILE
 
 METRICS = (
     ("capture_rate", "validation capture rate"),
     ("median_ratio_to_limit", "median ratio to the physical limit"),
 )
+#: A run's mean per-episode score at each validation (a file without the column reads as NaN).
+SCORE = "mean_score"
 REPORT = "learning_curves"
 
 
 @dataclass
 class Curve:
-    """One run's validations: steps, wall-clock s, and each metric (NaN where undefined)."""
+    """One run's validations: steps, wall-clock s, and each metric and :data:`SCORE` (NaN where
+    undefined or not recorded)."""
 
     algo: str
     seed: int
@@ -84,7 +93,7 @@ def read_curve(run_dir: Path, algo: str, seed: int) -> Curve:
     steps = sorted(by_step)
 
     def column(name: str) -> np.ndarray:
-        return np.array([_number(by_step[s][name]) for s in steps])
+        return np.array([_number(by_step[s].get(name)) for s in steps])
 
     saved = json.loads((run_dir / "config.json").read_text())
     episodes = int(saved["hyperparameters"]["eval_episodes"])
@@ -93,7 +102,7 @@ def read_curve(run_dir: Path, algo: str, seed: int) -> Curve:
         seed,
         np.array(steps),
         column("wall_time_s"),
-        {m: column(m) for m, _ in METRICS},
+        {**{m: column(m) for m, _ in METRICS}, SCORE: column(SCORE)},
         episodes,
     )
 
@@ -136,6 +145,15 @@ def baseline_level(scenario: str, episodes: int) -> dict[str, float]:
         return summarize(run_validation(IncrementalIK(env.description), env, seeds))
     finally:
         env.close()
+
+
+def final_scores(curves: dict[str, list[Curve]]) -> dict[str, dict[int, float]]:
+    """``{algorithm: {training seed: the mean per-episode score of its last validation}}`` (NaN
+    where the run's validations.csv has none)."""
+    return {
+        algo: {c.seed: float(c.values[SCORE][-1]) if c.steps.size else math.nan for c in cs}
+        for algo, cs in curves.items()
+    }
 
 
 def time_to_baseline(curve: Curve, level: float) -> tuple[int, float] | None:
@@ -262,6 +280,7 @@ def report(
         else:
             table.append(f"| {algo.upper()} | 0 of {len(cs)} | - | - | {per_seed} |")
     png = figure(curves, summary, baseline)
+    rliable = seed_statistics.compute(final_scores(curves))
     host = machine()
     ratio = baseline["median_ratio_to_limit"]
     lines = [
@@ -280,6 +299,7 @@ def report(
         "",
         *table,
         "",
+        *seed_statistics.markdown_lines(rliable),
         "## Provenance",
         "",
         f"- command: `{command}`",
@@ -299,6 +319,7 @@ def report(
         "baseline": baseline,
         "curves": summary,
         "time_to_baseline": times,
+        "rliable": rliable,
         "machine": host,
     }
     atomic_write(out / "curves.json", json.dumps(numbers, indent=2, default=_json).encode())
@@ -467,6 +488,8 @@ def main(argv: list[str] | None = None) -> int:
             check_training_seed(seed, load_scenario(args.scenario))
         runs, out = Path(args.runs), Path(args.out)
         check_writable(out, "--out")
+        if not rliable_stats.installed():
+            raise ConfigError(rliable_stats.MISSING)
         arms = list(args.algos) + [a + PIXEL_ARM for a in args.algos if args.pixels]
         for arm in arms:
             _, options = arm_options(arm)

@@ -12,6 +12,9 @@ key                               statistic over the episodes
 ``median_ratio_to_limit``         median of ``capture_time / physical_limit_time`` over the
                                   captured episodes whose bound is finite and > 0 (the
                                   leaderboard's ratio to the physical limit)
+``mean_score``                    mean of the per-episode score
+                                  (:func:`capture_bench.task.score.episode_score`: physical
+                                  limit / capture time for a capture, 0 for a failure)
 ``failure/<reason>``              share of episodes that ended with ``failure == reason``, for
                                   each reason of :data:`~capture_bench.task.step_rule.FAILURES`
 ``estimate_position_error_m``     mean over episodes of each episode's mean
@@ -35,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from capture_bench.task.score import episode_score
 from capture_bench.task.step_rule import FAILURES
 
 NAN = float("nan")
@@ -152,6 +156,7 @@ def summarize(episodes: Sequence[EpisodeStats]) -> dict[str, float]:
         "capture_rate": sum(e.captured for e in episodes) / n if n else NAN,
         "median_capture_time": _median([e.capture_time for e in episodes if e.captured]),
         "median_ratio_to_limit": _median([e.ratio_to_limit for e in episodes if e.captured]),
+        "mean_score": _mean([episode_score(e.captured, e.ratio_to_limit) for e in episodes]),
     }
     for reason in FAILURES:
         result[f"failure/{reason}"] = sum(e.failure == reason for e in episodes) / n if n else NAN

@@ -44,14 +44,32 @@ VALIDATIONS_FILE = "validations.csv"
 def append_validation(
     run_dir: Path, step: int, wall_time_s: float, stats: dict[str, float]
 ) -> None:
-    """Append one validation's row to ``run_dir/validations.csv`` (header on first write)."""
+    """Append one validation's row to ``run_dir/validations.csv`` (header on first write).
+
+    A file whose header lacks some of ``stats`` is first rewritten with those columns added at
+    the end, empty in its earlier rows, so every row stays under its header; a column of the file
+    that ``stats`` lacks is left empty."""
     import csv
+    import io
 
     path = Path(run_dir) / VALIDATIONS_FILE
     fields = ["step", "wall_time_s", *stats]
+    if path.is_file():
+        with open(path, newline="") as handle:
+            reader = csv.DictReader(handle)
+            header, rows = list(reader.fieldnames or []), list(reader)
+        missing = [f for f in fields if f not in header]
+        if missing:
+            header += missing
+            text = io.StringIO()
+            writer = csv.DictWriter(text, header, restval="", lineterminator="\r\n")
+            writer.writeheader()
+            writer.writerows(rows)
+            atomic_write(path, text.getvalue().encode())
+        fields = header
     new = not path.is_file()
     with open(path, "a", newline="") as handle:
-        writer = csv.DictWriter(handle, fields)
+        writer = csv.DictWriter(handle, fields, restval="")
         if new:
             writer.writeheader()
         writer.writerow({"step": step, "wall_time_s": round(wall_time_s, 2), **stats})
