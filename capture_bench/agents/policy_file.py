@@ -595,7 +595,9 @@ def policy_files(
     metadata = {**(extra or {}), **declaration}
     parse_declaration(metadata, where)  # what we write, we can read
     text = json.dumps(metadata, indent=2, allow_nan=False) + "\n"
-    state = {k: v.detach().cpu().clone() for k, v in policy.state_dict().items()}
+    # no copies: tensors shared by two modules (a features extractor that the actor and the
+    # critic share) keep one storage, written once
+    state = {k: v.detach().cpu() for k, v in policy.state_dict().items()}
     buffer = io.BytesIO()
     torch.save(state, buffer)
     return buffer.getvalue(), text.encode()
