@@ -23,7 +23,7 @@ from capture_bench.training.episode_stats import (
     summarize,
 )
 
-METRICS = ("capture_rate", "median_capture_time", "median_ratio_to_limit",
+METRICS = ("capture_rate", "median_capture_time", "median_ratio_to_limit", "mean_score",
            *(f"failure/{r}" for r in FAILURES), "estimate_position_error_m")  # fmt: skip
 
 
