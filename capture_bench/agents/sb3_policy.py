@@ -471,17 +471,17 @@ class SB3Policy:
 
     def predict(
         self,
-        observation: np.ndarray,
+        observation: np.ndarray | dict[str, np.ndarray],
         state: Any = None,
         episode_start: np.ndarray | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
-        """SB3's ``predict``: observation (16,) -> ``(action (3,), state)``; a batch (N, 16)
-        goes through ``policy.predict`` as SB3 gives it (torch rounds a row of a batched product
-        by the batch's height, so a row's action can differ in its last bits from the same
-        observation's alone)."""
+        """SB3's ``predict``: observation (16,) (or a pixel observation's dict) -> ``(action (3,),
+        state)``; a batch (N, 16) goes through ``policy.predict`` as SB3 gives it (torch rounds a
+        row of a batched product by the batch's height, so a row's action can differ in its last
+        bits from the same observation's alone)."""
         deterministic = deterministic and not self.sampled
-        if self.normalizer is not None:
+        if self.normalizer is not None and not isinstance(observation, dict):  # a Box's only
             observation = self.normalizer.normalize_obs(observation)
         obs = np.asarray(observation)
         if deterministic and state is None and obs.shape == self.policy.observation_space.shape:

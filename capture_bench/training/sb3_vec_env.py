@@ -84,7 +84,7 @@ class CaptureSB3VecEnv(VecEnv):
         super().__init__(n_envs, self.venv.single_observation_space, self.venv.single_action_space)
 
     # -- SB3 VecEnv API -------------------------------------------------------------------------
-    def reset(self) -> NDArray[np.float32]:
+    def reset(self) -> Batch:
         """Reset every sub-env on its next training seed; the observations, (N, ...)."""
         if any(self._options):
             raise ValueError(f"CaptureSB3VecEnv.reset takes no options, got {self._options!r}")
@@ -191,7 +191,12 @@ def _row(obs: Batch, i: int) -> Any:
 
 def _replace_rows(obs: Batch, new: Batch, rows: NDArray[np.bool_]) -> Batch:
     """``obs`` with the rows in ``rows`` taken from ``new``."""
-    if isinstance(obs, dict):
-        return {key: _replace_rows(value, new[key], rows) for key, value in obs.items()}
+    if isinstance(obs, dict) and isinstance(new, dict):
+        return {key: _rows_replaced(value, new[key], rows) for key, value in obs.items()}
+    assert not isinstance(obs, dict) and not isinstance(new, dict)
+    return _rows_replaced(obs, new, rows)
+
+
+def _rows_replaced(obs: NDArray, new: NDArray, rows: NDArray[np.bool_]) -> NDArray:
     mask = rows.reshape(-1, *([1] * (obs.ndim - 1)))
     return np.where(mask, new, obs)
