@@ -358,3 +358,16 @@ def test_an_episodes_csv_without_a_column_is_named(tmp_path):
     (tmp_path / "episodes.csv").write_text("agent,scenario\nx,paper\n")
     with pytest.raises(EvaluationError, match="episodes.csv: line 2: no column 'seed'"):
         read_episodes(tmp_path / "episodes.csv")
+
+
+def test_merge_without_rliable_is_one_line_before_anything_is_written(
+    reports, tmp_path, capsys, monkeypatch
+):
+    from capture_bench import rliable_stats
+
+    monkeypatch.setattr(rliable_stats, "installed", lambda: False)
+    argv = ["--merge", str(reports["ik"]), str(reports["pursuit"]), "--out", str(tmp_path)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "pip install rliable" in err
+    assert list(tmp_path.iterdir()) == []

@@ -167,6 +167,7 @@ def test_a_pixel_model_in_an_estimate_env_and_the_reverse_are_one_line(pixel_run
         (["--scenario", "all", "--set", "policy=MultiInputPolicy",
           "--set", "policy_kwargs.features_extractor=combined"], ["--observation-source pixels"]),
         (["--set", "policy=MultiInputPolicy"], ["features_extractor", "combined"]),
+        ([*PIXELS, "--set", "image_size=20"], ["image_size", "36"]),  # below NatureCNN's
     ],
 )  # fmt: skip
 def test_a_bad_pixel_training_setup_is_one_line(tmp_path, capsys, argv, words):

@@ -395,6 +395,9 @@ def _load_vecnormalize(metadata: ModelMetadata) -> ObservationNormalizer | None:
 
 
 def _describe(space: Any) -> str:
+    if hasattr(space, "spaces") and isinstance(space.spaces, dict):  # a Dict: its parts' shapes
+        parts = ", ".join(f"{k}: {_describe(v)}" for k, v in space.spaces.items())
+        return f"Dict({parts})"
     shape = getattr(space, "shape", None)
     return f"{type(space).__name__}{tuple(shape) if shape is not None else ''}"
 

@@ -22,6 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from capture_bench import rliable_stats
 from capture_bench.evaluation.aggregate import rank_agents, summarise_all
 from capture_bench.evaluation.errors import EvaluationError
 from capture_bench.evaluation.report import ReportData, csv_value
@@ -293,6 +294,8 @@ def plan_merge(
     Returns:
         ``(the merged report, notes for the user)``.
     """
+    if not rliable_stats.installed():  # the merged report's aggregate statistics
+        raise EvaluationError(rliable_stats.MISSING)
     if len(directories) < 2:
         raise EvaluationError("--merge takes two or more report folders")
     resolved = [Path(d).resolve() for d in directories]

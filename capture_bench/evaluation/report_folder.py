@@ -117,6 +117,8 @@ def _checked_results(payload: Any, path: Path) -> tuple[str, str, dict[str, Any]
     suite, reference = get(payload, "suite", str), get(payload, "reference", str)
     for key, kind in (("seeds", dict), ("agents", list), ("packages", dict), ("git", dict)):
         get(provenance, key, kind, "provenance ")
+    if not isinstance(provenance["git"].get("commit"), str | None):
+        raise refuse("provenance git 'commit' is not a string")
     hashes = get(provenance, "config_hashes", dict, "provenance ")
     for key in ("scenarios", "models"):
         get(hashes, key, dict, "config_hashes ")

@@ -456,7 +456,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--pixels",
         action="store_true",
         help="a second arm per algorithm, <algo>-pixels, trained on the camera's pixels "
-        "(configs/pixels/<algo>.yaml; ppo and a2c)",
+        "(configs/pixels/<algo>.yaml: ppo has one)",
     )
     parser.add_argument("--scenario", default="paper", help="scenario (default: paper)")
     parser.add_argument(

@@ -79,8 +79,9 @@ TRAINING_KEYS = {
     "curriculum_hold": Rule("float", 0.0, 10.0),
     "curriculum_steps": POS_INT,
     "curriculum_delay": NONNEG_INT,  # steps at the starting value before either curriculum moves
-    # with observation_source pixels: the image's side, pixels (square; 924 at most, the crop's)
-    "image_size": Rule("int", 8, 924),
+    # with observation_source pixels: the image's side, pixels (square; at least NatureCNN's 36,
+    # at most the shipped camera's crop, 924; train.py checks it against the scenario's camera)
+    "image_size": Rule("int", 36, 924),
 }
 #: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
 CURRICULA = ("curriculum_tolerance", "curriculum_hold")

@@ -306,6 +306,13 @@ def check_observation(config: TrainConfig, hp: dict) -> None:
             raise ConfigError(
                 f"{given}: {key} {hp[key]} is not available with pixels; set {key}: {bad}"
             )
+    if pixels:
+        from capture_bench.sensing.workspace_image import check_image_size
+
+        try:
+            check_image_size(image_size(hp), load_scenario(config.scenario).camera.model())
+        except ValueError as exc:
+            raise ConfigError(f"key 'image_size': {exc}") from None
     if "image_size" in hp and not pixels:
         seen = config.observation_source or "each scenario's estimate"
         raise ConfigError(
