@@ -68,6 +68,14 @@ TRUST_HINT = (
 )
 
 
+def observation_options(image_size: tuple[int, int] | None) -> dict[str, Any]:
+    """The env keyword arguments for a policy that sees images of ``image_size`` (pixels), or
+    none for a policy that sees the estimate (``image_size`` None)."""
+    if image_size is None:
+        return {}
+    return {"observation_source": PIXELS, "image_size": image_size}
+
+
 @dataclass(frozen=True)
 class ModelMetadata:
     """What a model directory says about its model.

@@ -27,7 +27,6 @@ from typing import Any
 
 from capture_bench.evaluation.errors import AgentSpecError
 from capture_bench.paths import models_dir
-from capture_bench.sensing.sources import PIXELS
 
 MODELS_DIR = models_dir()  # models/: see capture_bench.paths
 MODELS_GLOB = "models/*"
@@ -64,9 +63,9 @@ class AgentSpec:
 
     def env_options(self) -> dict[str, Any]:
         """The env keyword arguments this agent's episodes play with (what it observes)."""
-        if self.image_size is None:
-            return {}
-        return {"observation_source": PIXELS, "image_size": self.image_size}
+        from capture_bench.agents.sb3_policy import observation_options
+
+        return observation_options(self.image_size)
 
 
 def builtin_names() -> list[str]:

@@ -23,7 +23,6 @@ from typing import Any
 
 from capture_bench.files import atomic_write
 from capture_bench.paths import models_dir
-from capture_bench.sensing.sources import PIXELS
 from capture_bench.task.scenarios import ConfigError, load_scenario
 from capture_bench.training.policy_export import BEST_DIR, VALIDATION_FILE
 
@@ -45,17 +44,14 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
     """The policy in ``model_dir`` on ``seeds`` of ``scenario``, as train.py validates: one
     deterministic episode per seed in the batched env, :data:`CARD_BATCH` seeds at a time;
     per episode and summarised."""
-    from capture_bench.agents.sb3_policy import load_policy, read_metadata
+    from capture_bench.agents.sb3_policy import load_policy, observation_options, read_metadata
     from capture_bench.envs.vector_env import CaptureVectorEnv
     from capture_bench.training.episode_stats import summarize
     from capture_bench.training.validation_run import run_validation
 
     metadata = read_metadata(model_dir)
     loaded = load_policy(metadata)
-    size = metadata.image_size  # a policy that sees pixels plays in pixel envs
-    options: dict[str, Any] = (
-        {} if size is None else {"observation_source": PIXELS, "image_size": size}
-    )
+    options = observation_options(metadata.image_size)  # pixels: pixel envs
     played = []
     for start in range(0, len(seeds), CARD_BATCH):
         batch = seeds[start : start + CARD_BATCH]
