@@ -218,6 +218,29 @@ def performance_profiles(
     return out
 
 
+def draw_profiles(
+    ax: Any,
+    profiles: Mapping[str, Profile],
+    colours: Mapping[str, Any],
+    emphasis: str | None = None,
+    unit: str = "episodes",
+) -> None:
+    """Draw performance profiles on the matplotlib axes ``ax``: each one's share of scores above
+    tau with its 95% band, ``emphasis`` (a name, or None) drawn thicker and on top; a legend
+    outside the curves. ``unit`` names what a score belongs to, for the y label."""
+    for name, profile in profiles.items():
+        thick = name == emphasis
+        ax.plot(profile.taus, profile.share, color=colours[name], label=name,
+                lw=2.6 if thick else 1.5, zorder=3 if thick else 2)  # fmt: skip
+        ax.fill_between(profile.taus, profile.low, profile.high, color=colours[name], alpha=0.12)
+    ax.set_xlabel("score threshold τ (score = physical limit / capture time; 0 for a failure)")
+    ax.set_ylabel(f"share of {unit} with score > τ")
+    ax.set_xlim(0.0, 1.0)
+    ax.set_ylim(-0.02, 1.02)
+    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    ax.grid(alpha=0.3)
+
+
 def probability_of_improvement(scores_x: np.ndarray, scores_y: np.ndarray) -> float:
     """rliable's P(X > Y) (``rliable.metrics.probability_of_improvement``: per task
     Mann-Whitney's U of X against Y over n m, averaged over tasks), from the counts of Y's scores

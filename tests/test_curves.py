@@ -103,6 +103,18 @@ def test_the_rliable_numbers_are_rliables_over_the_runs_training_seeds(page):
     ]
     md = (page / "out" / "learning_curves.md").read_text()
     assert "Aggregate statistics over training seeds (rliable)" in md and "| PPO | A2C |" in md
+    # the performance profiles: rliable's, over the same runs' final scores
+    assert "![performance profile](performance_profile.png)" in md
+    assert (page / "out" / "performance_profile.png").read_bytes().startswith(b"\x89PNG")
+    html = (page / "out" / "learning_curves.html").read_text()
+    assert html.count('alt="performance profile" src="data:image/png;base64,') == 1
+    profile = numbers["performance_profiles"]["ppo"]
+    with seeded_global_numpy(SEED):
+        shares, bands = library.create_performance_profile(
+            {"ppo": finals["ppo"]}, np.array(profile["taus"]), reps=REPS
+        )
+    assert profile["share"] == shares["ppo"].tolist()
+    assert [profile["low"], profile["high"]] == bands["ppo"].tolist()
 
 
 def test_an_existing_finished_run_is_kept_and_the_page_regenerates_without_training(page, capsys):
@@ -163,3 +175,18 @@ def test_an_algorithm_without_pixel_hyperparameters_is_one_line(tmp_path, capsys
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "configs/pixels/ppo.yaml" in err, err
+
+
+def test_a_validation_file_without_the_score_column_scores_0_where_nothing_was_captured(tmp_path):
+    """Runs trained before validations recorded mean_score: a validation that captured nothing
+    scored 0 on every episode, so its mean score is 0; the others stay unknown (NaN)."""
+    from capture_bench.training.curves import SCORE, read_curve
+
+    (tmp_path / "config.json").write_text(json.dumps({"hyperparameters": {"eval_episodes": 4}}))
+    (tmp_path / "validations.csv").write_text(
+        "step,wall_time_s,capture_rate,median_capture_time,median_ratio_to_limit\n"
+        "100,1.0,0.0,nan,nan\n"
+        "200,2.0,0.5,1.5,1.2\n"
+    )
+    curve = read_curve(tmp_path, "ppo", 0)
+    assert curve.values[SCORE][0] == 0.0 and np.isnan(curve.values[SCORE][1])

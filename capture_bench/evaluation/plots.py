@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from capture_bench import rliable_stats
 from capture_bench.evaluation.aggregate import Summary
 from capture_bench.evaluation.rollout import EpisodeRecord, EpisodeTrace
 
@@ -253,18 +254,8 @@ def performance_profile_figure(
     bootstrap band; the reference emphasised, the legend outside the curves."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(10.0, 5.6))
-    for agent, profile in profiles.items():
-        emphasis = agent == reference
-        ax.plot(profile.taus, profile.share, color=colours[agent], label=agent,
-                lw=2.6 if emphasis else 1.5, zorder=3 if emphasis else 2)  # fmt: skip
-        ax.fill_between(profile.taus, profile.low, profile.high, color=colours[agent], alpha=0.12)
-    ax.set_xlabel("score threshold τ (score = physical limit / capture time; 0 for a failure)")
-    ax.set_ylabel("share of episodes with score > τ")
-    ax.set_xlim(0.0, 1.0)
-    ax.set_ylim(-0.02, 1.02)
+    rliable_stats.draw_profiles(ax, profiles, colours, reference)
     ax.set_title("Performance profile (rliable): every scenario's episodes, 95% bootstrap bands")
-    ax.legend(fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
-    ax.grid(alpha=0.3)
     return _png(fig)
 
 

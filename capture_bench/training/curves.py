@@ -15,6 +15,9 @@ seeds, and writes one report page, ``learning_curves.md`` and a self-contained
   :mod:`capture_bench.training.seed_statistics`): per algorithm the IQM, optimality gap and mean
   of the runs' final mean per-episode score with stratified bootstrap intervals, and the
   probability of improvement between algorithms; the unit of replication is the training seed;
+  and their performance profiles, ``performance_profile.png`` (the share of an algorithm's
+  runs whose final score exceeds each threshold, with rliable's band), where an algorithm has
+  two seeds or more with scores;
 * the machine the runs were measured on.
 
 With ``--pixels`` each algorithm has a second arm, ``<algo>-pixels``: the same algorithm trained
@@ -54,9 +57,12 @@ METRICS = (
     ("capture_rate", "validation capture rate"),
     ("median_ratio_to_limit", "median ratio to the physical limit"),
 )
-#: A run's mean per-episode score at each validation (a file without the column reads as NaN).
+#: A run's mean per-episode score at each validation (a file without the column: 0 where the
+#: validation captured nothing, else NaN).
 SCORE = "mean_score"
 REPORT = "learning_curves"
+PROFILE = "performance_profile"  # the profile's PNG, beside the curves'
+PROFILE_KEYS = ("taus", "share", "low", "high")
 
 
 @dataclass
@@ -97,14 +103,22 @@ def read_curve(run_dir: Path, algo: str, seed: int) -> Curve:
 
     saved = json.loads((run_dir / "config.json").read_text())
     episodes = int(saved["hyperparameters"]["eval_episodes"])
+    values = {m: column(m) for m, _ in METRICS}
     return Curve(
         algo,
         seed,
         np.array(steps),
         column("wall_time_s"),
-        {**{m: column(m) for m, _ in METRICS}, SCORE: column(SCORE)},
+        {**values, SCORE: _scores(column(SCORE), values["capture_rate"])},
         episodes,
     )
+
+
+def _scores(recorded: np.ndarray, capture_rate: np.ndarray) -> np.ndarray:
+    """Each validation's mean per-episode score: as recorded, and where a run's file predates
+    the column, 0 for a validation that captured nothing (every episode a failure, each scoring
+    0); NaN for the others."""
+    return np.where(np.isnan(recorded) & (capture_rate == 0.0), 0.0, recorded)
 
 
 def _number(text: str | None) -> float:
@@ -233,6 +247,31 @@ def figure(
     return buffer.getvalue()
 
 
+def profile_figure(profiles: dict[str, dict[str, list[float]]]) -> bytes:
+    """The performance profiles over training seeds (``seed_statistics.compute``'s
+    ``performance_profiles``: per algorithm the share of its runs whose final score exceeds each
+    tau, with rliable's band) as PNG bytes, in the learning curves' colours."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cmap = plt.get_cmap("tab10")
+    curves = {
+        algo.upper(): rliable_stats.Profile(*(np.array(p[k]) for k in PROFILE_KEYS))
+        for algo, p in profiles.items()
+    }
+    fig, ax = plt.subplots(figsize=(9, 4.5), constrained_layout=True)
+    rliable_stats.draw_profiles(
+        ax, curves, {a: cmap(k) for k, a in enumerate(curves)}, None, "runs"
+    )
+    ax.set_title("Performance profile (rliable): final validation score of each training seed")
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
 def _format_time(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
 
@@ -281,6 +320,11 @@ def report(
             table.append(f"| {algo.upper()} | 0 of {len(cs)} | - | - | {per_seed} |")
     png = figure(curves, summary, baseline)
     rliable = seed_statistics.compute(final_scores(curves))
+    profiles = rliable["performance_profiles"]
+    images = {
+        f"{REPORT}.png": png,
+        **({f"{PROFILE}.png": profile_figure(profiles)} if profiles else {}),
+    }
     host = machine()
     ratio = baseline["median_ratio_to_limit"]
     lines = [
@@ -300,6 +344,7 @@ def report(
         *table,
         "",
         *seed_statistics.markdown_lines(rliable),
+        *([f"![performance profile]({PROFILE}.png)", ""] if profiles else []),
         "## Provenance",
         "",
         f"- command: `{command}`",
@@ -310,9 +355,13 @@ def report(
     ]
     markdown = "\n".join(lines)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write(out / f"{REPORT}.png", png)
+    stale = out / f"{PROFILE}.png"
+    if not profiles and stale.is_file():
+        stale.unlink()  # an earlier page's profile, of runs this page does not show
+    for name, image in images.items():
+        atomic_write(out / name, image)
     atomic_write(out / f"{REPORT}.md", markdown.encode())
-    atomic_write(out / f"{REPORT}.html", _html(markdown, png).encode())
+    atomic_write(out / f"{REPORT}.html", _html(markdown, images).encode())
     numbers = {
         "scenario": scenario,
         "validation_episodes": n_episodes,
@@ -330,8 +379,8 @@ def _json(value: Any) -> Any:
     return float(value) if isinstance(value, np.floating) else int(value)
 
 
-def _html(markdown: str, png: bytes) -> str:
-    """The page as one self-contained HTML file (the plot embedded)."""
+def _html(markdown: str, images: dict[str, bytes]) -> str:
+    """The page as one self-contained HTML file (the figures embedded, by file name)."""
     import html
 
     body = []
@@ -354,8 +403,9 @@ def _html(markdown: str, png: bytes) -> str:
             body.append("</table>")
             in_table = False
         if line.startswith("!["):
-            data = base64.b64encode(png).decode()
-            body.append(f'<img alt="learning curves" src="data:image/png;base64,{data}">')
+            alt, name = line[2:-1].split("](")
+            data = base64.b64encode(images[name]).decode()
+            body.append(f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">')
         elif line.startswith("## "):
             body.append(f"<h2>{html.escape(line[3:])}</h2>")
         elif line.startswith("# "):

@@ -56,6 +56,7 @@ def compute(
     names = list(matrices)
     pairs = [(x, y) for i, x in enumerate(names) for y in names[i + 1 :]]
     improvement = rliable_stats.improvement_probabilities(pairs, matrices, reps, seed)
+    profiles = rliable_stats.performance_profiles(matrices, reps=reps, seed=seed)
     return {
         "unit_of_replication": "training seed",
         "score": "mean per-episode score of the run's last validation",
@@ -75,6 +76,10 @@ def compute(
         "probability_of_improvement": [
             {"x": x, "y": y, **estimate.as_dict()} for (x, y), estimate in improvement.items()
         ],
+        "performance_profiles": {
+            algo: {k: getattr(profile, k).tolist() for k in ("taus", "share", "low", "high")}
+            for algo, profile in profiles.items()
+        },
         "left_out": left_out,
     }
 
