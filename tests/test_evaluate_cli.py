@@ -304,6 +304,27 @@ def test_trained_model_and_user_agent_run_next_to_the_baseline(tmp_path):
     assert model["algorithm"] == "PPO" and set(model["sha256"]) == {"policy.pt", "metadata.json"}
 
 
+def test_the_validation_seeds_make_their_own_report_and_touch_no_published_seed(tmp_path):
+    """``--seed-set validation`` plays the first validation seeds of each scenario, writes its
+    report beside the leaderboard's (``<suite>-validation``), and says so in the report."""
+    out = tmp_path / "reports"
+    argv = ["--suite", "quick", "--episodes", "2", "--workers", "1", "--out", str(out)]
+    assert main([*argv, "--seed-set", "validation"]) == 0
+    (report,) = out.iterdir()
+    assert report.name.endswith("-validation")
+    payload = json.loads((report / "results.json").read_text())
+    assert payload["provenance"]["seed_set"] == "validation"
+    for scenario in ("paper", "tumbling"):
+        sc = load_scenario(scenario)
+        expected = list(sc.validation_seeds[:2])
+        assert payload["provenance"]["seeds"][scenario] == expected
+        played = {
+            int(r["seed"]) for r in _rows(report / "episodes.csv") if r["scenario"] == scenario
+        }
+        assert played == set(expected) and not played & set(sc.evaluation_seeds)
+    assert "on validation seeds" in (report / "leaderboard.md").read_text().splitlines()[0]
+
+
 def _bad_model(kind: str, root: Path) -> str:
     directory = root / "models" / "broken"
     if kind == "mismatched":
@@ -323,7 +344,9 @@ def _bad_model(kind: str, root: Path) -> str:
         (["--agents", "test_evaluate_cli:NoSuchClass"], "has no class 'NoSuchClass'"),
         (["--scenarios", "mars"], "unknown scenario 'mars'"),
         (["--suite", "no_such_suite"], "unknown suite 'no_such_suite'"),
-        (["--episodes", "100000"], "publishes"),
+        (["--episodes", "100000"], "100 evaluation seeds; use --episodes <= 100"),
+        (["--seed-set", "validation", "--episodes", "100000"], "1000 validation seeds"),
+        (["--seed-set", "published"], "invalid choice"),
         (["--backend", "dask"], "invalid choice"),
         (["missing"], "model file is missing"),
         (["corrupt"], "not a loadable PPO model"),

@@ -51,7 +51,7 @@ from capture_bench.evaluation.pipeline import (
     run_evaluation,
 )
 from capture_bench.evaluation.report import ReportData, write_report
-from capture_bench.evaluation.suites import ALL, shadowed_suite
+from capture_bench.evaluation.suites import ALL, SEED_SETS, shadowed_suite
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.provenance import git_state
 from capture_bench.task.scenarios import invalid_scenarios
@@ -124,7 +124,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="scenarios replacing the suite's (comma or space separated)",
     )
     parser.add_argument(
-        "--episodes", type=int, help="episodes per agent x scenario: the first N published seeds"
+        "--episodes",
+        type=int,
+        help="episodes per agent x scenario: the first N seeds of the seed set",
+    )
+    parser.add_argument(
+        "--seed-set",
+        choices=SEED_SETS,
+        default="evaluation",
+        help="the seeds to play: the published evaluation seeds (the leaderboard), or the "
+        "scenarios' validation seeds, to select and compare models without a published seed "
+        "(report in OUT/<suite>-validation/) (default: evaluation)",
     )
     parser.add_argument(
         "--workers",
@@ -238,6 +248,7 @@ def evaluation_config(args: argparse.Namespace) -> EvaluationConfig:
         agents=_split(args.agents),
         scenarios=_split(args.scenarios),
         episodes=args.episodes,
+        seed_set=args.seed_set,
         backend=args.backend,
         workers=args.workers,
         ray_address=args.ray_address,
@@ -340,13 +351,18 @@ def _run(plan: Plan, config: EvaluationConfig, command: str) -> tuple[ReportData
         TimeRemainingColumn(),
     )
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
-        task = bar.add_task(f"{plan.suite.name}: episodes", total=len(plan.tasks))
+        task = bar.add_task(f"{plan.report_name}: episodes", total=len(plan.tasks))
         return run_evaluation(plan, config, command, lambda n: bar.advance(task, n))
 
 
 def _where_note(config: EvaluationConfig, plan: Plan) -> str | None:
     """Why the report goes to a folder other than ``<out>/<suite>/``, and where; None if not."""
-    target = config.out / plan.suite.name
+    target = config.out / plan.report_name
+    if plan.seed_set != "evaluation":
+        return (
+            f"validation seeds, so the report goes to {target}/ (the leaderboard's reports are "
+            "left as they are)"
+        )
     shadowed = shadowed_suite(config.suite)
     if shadowed is not None:
         return (

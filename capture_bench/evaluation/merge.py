@@ -34,6 +34,7 @@ from capture_bench.evaluation.report_folder import (
     read_report,
 )
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, TIMING_COLUMNS, EpisodeRecord
+from capture_bench.evaluation.suites import VALIDATION_NOTE, VALIDATION_SUFFIX
 from capture_bench.evaluation.video import EpisodeVideo
 from capture_bench.evaluation.watch import choose_episodes
 from capture_bench.files import check_writable, episode_file_name
@@ -187,7 +188,14 @@ def merged_name(reports: Sequence[SourceReport]) -> str:
     """``merged-<8 hex digits>``: a hash of the sources' suites and agents, in order, so that
     merging the same reports again replaces the same folder."""
     sources = [[r.suite, [a["label"] for a in r.agents]] for r in reports]
-    return f"merged-{hashlib.sha256(json.dumps(sources).encode()).hexdigest()[:8]}"
+    suffix = VALIDATION_SUFFIX if _seed_set(reports[0]) == "validation" else ""
+    return f"merged-{hashlib.sha256(json.dumps(sources).encode()).hexdigest()[:8]}{suffix}"
+
+
+def _seed_set(report: SourceReport) -> str:
+    """The seeds a report played, ``evaluation`` or ``validation`` (reports from before the
+    choice existed played the evaluation seeds)."""
+    return str(report.provenance.get("seed_set", "evaluation"))
 
 
 def merged_agents(reports: Sequence[SourceReport]) -> list[dict[str, Any]]:
@@ -272,6 +280,7 @@ def merged_provenance(
             "scenarios": first.hashes("scenarios"),
             "models": {a["label"]: models[a["label"]] for a in agents if a["label"] in models},
         },
+        "seed_set": _seed_set(first),
         "seeds": first.seeds,
         "agents": agents,
         "timing": {"episodes": records, "videos": videos[0]},
@@ -316,6 +325,8 @@ def plan_merge(
         f"{', '.join(a['label'] for a in agents)}; scenarios {', '.join(scenarios)}; "
         f"{len(next(iter(reports[0].seeds.values())))} episodes each"
     )
+    if _seed_set(reports[0]) == "validation":
+        description = f"{VALIDATION_NOTE} {description}"
     data = ReportData(
         merged_name(reports), description, command, reference, records, summaries, ranking, {}
     )

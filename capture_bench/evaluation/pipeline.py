@@ -37,7 +37,15 @@ from capture_bench.evaluation.backends import (
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError
 from capture_bench.evaluation.report import ReportData, figure_groups, figures, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
-from capture_bench.evaluation.suites import ALL, Suite, load_suite, narrow
+from capture_bench.evaluation.suites import (
+    ALL,
+    SEED_SETS,
+    VALIDATION_NOTE,
+    VALIDATION_SUFFIX,
+    Suite,
+    load_suite,
+    narrow,
+)
 from capture_bench.evaluation.video import EpisodeVideo, record_video, write_videos
 from capture_bench.evaluation.watch import choose_episodes
 from capture_bench.files import check_writable, episode_file_name
@@ -64,7 +72,11 @@ class EvaluationConfig:
         suite: suite name (``configs/suites/<name>.yaml``) or path to a suite YAML.
         agents: agent specs replacing the suite's (None: the suite's).
         scenarios: scenario names replacing the suite's (None: the suite's).
-        episodes: episodes per agent x scenario replacing the suite's (first N published seeds).
+        episodes: episodes per agent x scenario replacing the suite's (the first N seeds of
+            ``seed_set``).
+        seed_set: ``evaluation``: the scenarios' published evaluation seeds (the leaderboard);
+            ``validation``: their validation seeds, to select and compare models without
+            touching a published seed (the report goes to ``<out>/<suite>-validation/``).
         backend: ``serial``, ``process`` or ``ray``; None: ``process`` if more than one worker,
             else ``serial``.
         workers: local worker processes of the ``process`` backend; None: every usable CPU.
@@ -83,6 +95,7 @@ class EvaluationConfig:
     agents: list[str] | None = None
     scenarios: list[str] | None = None
     episodes: int | None = None
+    seed_set: str = "evaluation"
     backend: str | None = None
     workers: int | None = None
     ray_address: str | None = None
@@ -127,6 +140,21 @@ class Plan:
     seeds: dict[str, list[int]]
     tasks: list[EpisodeTask] = field(repr=False)
     config_hashes: dict[str, Any] = field(repr=False)
+    seed_set: str = "evaluation"
+
+    @property
+    def report_name(self) -> str:
+        """The report's folder under ``--out``: the suite's name, and ``-validation`` after it
+        on the validation seeds (so that report never replaces the leaderboard's)."""
+        return self.suite.name + ("" if self.seed_set == "evaluation" else VALIDATION_SUFFIX)
+
+    @property
+    def description(self) -> str:
+        """The suite's description, after a sentence naming the validation seeds where they
+        are played."""
+        if self.seed_set == "evaluation":
+            return self.suite.description
+        return f"{VALIDATION_NOTE} {self.suite.description}"
 
 
 def _scenario_names(suite: Suite) -> list[str]:
@@ -182,15 +210,24 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
             f"two scenarios are both named {clash!r} in the report; give the file its own "
             "'name' key or file name"
         )
+    if config.seed_set not in SEED_SETS:
+        raise EvaluationError(
+            f"--seed-set {config.seed_set!r}: expected one of {', '.join(SEED_SETS)}"
+        )
     seeds: dict[str, list[int]] = {}
     for name in scenarios:
-        published = load_scenario(name).evaluation_seeds
-        if suite.episodes > len(published):
+        scenario = load_scenario(name)
+        available = list(
+            scenario.evaluation_seeds
+            if config.seed_set == "evaluation"
+            else scenario.validation_seeds
+        )
+        if suite.episodes > len(available):
             raise EvaluationError(
-                f"{suite.episodes} episodes requested but scenario {name!r} publishes "
-                f"{len(published)} evaluation seeds; use --episodes <= {len(published)}"
+                f"{suite.episodes} episodes requested but scenario {name!r} has "
+                f"{len(available)} {config.seed_set} seeds; use --episodes <= {len(available)}"
             )
-        seeds[name] = published[: suite.episodes]
+        seeds[name] = available[: suite.episodes]
     specs = [
         resolve_agent(s, trust_model=config.trust_model) for s in expand_specs(list(suite.agents))
     ]
@@ -236,7 +273,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         check_writable(config.episode_plots, "--episode-plots")
     if config.video is not None:
         check_writable(config.video, "--video")
-    return Plan(suite, specs, scenarios, seeds, tasks, hashes)
+    return Plan(suite, specs, scenarios, seeds, tasks, hashes, config.seed_set)
 
 
 def _provenance(
@@ -248,6 +285,7 @@ def _provenance(
         "packages": package_versions(),
         "machine": machine(),
         "config_hashes": plan.config_hashes,
+        "seed_set": plan.seed_set,
         "seeds": plan.seeds,
         "agents": [
             {
@@ -364,8 +402,8 @@ def run_evaluation(
     ranking = rank_agents(summaries, privileged)
     seconds = time.perf_counter() - start
     data = ReportData(
-        suite=plan.suite.name,
-        description=plan.suite.description,
+        suite=plan.report_name,
+        description=plan.description,
         command=command,
         reference=plan.suite.reference,
         records=records,

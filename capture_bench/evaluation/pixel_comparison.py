@@ -24,7 +24,7 @@ TITLE = "Pixels vs the estimate"
 TEXT = (
     "Each policy trained on the camera's pixels (no estimator: the image and the arm's state) "
     "beside the reference and the policies fed by the estimator, on the same scenario and "
-    "published seeds: Δ capture rate is the pixel policy's minus the other agent's over the "
+    "seeds: Δ capture rate is the pixel policy's minus the other agent's over the "
     "seeds both were evaluated on (a seed counts -1, 0 or +1; 95% paired percentile bootstrap "
     "over seeds), next to the seeds captured by one agent only, and paired Δ ratio is the median "
     "over seeds captured by both of the pixel policy's minus the other's ratio of capture time "

@@ -35,6 +35,7 @@ from capture_bench.evaluation.metrics import Estimate
 from capture_bench.evaluation.paired import Paired, PairedSection
 from capture_bench.evaluation.rliable_report import RliableSection
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
+from capture_bench.evaluation.suites import VALIDATION_SUFFIX
 from capture_bench.provenance import REPRODUCIBILITY, provenance_text
 
 if TYPE_CHECKING:
@@ -238,12 +239,18 @@ def _scenarios(data: ReportData) -> list[str]:
 
 def _title(data: ReportData, quote: str) -> str:
     """``default suite``, ``custom-<hash> (custom selection)`` or ``merged-<hash> (merged
-    reports)``: never a suite's name for a narrowed run or a merge."""
+    reports)``: never a suite's name for a narrowed run or a merge; a run on the validation
+    seeds says so."""
+    name = f"{quote}{data.suite}{quote}"
     if data.suite.startswith("custom-"):
-        return f"{quote}{data.suite}{quote} (a custom selection, not a suite as defined)"
-    if data.suite.startswith("merged-"):
-        return f"{quote}{data.suite}{quote} (reports merged from several evaluations)"
-    return f"{quote}{data.suite}{quote} suite"
+        title = f"{name} (a custom selection, not a suite as defined)"
+    elif data.suite.startswith("merged-"):
+        title = f"{name} (reports merged from several evaluations)"
+    else:
+        title = f"{name} suite"
+    if data.suite.endswith(VALIDATION_SUFFIX):
+        title += ", on validation seeds (for choosing models, not a leaderboard)"
+    return title
 
 
 def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:

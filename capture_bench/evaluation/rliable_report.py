@@ -156,7 +156,7 @@ def text(section: RliableSection) -> str:
         "Computed by the rliable package (Agarwal et al. 2021, NeurIPS) from each episode's "
         "score: physical limit / capture time for a capture (1 = as fast as physically possible), "
         "0 for a failure. The unit of replication is the episode: the leaderboard evaluates one "
-        f"model per agent, so an agent's score matrix holds its {seeds} published seeds (rows) of "
+        f"model per agent, so an agent's score matrix holds its {seeds} seeds (rows) of "
         f"each of the {len(section.scenarios)} scenarios (columns), and the 95% intervals are "
         "rliable's stratified bootstrap, the seeds resampled within each scenario "
         f"({section.reps} resamples, numpy seed {section.seed}). IQM: the mean of the middle half "

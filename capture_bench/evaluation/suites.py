@@ -66,6 +66,14 @@ class Suite:
     videos: bool = True
 
 
+#: The seeds an evaluation can play (``EvaluationConfig.seed_set``).
+SEED_SETS = ("evaluation", "validation")
+VALIDATION_SUFFIX = "-validation"  # the report folder of a run on the validation seeds
+VALIDATION_NOTE = (
+    "Played on the scenarios' validation seeds, the seeds that training, tuning and model "
+    "selection use, not on the published evaluation seeds: for choosing and comparing models, "
+    "not a leaderboard."
+)
 _SCHEMA = {  # capture_bench.validation rules
     "description": Rule("string"),
     "agents": Rule("names"),

@@ -29,7 +29,7 @@ TITLE = "Rendered vs analytic vision"
 TEXT = (
     "Each agent on a scenario with the analytic camera (markers projected exactly, plus pixel "
     "noise) and on its rendered twin (markers found in pybullet's rendered image, where the arm "
-    "can hide them), on the same published seeds, hence the same targets: Δ capture rate is "
+    "can hide them), on the same seeds, hence the same targets: Δ capture rate is "
     "rendered minus analytic over the seeds evaluated in both (a seed counts -1, 0 or +1; 95% "
     "paired percentile bootstrap over seeds), next to the seeds captured by one camera only, and "
     "paired Δ ratio is the median over seeds captured by both of the rendered minus the analytic "
