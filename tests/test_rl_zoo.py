@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -151,7 +152,8 @@ _ZooConfigLoader.add_constructor(
 def test_the_zoo_trains_a_few_thousand_steps_with_the_shipped_file(tmp_path):
     """``python -m rl_zoo3.train`` with configs/zoo/ppo.yml on paper (16 envs instead of 64, to
     keep the test short: one rollout fills one 1024-sample batch, as in the file): it exits 0,
-    evaluates, saves a model with our settings and records our entry as its config."""
+    evaluates, saves a model with our settings and records our entry as its config; the model
+    converts to the safe form."""
     pytest.importorskip("rl_zoo3")
     from stable_baselines3 import PPO
     from torch import nn
@@ -187,3 +189,21 @@ def test_the_zoo_trains_a_few_thousand_steps_with_the_shipped_file(tmp_path):
     assert model.policy.net_arch == hp["policy_kwargs"]["net_arch"]
     assert isinstance(model.policy.features_extractor, RelativeLogDistance)
     assert model.policy.activation_fn is nn.Tanh
+    # the Zoo's model converts to the safe form, which evaluate.py loads without unpickling
+    from capture_bench.agents.convert import main as convert
+    from capture_bench.agents.sb3_policy import load_sb3_policy
+
+    model_dir = tmp_path / "zoo-model"
+    model_dir.mkdir()
+    shutil.copy(run / "CaptureBench-Paper-v0.zip", model_dir)
+    (model_dir / "metadata.json").write_text('{"algorithm": "PPO"}')
+    assert convert([str(model_dir), "--trust-model"]) == 0
+    (model_dir / "CaptureBench-Paper-v0.zip").unlink()  # the safe form alone from here on
+    env = gym.make(env_id)
+    try:
+        policy = load_sb3_policy(model_dir, env)
+        obs, _ = env.reset(seed=load_scenario("paper").evaluation_seeds[0])
+        action, _ = policy.predict(obs, deterministic=True)
+        assert np.array_equal(action, model.predict(obs, deterministic=True)[0])
+    finally:
+        env.close()
