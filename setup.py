@@ -27,7 +27,8 @@ class BuildWithData(build_py):
             return
         data = Path(self.build_lib) / "capture_bench" / "_data"
         shutil.rmtree(data, ignore_errors=True)
-        for path in sorted((ROOT / "configs").glob("*/*.yaml")):
+        configs = ROOT / "configs"  # ours (*.yaml) and the RL Zoo's (zoo/*.yml)
+        for path in sorted([*configs.glob("*/*.yaml"), *configs.glob("zoo/*.yml")]):
             self._copy(path, data / "configs" / path.relative_to(ROOT / "configs"))
         for model in sorted(p for p in (ROOT / "models").glob("*") if p.is_dir()):
             for name in MODEL_FILES:

@@ -69,6 +69,7 @@ def test_the_wheel_installs_one_import_name(wheel):
     (dist_info,) = [t for t in top if t.endswith(".dist-info")]
     assert top - {dist_info} == {"capture_bench"}  # no top-level ``agents`` beside it
     assert "capture_bench/agents/protocol.py" in names
+    assert "capture_bench/_data/configs/zoo/ppo.yml" in names  # the RL Zoo's files too
     top_level = f"{dist_info}/top_level.txt"
     if top_level in names:
         assert zipfile.ZipFile(wheel).read(top_level).decode().split() == ["capture_bench"]

@@ -214,8 +214,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         if getattr(config, key) is not None:
             hp[key] = getattr(config, key)
     check_shaping(hp)
-    if any(key in hp for key in CURRICULA):  # default: half the run's budget, after the options
-        hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
+    fill_curriculum_steps(hp)  # after the options: half the budget they set
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
     if mixed:
@@ -341,6 +340,12 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
                 f"--scenario {config.scenario}: {key} depends on one scenario's task; train it "
                 "on a single scenario"
             )
+
+
+def fill_curriculum_steps(hp: dict) -> None:
+    """Give a curriculum without ``curriculum_steps`` half the run's ``total_timesteps``."""
+    if any(key in hp for key in CURRICULA):
+        hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
 
 
 def check_curricula(hp: dict, scenario: Any) -> None:
@@ -546,23 +551,35 @@ def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str |
     )  # fmt: skip
 
 
+def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
+    """The curricula ``hp`` asks for on ``scenario`` (training only), by the name of their
+    callback in :mod:`capture_bench.training.callbacks`, with its keyword arguments:
+    ``{"ToleranceCurriculum": {"start": m, "final": eps (m, 3 numbers), "steps": ..., "delay":
+    ...}, "HoldCurriculum": {"start": s, "final": capture.hold (s), ...}}``; empty where it asks
+    for none. ``hp`` holds ``curriculum_steps`` (``prepare`` fills it in)."""
+    if not any(key in hp for key in CURRICULA):
+        return {}
+    from capture_bench.envs.capture_env import describe_task
+
+    schedule = {"steps": hp["curriculum_steps"], "delay": hp["curriculum_delay"]}
+    found: dict[str, dict[str, Any]] = {}
+    if "curriculum_tolerance" in hp:
+        final = [float(x) for x in describe_task(scenario).capture_tolerance]
+        found["ToleranceCurriculum"] = {"start": hp["curriculum_tolerance"], "final": final}
+    if "curriculum_hold" in hp:
+        found["HoldCurriculum"] = {"start": hp["curriculum_hold"], "final": scenario.capture.hold}
+    return {name: {**kwargs, **schedule} for name, kwargs in found.items()}
+
+
 def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
     """The curricula ``hp`` asks for (training only: validation keeps the scenario's rule), as
-    SB3 callbacks; none where it asks for none."""
-    if not any(key in hp for key in CURRICULA):
+    SB3 callbacks (:func:`curricula`); none where it asks for none."""
+    found = curricula(hp, load_scenario(config.scenario))
+    if not found:
         return []
-    from capture_bench.envs.capture_env import describe_task
-    from capture_bench.training.callbacks import HoldCurriculum, ToleranceCurriculum
+    from capture_bench.training import callbacks
 
-    scenario = load_scenario(config.scenario)
-    schedule = (hp["curriculum_steps"], hp["curriculum_delay"])
-    callbacks: list[Any] = []
-    if "curriculum_tolerance" in hp:
-        final = describe_task(scenario).capture_tolerance
-        callbacks.append(ToleranceCurriculum(hp["curriculum_tolerance"], final, *schedule))
-    if "curriculum_hold" in hp:
-        callbacks.append(HoldCurriculum(hp["curriculum_hold"], scenario.capture.hold, *schedule))
-    return callbacks
+    return [getattr(callbacks, name)(**kwargs) for name, kwargs in found.items()]
 
 
 def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:

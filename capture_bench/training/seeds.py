@@ -72,12 +72,16 @@ class TrainingSeeds(gym.Wrapper):
 
     Args:
         env: a capture-bench environment.
-        scenario: its scenario (for the seed ranges).
+        scenario: its scenario (for the seed ranges); None: the env's own
+            (``env.unwrapped.scenario``), so that the wrapper can be built from the env alone, as
+            the RL Zoo's ``env_wrapper`` does (``configs/zoo/``).
         seed: seeds the draw until :meth:`reset` is given another.
     """
 
-    def __init__(self, env: gym.Env, scenario: Scenario, seed: int) -> None:
+    def __init__(self, env: gym.Env, scenario: Scenario | None = None, seed: int = 0) -> None:
         super().__init__(env)
+        if scenario is None:
+            scenario = env.unwrapped.scenario  # type: ignore[attr-defined]
         self._draw = TrainingSeedDraw(scenario, seed)
         self.episode_seed: int | None = None
 
