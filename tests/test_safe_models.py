@@ -248,3 +248,24 @@ def test_the_converter_needs_trust_and_writes_the_safe_form(tmp_path, capsys):
     assert metadata.weights_file is not None and metadata.model_file == directory / "model.zip"
     safe, trusted = load_policy(metadata), load_trusted(metadata)
     _assert_same_actions(SB3Policy(safe.policy), SB3Policy(trusted.policy))
+
+
+def test_a_policy_loaded_to_act_builds_no_torch_optimiser():
+    """SB3 builds an optimiser with every policy; a torch optimiser's construction imports
+    torch._dynamo (seconds of an evaluation's planning and of each worker). The safe loader
+    builds the policy with a do-nothing optimiser, and the policy still acts."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from capture_bench.agents.sb3_policy import load_policy, read_metadata\n"
+        "loaded = load_policy(read_metadata('models/ppo-paper'))\n"
+        "action, _ = loaded.policy.predict(np.zeros(16, np.float32), deterministic=True)\n"
+        "assert action.shape == (3,), action.shape\n"
+        "print('torch._dynamo' in sys.modules)\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"

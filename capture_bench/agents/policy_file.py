@@ -402,6 +402,15 @@ def _zero_schedule(_progress: float) -> float:
     return 0.0  # the optimiser SB3 builds with the policy is never stepped here
 
 
+class _NoOptimizer:
+    """What SB3 builds as a policy's optimiser (``optimizer_class``) when the policy only acts:
+    nothing. A torch optimiser's construction imports ``torch._dynamo`` (seconds of a process
+    that only evaluates), and a policy that only acts never steps one."""
+
+    def __init__(self, params: Any, lr: float = 0.0, **kwargs: Any) -> None:
+        del params, lr, kwargs
+
+
 def build_policy(declaration: PolicyDeclaration, where: str) -> Any:
     """The declared SB3 policy, untrained (weights as initialised; the caller loads them).
 
@@ -415,6 +424,7 @@ def build_policy(declaration: PolicyDeclaration, where: str) -> Any:
         kwargs["activation_fn"] = getattr(nn, ACTIVATIONS[kwargs["activation_fn"]])
     if "features_extractor" in kwargs:
         kwargs["features_extractor_class"] = _feature_extractors()[kwargs.pop("features_extractor")]
+    kwargs["optimizer_class"] = _NoOptimizer
     policy_class = _policy_class(declaration.algorithm, where, declaration.multi_input)
     with torch.random.fork_rng(devices=[]):
         try:
