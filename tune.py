@@ -2,6 +2,7 @@
 
     python tune.py --algo sac --scenario paper --trials 50 --n-timesteps 100000
     python tune.py --algo sac --scenario paper --trials 50        # 50 more, same study
+    python tune.py --algo sac --scenario paper --trials 40 --workers 4   # 4 trials at a time
     python train.py --algo sac --config runs/tune-paper-sac/best.yaml
 
 The same command is installed as ``capture-bench-tune`` (needs the ``tune`` extra:

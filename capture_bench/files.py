@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +54,30 @@ def atomic_write(path: Path, data: bytes | None = None, writer: Any = None) -> N
     else:
         writer(str(tmp))
     os.replace(tmp, path)
+
+
+@contextlib.contextmanager
+def directory_lock(directory: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``directory`` (``flock``, advisory) within the block: processes
+    writing files there one after another take turns, each seeing what the one before wrote.
+    Where the system gives no such lock (no ``fcntl``; a file system that refuses one on a
+    folder, as NFS may), the block runs without it."""
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system
+        yield
+        return
+    try:
+        handle = os.open(directory, os.O_RDONLY)
+    except OSError:
+        yield
+        return
+    try:
+        with contextlib.suppress(OSError):
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(handle)  # releases the lock
 
 
 def episode_file_name(agent: str, scenario: str, seed: int, suffix: str) -> str:

@@ -1,4 +1,5 @@
-"""SIGTERM handled as Ctrl-C, so both CLIs end the same way on either signal."""
+"""SIGTERM handled as Ctrl-C, so both CLIs end the same way on either signal; and both held back
+where an interrupt must not land (:func:`held_interrupts`)."""
 
 from __future__ import annotations
 
@@ -30,3 +31,45 @@ def sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+class HeldInterrupts:
+    """SIGINT and SIGTERM (those :func:`held_interrupts` handles) raised only inside
+    :meth:`raising` blocks; one that comes elsewhere is held (:attr:`pending`) and raised as the
+    next such block starts. So an interrupt lands only where the code is ready for it (a trial's
+    training), never halfway through bookkeeping that must finish (a database write)."""
+
+    def __init__(self) -> None:
+        self.pending: KeyboardInterrupt | None = None
+        self._raising = False
+
+    def handle(self, signum: int, frame: Any) -> None:
+        interrupt = Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+        if self._raising:
+            raise interrupt
+        if self.pending is None:
+            self.pending = interrupt
+
+    @contextlib.contextmanager
+    def raising(self) -> Iterator[None]:
+        """Within the block the signals raise at once, a held one as the block starts."""
+        self._raising = True
+        try:
+            if self.pending is not None:
+                raise self.pending
+            yield
+        finally:
+            self._raising = False
+
+
+@contextlib.contextmanager
+def held_interrupts(signals: tuple[int, ...]) -> Iterator[HeldInterrupts]:
+    """Within the block, ``signals`` (SIGINT, SIGTERM or both; main thread only) are handled by
+    the :class:`HeldInterrupts` it yields; the previous handlers are restored after it."""
+    held = HeldInterrupts()
+    previous = {signum: signal.signal(signum, held.handle) for signum in signals}
+    try:
+        yield held
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)

@@ -4,6 +4,7 @@ would, and what /proc says of it and of the workers it started (Linux)."""
 from __future__ import annotations
 
 import signal
+import time
 from pathlib import Path
 
 
@@ -38,3 +39,11 @@ def alive(pid: int) -> bool:
     """The process exists and is not a zombie."""
     fields = _stat_fields(pid)
     return fields is not None and fields[0] != "Z"
+
+
+def outliving(pids: list[int], seconds: float) -> list[int]:
+    """Those of ``pids`` still alive after waiting up to ``seconds`` for them all to end."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and any(alive(pid) for pid in pids):
+        time.sleep(0.1)
+    return [pid for pid in pids if alive(pid)]

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from processes import alive, default_sigint, descendants
+from processes import default_sigint, descendants, outliving
 
 from evaluate import main
 
@@ -105,10 +105,8 @@ def test_a_signal_ends_evaluate_at_once_with_no_worker_left(signum, status, tmp_
     _, err = proc.communicate(timeout=20)
     assert proc.returncode == status, err
     assert "Traceback" not in err and "interrupted" in err
-    gone = time.monotonic() + 5  # the forkserver and resource tracker follow within moments
-    while [pid for pid in workers if alive(pid)] and time.monotonic() < gone:
-        time.sleep(0.1)
-    assert not [pid for pid in workers if alive(pid)], "a worker outlived evaluate.py"
+    # the forkserver and resource tracker follow within moments
+    assert not outliving(workers, 5), "a worker outlived evaluate.py"
     assert (out / "quick" / "marker").read_text() == "previous report"
     assert sorted(p.name for p in out.iterdir()) == ["quick"]  # no staging folder left
 
@@ -146,10 +144,7 @@ def test_no_worker_outlives_evaluate_killed_by_sigkill(tmp_path):
         time.sleep(1.0)  # mid-episodes
         proc.kill()
         proc.wait(timeout=10)
-        deadline = time.monotonic() + 5
-        while time.monotonic() < deadline and any(alive(pid) for pid in started):
-            time.sleep(0.1)
-        assert not [pid for pid in started if alive(pid)], "a process outlived evaluate.py"
+        assert not outliving(started, 5), "a process outlived evaluate.py"
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)  # its own session: whatever of it is left

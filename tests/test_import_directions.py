@@ -45,6 +45,8 @@ STAGES: dict[str, tuple[str, int]] = {
             "interrupts",
             "_quiet",
             "rliable_stats",
+            "ray_cluster",
+            "worker_processes",
         )
     },
     "sim": ("sim", 1),

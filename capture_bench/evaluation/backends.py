@@ -14,25 +14,17 @@ episode.
 The local pool's workers end with the process that started them, however it ends (``kill -9``
 included), and the forkserver and multiprocessing's resource tracker then end by themselves.
 
-Ray is imported only by the ``ray`` backend (``pip install capture-bench[ray]``). If Ray is
-already initialised in this process it is used as it is (its workers must be able to import
-capture-bench: installed, or started from the checkout). Otherwise ``ray.init(address=...)``
-starts a local instance (no address) or joins a cluster, shipping this checkout as the job's
-``working_dir`` (code, ``configs/``, ``models/``; not ``.git``, ``reports/``, ``runs/``); the nodes
-need the dependencies installed. Model specs travel as written: name them ``models/<name>``.
-:func:`check_ray_cluster` refuses a cluster that does not answer, in seconds: Ray itself retries
-an unreachable address for many minutes.
+Ray is imported only by the ``ray`` backend (``pip install capture-bench[ray]``), which joins
+or starts it as :mod:`capture_bench.ray_cluster` says (this checkout shipped to the workers;
+:func:`~capture_bench.ray_cluster.check_ray_cluster` refuses a cluster that does not answer, in
+seconds). Model specs travel as written: name them ``models/<name>``.
 """
 
 from __future__ import annotations
 
-import contextlib
-import multiprocessing
 import os
 import signal
-import socket
-import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -52,8 +44,13 @@ from capture_bench.evaluation.rollout import (
     run_episode,
     run_episodes,
 )
-from capture_bench.paths import CHECKOUT_DIR
+from capture_bench.ray_cluster import import_ray, start_ray
 from capture_bench.task.target_side import EpisodeCache
+from capture_bench.worker_processes import (
+    end_with_parent,
+    process_context,
+    single_threaded_children,
+)
 
 BACKENDS = ("serial", "process", "ray")
 #: Most seeds per chunk (each with every agent): the batch each agent plays at once. A batched
@@ -74,11 +71,8 @@ PRELOAD = (
     "PIL.Image",
 )
 
-#: Not shipped to Ray workers with the checkout.
-RAY_EXCLUDES = [".git", "reports", "runs", "**/__pycache__", "*.egg-info", ".venv", "*.png"]
-
-#: Seconds the Ray cluster's address has to accept a TCP connection before the run is refused.
-RAY_CONNECT_TIMEOUT_S = 5.0
+#: The option that asks for Ray, as its messages name it.
+RAY_BACKEND = "--backend ray"
 
 Progress = Callable[[int], None]
 
@@ -293,25 +287,6 @@ def make_chunks(
     return chunks
 
 
-#: One thread per worker for the numerical libraries: the workers are the parallelism. OpenBLAS
-#: reads these when numpy is imported, so they must be in the environment the forkserver (or a
-#: spawned worker) starts with, not set inside the worker. (Torch's threads are set where a model
-#: is loaded: ``agents_loading._model``.)
-SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-
-
-@contextlib.contextmanager
-def _single_threaded_children() -> Iterator[None]:
-    """Set :data:`SINGLE_THREAD_ENV` (where the user has not) while worker processes start."""
-    added = {k: v for k, v in SINGLE_THREAD_ENV.items() if k not in os.environ}
-    os.environ.update(added)
-    try:
-        yield
-    finally:
-        for key in added:
-            os.environ.pop(key, None)
-
-
 def _run_serial(chunks: list[list[EpisodeTask]], progress: Progress) -> list[list[EpisodeRecord]]:
     results = []
     try:
@@ -330,13 +305,8 @@ def _run_process(
 
 
 def _process_context() -> Any:
-    """The start method's context: forkserver (preloading :data:`PRELOAD`) where there is one,
-    else spawn."""
-    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-    context = multiprocessing.get_context(method)
-    if method == "forkserver":  # workers fork from a server that has already imported these
-        context.set_forkserver_preload(list(PRELOAD))
-    return context
+    """The workers' start method's context, the forkserver preloading :data:`PRELOAD`."""
+    return process_context(PRELOAD)
 
 
 def prestart_workers() -> None:
@@ -346,7 +316,7 @@ def prestart_workers() -> None:
     if _process_context().get_start_method() == "forkserver":
         import multiprocessing.forkserver
 
-        with _single_threaded_children():
+        with single_threaded_children():
             multiprocessing.forkserver.ensure_running()
 
 
@@ -370,7 +340,7 @@ def map_processes(
         workers, mp_context=context, initializer=_start_worker, initargs=(watched,)
     )
     try:
-        with _single_threaded_children():  # workers (and the forkserver) start on submit
+        with single_threaded_children():  # workers (and the forkserver) start on submit
             pending = {pool.submit(function, item): i for i, item in enumerate(items)}
         while pending:
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
@@ -393,20 +363,13 @@ def map_processes(
 def _start_worker(watched: Connection) -> None:
     """Worker initialiser. SIGINT (Ctrl-C reaches the whole process group) and SIGTERM are the
     main process's to handle: it kills the workers itself. And the worker ends with the main
-    process, however that ends: a thread waits on ``watched``, a pipe only the main process
-    writes to. Nothing else would end it: a pool worker waits for work on a pipe it holds the
-    write end of too, and the forkserver and resource tracker exit only once every worker has
-    closed their pipes (each forked worker inherits both)."""
+    process, however that ends (:func:`~capture_bench.worker_processes.end_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    threading.Thread(
-        target=_exit_with_main, args=(watched,), name="exit-with-main", daemon=True
-    ).start()
+    end_with_parent(watched, _exit_now)
 
 
-def _exit_with_main(watched: Connection) -> None:
-    with contextlib.suppress(EOFError, OSError):
-        watched.recv_bytes()  # nothing is ever sent: this returns when the main process is gone
+def _exit_now() -> None:
     os._exit(1)  # at once, even mid-episode: nothing is left to receive the results
 
 
@@ -422,88 +385,11 @@ def _kill_workers(pool: ProcessPoolExecutor) -> None:
         process.join(timeout=5)
 
 
-def _import_ray() -> Any:
-    try:
-        import ray
-    except ImportError:
-        raise EvaluationError("--backend ray needs Ray: pip install 'capture-bench[ray]'") from None
-    return ray
-
-
-def _host_port(address: str, source: str) -> tuple[str, int]:
-    host, _, port = address.rpartition(":")
-    if not (host and port.isascii() and port.isdigit() and 0 < int(port) < 65536):
-        raise EvaluationError(
-            f"{source}: expected HOST:PORT (the address `ray start --head` prints), auto, or "
-            "ray://HOST:PORT"
-        )
-    return host.strip("[]"), int(port)
-
-
-def check_ray_cluster(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
-    """Raise :class:`EvaluationError` unless the ``ray`` backend can start: Ray is installed, and
-    the cluster ``ray.init(address=address)`` would join accepts a TCP connection within
-    ``timeout_s`` seconds (Ray's own connect retries an unreachable address for many minutes).
-
-    The address is resolved as ``ray.init`` resolves it (``RAY_ADDRESS``, ``auto``, a local host
-    replaced by this node's IP). Nothing to reach when Ray is already initialised here or
-    ``ray.init`` starts a local instance. A Ray Client address (``ray://HOST:PORT``) is left to
-    Ray's client, which gives up by itself after about 30 s.
-    """
-    ray = _import_ray()
-    if ray.is_initialized():
-        return
-    from ray._private.services import canonicalize_bootstrap_address  # what ray.init calls
-
-    env = os.environ.get("RAY_ADDRESS") if address in (None, "auto") else None
-    given = env or address
-    source = f"RAY_ADDRESS={env}" if env else f"--ray-address {address}"
-    if given is not None and "://" in given:
-        return
-    if given not in (None, "auto", "local"):
-        _host_port(given, source)  # checked here: Ray logs a traceback for some malformed ones
-    try:
-        # typed as str, but ray.init passes None too (RAY_ADDRESS, or a local instance)
-        target = canonicalize_bootstrap_address(given)  # type: ignore[arg-type]
-    except ConnectionError:  # auto, and no cluster started here with `ray start`
-        raise EvaluationError(
-            f"{source}: no Ray cluster runs on this machine; start one with `ray start --head` "
-            "or give a cluster's address"
-        ) from None
-    except ValueError as exc:
-        raise EvaluationError(f"{source}: {exc}") from None
-    if target is None:
-        return
-    if given is None:
-        source = "--backend ray with no --ray-address (the cluster `ray start` last started here)"
-    host, port = _host_port(target, source)
-    try:
-        socket.create_connection((host, port), timeout=timeout_s).close()
-    except (OSError, ValueError) as exc:  # ValueError: a NUL in the host name
-        timed_out = isinstance(exc, TimeoutError)
-        reason = f"no answer in {timeout_s:g} s" if timed_out else getattr(exc, "strerror", None)
-        where = target if given in (None, target) else f"{target}, where Ray connects for {given}"
-        raise EvaluationError(
-            f"{source}: no Ray cluster answers at {where} ({reason or exc}); start one with "
-            "`ray start --head` or give a running cluster's address"
-        ) from None
-
-
 def _run_ray(
     chunks: list[list[EpisodeTask]], address: str | None, progress: Progress
 ) -> list[list[EpisodeRecord]]:
-    ray = _import_ray()
-    check_ray_cluster(address)
-    started = not ray.is_initialized()
-    if started:
-        # ship this checkout (code, configs, models) so the workers run what this process runs
-        runtime_env = {"working_dir": str(CHECKOUT_DIR), "excludes": RAY_EXCLUDES}
-        ray.init(
-            address=address,
-            include_dashboard=False,
-            log_to_driver=False,
-            runtime_env=runtime_env,
-        )
+    ray = import_ray(RAY_BACKEND)
+    started = start_ray(address, RAY_BACKEND)
     try:
         remote = ray.remote(num_cpus=1)(run_chunk)
         refs = {remote.remote(chunk): i for i, chunk in enumerate(chunks)}

@@ -25,8 +25,8 @@ from capture_bench.evaluation.agents_loading import (
 from capture_bench.evaluation.aggregate import RankingRow, rank_agents, summarise_all
 from capture_bench.evaluation.backends import (
     BACKENDS,
+    RAY_BACKEND,
     EpisodeTask,
-    check_ray_cluster,
     close_envs,
     make_env,
     map_processes,
@@ -56,6 +56,7 @@ from capture_bench.provenance import (
     machine,
     package_versions,
 )
+from capture_bench.ray_cluster import check_ray_cluster
 from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
 
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2. OSError:
@@ -267,7 +268,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
             f"{suite.episodes} episodes evaluated of each agent x scenario"
         )
     if config.resolved_backend() == "ray":
-        check_ray_cluster(config.ray_address)
+        check_ray_cluster(config.ray_address, RAY_BACKEND)
     check_writable(config.out, "--out")
     if config.episode_plots is not None:
         check_writable(config.episode_plots, "--episode-plots")

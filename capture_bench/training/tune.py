@@ -4,6 +4,7 @@ validations inside each trial), for the validation capture rate.
 
     python tune.py --algo sac --scenario paper --trials 50 --n-timesteps 100000
     python tune.py --algo sac --scenario paper --trials 50   # again: 50 more trials, same study
+    python tune.py --algo sac --scenario paper --trials 40 --workers 4   # 4 trials at a time
 
 Each trial trains ``--n-timesteps`` steps on training seeds only, with the hyper-parameters it
 samples (:mod:`capture_bench.training.search_spaces`) merged over those ``train.py`` would train
@@ -16,17 +17,18 @@ first and, among equal capture rates, the median ratio of capture time to the ph
 Trials are stored in ``--storage`` (default ``sqlite:///<output>/study.db``); a study with the
 same name is resumed with the settings it was created with
 (:mod:`capture_bench.training.tune_study`: an option left out takes the study's value, another
-value is refused). At the end (also after Ctrl-C) ``--output`` gets ``best.yaml`` (for
-``train.py --config``), ``trials.csv``, ``optimization_history.png`` and
-``param_importances.png``, each written atomically. A user's mistake is one line on stderr and
-exit 2, found before anything is written.
+value is refused). ``--workers N`` runs N trials at once in worker processes, ``--ray-address``
+as Ray tasks on a cluster, and a second ``tune.py`` on the same study adds its trials to it
+(:mod:`capture_bench.training.tune_workers`). At the end (also after Ctrl-C) ``--output`` gets
+``best.yaml`` (for ``train.py --config``), ``trials.csv``, ``optimization_history.png`` and
+``param_importances.png`` from every trial of the study, each written atomically. A user's
+mistake is one line on stderr and exit 2, found before anything is written.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -34,6 +36,7 @@ from typing import Any
 from capture_bench.argparsing import OneLineParser, program
 from capture_bench.files import check_writable
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
+from capture_bench.ray_cluster import check_ray_cluster
 from capture_bench.task.scenarios import ConfigError, load_scenario
 from capture_bench.training.hyperparameters import (
     ALGORITHMS,
@@ -45,6 +48,7 @@ from capture_bench.training.search_spaces import SAMPLERS, Choice
 from capture_bench.training.seeds import check_training_seed
 from capture_bench.training.tune_options import Setup, TuneConfig
 from capture_bench.training.tune_outputs import OUTPUT_FILES, redacted, write_outputs
+from capture_bench.training.tune_storage import shared_url
 from capture_bench.training.tune_study import keep_settings
 
 PROG = program("tune.py")  # capture-bench-tune when run as that console script
@@ -108,6 +112,9 @@ def prepare(config: TuneConfig, given: set[str] | None = None) -> Setup:
         _positive(getattr(config, option), option.replace("_", "-"))
     _positive(config.trials, "trials", low=0)
     _positive(config.n_startup_trials, "n-startup-trials", low=0)
+    _positive(config.workers, "workers")
+    if config.ray_address is not None:
+        check_ray_cluster(config.ray_address, "--ray-address")
     budget = config.n_timesteps or base["total_timesteps"]
     n_envs = base["n_envs"]
     every = budget // config.n_evaluations
@@ -137,6 +144,9 @@ def prepare(config: TuneConfig, given: set[str] | None = None) -> Setup:
     for name in OUTPUT_FILES:
         if (output / name).is_dir():
             raise ConfigError(f"--output {output}: {output / name} is a folder, not a file")
+    storage = config.storage or f"sqlite:///{output / 'study.db'}"
+    if config.workers > 1 or config.ray_address is not None:
+        _check_shared(storage)
     setup = Setup(
         config=config,
         scenario=scenario,
@@ -148,11 +158,25 @@ def prepare(config: TuneConfig, given: set[str] | None = None) -> Setup:
         eval_episodes=episodes,
         keep=keep,
         study_name=config.study_name or f"{scenario.name}-{config.algo}",
-        storage=config.storage or f"sqlite:///{output / 'study.db'}",
+        storage=storage,
         output=output,
     )
     setup.command = study_command(setup)
     return setup
+
+
+def _check_shared(storage: str) -> None:
+    """Refuse a storage that worker processes cannot share (SQLite in memory)."""
+    try:
+        shared = shared_url(storage)
+    except Exception:  # a malformed URL: open_study says what is wrong with it
+        return
+    if shared is None:
+        raise ConfigError(
+            f"--storage {redacted(storage)}: a SQLite database in memory is private to one "
+            "process; --workers and --ray-address need a storage the workers share, e.g. "
+            "sqlite:///<file> or a database server's URL"
+        )
 
 
 def study_command(setup: Setup) -> str:
@@ -196,15 +220,18 @@ def _note_rollouts(setup: Setup) -> None:
 def open_study(setup: Setup) -> Any:
     """Create the study in ``setup.storage``, or load the one of that name: then its algorithm and
     scenario must match, and ``setup`` takes the settings its trials ran with, or a differing
-    option is refused (:func:`~capture_bench.training.tune_study.keep_settings`). TPE is seeded
-    with ``--seed`` plus the trials already stored, so a resumed study does not repeat its first
-    samples."""
+    option is refused (:func:`~capture_bench.training.tune_study.keep_settings`). The study
+    samples and prunes as :mod:`~capture_bench.training.tune_sampler` says (trial n's random
+    numbers seeded with ``(--seed, n)``)."""
     import optuna
+
+    from capture_bench.training.tune_sampler import configure
+    from capture_bench.training.tune_storage import open_storage
 
     config = setup.config
     try:
         study = optuna.create_study(
-            storage=setup.storage,
+            storage=open_storage(setup.storage),
             study_name=setup.study_name,
             direction="maximize",
             load_if_exists=True,
@@ -224,15 +251,7 @@ def open_study(setup: Setup) -> Any:
         )
     keep_settings(study, setup, setup.given)
     setup.command = study_command(setup)
-    study.pruner = optuna.pruners.MedianPruner(
-        n_startup_trials=config.n_startup_trials, n_warmup_steps=config.n_evaluations // 3
-    )
-    study.sampler = optuna.samplers.TPESampler(
-        n_startup_trials=config.n_startup_trials,
-        seed=(config.seed or 0) + len(study.trials),
-        multivariate=True,
-    )
-    return study
+    return configure(study, config)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -254,37 +273,48 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     _note_rollouts(setup)
-    from capture_bench.training.tune_trial import run_trial
+    _note_workers(setup)
+    from capture_bench.training.tune_workers import run_study
 
-    status = 0
     print(
         f"tuning {setup.config.algo.upper()} on {setup.scenario.name}: study {setup.study_name!r} "
         f"({len(study.trials)} trials so far), {setup.config.trials} more of {setup.budget} steps, "
-        f"{setup.config.n_evaluations} validations of {setup.eval_episodes} episodes each "
-        f"-> {setup.output}"
+        f"{setup.config.n_evaluations} validations of {setup.eval_episodes} episodes each"
+        f"{_where(setup)} -> {setup.output}"
     )
-    interrupts: list[KeyboardInterrupt] = []
-
-    def objective(trial: Any) -> float:
-        try:
-            return run_trial(trial, setup)
-        except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM in training (almost always)
-            interrupts.append(exc)
-            trial.set_user_attr("interrupted", True)
-            study.stop()
-            return math.nan  # Optuna records the trial as failed, without a traceback
-
     with sigterm_as_interrupt():
-        try:
-            study.optimize(objective, n_trials=setup.config.trials)
-        except KeyboardInterrupt as exc:  # in Optuna's own code, between trials
-            interrupts.append(exc)
-        if interrupts:
-            status = exit_status(interrupts[0])
-            print("\ninterrupted: the running trial is recorded as failed; writing the results "
+        interrupt, failures = run_study(study, setup)
+        if interrupt is not None:
+            print("\ninterrupted: the running trials are recorded as failed; writing the results "
                   "of the finished trials", file=sys.stderr)  # fmt: skip
+        for failure in failures:
+            print(f"{PROG}: error: {failure}", file=sys.stderr)
         try:
             write_outputs(study, setup)
         except KeyboardInterrupt as exc:  # a second Ctrl-C: each file is whole or absent
             return exit_status(exc)
-    return status
+    if interrupt is not None:
+        return exit_status(interrupt)
+    return 1 if failures else 0
+
+
+def _where(setup: Setup) -> str:
+    """Where the trials run, as the start line says it (nothing: in this process)."""
+    config = setup.config
+    workers = min(config.workers, config.trials)
+    if workers == 0:
+        return ""
+    if config.ray_address is not None:
+        return f", {workers} at a time as Ray tasks ({config.ray_address})"
+    return f", {workers} at a time in worker processes" if workers > 1 else ""
+
+
+def _note_workers(setup: Setup) -> None:
+    """Say that a SQLite file serves one machine where the workers may run on several."""
+    address = setup.config.ray_address
+    if address not in (None, "local") and setup.storage.startswith("sqlite"):
+        print(
+            f"note: --storage {redacted(setup.storage)} is a file on this machine: Ray workers "
+            "on other machines cannot reach it; give a database server's URL "
+            "(postgresql://..., mysql://...) for a cluster of several machines"
+        )

@@ -36,7 +36,7 @@ class TuneConfig:
     )
     seed: int | None = _opt(
         None, "training seed of every trial, one of the scenario's training seeds (default: the "
-        "first); the sampler's seed is this plus the number of trials already in the study"
+        "first); the sampler draws trial n's parameters from a generator seeded with (this, n)"
     )  # fmt: skip
     n_startup_trials: int = _opt(
         5, "trials sampled at random before TPE models the results, and completed before the "
@@ -52,6 +52,14 @@ class TuneConfig:
         "sqlite:///<output>/study.db)"
     )  # fmt: skip
     output: str | None = _opt(None, "output directory (default: runs/tune-<scenario>-<algo>)")
+    workers: int = _opt(
+        1, "trials run at once, each in its own process with its share of --trials, all in one "
+        "study (1: in this process)"
+    )  # fmt: skip
+    ray_address: str | None = _opt(
+        None, "run the --workers as Ray tasks on the cluster at this address (HOST:PORT, auto, "
+        "ray://HOST:PORT; local: a Ray instance started here), all in one --storage; needs Ray"
+    )  # fmt: skip
     vec_env: str = _opt(
         "batched",
         "vectorisation of the training envs (as train.py)",

@@ -1,6 +1,10 @@
 """What ``tune.py`` writes to its output directory, each file atomically: ``best.yaml`` (the best
 trial's hyper-parameters, for ``train.py --config``), ``trials.csv`` and Optuna's optimisation
-history and parameter-importance plots (PNG).
+history and parameter-importance plots (PNG), from every trial in the study's storage.
+
+Several ``tune.py`` on one study may finish close together: each writes the outputs while it holds
+a lock on the output folder (:func:`~capture_bench.files.directory_lock`) and reads the trials
+only then, so the files written last are those of the study as it stands when the last one ends.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
-from capture_bench.files import atomic_write
+from capture_bench.files import atomic_write, directory_lock
 
 if TYPE_CHECKING:
     from capture_bench.training.tune_options import Setup
@@ -24,8 +28,14 @@ OUTPUT_FILES = ("best.yaml", "trials.csv", "optimization_history.png", "param_im
 
 
 def write_outputs(study: Any, setup: Setup) -> None:
-    """Write ``best.yaml``, ``trials.csv`` and the two plots to ``setup.output`` (atomically);
-    print a note for each that cannot be written yet."""
+    """Write ``best.yaml``, ``trials.csv`` and the two plots to ``setup.output`` (atomically) from
+    the study's trials as they stand, holding the folder's lock; print a note for each that
+    cannot be written yet."""
+    with directory_lock(setup.output):
+        _write_outputs(study, setup)
+
+
+def _write_outputs(study: Any, setup: Setup) -> None:
     import optuna
 
     out = setup.output
