@@ -45,6 +45,7 @@ STAGES: dict[str, tuple[str, int]] = {
             "interrupts",
             "_quiet",
             "rliable_stats",
+            "ray_cluster",
         )
     },
     "sim": ("sim", 1),

@@ -14,14 +14,10 @@ episode.
 The local pool's workers end with the process that started them, however it ends (``kill -9``
 included), and the forkserver and multiprocessing's resource tracker then end by themselves.
 
-Ray is imported only by the ``ray`` backend (``pip install capture-bench[ray]``). If Ray is
-already initialised in this process it is used as it is (its workers must be able to import
-capture-bench: installed, or started from the checkout). Otherwise ``ray.init(address=...)``
-starts a local instance (no address) or joins a cluster, shipping this checkout as the job's
-``working_dir`` (code, ``configs/``, ``models/``; not ``.git``, ``reports/``, ``runs/``); the nodes
-need the dependencies installed. Model specs travel as written: name them ``models/<name>``.
-:func:`check_ray_cluster` refuses a cluster that does not answer, in seconds: Ray itself retries
-an unreachable address for many minutes.
+The ``ray`` backend joins a cluster or starts a local instance through
+:mod:`capture_bench.ray_cluster` (which ships this checkout to the nodes and refuses, in seconds,
+a cluster that does not answer); ``pip install capture-bench[ray]``. Model specs travel as
+written: name them ``models/<name>``.
 """
 
 from __future__ import annotations
@@ -30,7 +26,6 @@ import contextlib
 import multiprocessing
 import os
 import signal
-import socket
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -39,6 +34,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from capture_bench import ray_cluster
 from capture_bench.evaluation.agents_loading import (
     AgentSpec,
     build_agent,
@@ -52,7 +48,6 @@ from capture_bench.evaluation.rollout import (
     run_episode,
     run_episodes,
 )
-from capture_bench.paths import CHECKOUT_DIR
 from capture_bench.task.target_side import EpisodeCache
 
 BACKENDS = ("serial", "process", "ray")
@@ -73,12 +68,6 @@ PRELOAD = (
     "capture_bench.evaluation.pipeline",
     "PIL.Image",
 )
-
-#: Not shipped to Ray workers with the checkout.
-RAY_EXCLUDES = [".git", "reports", "runs", "**/__pycache__", "*.egg-info", ".venv", "*.png"]
-
-#: Seconds the Ray cluster's address has to accept a TCP connection before the run is refused.
-RAY_CONNECT_TIMEOUT_S = 5.0
 
 Progress = Callable[[int], None]
 
@@ -422,88 +411,12 @@ def _kill_workers(pool: ProcessPoolExecutor) -> None:
         process.join(timeout=5)
 
 
-def _import_ray() -> Any:
-    try:
-        import ray
-    except ImportError:
-        raise EvaluationError("--backend ray needs Ray: pip install 'capture-bench[ray]'") from None
-    return ray
-
-
-def _host_port(address: str, source: str) -> tuple[str, int]:
-    host, _, port = address.rpartition(":")
-    if not (host and port.isascii() and port.isdigit() and 0 < int(port) < 65536):
-        raise EvaluationError(
-            f"{source}: expected HOST:PORT (the address `ray start --head` prints), auto, or "
-            "ray://HOST:PORT"
-        )
-    return host.strip("[]"), int(port)
-
-
-def check_ray_cluster(address: str | None, timeout_s: float = RAY_CONNECT_TIMEOUT_S) -> None:
-    """Raise :class:`EvaluationError` unless the ``ray`` backend can start: Ray is installed, and
-    the cluster ``ray.init(address=address)`` would join accepts a TCP connection within
-    ``timeout_s`` seconds (Ray's own connect retries an unreachable address for many minutes).
-
-    The address is resolved as ``ray.init`` resolves it (``RAY_ADDRESS``, ``auto``, a local host
-    replaced by this node's IP). Nothing to reach when Ray is already initialised here or
-    ``ray.init`` starts a local instance. A Ray Client address (``ray://HOST:PORT``) is left to
-    Ray's client, which gives up by itself after about 30 s.
-    """
-    ray = _import_ray()
-    if ray.is_initialized():
-        return
-    from ray._private.services import canonicalize_bootstrap_address  # what ray.init calls
-
-    env = os.environ.get("RAY_ADDRESS") if address in (None, "auto") else None
-    given = env or address
-    source = f"RAY_ADDRESS={env}" if env else f"--ray-address {address}"
-    if given is not None and "://" in given:
-        return
-    if given not in (None, "auto", "local"):
-        _host_port(given, source)  # checked here: Ray logs a traceback for some malformed ones
-    try:
-        # typed as str, but ray.init passes None too (RAY_ADDRESS, or a local instance)
-        target = canonicalize_bootstrap_address(given)  # type: ignore[arg-type]
-    except ConnectionError:  # auto, and no cluster started here with `ray start`
-        raise EvaluationError(
-            f"{source}: no Ray cluster runs on this machine; start one with `ray start --head` "
-            "or give a cluster's address"
-        ) from None
-    except ValueError as exc:
-        raise EvaluationError(f"{source}: {exc}") from None
-    if target is None:
-        return
-    if given is None:
-        source = "--backend ray with no --ray-address (the cluster `ray start` last started here)"
-    host, port = _host_port(target, source)
-    try:
-        socket.create_connection((host, port), timeout=timeout_s).close()
-    except (OSError, ValueError) as exc:  # ValueError: a NUL in the host name
-        timed_out = isinstance(exc, TimeoutError)
-        reason = f"no answer in {timeout_s:g} s" if timed_out else getattr(exc, "strerror", None)
-        where = target if given in (None, target) else f"{target}, where Ray connects for {given}"
-        raise EvaluationError(
-            f"{source}: no Ray cluster answers at {where} ({reason or exc}); start one with "
-            "`ray start --head` or give a running cluster's address"
-        ) from None
-
-
 def _run_ray(
     chunks: list[list[EpisodeTask]], address: str | None, progress: Progress
 ) -> list[list[EpisodeRecord]]:
-    ray = _import_ray()
-    check_ray_cluster(address)
-    started = not ray.is_initialized()
-    if started:
-        # ship this checkout (code, configs, models) so the workers run what this process runs
-        runtime_env = {"working_dir": str(CHECKOUT_DIR), "excludes": RAY_EXCLUDES}
-        ray.init(
-            address=address,
-            include_dashboard=False,
-            log_to_driver=False,
-            runtime_env=runtime_env,
-        )
+    started = ray_cluster.init(address, "--backend ray")
+    import ray
+
     try:
         remote = ray.remote(num_cpus=1)(run_chunk)
         refs = {remote.remote(chunk): i for i, chunk in enumerate(chunks)}

@@ -26,7 +26,6 @@ from capture_bench.evaluation.aggregate import RankingRow, rank_agents, summaris
 from capture_bench.evaluation.backends import (
     BACKENDS,
     EpisodeTask,
-    check_ray_cluster,
     close_envs,
     make_env,
     map_processes,
@@ -48,6 +47,7 @@ from capture_bench.provenance import (
     machine,
     package_versions,
 )
+from capture_bench.ray_cluster import check_ray_cluster
 from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
 
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2. OSError:
@@ -230,7 +230,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
             f"{suite.episodes} episodes evaluated of each agent x scenario"
         )
     if config.resolved_backend() == "ray":
-        check_ray_cluster(config.ray_address)
+        check_ray_cluster(config.ray_address, "--backend ray")
     check_writable(config.out, "--out")
     if config.episode_plots is not None:
         check_writable(config.episode_plots, "--episode-plots")
