@@ -8,6 +8,10 @@
 ``python -m capture_bench curves ...``: learning curves from several training seeds
 (:mod:`capture_bench.training.curves`).
 
+``python -m capture_bench sweep ...``: train every combination of algorithms, scenarios and
+training seeds, each run a Ray task, on this machine or a Ray cluster
+(:mod:`capture_bench.training.sweep`).
+
 ``python -m capture_bench list``: what is installed, and what is broken, in one screen. It prints
 the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges), the
 invalid scenario files with their error (file, key, what is valid), the suites and the algorithm
@@ -31,6 +35,8 @@ DELEGATED = {
     "train": "train a Stable-Baselines3 policy on a scenario",
     "tune": "tune an algorithm's hyper-parameters with Optuna (needs the tune extra)",
     "curves": "learning curves of several algorithms and training seeds against incremental_ik",
+    "sweep": "train every combination of algorithms, scenarios and seeds as Ray tasks (needs the "
+    "ray extra)",
 }
 
 
@@ -43,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, what in DELEGATED.items():
-        where = f"the options of {name}.py: " if name != "curves" else ""
+        where = f"the options of {name}.py: " if name not in ("curves", "sweep") else ""
         commands.add_parser(name, help=f"{what} ({where}{PROG} {name} --help)")
     commands.add_parser(
         "list",
@@ -140,6 +146,10 @@ def main(argv: list[str] | None = None) -> int:
         from capture_bench.training.curves import main as curves
 
         return curves(args[1:])
+    if args and args[0] == "sweep":
+        from capture_bench.training.sweep import main as sweep
+
+        return sweep(args[1:])
     try:
         build_parser().parse_args(args)
     except SystemExit as exc:  # --help (0) or a bad command (2, already printed in one line)
