@@ -11,6 +11,10 @@
 ``python -m capture_bench zoo-hyperparams``: the RL Zoo's hyper-parameter files
 (``configs/zoo/<algo>.yml``) made from ``configs/algos/`` (:mod:`capture_bench.training.zoo`).
 
+``python -m capture_bench sweep ...``: train every combination of algorithms, scenarios and
+training seeds, each run a Ray task, on this machine or a Ray cluster
+(:mod:`capture_bench.training.sweep`).
+
 ``python -m capture_bench list``: what is installed, and what is broken, in one screen. It prints
 the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges), the
 invalid scenario files with their error (file, key, what is valid), the suites and the algorithm
@@ -35,6 +39,8 @@ DELEGATED = {
     "tune": "tune an algorithm's hyper-parameters with Optuna (needs the tune extra)",
     "curves": "learning curves of several algorithms and training seeds against incremental_ik",
     "zoo-hyperparams": "write the RL Zoo's hyper-parameter files (configs/zoo/) from our configs",
+    "sweep": "train every combination of algorithms, scenarios and seeds as Ray tasks (needs the "
+    "ray extra)",
 }
 
 
@@ -148,6 +154,10 @@ def main(argv: list[str] | None = None) -> int:
         from capture_bench.training.zoo import main as zoo_hyperparams
 
         return zoo_hyperparams(args[1:])
+    if args and args[0] == "sweep":
+        from capture_bench.training.sweep import main as sweep
+
+        return sweep(args[1:])
     try:
         build_parser().parse_args(args)
     except SystemExit as exc:  # --help (0) or a bad command (2, already printed in one line)

@@ -13,8 +13,10 @@ the directory the command was started in.
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
+from collections.abc import Sequence
 from typing import Any
 
 from capture_bench.paths import CHECKOUT_DIR
@@ -99,11 +101,15 @@ def check_ray_cluster(
         ) from None
 
 
-def start_ray(address: str | None, needed_by: str, log_to_driver: bool = False) -> bool:
+def start_ray(
+    address: str | None, needed_by: str, log_to_driver: bool = False, excludes: Sequence[str] = ()
+) -> bool:
     """Make Ray ready for this process's tasks: checked (:func:`check_ray_cluster`), then, unless
-    it is already initialised here, started or joined at ``address`` with this checkout as the
-    job's ``working_dir``, the workers' output shown here if ``log_to_driver``. Return whether it
-    was started here (then the caller shuts it down)."""
+    it is already initialised here, started or joined at ``address`` with this checkout (less
+    :data:`RAY_EXCLUDES` and ``excludes``, gitignore patterns relative to it) as the job's
+    ``working_dir``, the workers' output shown here if ``log_to_driver``; Ray's own log lines
+    below warnings are not printed. Return whether it was started here (then the caller shuts it
+    down)."""
     ray = import_ray(needed_by)
     check_ray_cluster(address, needed_by)
     if ray.is_initialized():
@@ -112,6 +118,7 @@ def start_ray(address: str | None, needed_by: str, log_to_driver: bool = False) 
         address=address,
         include_dashboard=False,
         log_to_driver=log_to_driver,
-        runtime_env={"working_dir": str(CHECKOUT_DIR), "excludes": RAY_EXCLUDES},
+        logging_level=logging.WARNING,
+        runtime_env={"working_dir": str(CHECKOUT_DIR), "excludes": [*RAY_EXCLUDES, *excludes]},
     )
     return True

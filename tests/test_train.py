@@ -82,6 +82,24 @@ def test_resume_continues_the_step_count(trained, tmp_path):
     assert (run_dir / "checkpoints" / "step_128" / "parameters.pt").is_file()
 
 
+def test_a_moved_run_resumes_in_its_new_directory(tmp_path):
+    """config.json records where a run started; a run moved since (or resumed on another node by a
+    sweep) writes its validations, best/ and final policy where it is now."""
+    import csv
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY + "eval_freq: 32\neval_episodes: 1\n")
+    first = tmp_path / "first"
+    assert train.main(["--algo", "ppo", "--config", str(config), "--run-dir", str(first)]) == 0
+    moved = tmp_path / "moved"
+    first.rename(moved)
+    assert train.main(["--resume", str(moved), "--total-timesteps", "128"]) == 0
+    assert not first.exists()
+    with open(moved / "validations.csv") as handle:
+        assert [int(row["step"]) for row in csv.DictReader(handle)] == [32, 64, 96, 128]
+    assert json.loads((moved / "metadata.json").read_text())["total_timesteps"] == 128
+
+
 def test_sac_resume_restores_replay_buffer_and_vecnormalize(tmp_path):
     from capture_bench.training.checkpoint import read_checkpoint
 

@@ -50,8 +50,9 @@ from capture_bench import rliable_stats
 from capture_bench.argparsing import OneLineParser
 from capture_bench.files import atomic_write, check_writable
 from capture_bench.task.scenarios import ConfigError, load_scenario
-from capture_bench.training import seed_statistics
+from capture_bench.training import run_plan, seed_statistics
 from capture_bench.training.policy_export import VALIDATIONS_FILE
+from capture_bench.training.run_plan import is_finished, run_path, train_argv
 
 METRICS = (
     ("capture_rate", "validation capture rate"),
@@ -425,23 +426,6 @@ def _html(markdown: str, images: dict[str, bytes]) -> str:
     return f"<!DOCTYPE html><html><head>{head}</head><body>{''.join(body)}</body></html>\n"
 
 
-def run_path(runs: Path, scenario: str, algo: str, seed: int) -> Path:
-    return runs / f"{scenario}-{algo}-{seed}"
-
-
-PIXEL_ARM = "-pixels"  # an arm <algo>-pixels: <algo> trained on the camera's pixels
-
-
-def arm_options(arm: str) -> tuple[str, list[str]]:
-    """The algorithm of an arm (``ppo``, or ``ppo-pixels``) and the train.py options it adds."""
-    if not arm.endswith(PIXEL_ARM):
-        return arm, []
-    from capture_bench.training.run import pixel_config
-
-    algo = arm.removesuffix(PIXEL_ARM)
-    return algo, ["--observation-source", "pixels", "--config", str(pixel_config(algo))]
-
-
 def train_runs(
     runs: Path, scenario: str, arms: list[str], seeds: list[int], extra: list[str]
 ) -> int:
@@ -450,28 +434,13 @@ def train_runs(
     from capture_bench.training.run import main as train_main
 
     for arm in arms:
-        algo, options = arm_options(arm)
         for seed in seeds:
             run_dir = run_path(runs, scenario, arm, seed)
-            if (run_dir / "metadata.json").is_file():
+            if is_finished(run_dir):
                 print(f"{run_dir}: finished; kept")
                 continue
-            if (run_dir / "config.json").is_file():
-                argv = ["--resume", str(run_dir)]
-            else:
-                argv = [
-                    "--algo",
-                    algo,
-                    "--scenario",
-                    scenario,
-                    "--seed",
-                    str(seed),
-                    "--run-dir",
-                    str(run_dir),
-                    *options,
-                    *extra,
-                ]
-            status = train_main(argv)
+            resume = (run_dir / "config.json").is_file()
+            status = train_main(train_argv(run_dir, scenario, arm, seed, resume, extra))
             if status:
                 return status
     return 0
@@ -540,14 +509,7 @@ def main(argv: list[str] | None = None) -> int:
         check_writable(out, "--out")
         if not rliable_stats.installed():
             raise ConfigError(rliable_stats.MISSING)
-        arms = list(args.algos) + [a + PIXEL_ARM for a in args.algos if args.pixels]
-        for arm in arms:
-            _, options = arm_options(arm)
-            if options and not Path(options[-1]).is_file():
-                raise ConfigError(
-                    f"--pixels: {arm.removesuffix(PIXEL_ARM)} has no pixel hyper-parameters "
-                    f"({options[-1]} is missing); ppo has configs/pixels/ppo.yaml"
-                )
+        arms = run_plan.arms(args.algos, args.pixels)
         if args.train:
             check_writable(runs, "--runs")
             extra = [f"--set={item}" for item in args.overrides or []]

@@ -166,6 +166,9 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         config = TrainConfig(
             **{**data["config"], **{k: getattr(config, k) for k in given if k != "resume"}}
         )
+        # the run is where it is now: a run moved (or copied to another machine) writes its
+        # validations, best/ and final policy there, not where config.json says it started
+        config.run_dir = str(run_dir)
         hp = validate_hyperparameters(
             data["hyperparameters"], old.algo, str(run_dir / "config.json")
         )
