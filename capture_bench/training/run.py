@@ -576,7 +576,10 @@ def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
 
 def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
     """The curricula ``hp`` asks for (training only: validation keeps the scenario's rule), as
-    SB3 callbacks (:func:`curricula`); none where it asks for none."""
+    SB3 callbacks (:func:`curricula`); none where it asks for none (a mixture's spec, which
+    names no one scenario, is then never loaded)."""
+    if not any(key in hp for key in CURRICULA):
+        return []
     found = curricula(hp, load_scenario(config.scenario))
     if not found:
         return []
