@@ -581,8 +581,6 @@ def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
     if not any(key in hp for key in CURRICULA):
         return []
     found = curricula(hp, load_scenario(config.scenario))
-    if not found:
-        return []
     from capture_bench.training import callbacks
 
     return [getattr(callbacks, name)(**kwargs) for name, kwargs in found.items()]
