@@ -61,3 +61,20 @@ def test_fast_state_agrees_with_the_vectorised_methods(name):
         np.testing.assert_allclose(position, traj.position(t), atol=1e-14)
         np.testing.assert_allclose(velocity, traj.velocity(t), atol=1e-14)
         np.testing.assert_allclose(rotation, traj.rotation(t), atol=1e-14)
+
+
+@pytest.mark.parametrize("name", list_scenarios())
+def test_states_are_state_at_each_time_bit_for_bit(name):
+    """The recording's path (every step time at once) against the live single env's (one time
+    at a time): the true state, and the feature points as the camera is given them."""
+    traj = sample_trajectory(load_scenario(name).target, np.random.default_rng(5), ANCHOR, 10.0)
+    times = np.concatenate([np.arange(0.0, 9.9, 0.05), [0.123456789, 7.0000001, 9.99]])
+    points = FEATURE_POINTS["non_coplanar"]
+    position, velocity, rotation, seen = traj.states(times, points)
+    assert traj.states(times)[3] is None
+    for k, t in enumerate(times.tolist()):
+        p, v, r = traj.state(t)
+        np.testing.assert_array_equal(position[k], p)
+        np.testing.assert_array_equal(velocity[k], v)
+        np.testing.assert_array_equal(rotation[k], r)
+        np.testing.assert_array_equal(seen[k], p + points @ r.T)

@@ -508,7 +508,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             found.append(None if hit is None else hit[0])
         missing = [j for j, episode in enumerate(found) if episode is None]
         if self._reference is not None:
-            recorded = [self._record_as_single_env(jobs[j][2]) for j in missing]
+            recorded = self._record_as_single_env([jobs[j][2] for j in missing])
         elif missing:
             recorded = record_episodes(
                 self.scenario,
@@ -534,12 +534,16 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
                 episode.bound = bound
         return episodes
 
-    def _record_as_single_env(self, rng: np.random.Generator) -> RecordedEpisode:
-        """The next episode of ``rng`` recorded as ``CaptureEnv(reuse_target_side=True)``
-        records it (the same draws, the same code; its bound comes after, in :meth:`_record`)."""
+    def _record_as_single_env(self, rngs: Sequence[np.random.Generator]) -> list[RecordedEpisode]:
+        """The next episode of each generator recorded as ``CaptureEnv(reuse_target_side=True)``
+        records it (the same draws, the same code, bit for bit; the photogrammetry's cold
+        solves batched, :meth:`TargetSide.record_many`); their bounds come after, in
+        :meth:`_record`."""
         assert self._reference is not None
         sc, camera, features = self.scenario, self._camera, self._features
-        return TargetSide.draw(sc, camera, self._reference, features, rng).record_all()
+        return TargetSide.record_many(
+            [TargetSide.draw(sc, camera, self._reference, features, rng) for rng in rngs]
+        )
 
     def _to_record(
         self, envs: NDArray[np.intp]

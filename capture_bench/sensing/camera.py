@@ -273,7 +273,7 @@ class Camera:
             lost[k] = random() < self.dropout
             normal(out=noise[k])
         noise *= self.noise_std
-        p_cam = model.to_camera(p.reshape(-1, 3)).reshape(n_t, n_points, 3)
+        p_cam = model.to_camera(p)  # one (N, 3) product per instant, as capture() makes it
         front = (p_cam[:, :, 1] > model.focal_length + LENS_MARGIN).all(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             image = model.project(p_cam.reshape(-1, 3)).reshape(n_t, n_points, 2)

@@ -50,6 +50,10 @@ class LinearDrift:
         """(c(t), cdot(t)) for one time, s -> (3,), (3,); the fast path used every env step."""
         return self.start + self.velocity * t, self.velocity
 
+    def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`at` of each time (T,) -> (T, 3), (T, 3), bit for bit."""
+        return self.start + self.velocity * t[:, None], np.tile(self.velocity, (t.size, 1))
+
 
 @dataclass(frozen=True)
 class CircularPath:
@@ -74,6 +78,15 @@ class CircularPath:
         """(c(t), cdot(t)) for one time, s -> (3,), (3,)."""
         a = self.phase + self.angular_speed * t
         c, s = math.cos(a), math.sin(a)
+        w = self.radius * self.angular_speed
+        return self.centre + self.radius * (c * self.u + s * self.v), w * (c * self.v - s * self.u)
+
+    def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`at` of each time (T,) -> (T, 3), (T, 3), bit for bit (``math``'s sine and
+        cosine, which numpy's may differ from in the last bit)."""
+        a = (self.phase + self.angular_speed * t).tolist()
+        c = np.array([math.cos(x) for x in a])[:, None]
+        s = np.array([math.sin(x) for x in a])[:, None]
         w = self.radius * self.angular_speed
         return self.centre + self.radius * (c * self.u + s * self.v), w * (c * self.v - s * self.u)
 
@@ -119,6 +132,14 @@ class Evasive:
         """(c(t), cdot(t)) for one time, s -> (3,), (3,)."""
         k = max(bisect.bisect_right(self._times, t) - 1, 0)
         h = t - self._times[k]
+        p, v = self._knots
+        a = self.accelerations[k]
+        return p[k] + v[k] * h + (0.5 * h * h) * a, v[k] + a * h
+
+    def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """:meth:`at` of each time (T,) -> (T, 3), (T, 3), bit for bit."""
+        k = np.maximum(np.searchsorted(self.switch_times, t, side="right") - 1, 0)
+        h = (t - np.asarray(self._times)[k])[:, None]
         p, v = self._knots
         a = self.accelerations[k]
         return p[k] + v[k] * h + (0.5 * h * h) * a, v[k] + a * h
@@ -175,6 +196,37 @@ class TargetTrajectory:
             c_dot + self.spin_rate * (self._kx @ offset),
             spin @ self.initial_rotation,
         )
+
+    def states(
+        self, t: FloatArray, points_target: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray | None]:
+        """:meth:`state` at each time (T,), bit for bit: X_T (T, 3), Xdot_T (T, 3), R(t)
+        (T, 3, 3), and with ``points_target`` (N, 3) those points in the global frame at each
+        time, ``X_T + points_target @ R(t).T`` (T, N, 3) (None without).
+
+        A target that does not spin is computed for every time at once (the same element-wise
+        operations; ``math``'s sine and cosine on a circle); a spinning one time by time
+        through :meth:`state`, so that each small matrix product is the very call
+        :meth:`state` makes, whatever the BLAS.
+        """
+        tt = np.asarray(t, dtype=float).reshape(-1)
+        if self.spin_rate == 0.0:
+            c, c_dot = self.translation.at_times(tt)
+            position = c + self._r0
+            rotation = np.broadcast_to(self.initial_rotation, (tt.size, 3, 3)).copy()
+            points = None
+            if points_target is not None:
+                points = position[:, None, :] + points_target @ self.initial_rotation.T
+            return position, c_dot, rotation, points
+        rows = [self.state(x) for x in tt.tolist()]
+        position = np.array([row[0] for row in rows]).reshape(-1, 3)
+        velocity = np.array([row[1] for row in rows]).reshape(-1, 3)
+        rotation = np.array([row[2] for row in rows]).reshape(-1, 3, 3)
+        points = None
+        if points_target is not None:
+            points = np.array([x + points_target @ r.T for x, _, r in rows])
+            points = points.reshape(tt.size, *points_target.shape)
+        return position, velocity, rotation, points
 
     def rotations(self, t: FloatArray) -> FloatArray:
         """R(t) for times (N,) -> (N, 3, 3): :meth:`state`'s rotation, vectorised over t."""

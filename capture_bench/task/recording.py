@@ -158,7 +158,7 @@ def record_episodes(
     truths = []
     for rng in rngs:
         plan = EpisodePlan.draw(scenario, camera.model, features, rng)
-        truths.append(_truth(plan, camera, features, rng))
+        truths.append(record_truth(plan, camera, features, rng))
     source = scenario.estimator.source
     continuations: list[EstimatorContinuation | None] = [None] * len(truths)
     if source == "ekf":
@@ -181,19 +181,23 @@ def record_episodes(
     ]
 
 
-def _truth(
+def record_truth(
     plan: EpisodePlan, camera: Camera, features: FloatArray, rng: np.random.Generator
 ) -> EpisodeTruth:
     """True states at every step time, and the frames (none with the truth source, whose env
-    never calls the camera)."""
+    never calls the camera), over every step at once: bit for bit what the single env's
+    step-by-step target side computes and draws (the trajectory's
+    :meth:`~capture_bench.sim.target_motion.TargetTrajectory.states`,
+    :meth:`Camera.capture_sequence`)."""
     time, dt = plan.step_times()
-    traj = plan.trajectory
-    position, velocity, rotation = traj.position(time), traj.velocity(time), traj.rotations(time)
-    if plan.scenario.estimator.source == "truth":
+    truth_source = plan.scenario.estimator.source == "truth"
+    position, velocity, rotation, points = plan.trajectory.states(
+        time, None if truth_source else features
+    )
+    if points is None:
         images = np.full((time.size, features.shape[0], 2), np.nan)
         visible = np.ones(time.size, dtype=bool)
     else:
-        points = position[:, None, :] + np.einsum("nj,tij->tni", features, rotation)
         camera.reset()
         images, visible = camera.capture_sequence(points, rng)
     return EpisodeTruth(plan, time, dt, position, velocity, rotation, images, visible)

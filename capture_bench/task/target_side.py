@@ -23,7 +23,7 @@ seeded generator, in an order no action changes).
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -31,12 +31,13 @@ from numpy.typing import NDArray
 
 from capture_bench.sensing.camera import Camera, CameraModel, Frame
 from capture_bench.sensing.estimator import STATUSES, TargetEstimator
+from capture_bench.sensing.photogrammetry import prime_cold_solves
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import FEATURE_POINTS, TargetTrajectory
 from capture_bench.task.episode import EpisodePlan, episode_bounds
 from capture_bench.task.observation import TaskDescription
 from capture_bench.task.physical_limit import PhysicalLimit
-from capture_bench.task.recording import RecordedEpisode, estimate_errors_scalar
+from capture_bench.task.recording import RecordedEpisode, estimate_errors_scalar, record_truth
 from capture_bench.task.scenarios import Scenario
 
 FloatArray = NDArray[np.float64]
@@ -185,9 +186,69 @@ class TargetSide:
                 "a rendered camera's frames show the arm, so its target side cannot be recorded "
                 "ahead of the steps"
             )
+        if self.filled == 0 and self._sensors is not None:
+            self._record_truth()
+            self._record_estimates()
         episode = self.through(self.episode.time.size - 1)
         self._sensors = None
         return episode
+
+    @staticmethod
+    def record_many(sides: Sequence[TargetSide]) -> list[RecordedEpisode]:
+        """:meth:`record_all` of each side (sides with nothing filled yet, each with its own
+        generator; they may share a camera and an estimator), bit for bit: every side's true
+        states and frames first, then the photogrammetry's cold solves of the frames their
+        estimators start from, all at once
+        (:func:`~capture_bench.sensing.photogrammetry.prime_cold_solves`), then each side's
+        estimates."""
+        fresh = [side for side in sides if side.filled == 0 and side._sensors is not None]
+        for side in fresh:
+            side._record_truth()
+        starts = [image for side in fresh if (image := side._first_frame()) is not None]
+        if starts:
+            camera, estimator, features, _ = fresh[0]._sensors  # type: ignore[misc]
+            prime_cold_solves(np.stack(starts), features, camera.model.focal_length)
+        for side in fresh:
+            side._record_estimates()
+        return [side.record_all() for side in sides]
+
+    def _record_truth(self) -> None:
+        """The true states, frames and reachability of every row of a side with none filled,
+        as :meth:`_fill_next` computes and draws them one by one, bit for bit
+        (:func:`~capture_bench.task.recording.record_truth`)."""
+        assert self._sensors is not None
+        camera, _, features, rng = self._sensors
+        if not isinstance(camera, Camera):
+            raise RuntimeError("a scene camera's rows are made step by step")
+        ep = self.episode
+        truth = record_truth(ep.plan, camera, features, rng)
+        ep.position[:], ep.velocity[:], ep.rotation[:] = (
+            truth.position,
+            truth.velocity,
+            truth.rotation,
+        )
+        ep.images[:], ep.visible[:] = truth.images, truth.visible
+        ep.reachable[:] = kinematics.reachable_points(truth.position)
+
+    def _first_frame(self) -> FloatArray | None:
+        """The first frame delivered (after :meth:`_record_truth`), which a photogrammetry or
+        EKF estimator starts from, or None (no frame, or the truth source)."""
+        if self.episode.plan.scenario.estimator.source == "truth":
+            return None
+        framed = np.flatnonzero(np.isfinite(self.episode.images).all(axis=(1, 2)))
+        return self.episode.images[framed[0]] if framed.size else None
+
+    def _record_estimates(self) -> None:
+        """Every row's estimate after :meth:`_record_truth`: the estimator (reset) row by row."""
+        assert self._sensors is not None
+        estimator = self._sensors[1]
+        estimator.reset()
+        ep = self.episode
+        framed = np.isfinite(ep.images).all(axis=(1, 2)).tolist()
+        for k, has_frame in enumerate(framed):
+            frame = Frame(ep.images[k]) if has_frame else None
+            self._estimate_row(k, estimator, frame, ep.position[k], ep.velocity[k])
+        self.filled = ep.time.size
 
     def _fill_next(self) -> None:
         """Row ``filled``: the true state at its time, the camera's frame (none with the truth
@@ -196,7 +257,7 @@ class TargetSide:
             raise IndexError(f"step {self.filled} is past the episode's time limit")
         camera, estimator, features, rng = self._sensors
         ep, k = self.episode, self.filled
-        time, dt = float(ep.time[k]), float(ep.dt[k])
+        time = float(ep.time[k])
         x_t, v_t, rotation = ep.plan.trajectory.state(time)
         if ep.plan.scenario.estimator.source == "truth":
             frame = None
@@ -206,20 +267,33 @@ class TargetSide:
             if self.arm_at is None:
                 raise RuntimeError("a scene camera's row needs the arm: set arm_at first")
             frame = camera.capture_scene(k, time, ep.plan.trajectory, self.arm_at, rng)
-        est = estimator.update(frame, dt, x_t, v_t)
         ep.position[k], ep.velocity[k], ep.rotation[k] = x_t, v_t, rotation
         if frame is not None:
             ep.images[k] = frame.image_points
         ep.visible[k] = camera.last_visible
+        ep.reachable[k] = kinematics.reachable(x_t)
+        self._estimate_row(k, estimator, frame, x_t, v_t)
+        self.filled = k + 1
+
+    def _estimate_row(
+        self,
+        k: int,
+        estimator: TargetEstimator,
+        frame: Frame | None,
+        x_t: FloatArray,
+        v_t: FloatArray,
+    ) -> None:
+        """Row k's estimate (the estimator's update with the frame delivered then) and its
+        errors."""
+        ep = self.episode
+        est = estimator.update(frame, float(ep.dt[k]), x_t, v_t)
         ep.estimate_valid[k] = est.valid
         if est.valid:
             ep.estimate_position[k], ep.estimate_velocity[k] = est.position, est.velocity
         ep.estimator_status[k] = STATUSES.index(est.status)
-        ep.reachable[k] = kinematics.reachable(x_t)
         ep.position_error[k], ep.velocity_error[k], ep.nees[k] = estimate_errors_scalar(
             est, x_t, v_t
         )
-        self.filled = k + 1
 
 
 class EpisodeCache:
