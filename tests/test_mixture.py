@@ -111,8 +111,8 @@ def test_a_tiny_mixture_run_trains_validates_each_scenario_loads_and_resumes(tmp
         (["--n-envs", "3"], "does not split evenly between 2 scenarios"),
         (["--vec-env", "dummy"], "a mixture trains on --vec-env batched"),
         (["--set", "residual=incremental_ik"], "residual depends on one scenario"),
-        (["--set", "curriculum_tolerance=0.01"], "curriculum_tolerance depends on one scenario"),
-        (["--set", "curriculum_hold=0"], "curriculum_hold depends on one scenario"),
+        (["--set", "curriculum_tolerance=0.0001"], "curriculum_tolerance 0.0001 moves on no"),
+        (["--scenario", "paper,tumbling", "--set", "curriculum_hold=0"], "(none asks a longer"),
     ],
 )
 def test_what_a_mixture_cannot_take_is_one_line(tmp_path, capsys, argv, expected):
@@ -123,3 +123,40 @@ def test_what_a_mixture_cannot_take_is_one_line(tmp_path, capsys, argv, expected
     err = capsys.readouterr().err
     assert expected in err and len(err.strip().splitlines()) == 1, err
     assert not run_dir.exists()
+
+
+def test_a_mixtures_curricula_move_on_each_scenario_they_apply_to():
+    """Each scenario of a mixture gets the curricula that move on it, on its own share of the
+    sub-envs, to its own rule: the hold only where the scenario asks one (grasp), the
+    tolerance on every scenario to its own epsilon."""
+    from capture_bench.training.run import mixture_curricula
+
+    scenarios = mixture_scenarios("paper,grasp,tumbling")
+    hp = {"curriculum_hold": 0.0, "curriculum_tolerance": 0.05, "curriculum_steps": 10,
+          "curriculum_delay": 2}  # fmt: skip
+    found = mixture_curricula(hp, scenarios, 4)
+    holds = [kw for name, kw in found if name == "HoldCurriculum"]
+    assert [(kw["label"], kw["indices"]) for kw in holds] == [("grasp", [4, 5, 6, 7])]
+    assert holds[0]["final"] == scenarios[1].capture.hold > 0
+    tolerances = {kw["label"]: kw for name, kw in found if name == "ToleranceCurriculum"}
+    assert list(tolerances) == ["paper", "grasp", "tumbling"]
+    assert tolerances["tumbling"]["indices"] == [8, 9, 10, 11]
+    assert all(kw["steps"] == 10 and kw["delay"] == 2 for _, kw in found)
+
+
+def test_a_mixture_run_with_a_hold_curriculum_grows_grasps_hold_alone(tmp_path):
+    """train.py on paper+grasp with curriculum_hold=0: grasp's training hold grows from 0 (its
+    own TensorBoard tag), paper's rule is left alone, the validation keeps both rules."""
+    from test_training_metrics import scalars
+
+    import train
+
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "total_timesteps=384", "curriculum_hold=0", "curriculum_steps=256",
+            "curriculum_delay=0"]  # fmt: skip
+    argv = ["--scenario", "paper,grasp", "--n-envs", "4", *(f"--set={s}" for s in sets)]
+    assert train.main([*argv, "--run-dir", str(run_dir)]) == 0
+    tags = scalars(run_dir / "tb")
+    hold = [v for _, v in tags["train/capture_hold_s/grasp"]]
+    assert hold[0] == 0.0 and hold == sorted(hold) and hold[-1] > 0.0
+    assert not any(tag.startswith("train/capture_hold_s/paper") for tag in tags)

@@ -59,15 +59,28 @@ class _Curriculum(BaseCallback):
         final: the scenario's value.
         steps: environment steps to reach it, once it moves.
         delay: environment steps at ``start`` first.
+        indices: the training envs it applies to (None: all; a mixture's curriculum: its
+            scenario's share).
+        label: the scenario's name where the curriculum is one of a mixture's, appended to
+            ``TAG`` (``train/capture_hold_s/grasp``).
     """
 
     ENV_METHOD = ""
     TAG = ""
 
-    def __init__(self, start: float, final: Any, steps: int, delay: int = 0) -> None:
+    def __init__(  # noqa: PLR0913
+        self,
+        start: float,
+        final: Any,
+        steps: int,
+        delay: int = 0,
+        indices: list[int] | None = None,
+        label: str | None = None,
+    ) -> None:
         super().__init__()
         self.start, self.final = float(start), np.asarray(final, float)
         self.steps, self.delay = int(steps), int(delay)
+        self.indices, self.label = indices, label
 
     def value(self, step: int) -> Any:
         """The curriculum's value at environment step ``step``."""
@@ -78,8 +91,9 @@ class _Curriculum(BaseCallback):
 
     def _on_rollout_start(self) -> None:
         value = self.value(self.num_timesteps)
-        self.training_env.env_method(self.ENV_METHOD, value)
-        self.logger.record(self.TAG, float(np.max(value)))
+        self.training_env.env_method(self.ENV_METHOD, value, indices=self.indices)
+        tag = self.TAG if self.label is None else f"{self.TAG}/{self.label}"
+        self.logger.record(tag, float(np.max(value)))
 
     def _on_step(self) -> bool:
         return True

@@ -27,6 +27,7 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -337,11 +338,22 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
             f"--scenario {config.scenario}: n_envs {hp['n_envs']} does not split evenly between "
             f"{count} scenarios; use a multiple of {count} (e.g. --n-envs {up})"
         )
-    for key in ("residual", *CURRICULA):
-        if hp.get(key, "none") != "none":
+    if hp.get("residual", "none") != "none":
+        raise ConfigError(
+            f"--scenario {config.scenario}: residual depends on one scenario's task; train it "
+            "on a single scenario"
+        )
+    scenarios = mixture_scenarios(config.scenario)
+    found = {name for name, _ in mixture_curricula(hp, scenarios, 1)}
+    for key, name, rule in (
+        ("curriculum_hold", "HoldCurriculum", "a longer capture.hold"),
+        ("curriculum_tolerance", "ToleranceCurriculum", "a smaller capture tolerance"),
+    ):
+        if key in hp and name not in found:
             raise ConfigError(
-                f"--scenario {config.scenario}: {key} depends on one scenario's task; train it "
-                "on a single scenario"
+                f"--scenario {config.scenario}: {key} {hp[key]:g} moves on no scenario of the "
+                f"mixture (none asks {rule}); leave it out, or start it on the easy side of one "
+                "(e.g. curriculum_hold=0 with grasp in the mixture)"
             )
 
 
@@ -574,16 +586,42 @@ def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
     return {name: {**kwargs, **schedule} for name, kwargs in found.items()}
 
 
+def mixture_curricula(
+    hp: dict, scenarios: Sequence[Any], share: int
+) -> list[tuple[str, dict[str, Any]]]:
+    """A mixture's curricula, scenario by scenario: each of :func:`curricula` on a scenario
+    where it moves (a hold curriculum where ``curriculum_hold`` is below the scenario's
+    ``capture.hold``, a tolerance one where ``curriculum_tolerance`` is above its epsilon; the
+    others keep their rule), bound to that scenario's ``share`` sub-envs of the
+    :class:`~capture_bench.training.mixture.MixtureVecEnv` (``indices``) and labelled by it."""
+    out = []
+    for k, scenario in enumerate(scenarios):
+        for name, kwargs in curricula(hp, scenario).items():
+            if name == "HoldCurriculum" and not kwargs["start"] < kwargs["final"]:
+                continue
+            if name == "ToleranceCurriculum" and not kwargs["start"] > max(kwargs["final"]):
+                continue
+            indices = list(range(k * share, (k + 1) * share))
+            out.append((name, {**kwargs, "indices": indices, "label": scenario.name}))
+    return out
+
+
 def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
     """The curricula ``hp`` asks for (training only: validation keeps the scenario's rule), as
-    SB3 callbacks (:func:`curricula`); none where it asks for none (a mixture's spec, which
-    names no one scenario, is then never loaded)."""
+    SB3 callbacks (:func:`curricula`; on a mixture, one per scenario it moves on,
+    :func:`mixture_curricula`); none where it asks for none (a mixture's spec, which names no
+    one scenario, is then never loaded)."""
     if not any(key in hp for key in CURRICULA):
         return []
-    found = curricula(hp, load_scenario(config.scenario))
     from capture_bench.training import callbacks
 
-    return [getattr(callbacks, name)(**kwargs) for name, kwargs in found.items()]
+    if is_mixture(config.scenario):
+        scenarios = mixture_scenarios(config.scenario)
+        share = (config.n_envs or hp["n_envs"]) // len(scenarios)
+        found = mixture_curricula(hp, scenarios, share)
+    else:
+        found = list(curricula(hp, load_scenario(config.scenario)).items())
+    return [getattr(callbacks, name)(**kwargs) for name, kwargs in found]
 
 
 def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
