@@ -280,3 +280,39 @@ def test_a_recording_the_single_env_made_is_replayed_by_the_batched_env():
     single.close()
     with pytest.raises(ValueError, match="reference_target_side=True"):
         CaptureVectorEnv(1, "paper", episode_cache=cache)
+
+
+@pytest.mark.parametrize("scenario", ["jitter", "grasp"])
+def test_a_sub_envs_view_reads_what_the_single_env_reads(scenario):
+    """The oracle plays in the batched env through each sub-env's view of the privileged API:
+    at every step it gives the single env's time, next period, bound and true target."""
+    seeds = [7_000_003, 7_000_004]
+    vector = CaptureVectorEnv(
+        2, scenario, autoreset_mode=AutoresetMode.DISABLED, reference_target_side=True
+    )
+    singles = [CaptureEnv(scenario, reuse_target_side=True) for _ in seeds]
+    try:
+        obs, _ = vector.reset(seed=seeds)
+        for env, seed in zip(singles, seeds, strict=True):
+            env.reset(seed=seed)
+        views = [vector.sub_env(i) for i in range(2)]
+        agents = [make_agent("oracle", view) for view in views]
+        assert views[0].unwrapped is views[0] and views[0].description is vector.description
+        for _ in range(5):
+            actions = np.zeros((2, 3))
+            for i, (view, env) in enumerate(zip(views, singles, strict=True)):
+                assert view.time == env.time
+                assert view.next_control_period == env.next_control_period
+                assert view.physical_limit().time == env.physical_limit().time
+                t = view.time + 0.01
+                assert np.array_equal(view.true_target_position(t), env.true_target_position(t))
+                actions[i] = agents[i].act(obs[i])
+            obs = vector.step(actions)[0]
+            for i, env in enumerate(singles):
+                env.step(actions[i].astype(np.float32))
+    finally:
+        vector.close()
+        for env in singles:
+            env.close()
+    with pytest.raises(IndexError):
+        vector.sub_env(2)

@@ -95,9 +95,11 @@ def lambda_max_of(joint_direction: NDArray, joint_rate_limits: NDArray) -> Float
         lambda_max, m/s per unit n, shape (...); 0 where u is all zeros.
     """
     u = np.abs(np.asarray(joint_direction, dtype=float))
-    rates = np.broadcast_to(np.asarray(joint_rate_limits, dtype=float), u.shape)
-    per_joint = np.divide(rates, u, out=np.full(u.shape, np.inf), where=u > 0.0)
-    lam = np.min(per_joint, axis=-1)
+    rates = np.asarray(joint_rate_limits, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        per_joint = np.where(u > 0.0, rates / u, np.inf)  # inf where u_i is 0 (or NaN)
+    # the least of the three, joint by joint (a minimum rounds nothing)
+    lam = np.minimum(np.minimum(per_joint[..., 0], per_joint[..., 1]), per_joint[..., 2])
     return np.where(np.isfinite(lam), lam, 0.0)
 
 

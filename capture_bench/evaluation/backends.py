@@ -206,20 +206,27 @@ def run_batch(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
     (:mod:`capture_bench.agents.row_exact`; torch's plain batched product rounds a row by the
     batch's height, and the leaderboard's actions must be those the model card replays and a
     single env gives). Any other agent, a user's class written for one observation, is built
-    once per episode, and each instance is asked with its own episode's observation. Two kinds
-    play their episodes one by one in the single env: a privileged agent (it reads the single
-    env's ground truth) and a model declaring sampled actions (torch's one generator, seeded
-    per episode). So does every agent on a scenario with the rendered camera. Every way gives
-    the single env's records (tested).
+    once per episode, and each instance is asked with its own episode's observation; so is a
+    privileged agent (the oracle), each built on its episode's sub-env
+    (:meth:`~capture_bench.envs.vector_env.CaptureVectorEnv.sub_env`: the single env's ground
+    truth, read from the batched env). A model declaring sampled actions (torch's one
+    generator, seeded per episode) plays its episodes one by one in the single env, and so does
+    every agent on a scenario with the rendered camera. Every way gives the single env's
+    records (tested).
     """
     first = tasks[0]
     spec = task_spec(first)
     seeds = [task.seed for task in tasks]
-    if spec.privileged or declares_sampled_actions(spec) or _rendered(first.scenario):
+    if declares_sampled_actions(spec) or _rendered(first.scenario):
         return [run_task(task)[0] for task in tasks]
     env = _vector_env(first.scenario, len(seeds), spec)
-    agent = build_agent(spec, env, seeds[0])
-    if not (getattr(agent, "batched", False) or callable(getattr(agent, "predict_rows", None))):
+    if spec.privileged:  # one per episode, each reading its own sub-env's ground truth
+        agent = [build_agent(spec, env.sub_env(i), seed) for i, seed in enumerate(seeds)]
+    else:
+        agent = build_agent(spec, env, seeds[0])
+    if not isinstance(agent, list) and not (
+        getattr(agent, "batched", False) or callable(getattr(agent, "predict_rows", None))
+    ):
         agent = [agent, *(build_agent(spec, env, seed) for seed in seeds[1:])]
     return run_episodes(
         env, agent, agent_name=spec.label, scenario=scenario_label(first.scenario), seeds=seeds
