@@ -296,3 +296,19 @@ def test_figure_groups_split_every_figure_once_and_an_unknown_name_is_refused():
     assert figure_groups(data, 4)[0][0] == "ratio_to_limit.png"  # the costliest leads
     with pytest.raises(ValueError, match="no figure named 'nope.png'"):
         figures(data, ["nope.png"])
+
+
+def test_summaries_made_in_a_pool_are_those_made_in_one_process():
+    """The evaluation summarises its cells in worker processes (each cell's bootstrap has its
+    own fixed seed): the same summaries, in the same order, as summarise_all."""
+    from dataclasses import replace
+
+    from capture_bench.evaluation.pipeline import summarise_in_pool
+
+    recs = _cells() + [replace(r, scenario="drift") for r in _cells()[5:]]
+    alone = summarise_all(recs)
+    pooled = summarise_in_pool(recs, "incremental_ik", workers=2)
+    reasons = failure_reasons(alone)
+    rows = [repr(summary_row(s, reasons)) for s in pooled]  # NaN cells: equal as text
+    assert rows == [repr(summary_row(s, reasons)) for s in alone]
+    assert repr([s.paired for s in pooled]) == repr([s.paired for s in alone])

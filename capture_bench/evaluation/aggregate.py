@@ -131,19 +131,37 @@ def summarise(
     )
 
 
+Cell = tuple[list[EpisodeRecord], list[EpisodeRecord] | None]
+
+
+def summary_cells(
+    records: Sequence[EpisodeRecord], reference_agent: str = REFERENCE_AGENT
+) -> list[Cell]:
+    """What :func:`summarise` takes for each agent x scenario, in the order the cells first
+    appear in ``records``: the cell's episodes by seed, and the reference agent's on that
+    scenario to pair them with (None for the reference itself, or where it did not play)."""
+    cells: dict[tuple[str, str], list[EpisodeRecord]] = {}
+    for r in records:
+        cells.setdefault((r.agent, r.scenario), []).append(r)
+    out: list[Cell] = []
+    for (agent, scenario), cell in cells.items():
+        ref = cells.get((reference_agent, scenario))
+        paired_with = None if agent == reference_agent or ref is None else ref
+        out.append((sorted(cell, key=lambda r: r.seed), paired_with))
+    return out
+
+
+def summarise_cells(cells: Sequence[Cell]) -> list[Summary]:
+    """:func:`summarise` of each cell of :func:`summary_cells`, in order (each cell's bootstrap
+    has its own fixed seed: a cell's summary is the same whichever process makes it)."""
+    return [summarise(cell, paired_with) for cell, paired_with in cells]
+
+
 def summarise_all(
     records: Sequence[EpisodeRecord], reference_agent: str = REFERENCE_AGENT
 ) -> list[Summary]:
     """One summary per agent x scenario, in the order the cells first appear in ``records``."""
-    cells: dict[tuple[str, str], list[EpisodeRecord]] = {}
-    for r in records:
-        cells.setdefault((r.agent, r.scenario), []).append(r)
-    summaries = []
-    for (agent, scenario), cell in cells.items():
-        ref = cells.get((reference_agent, scenario))
-        paired_with = None if agent == reference_agent or ref is None else ref
-        summaries.append(summarise(sorted(cell, key=lambda r: r.seed), paired_with))
-    return summaries
+    return summarise_cells(summary_cells(records, reference_agent))
 
 
 def failure_reasons(summaries: Iterable[Summary]) -> list[str]:

@@ -22,7 +22,13 @@ from capture_bench.evaluation.agents_loading import (
     expand_specs,
     resolve_agent,
 )
-from capture_bench.evaluation.aggregate import RankingRow, rank_agents, summarise_all
+from capture_bench.evaluation.aggregate import (
+    RankingRow,
+    Summary,
+    rank_agents,
+    summarise_cells,
+    summary_cells,
+)
 from capture_bench.evaluation.backends import (
     BACKENDS,
     RAY_BACKEND,
@@ -379,6 +385,25 @@ def _report_job(job: tuple[str, Any]) -> Any:
     return figures(data, names)
 
 
+def summarise_in_pool(
+    records: Sequence[EpisodeRecord], reference: str, workers: int
+) -> list[Summary]:
+    """:func:`~capture_bench.evaluation.aggregate.summarise_all`, with several ``workers`` in a
+    pool of local processes (the cells dealt out in turn to ``2 * workers`` groups: their
+    bootstraps are most of the cost), else in this process; the same summaries either way."""
+    cells = summary_cells(records, reference)
+    if workers <= 1 or len(cells) < 2:
+        return summarise_cells(cells)
+    count = min(2 * workers, len(cells))
+    groups = [list(range(g, len(cells), count)) for g in range(count)]
+    done = map_processes(summarise_cells, [[cells[i] for i in group] for group in groups], workers)
+    summaries: list[Summary | None] = [None] * len(cells)
+    for group, made in zip(groups, done, strict=True):
+        for i, summary in zip(group, made, strict=True):
+            summaries[i] = summary
+    return [s for s in summaries if s is not None]
+
+
 def run_evaluation(
     plan: Plan,
     config: EvaluationConfig,
@@ -398,7 +423,9 @@ def run_evaluation(
     records: list[EpisodeRecord] = run_tasks(
         plan.tasks, backend, workers, config.ray_address, progress
     )
-    summaries = summarise_all(records, plan.suite.reference)
+    summaries = summarise_in_pool(
+        records, plan.suite.reference, workers if backend == "process" else 1
+    )
     privileged = {s.label for s in plan.agents if s.privileged}
     ranking = rank_agents(summaries, privileged)
     seconds = time.perf_counter() - start
