@@ -61,14 +61,18 @@ SEEDS_PER_CHUNK = 100
 MIN_SEEDS_PER_CHUNK = 25
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded: the
-#: episodes' and the report media's (not ``matplotlib.pyplot``: imported there before
+#: episodes' (torch and Stable-Baselines3 for the trained models, ~1.5 s a worker otherwise, at
+#: its first chunk) and the report media's (not ``matplotlib.pyplot``: imported there before
 #: :mod:`capture_bench.evaluation.plots` selects its backend, it drew one figure in other bytes).
+#: The server imports them while the main process plans.
 PRELOAD = (
     "capture_bench.evaluation.backends",
     "capture_bench.envs.capture_env",
     "capture_bench.agents",
     "capture_bench.evaluation.pipeline",
     "PIL.Image",
+    "torch",
+    "stable_baselines3",
 )
 
 #: The option that asks for Ray, as its messages name it.

@@ -204,28 +204,31 @@ class TargetTrajectory:
         (T, 3, 3), and with ``points_target`` (N, 3) those points in the global frame at each
         time, ``X_T + points_target @ R(t).T`` (T, N, 3) (None without).
 
-        A target that does not spin is computed for every time at once (the same element-wise
-        operations; ``math``'s sine and cosine on a circle); a spinning one time by time
-        through :meth:`state`, so that each small matrix product is the very call
-        :meth:`state` makes, whatever the BLAS.
+        Every time at once, by the same operations in the same order: ``math``'s sine and
+        cosine (numpy's may differ in the last bit), the element-wise arithmetic over every time,
+        and each small matrix product as a stack, which numpy computes one matrix at a time with
+        the very BLAS call :meth:`state` makes for that time (``tests/test_target_motion.py``).
         """
         tt = np.asarray(t, dtype=float).reshape(-1)
+        c, c_dot = self.translation.at_times(tt)
         if self.spin_rate == 0.0:
-            c, c_dot = self.translation.at_times(tt)
-            position = c + self._r0
+            position, velocity = c + self._r0, c_dot
             rotation = np.broadcast_to(self.initial_rotation, (tt.size, 3, 3)).copy()
-            points = None
-            if points_target is not None:
-                points = position[:, None, :] + points_target @ self.initial_rotation.T
-            return position, c_dot, rotation, points
-        rows = [self.state(x) for x in tt.tolist()]
-        position = np.array([row[0] for row in rows]).reshape(-1, 3)
-        velocity = np.array([row[1] for row in rows]).reshape(-1, 3)
-        rotation = np.array([row[2] for row in rows]).reshape(-1, 3, 3)
+        else:
+            a = (self.spin_rate * tt).tolist()
+            sin = np.array([math.sin(x) for x in a]).reshape(-1, 1, 1)
+            cos = np.array([math.cos(x) for x in a]).reshape(-1, 1, 1)
+            spin = _EYE3 + sin * self._kx + (1.0 - cos) * self._kx2
+            offset = np.matmul(spin, self._r0[:, None])[:, :, 0]
+            turn = np.matmul(self._kx, offset[:, :, None])[:, :, 0]
+            position, velocity = c + offset, c_dot + self.spin_rate * turn
+            rotation = spin @ self.initial_rotation
         points = None
         if points_target is not None:
-            points = np.array([x + points_target @ r.T for x, _, r in rows])
-            points = points.reshape(tt.size, *points_target.shape)
+            if self.spin_rate == 0.0:
+                points = position[:, None, :] + points_target @ self.initial_rotation.T
+            else:
+                points = position[:, None, :] + points_target @ rotation.transpose(0, 2, 1)
         return position, velocity, rotation, points
 
     def rotations(self, t: FloatArray) -> FloatArray:
@@ -259,6 +262,8 @@ class TargetTrajectory:
 
     def position(self, t: ArrayLike) -> FloatArray:
         """X_T(t): capture point, global, m; (3,) or (N, 3)."""
+        if self.spin_rate == 0.0:  # R(t) r = R0 r at every t (the same numbers as _offsets)
+            return self.translation.position(t) + self._r0
         return self.translation.position(t) + self._offsets(t)
 
     def velocity(self, t: ArrayLike) -> FloatArray:
