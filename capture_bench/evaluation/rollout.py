@@ -402,13 +402,11 @@ def run_episodes(
             actions[rows] = np.asarray(batch)[rows]
         first = False
         obs, _rewards, terminated, truncated, info = env.step(actions)
-        columns = zip(*(info[key].tolist() for key in _LOGGED), strict=True)
+        position_error, velocity_error, nees, saturated = (info[k].tolist() for k in _LOGGED)
         ended = terminated | truncated
         infos = sub_env_infos(info, n) if ended.any() else []  # the last step's, in full
-        for i, values in enumerate(columns):
-            if not running[i]:
-                continue
-            logs[i].add_estimates(*values)
+        for i in rows:  # the episodes that ran this step
+            logs[i].add_estimates(position_error[i], velocity_error[i], nees[i], saturated[i])
             if ended[i]:
                 ends[i] = (infos[i], bool(truncated[i]))
                 running[i] = False
