@@ -21,14 +21,11 @@ from gymnasium.utils import seeding
 
 from capture_bench.sensing import photogrammetry
 from capture_bench.sensing.estimator import TargetEstimator
+from capture_bench.task.recording import STEP_TRACKS
 from capture_bench.task.scenarios import list_scenarios, load_scenario
 from capture_bench.task.target_side import TargetSide, scenario_camera
 
-FIELDS = (
-    "time", "dt", "position", "velocity", "rotation", "images", "visible", "estimate_position",
-    "estimate_velocity", "estimate_valid", "estimator_status", "reachable", "position_error",
-    "velocity_error", "nees",
-)  # fmt: skip
+FIELDS = (*STEP_TRACKS, "rotation", "images")  # every recorded track
 
 
 def main() -> int:

@@ -9,26 +9,11 @@ from gymnasium.utils import seeding
 
 from capture_bench.sensing import photogrammetry
 from capture_bench.sensing.estimator import TargetEstimator
+from capture_bench.task.recording import STEP_TRACKS
 from capture_bench.task.scenarios import list_scenarios, load_scenario
 from capture_bench.task.target_side import TargetSide, scenario_camera
 
-FIELDS = (
-    "time",
-    "dt",
-    "position",
-    "velocity",
-    "rotation",
-    "images",
-    "visible",
-    "estimate_position",
-    "estimate_velocity",
-    "estimate_valid",
-    "estimator_status",
-    "reachable",
-    "position_error",
-    "velocity_error",
-    "nees",
-)
+FIELDS = (*STEP_TRACKS, "rotation", "images")  # every recorded track
 DISCRETE = ("visible", "estimate_valid", "estimator_status", "reachable")
 
 
@@ -89,7 +74,7 @@ def test_a_side_already_stepped_is_finished_step_by_step():
 
 
 def test_primed_cold_solves_are_the_solves_of_each_image_alone():
-    """prime_cold_solves keeps the batch's solution of each image; solve_pose then returns it,
+    """cold_solves keeps the batch's solution of each image; solve_pose then returns it,
     equal to a fresh solve of that image alone (to rounding on any machine), and the memo
     grows by the images not yet kept."""
     scenario = load_scenario("paper")
@@ -100,10 +85,10 @@ def test_primed_cold_solves_are_the_solves_of_each_image_alone():
     images = np.stack([side._first_frame() for side in sides])
     f = camera.model.focal_length
     photogrammetry.clear_solve_cache()
-    photogrammetry.prime_cold_solves(images, features, f)
+    photogrammetry.cold_solves(images, features, f)
     assert photogrammetry.solve_cache_size()[0] == 4
     primed = [photogrammetry.solve_pose(image, features, f) for image in images]
-    photogrammetry.prime_cold_solves(images[:2], features, f)
+    photogrammetry.cold_solves(images[:2], features, f)
     assert photogrammetry.solve_cache_size()[0] == 4
     photogrammetry.clear_solve_cache()
     for image, kept in zip(images, primed, strict=True):

@@ -228,10 +228,8 @@ def run_batch(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
         agent = [build_agent(spec, env.sub_env(i), seed) for i, seed in enumerate(seeds)]
     else:
         agent = build_agent(spec, env, seeds[0])
-    if not isinstance(agent, list) and not (
-        getattr(agent, "batched", False) or callable(getattr(agent, "predict_rows", None))
-    ):
-        agent = [agent, *(build_agent(spec, env, seed) for seed in seeds[1:])]
+        if not (getattr(agent, "batched", False) or callable(getattr(agent, "predict_rows", None))):
+            agent = [agent, *(build_agent(spec, env, seed) for seed in seeds[1:])]
     return run_episodes(
         env, agent, agent_name=spec.label, scenario=scenario_label(first.scenario), seeds=seeds
     )

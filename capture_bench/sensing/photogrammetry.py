@@ -653,10 +653,8 @@ def solve_pose(
         rms = math.sqrt(cost[0] / n_eq)
         if conv[0] and math.isfinite(rms):
             return PoseSolution(_canonical(pose[0]), True, int(its[0]), rms)
-    cold = _solve_cold(
-        uv.tobytes(), pts.tobytes(), pts.shape[0], float(focal_length), max_iterations, tol
-    )
-    return dataclasses.replace(cold, pose=cold.pose.copy())  # the cached one stays untouched
+    (cold,) = cold_solves(uv[None], pts, focal_length, max_iterations, tol)
+    return dataclasses.replace(cold, pose=cold.pose.copy())  # the kept one stays untouched
 
 
 # The multi-start costs ~5 ms and is a pure function of the image: an evaluation that runs several
@@ -674,48 +672,35 @@ def _keep_cold(key: _ColdKey, solution: PoseSolution) -> None:
         _COLD_SOLVES.popitem(last=False)
 
 
-def _solve_cold(
-    image: bytes, points: bytes, n: int, focal_length: float, max_iterations: int, tol: float
-) -> PoseSolution:
-    """The multi-start of :func:`solve_pose` (no initial guess), on its inputs as bytes."""
-    key = (image, points, n, focal_length, max_iterations, tol)
-    found = _COLD_SOLVES.get(key)
-    if found is not None:
-        _COLD_SOLVES.move_to_end(key)
-        return found
-    uv = np.frombuffer(image, dtype=float).reshape(1, n, 2)
-    pts = np.frombuffer(points, dtype=float).reshape(n, 3)
-    poses, conv, its, rms = _multi_start(uv, pts, focal_length, max_iterations, tol)
-    solution = PoseSolution(poses[0], bool(conv[0]), int(its[0]), float(rms[0]))
-    _keep_cold(key, solution)
-    return solution
-
-
-def prime_cold_solves(
+def cold_solves(
     images: ArrayLike,
     feature_points: ArrayLike,
     focal_length: float,
     max_iterations: int = 50,
     tol: float = 1e-10,
-) -> None:
-    """Solve the cold multi-start of M images (M, N, 2) at once (:func:`solve_pose_batch`,
-    each image's result bit for bit its result alone) and keep each for the next
-    :func:`solve_pose` of that image without an initial guess: a caller that knows the frames
-    its estimators will start from (a recording of many episodes) pays ~1.9 ms an image
-    instead of ~5.6 (``benchmarks/bench_photogrammetry_batch.py``). Images already kept are not
-    solved again."""
+) -> list[PoseSolution]:
+    """The cold multi-start of :func:`solve_pose` (no initial guess) of each of M images
+    (M, N, 2), memoised: the images not kept yet are solved at once (:func:`solve_pose_batch`,
+    each image's result bit for bit its result alone) and kept. A caller that knows the frames
+    its estimators will start from (a recording of many episodes) solves them here first and
+    pays ~1.9 ms an image instead of ~5.6 (``benchmarks/bench_photogrammetry_batch.py``); the
+    estimators' :func:`solve_pose` then finds them. The solutions returned are the kept ones:
+    copy before changing them."""
     uv = np.asarray(images, dtype=float)
     pts = np.asarray(feature_points, dtype=float)
     n, f = pts.shape[0], float(focal_length)
     keys = [(image.tobytes(), pts.tobytes(), n, f, max_iterations, tol) for image in uv]
-    todo = [i for i, key in enumerate(keys) if key not in _COLD_SOLVES]
-    if not todo:
-        return
-    poses, conv, its, rms = solve_pose_batch(uv[todo], pts, f, max_iterations, tol)
-    for j, i in enumerate(todo):
-        _keep_cold(
-            keys[i], PoseSolution(poses[j].copy(), bool(conv[j]), int(its[j]), float(rms[j]))
-        )
+    found: list[PoseSolution | None] = [_COLD_SOLVES.get(key) for key in keys]
+    for key, kept in zip(keys, found, strict=True):
+        if kept is not None:
+            _COLD_SOLVES.move_to_end(key)
+    todo = [i for i, kept in enumerate(found) if kept is None]
+    if todo:
+        poses, conv, its, rms = solve_pose_batch(uv[todo], pts, f, max_iterations, tol)
+        for j, i in enumerate(todo):
+            found[i] = PoseSolution(poses[j].copy(), bool(conv[j]), int(its[j]), float(rms[j]))
+            _keep_cold(keys[i], found[i])
+    return [solution for solution in found if solution is not None]
 
 
 def clear_solve_cache() -> None:

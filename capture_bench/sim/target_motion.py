@@ -211,9 +211,12 @@ class TargetTrajectory:
         """
         tt = np.asarray(t, dtype=float).reshape(-1)
         c, c_dot = self.translation.at_times(tt)
+        seen = None  # points_target turned to the global frame's axes, (N, 3) or (T, N, 3)
         if self.spin_rate == 0.0:
             position, velocity = c + self._r0, c_dot
             rotation = np.broadcast_to(self.initial_rotation, (tt.size, 3, 3)).copy()
+            if points_target is not None:
+                seen = points_target @ self.initial_rotation.T
         else:
             a = (self.spin_rate * tt).tolist()
             sin = np.array([math.sin(x) for x in a]).reshape(-1, 1, 1)
@@ -223,12 +226,9 @@ class TargetTrajectory:
             turn = np.matmul(self._kx, offset[:, :, None])[:, :, 0]
             position, velocity = c + offset, c_dot + self.spin_rate * turn
             rotation = spin @ self.initial_rotation
-        points = None
-        if points_target is not None:
-            if self.spin_rate == 0.0:
-                points = position[:, None, :] + points_target @ self.initial_rotation.T
-            else:
-                points = position[:, None, :] + points_target @ rotation.transpose(0, 2, 1)
+            if points_target is not None:
+                seen = points_target @ rotation.transpose(0, 2, 1)
+        points = None if seen is None else position[:, None, :] + seen
         return position, velocity, rotation, points
 
     def rotations(self, t: FloatArray) -> FloatArray:

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from capture_bench.sensing.camera import Camera, CameraModel, Frame
 from capture_bench.sensing.estimator import STATUSES, TargetEstimator
-from capture_bench.sensing.photogrammetry import prime_cold_solves
+from capture_bench.sensing.photogrammetry import cold_solves
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import FEATURE_POINTS, TargetTrajectory
 from capture_bench.task.episode import EpisodePlan, episode_bounds
@@ -179,38 +179,40 @@ class TargetSide:
         return self.episode
 
     def record_all(self) -> RecordedEpisode:
-        """Every row to the time limit (a live side computes them now; its sensors are dropped).
-        Not for a side whose rows depend on the arm (:attr:`needs_arm`): ``RuntimeError``."""
-        if self.needs_arm:
-            raise RuntimeError(
-                "a rendered camera's frames show the arm, so its target side cannot be recorded "
-                "ahead of the steps"
-            )
-        if self.filled == 0 and self._sensors is not None:
-            self._record_truth()
-            self._record_estimates()
-        episode = self.through(self.episode.time.size - 1)
-        self._sensors = None
+        """Every row to the time limit (a live side computes them now; its sensors are dropped):
+        :meth:`record_many` of this side. Not for a side whose rows depend on the arm
+        (:attr:`needs_arm`): ``RuntimeError``."""
+        (episode,) = TargetSide.record_many([self])
         return episode
 
     @staticmethod
     def record_many(sides: Sequence[TargetSide]) -> list[RecordedEpisode]:
-        """:meth:`record_all` of each side (sides with nothing filled yet, each with its own
-        generator; they may share a camera and an estimator), bit for bit: every side's true
-        states and frames first, then the photogrammetry's cold solves of the frames their
-        estimators start from, all at once
-        (:func:`~capture_bench.sensing.photogrammetry.prime_cold_solves`), then each side's
-        estimates."""
+        """Every row of each side to the time limit (each side with its own generator; they may
+        share a camera and an estimator; their sensors are dropped), bit for bit as
+        :meth:`_fill_next` fills them: the true states and frames of every side with none
+        filled yet, then the photogrammetry's cold solves of the frames their estimators start
+        from, all at once (:func:`~capture_bench.sensing.photogrammetry.cold_solves`), then
+        each one's estimates; a side already part filled goes on step by step. Not for a side
+        whose rows depend on the arm (:attr:`needs_arm`): ``RuntimeError``."""
+        if any(side.needs_arm for side in sides):
+            raise RuntimeError(
+                "a rendered camera's frames show the arm, so its target side cannot be recorded "
+                "ahead of the steps"
+            )
         fresh = [side for side in sides if side.filled == 0 and side._sensors is not None]
         for side in fresh:
             side._record_truth()
         starts = [image for side in fresh if (image := side._first_frame()) is not None]
         if starts:
-            camera, estimator, features, _ = fresh[0]._sensors  # type: ignore[misc]
-            prime_cold_solves(np.stack(starts), features, camera.model.focal_length)
+            camera, _, features, _ = fresh[0]._sensors  # type: ignore[misc]
+            cold_solves(np.stack(starts), features, camera.model.focal_length)
         for side in fresh:
             side._record_estimates()
-        return [side.record_all() for side in sides]
+        episodes = []
+        for side in sides:
+            episodes.append(side.through(side.episode.time.size - 1))
+            side._sensors = None
+        return episodes
 
     def _record_truth(self) -> None:
         """The true states, frames and reachability of every row of a side with none filled,
@@ -218,8 +220,7 @@ class TargetSide:
         (:func:`~capture_bench.task.recording.record_truth`)."""
         assert self._sensors is not None
         camera, _, features, rng = self._sensors
-        if not isinstance(camera, Camera):
-            raise RuntimeError("a scene camera's rows are made step by step")
+        assert isinstance(camera, Camera)  # record_many refuses a scene camera's side
         ep = self.episode
         truth = record_truth(ep.plan, camera, features, rng)
         ep.position[:], ep.velocity[:], ep.rotation[:] = (
