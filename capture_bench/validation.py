@@ -45,7 +45,8 @@ class Rule:
     non-empty list of non-empty strings, or one of ``choices`` as a whole), ``schedule`` (a number
     > 0 or ``lin_<number>``), ``float_or_auto`` (a number, ``auto`` or ``auto_<number>``),
     ``optional_float`` (a number or null), ``layers`` (a list of layer widths, or a mapping of
-    ``choices`` to such lists), ``mapping`` (checked by a nested schema).
+    ``choices`` to such lists), ``mapping`` (checked by a nested schema), ``weights`` (a
+    non-empty mapping of names to numbers > 0).
     """
 
     kind: str
@@ -84,6 +85,7 @@ class Rule:
             "schedule": "a number > 0 or 'lin_<number>' (linear decay to 0)",
             "float_or_auto": "a number, 'auto' or 'auto_<number>'",
             "mapping": "a mapping",
+            "weights": "a mapping of names to numbers > 0, like {grasp: 4}",
         }[kind]
 
     def _range(self) -> str:
@@ -163,6 +165,14 @@ def _check_names(rule: Rule, value: Any) -> tuple[bool, Any]:
     return bool(ok), tuple(dict.fromkeys(value)) if ok else None
 
 
+def _check_weights(rule: Rule, value: Any) -> tuple[bool, Any]:
+    if not isinstance(value, dict) or not value:
+        return False, None
+    numbers = {k: _number(v) for k, v in value.items()}
+    ok = all(isinstance(k, str) and k and n is not None and n > 0 for k, n in numbers.items())
+    return ok, numbers if ok else None
+
+
 def _check_prefixed(rule: Rule, value: Any) -> tuple[bool, Any]:
     """``schedule`` (a number > 0 or lin_<number > 0>) and ``float_or_auto``."""
     if isinstance(value, str) and _number(value) is None:
@@ -208,6 +218,7 @@ _CHECKS = {
     "float_or_auto": _check_prefixed,
     "layers": _check_layers,
     "mapping": lambda rule, v: (isinstance(v, dict), v),
+    "weights": _check_weights,
 }
 
 #: A schema: key -> Rule, or key -> nested schema (a mapping under that key).

@@ -73,6 +73,9 @@ TRAINING_KEYS = {
     # a tolerance curriculum, training only: eq. 20 counts a capture at curriculum_tolerance (m)
     # at first, shrinking geometrically to the scenario's epsilon over curriculum_steps
     "curriculum_tolerance": Rule("float", 0.0, 1.0, low_inclusive=False),
+    # a mixture's sub-envs per scenario, relative to the scenarios it leaves out (weight 1 each):
+    # {grasp: 4} gives grasp four times the share of each other scenario (mixture.mixture_shares)
+    "mixture_weights": Rule("weights"),
     # a hold curriculum, training only: a capture must hold curriculum_hold s (0: the first entry
     # captures, a fly-through) at first, growing linearly to the scenario's capture.hold over
     # curriculum_steps (grasp: PPO finds the capture by flying through, then learns to stay)

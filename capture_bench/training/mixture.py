@@ -1,8 +1,9 @@
 """Training on a mixture of scenarios: one policy for every scenario.
 
 ``train.py --scenario all`` (every shipped scenario) or ``--scenario paper,tumbling,grasp`` trains
-one policy on all of them at once: the ``n_envs`` sub-envs are split evenly between the
-scenarios, each share a batched env of its scenario
+one policy on all of them at once: the ``n_envs`` sub-envs are split between the scenarios
+(evenly, or by the ``mixture_weights`` hyper-parameter: :func:`mixture_shares`), each share a
+batched env of its scenario
 (:class:`~capture_bench.training.sb3_vec_env.CaptureSB3VecEnv`) on that scenario's training
 seeds, and :class:`MixtureVecEnv` puts them side by side as one SB3 ``VecEnv``. The periodic
 validation plays ``eval_episodes`` validation seeds of every scenario and pools them (each
@@ -52,6 +53,52 @@ def mixture_scenarios(spec: str) -> list[Scenario]:
     if repeated:
         raise ConfigError(f"--scenario {spec!r}: scenario {repeated[0]!r} named twice")
     return scenarios
+
+
+def mixture_shares(
+    n_envs: int, names: Sequence[str], weights: dict[str, float] | None = None
+) -> list[int]:
+    """How many of the ``n_envs`` sub-envs each scenario of a mixture gets, in ``names``' order.
+
+    Without ``weights``, an equal share each (``n_envs`` must be a multiple of the count). With
+    ``weights`` (scenario name -> weight > 0; a scenario left out weighs 1), shares in proportion
+    to the weights, rounded by the largest remainder (ties to the earlier scenario), so they sum
+    to ``n_envs``: ``mixture_shares(64, 8 names, {"grasp": 25/7})`` gives grasp 25 and each other
+    scenario about 5.6 (6 or 5).
+
+    Raises:
+        ConfigError: uneven without weights, a weight for a scenario not in the mixture, or a
+            scenario left with no sub-env.
+    """
+    count = len(names)
+    if not weights:
+        if n_envs % count:
+            up = count * -(-n_envs // count)
+            raise ConfigError(
+                f"n_envs {n_envs} does not split evenly between {count} scenarios; use a "
+                f"multiple of {count} (e.g. --n-envs {up}), or give mixture_weights"
+            )
+        return [n_envs // count] * count
+    unknown = sorted(set(weights) - set(names))
+    if unknown:
+        raise ConfigError(
+            f"mixture_weights names {unknown[0]!r}, which is not in the mixture; valid: "
+            + ", ".join(names)
+        )
+    w = np.array([float(weights.get(name, 1.0)) for name in names])
+    exact = n_envs * w / w.sum()
+    shares = np.floor(exact).astype(int)
+    order = sorted(range(count), key=lambda k: (-(exact[k] - shares[k]), k))
+    for k in order[: n_envs - int(shares.sum())]:
+        shares[k] += 1
+    if shares.min() < 1:
+        empty = names[int(np.argmin(shares))]
+        need = int(np.ceil(w.sum() / w.min()))
+        raise ConfigError(
+            f"mixture_weights leave scenario {empty!r} no sub-env of n_envs {n_envs}; use more "
+            f"sub-envs (e.g. --n-envs {need}) or closer weights"
+        )
+    return shares.tolist()
 
 
 def mixture_name(spec: str) -> str:

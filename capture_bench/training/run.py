@@ -22,6 +22,7 @@ rounded total.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import signal
@@ -59,6 +60,7 @@ from capture_bench.training.mixture import (
     is_mixture,
     mixture_name,
     mixture_scenarios,
+    mixture_shares,
 )
 from capture_bench.training.options import (
     FLAGS,
@@ -223,6 +225,11 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     _check_env_count(config.n_envs, config.vec_env)
     if mixed:
         _check_mixture(config, hp, len(scenarios))
+    elif "mixture_weights" in hp:
+        raise ConfigError(
+            f"key 'mixture_weights' splits a mixture's sub-envs between its scenarios; train on "
+            f"a mixture (--scenario all, or a,b,c), or drop it for {scenario.name}"
+        )
     else:
         config.observation_source = config.observation_source or scenario.estimator.source
         check_curricula(hp, scenario)
@@ -325,26 +332,25 @@ def check_observation(config: TrainConfig, hp: dict) -> None:
 
 
 def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
-    """What a mixture of ``count`` scenarios needs: the batched env, ``n_envs`` a multiple of
-    ``count`` (an equal share each), and no setting that depends on one scenario's task."""
+    """What a mixture of ``count`` scenarios needs: the batched env, sub-envs for every scenario
+    (:func:`~capture_bench.training.mixture.mixture_shares`), and no setting that depends on one
+    scenario's task."""
     if config.vec_env != "batched":
         raise ConfigError(
             f"--scenario {config.scenario}: a mixture trains on --vec-env batched, not "
             f"{config.vec_env}"
         )
-    if hp["n_envs"] % count:
-        up = count * -(-hp["n_envs"] // count)
-        raise ConfigError(
-            f"--scenario {config.scenario}: n_envs {hp['n_envs']} does not split evenly between "
-            f"{count} scenarios; use a multiple of {count} (e.g. --n-envs {up})"
-        )
+    try:
+        shares_of(config, hp)
+    except ConfigError as exc:
+        raise ConfigError(f"--scenario {config.scenario}: {exc}") from None
     if hp.get("residual", "none") != "none":
         raise ConfigError(
             f"--scenario {config.scenario}: residual depends on one scenario's task; train it "
             "on a single scenario"
         )
     scenarios = mixture_scenarios(config.scenario)
-    found = {name for name, _ in mixture_curricula(hp, scenarios, 1)}
+    found = {name for name, _ in mixture_curricula(hp, scenarios, [1] * count)}
     for key, name, rule in (
         ("curriculum_hold", "HoldCurriculum", "a longer capture.hold"),
         ("curriculum_tolerance", "ToleranceCurriculum", "a smaller capture tolerance"),
@@ -355,6 +361,13 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
                 f"mixture (none asks {rule}); leave it out, or start it on the easy side of one "
                 "(e.g. curriculum_hold=0 with grasp in the mixture)"
             )
+
+
+def shares_of(config: TrainConfig, hp: dict) -> list[int]:
+    """The sub-envs of each scenario of ``config``'s mixture, in its order
+    (:func:`~capture_bench.training.mixture.mixture_shares` of ``hp``'s ``mixture_weights``)."""
+    names = [s.name for s in mixture_scenarios(config.scenario)]
+    return mixture_shares(config.n_envs or hp["n_envs"], names, hp.get("mixture_weights"))
 
 
 def fill_curriculum_steps(hp: dict) -> None:
@@ -509,14 +522,13 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
 
     n_envs = config.n_envs or 1
     venv: Any
-    if is_mixture(config.scenario):  # an equal share of the sub-envs for each scenario
+    if is_mixture(config.scenario):  # each scenario's share of the sub-envs, side by side
         from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
 
         scenarios = mixture_scenarios(config.scenario)
-        share = n_envs // len(scenarios)
         venv = MixtureVecEnv([
             CaptureSB3VecEnv(share, sc, seed=(config.seed or 0) * 1000 + k, reward=hp["reward"])
-            for k, sc in enumerate(scenarios)
+            for k, (sc, share) in enumerate(zip(scenarios, shares_of(config, hp), strict=True))
         ])  # fmt: skip
     elif config.vec_env == "batched":
         from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
@@ -587,21 +599,23 @@ def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
 
 
 def mixture_curricula(
-    hp: dict, scenarios: Sequence[Any], share: int
+    hp: dict, scenarios: Sequence[Any], shares: Sequence[int]
 ) -> list[tuple[str, dict[str, Any]]]:
     """A mixture's curricula, scenario by scenario: each of :func:`curricula` on a scenario
     where it moves (a hold curriculum where ``curriculum_hold`` is below the scenario's
     ``capture.hold``, a tolerance one where ``curriculum_tolerance`` is above its epsilon; the
-    others keep their rule), bound to that scenario's ``share`` sub-envs of the
-    :class:`~capture_bench.training.mixture.MixtureVecEnv` (``indices``) and labelled by it."""
+    others keep their rule), bound to that scenario's sub-envs of the
+    :class:`~capture_bench.training.mixture.MixtureVecEnv` (``indices``: its ``shares[k]``,
+    after the earlier scenarios') and labelled by it."""
     out = []
+    offsets = [0, *itertools.accumulate(shares)]
     for k, scenario in enumerate(scenarios):
         for name, kwargs in curricula(hp, scenario).items():
             if name == "HoldCurriculum" and not kwargs["start"] < kwargs["final"]:
                 continue
             if name == "ToleranceCurriculum" and not kwargs["start"] > max(kwargs["final"]):
                 continue
-            indices = list(range(k * share, (k + 1) * share))
+            indices = list(range(offsets[k], offsets[k + 1]))
             out.append((name, {**kwargs, "indices": indices, "label": scenario.name}))
     return out
 
@@ -616,9 +630,7 @@ def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
     from capture_bench.training import callbacks
 
     if is_mixture(config.scenario):
-        scenarios = mixture_scenarios(config.scenario)
-        share = (config.n_envs or hp["n_envs"]) // len(scenarios)
-        found = mixture_curricula(hp, scenarios, share)
+        found = mixture_curricula(hp, mixture_scenarios(config.scenario), shares_of(config, hp))
     else:
         found = list(curricula(hp, load_scenario(config.scenario)).items())
     return [getattr(callbacks, name)(**kwargs) for name, kwargs in found]
@@ -643,9 +655,13 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
         seed_note = f"resuming {checkpoint.name}"
     target = planned_steps(algo, hp, model.num_timesteps)  # the step SB3 stops at
     source = config.observation_source or "each scenario's own estimate"
+    envs = f"{config.n_envs} {config.vec_env} envs"
+    if is_mixture(config.scenario):
+        names = [s.name for s in mixture_scenarios(config.scenario)]
+        envs += " (" + ", ".join(f"{n} {k}" for n, k in zip(names, shares_of(config, hp))) + ")"
     print(
         f"training {algo.upper()} on {config.scenario} ({source}), "
-        f"{config.n_envs} {config.vec_env} envs, {seed_note}, {target} steps -> {run_dir}"
+        f"{envs}, {seed_note}, {target} steps -> {run_dir}"
     )
     print(f"TensorBoard: tensorboard --logdir {tb}")
     checkpointer = Checkpointer(run_dir / "checkpoints", hp["checkpoint_freq"], algo in OFF_POLICY)
