@@ -134,7 +134,7 @@ def test_a_mixtures_curricula_move_on_each_scenario_they_apply_to():
     scenarios = mixture_scenarios("paper,grasp,tumbling")
     hp = {"curriculum_hold": 0.0, "curriculum_tolerance": 0.05, "curriculum_steps": 10,
           "curriculum_delay": 2}  # fmt: skip
-    found = mixture_curricula(hp, scenarios, 4)
+    found = mixture_curricula(hp, scenarios, [4, 4, 4])
     holds = [kw for name, kw in found if name == "HoldCurriculum"]
     assert [(kw["label"], kw["indices"]) for kw in holds] == [("grasp", [4, 5, 6, 7])]
     assert holds[0]["final"] == scenarios[1].capture.hold > 0
@@ -160,3 +160,83 @@ def test_a_mixture_run_with_a_hold_curriculum_grows_grasps_hold_alone(tmp_path):
     hold = [v for _, v in tags["train/capture_hold_s/grasp"]]
     assert hold[0] == 0.0 and hold == sorted(hold) and hold[-1] > 0.0
     assert not any(tag.startswith("train/capture_hold_s/paper") for tag in tags)
+
+
+def test_the_weights_split_the_sub_envs_in_proportion_and_sum_to_n_envs():
+    """mixture_shares: equal without weights; with weights, in proportion (a scenario left out
+    weighs 1), the largest remainders rounded up (ties to the earlier scenario), each >= 1."""
+    from capture_bench.training.mixture import mixture_shares
+
+    names = ["circular", "drift", "evasive", "grasp", "jitter", "noisy", "paper", "tumbling"]
+    assert mixture_shares(64, names) == [8] * 8
+    assert mixture_shares(64, names, {"grasp": 7}) == [5, 5, 5, 32, 5, 4, 4, 4]
+    assert mixture_shares(64, names, {"grasp": 1}) == [8] * 8
+    assert mixture_shares(10, ["paper", "grasp"], {"paper": 1.5, "grasp": 1}) == [6, 4]
+    assert mixture_shares(3, ["paper", "grasp"], {"paper": 1}) == [2, 1]  # a tie: the first
+    for n_envs in range(8, 70):
+        for weight in (0.5, 2.0, 3.3, 7.0):
+            try:
+                shares = mixture_shares(n_envs, names, {"grasp": weight, "paper": 2})
+            except ConfigError:  # a scenario left without a sub-env
+                assert n_envs < (8 + weight) / min(weight, 1)
+                continue
+            assert sum(shares) == n_envs
+            exact = [n_envs * w / (8 + weight) for w in (1, 1, 1, weight, 1, 1, 2, 1)]
+            assert all(abs(s - e) < 1 for s, e in zip(shares, exact, strict=True))
+
+
+@pytest.mark.parametrize(
+    ("n_envs", "weights", "expected"),
+    [
+        (6, None, "does not split evenly between 4 scenarios"),
+        (4, {"grasp": 9}, "leave scenario 'paper' no sub-env of n_envs 4"),
+        (8, {"graps": 2}, "names 'graps', which is not in the mixture"),
+    ],
+)
+def test_shares_that_cannot_be_are_refused(n_envs, weights, expected):
+    from capture_bench.training.mixture import mixture_shares
+
+    names = ["paper", "grasp", "drift", "noisy"][: 4 if weights is None else 2]
+    with pytest.raises(ConfigError, match=expected):
+        mixture_shares(n_envs, names, weights)
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--n-envs", "4", "--set", "mixture_weights={grasp: 9}"], "no sub-env of n_envs 4"),
+        (["--set", "mixture_weights={grasp: 0}"], "expected a mapping of names to numbers > 0"),
+        (["--set", "mixture_weights=[grasp]"], "expected a mapping of names to numbers > 0"),
+        (["--scenario", "paper", "--set", "mixture_weights={grasp: 2}"], "train on a mixture"),
+    ],
+)
+def test_weights_a_run_cannot_take_are_one_line(tmp_path, capsys, argv, expected):
+    import train
+
+    run_dir = tmp_path / "run"
+    assert train.main(["--scenario", "paper,grasp", *argv, "--run-dir", str(run_dir)]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and len(err.strip().splitlines()) == 1, err
+    assert not run_dir.exists()
+
+
+def test_a_weighted_run_gives_each_scenario_its_share_and_grasps_curriculum_its_own(tmp_path):
+    """paper+grasp weighted 1:2 on 6 sub-envs: paper's batched env has 2, grasp's 4, and the
+    hold curriculum moves grasp's 4 (sub-envs 2-5) alone."""
+    from capture_bench.training.hyperparameters import resolve_hyperparameters
+    from capture_bench.training.options import TrainConfig
+    from capture_bench.training.run import build_venv, curriculum_callbacks
+
+    hp, _, _ = resolve_hyperparameters("ppo", None, None, [
+        "n_envs=6", "mixture_weights={grasp: 2}", "curriculum_hold=0", "curriculum_steps=10",
+        "curriculum_delay=0"])  # fmt: skip
+    config = TrainConfig(algo="ppo", scenario="paper,grasp", n_envs=6, vec_env="batched")
+    venv = build_venv(config, {**hp, "residual": "none"})
+    try:
+        mixture = venv.venv
+        assert [part.num_envs for part in mixture.parts] == [2, 4]
+        assert [p.venv.scenario.name for p in mixture.parts] == ["paper", "grasp"]
+    finally:
+        venv.close()
+    (hold,) = curriculum_callbacks(config, hp)
+    assert (hold.label, hold.indices) == ("grasp", [2, 3, 4, 5])
