@@ -147,6 +147,8 @@ def test_the_interval_and_the_time_to_baseline():
         (["--algos", "dqn"], "invalid choice"),
         (["--seeds", "1000000"], "evaluation seeds"),
         (["--runs", "/nonexistent/runs"], "validations.csv"),
+        (["--arms", "ppo-hold", "--train"], "--arms reads runs trained by their own commands"),
+        (["--scenario", "paper,papr"], "papr"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, expected):
@@ -190,3 +192,32 @@ def test_a_validation_file_without_the_score_column_scores_0_where_nothing_was_c
     )
     curve = read_curve(tmp_path, "ppo", 0)
     assert curve.values[SCORE][0] == 0.0 and np.isnan(curve.values[SCORE][1])
+
+
+def test_arms_of_a_mixture_read_their_runs_against_incremental_ik_pooled_over_its_scenarios(
+    tmp_path,
+):
+    """--scenario paper,grasp --arms: the runs <runs>/paper+grasp-<arm>-<seed> trained by
+    train.py on the mixture, read under their own names; incremental_ik's level is its
+    validation pooled over both scenarios' first seeds, as the mixture's validation pools."""
+    import train
+    from capture_bench.training.curves import baseline_level
+
+    runs = tmp_path / "runs"
+    sets = [f"--set={item}" for item in TINY]
+    for arm, extra in (("ppo", []), ("ppo-hold", ["--set=curriculum_hold=0"])):
+        for seed in (0, 1):
+            run_dir = runs / f"paper+grasp-{arm}-{seed}"
+            argv = ["--scenario", "paper,grasp", "--seed", str(seed), "--run-dir", str(run_dir)]
+            assert train.main([*argv, *sets, *extra]) == 0
+    argv = ["--arms", "ppo", "ppo-hold", "--seeds", "0", "1", "--scenario", "paper,grasp",
+            "--runs", str(runs), "--out", str(tmp_path / "out")]  # fmt: skip
+    assert main(argv) == 0
+    numbers = json.loads((tmp_path / "out" / "curves.json").read_text())
+    assert set(numbers["curves"]) == {"ppo", "ppo-hold"}
+    assert numbers["validation_episodes"] == 3
+    assert numbers["baseline"] == baseline_level("paper,grasp", 3)
+    paper, grasp = (baseline_level(name, 3)["capture_rate"] for name in ("paper", "grasp"))
+    assert numbers["baseline"]["capture_rate"] == pytest.approx((paper + grasp) / 2)
+    page = (tmp_path / "out" / "learning_curves.md").read_text()
+    assert "| PPO-HOLD |" in page and "each of paper, grasp (pooled)" in page

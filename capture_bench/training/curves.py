@@ -25,6 +25,12 @@ on the camera's pixels (``--observation-source pixels --config configs/pixels/<a
 runs validated on the same seeds, so the page draws the pixel-fed and the estimate-fed curves
 side by side.
 
+``--scenario`` may name a mixture (``all``, or ``a,b,c``: the runs of ``train.py --scenario
+all``), whose runs validate on every scenario's first validation seeds pooled; ``incremental_ik``'s
+level is then pooled the same way. ``--arms`` reads runs of any name instead of the algorithms'
+(``<runs>/<scenario>-<arm>-<seed>``, e.g. ``ppo ppo-hold ppo-weighted`` for an ablation of
+training recipes trained by their own commands).
+
 Every number comes from the runs' ``validations.csv`` (written by train.py's periodic
 validation: :data:`capture_bench.training.policy_export.VALIDATIONS_FILE`), so the page is
 regenerated without training again. Validation seeds only: nothing here reads a published
@@ -49,8 +55,9 @@ import numpy as np
 from capture_bench import rliable_stats
 from capture_bench.argparsing import OneLineParser
 from capture_bench.files import atomic_write, check_writable
-from capture_bench.task.scenarios import ConfigError, load_scenario
+from capture_bench.task.scenarios import ConfigError
 from capture_bench.training import run_plan, seed_statistics
+from capture_bench.training.mixture import mixture_name, mixture_scenarios
 from capture_bench.training.policy_export import VALIDATIONS_FILE
 from capture_bench.training.run_plan import is_finished, run_path, train_argv
 
@@ -147,19 +154,22 @@ def mean_interval(samples: np.ndarray) -> tuple[float, float, float, int]:
 
 def baseline_level(scenario: str, episodes: int) -> dict[str, float]:
     """``incremental_ik``'s validation statistics on the first ``episodes`` validation seeds of
-    ``scenario``, as train.py's validation computes them."""
+    ``scenario`` (of each scenario of a mixture, pooled), as train.py's validation computes
+    them."""
     from capture_bench.agents.incremental_ik import IncrementalIK
     from capture_bench.envs.vector_env import CaptureVectorEnv
     from capture_bench.training.episode_stats import summarize
     from capture_bench.training.validation_run import run_validation
 
-    sc = load_scenario(scenario)
-    seeds = list(sc.validation_seeds[:episodes])
-    env = CaptureVectorEnv(len(seeds), sc)
-    try:
-        return summarize(run_validation(IncrementalIK(env.description), env, seeds))
-    finally:
-        env.close()
+    played = []
+    for sc in mixture_scenarios(scenario):
+        seeds = list(sc.validation_seeds[:episodes])
+        env = CaptureVectorEnv(len(seeds), sc)
+        try:
+            played += run_validation(IncrementalIK(env.description), env, seeds)
+        finally:
+            env.close()
+    return summarize(played)
 
 
 def final_scores(curves: dict[str, list[Curve]]) -> dict[str, dict[int, float]]:
@@ -283,7 +293,8 @@ def report(
     """Write the report page from the runs in ``runs``; return the markdown file."""
     from capture_bench.provenance import git_state, machine
 
-    curves = {a: [read_curve(run_path(runs, scenario, a, s), a, s) for s in seeds] for a in algos}
+    name = mixture_name(scenario)
+    curves = {a: [read_curve(run_path(runs, name, a, s), a, s) for s in seeds] for a in algos}
     episodes = {c.episodes for cs in curves.values() for c in cs}
     if len(episodes) != 1:
         raise ConfigError(
@@ -328,10 +339,12 @@ def report(
     }
     host = machine()
     ratio = baseline["median_ratio_to_limit"]
+    names = [sc.name for sc in mixture_scenarios(scenario)]
+    where = f"`{scenario}`" if len(names) == 1 else f"each of {', '.join(names)} (pooled)"
     lines = [
         f"# Learning curves on `{scenario}`",
         "",
-        f"Validation on the first {n_episodes} validation seeds of `{scenario}` (never a published "
+        f"Validation on the first {n_episodes} validation seeds of {where} (never a published "
         "evaluation seed), deterministic actions, every `eval_freq` steps of each run; mean over "
         f"the training seeds {', '.join(map(str, seeds))} with a 95% interval (Student's t over "
         "the seeds). The dashed line is `incremental_ik` on the same seeds: capture rate "
@@ -435,7 +448,7 @@ def train_runs(
 
     for arm in arms:
         for seed in seeds:
-            run_dir = run_path(runs, scenario, arm, seed)
+            run_dir = run_path(runs, mixture_name(scenario), arm, seed)
             if is_finished(run_dir):
                 print(f"{run_dir}: finished; kept")
                 continue
@@ -477,7 +490,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="a second arm per algorithm, <algo>-pixels, trained on the camera's pixels "
         "(configs/pixels/<algo>.yaml: ppo has one)",
     )
-    parser.add_argument("--scenario", default="paper", help="scenario (default: paper)")
+    parser.add_argument(
+        "--arms",
+        nargs="+",
+        metavar="ARM",
+        help="instead of --algos: runs of these names, <runs>/<scenario>-<arm>-<seed>, each "
+        "trained by its own command (e.g. ppo ppo-hold ppo-weighted); read only, not with --train",
+    )
+    parser.add_argument(
+        "--scenario",
+        default="paper",
+        help="scenario, or a mixture (all, or a,b,c) whose runs validate on every scenario's "
+        "seeds pooled (default: paper)",
+    )
     parser.add_argument(
         "--runs", default="runs/curves", help="run directories (default: runs/curves)"
     )
@@ -500,16 +525,24 @@ def main(argv: list[str] | None = None) -> int:
     args_list = sys.argv[1:] if argv is None else argv
     try:
         args = build_parser().parse_args(args_list)
-        load_scenario(args.scenario)
-        for seed in args.seeds:
-            from capture_bench.training.seeds import check_training_seed
+        from capture_bench.training.seeds import check_training_seed
 
-            check_training_seed(seed, load_scenario(args.scenario))
+        for scenario in mixture_scenarios(args.scenario):  # one, or a mixture's
+            for seed in args.seeds:
+                check_training_seed(seed, scenario)
+        if args.arms and args.train:
+            raise ConfigError(
+                "--arms reads runs trained by their own commands; --train trains the --algos "
+                "(with --pixels); train the arms with train.py --run-dir "
+                f"{Path(args.runs) / mixture_name(args.scenario)}-<arm>-<seed>"
+            )
         runs, out = Path(args.runs), Path(args.out)
         check_writable(out, "--out")
         if not rliable_stats.installed():
             raise ConfigError(rliable_stats.MISSING)
-        arms = run_plan.arms(args.algos, args.pixels)
+        arms = (
+            list(dict.fromkeys(args.arms)) if args.arms else run_plan.arms(args.algos, args.pixels)
+        )
         if args.train:
             check_writable(runs, "--runs")
             extra = [f"--set={item}" for item in args.overrides or []]
