@@ -256,6 +256,7 @@ class Progress(BaseCallback):
         run_dir = getattr(config, "run_dir", None)
         self.run_dir = Path(run_dir) if run_dir else None
         self.best = BestModel(self.run_dir) if keep_best and self.run_dir else None
+        self.validate_at_start = False  # also validate before the first step (after imitation)
 
     def _on_training_start(self) -> None:
         self._next_print = (self.num_timesteps // self.print_every + 1) * self.print_every
@@ -263,6 +264,8 @@ class Progress(BaseCallback):
         self._next_eval = (self.num_timesteps // every + 1) * every if every else 0
         self._clock, self._clock_steps = time.perf_counter(), self.num_timesteps
         self._session_start = self._clock
+        if self.validate_at_start and every and self.num_timesteps == 0:
+            self.evaluate()
 
     def _on_step(self) -> bool:
         if self._next_eval and self.num_timesteps >= self._next_eval:

@@ -73,6 +73,14 @@ TRAINING_KEYS = {
     # a tolerance curriculum, training only: eq. 20 counts a capture at curriculum_tolerance (m)
     # at first, shrinking geometrically to the scenario's epsilon over curriculum_steps
     "curriculum_tolerance": Rule("float", 0.0, 1.0, low_inclusive=False),
+    # imitation first (capture_bench/training/imitation.py): DAgger from this analytic controller,
+    # imitation_rounds rounds of imitation_steps environment steps, imitation_epochs passes of the
+    # fit after each; then imitation_warmup steps of the algorithm train the critic alone
+    "imitate": Rule("choice", choices=RESIDUAL_BASES),
+    "imitation_rounds": POS_INT,
+    "imitation_steps": POS_INT,
+    "imitation_epochs": POS_INT,
+    "imitation_warmup": NONNEG_INT,
     # a mixture's sub-envs per scenario, relative to the scenarios it leaves out (weight 1 each):
     # {grasp: 4} gives grasp four times the share of each other scenario (mixture.mixture_shares)
     "mixture_weights": Rule("weights"),
@@ -85,6 +93,13 @@ TRAINING_KEYS = {
     # with observation_source pixels: the image's side, pixels (square; at least NatureCNN's 36,
     # at most the shipped camera's crop, 924; train.py checks it against the scenario's camera)
     "image_size": Rule("int", 36, 924),
+}
+#: What an imitation leaves out takes: 4 rounds of 200k steps, 10 passes each, no warm-up.
+IMITATION_DEFAULTS = {
+    "imitation_rounds": 4,
+    "imitation_steps": 200_000,
+    "imitation_epochs": 10,
+    "imitation_warmup": 0,
 }
 #: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
 CURRICULA = ("curriculum_tolerance", "curriculum_hold")
@@ -208,6 +223,15 @@ def validate_hyperparameters(
     out.setdefault("checkpoint_freq", 0)
     out.setdefault("eval_freq", 0)
     out.setdefault("eval_episodes", 5)
+    imitation = [k for k in IMITATION_DEFAULTS if k in out]
+    if imitation and "imitate" not in out:
+        raise ConfigError(
+            f"{source}: key {imitation[0]!r} needs imitate (the controller to imitate, one of "
+            f"{', '.join(RESIDUAL_BASES)}) beside it"
+        )
+    if "imitate" in out:
+        for key, value in IMITATION_DEFAULTS.items():
+            out.setdefault(key, value)
     for key in ("curriculum_steps", "curriculum_delay"):
         if key in out and not any(curriculum in out for curriculum in CURRICULA):
             raise ConfigError(

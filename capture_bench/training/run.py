@@ -76,6 +76,8 @@ ENV_MEMORY_BYTES = 40 * 2**20
 #: The same for one sub-env of the batched env, which shares one pybullet world: measured
 #: ~0.5 MB per sub-env beyond ~40 MB for the env itself (16 vs 128 sub-envs, 250 steps).
 BATCHED_ENV_MEMORY_BYTES = 2 * 2**20
+#: What the imitation did (:func:`capture_bench.training.imitation.dagger`), in the run.
+IMITATION_FILE = "imitation.json"
 #: Share of the available memory the environments may take.
 MEMORY_SHARE = 0.8
 #: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
@@ -234,6 +236,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         config.observation_source = config.observation_source or scenario.estimator.source
         check_curricula(hp, scenario)
     check_observation(config, hp)
+    check_imitation(config, hp)
     kind = config.algo if hp["residual"] == "none" else f"{config.algo}-residual"
     name = mixture_name(config.scenario) if mixed else scenario.name
     if config.run_dir is None:
@@ -391,6 +394,52 @@ def check_curricula(hp: dict, scenario: Any) -> None:
             f"curriculum_tolerance {hp['curriculum_tolerance']:g} m is not above "
             f"{scenario.name}'s capture tolerance {eps:g} m; the curriculum shrinks it to that"
         )
+
+
+def check_imitation(config: TrainConfig, hp: dict) -> None:
+    """``imitate`` fits an actor-critic policy to a controller that reads the same observation,
+    and leaves the learned policy alone: PPO or A2C, the estimate's observation, no residual and
+    no VecNormalize (whose statistics the controller would not see)."""
+    if "imitate" not in hp:
+        return
+    teacher = hp["imitate"]
+    if config.algo not in ("ppo", "a2c"):
+        raise ConfigError(
+            f"imitate {teacher}: fits an actor-critic policy (ppo or a2c), not {config.algo}"
+        )
+    if hp["residual"] != "none":
+        raise ConfigError(
+            f"imitate {teacher} with residual {hp['residual']}: a hybrid already acts through "
+            "its controller; choose one"
+        )
+    if hp["normalize"]:
+        raise ConfigError(
+            f"imitate {teacher}: the controller reads the raw observation; set normalize: false"
+        )
+    if config.observation_source == PIXELS:
+        raise ConfigError(
+            f"imitate {teacher}: the controller reads the target estimate, not pixels; train "
+            "on the estimate (leave out --observation-source pixels)"
+        )
+
+
+def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any) -> dict[str, Any]:
+    """DAgger from ``hp["imitate"]`` on the run's training envs (``venv`` inside ``VecMonitor``,
+    so the imitation's episodes stay out of the algorithm's statistics):
+    :func:`capture_bench.training.imitation.dagger`."""
+    from capture_bench.envs.core import describe_task, resolve_scenario
+    from capture_bench.training.imitation import dagger, make_teacher
+
+    if is_mixture(config.scenario):
+        scenarios, shares = mixture_scenarios(config.scenario), shares_of(config, hp)
+    else:
+        scenarios = [resolve_scenario(config.scenario, config.observation_source)]
+        shares = [venv.num_envs]
+    descriptions = [describe_task(sc) for sc in scenarios]
+    teacher = make_teacher(hp["imitate"], descriptions, shares)
+    raw = venv.venv  # inside VecMonitor (no VecNormalize: check_imitation)
+    return dagger(model, raw, teacher, hp["imitation_rounds"], hp["imitation_steps"],
+                  hp["imitation_epochs"], config.seed or 0)  # fmt: skip
 
 
 def check_shaping(hp: dict) -> None:
@@ -670,6 +719,13 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     start = time.perf_counter()
     status = 0
     try:
+        if checkpoint is None and "imitate" in hp:
+            from capture_bench.training.imitation import FrozenActor
+
+            done = imitate(config, hp, model, venv)
+            atomic_write(run_dir / IMITATION_FILE, json.dumps(done, indent=2).encode())
+            progress.validate_at_start = True  # the imitated policy's validation, at step 0
+            callbacks.append(FrozenActor(hp["imitation_warmup"]))
         model.learn(
             total_timesteps=max(target - model.num_timesteps, 0),
             callback=callbacks,

@@ -1,0 +1,181 @@
+"""Imitation before reinforcement: DAgger (Ross, Gordon & Bagnell 2011) from an analytic
+controller, then the run's own algorithm goes on from the imitated policy.
+
+With ``imitate: <controller>`` (one of :data:`~capture_bench.agents.residual.RESIDUAL_BASES`:
+deterministic, acting from the observation alone), a new run first plays ``imitation_rounds``
+rounds of ``imitation_steps`` environment steps on its own training envs (training seeds only).
+Every visited observation is labelled with the controller's action (the teacher's, built from
+each scenario's public description, so a mixture's sub-envs each get their scenario's); round 0
+follows the teacher, the later rounds follow the policy being trained (deterministic actions),
+so the data set also holds the states the policy itself reaches, DAgger's point. After each round
+the policy's mean action is fitted to the labels of every round so far (mean squared error, Adam,
+``imitation_epochs`` passes). The policy then acts alone: nothing of the controller is left in
+it, unlike a residual (:mod:`capture_bench.training.residual_vec_env`).
+
+``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
+(:class:`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
+before its advantages move the actor.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+#: Adam's learning rate and minibatch size for the imitation fit.
+IMITATION_LR = 1e-3
+IMITATION_BATCH = 1024
+
+#: N observations (N, 16) -> the teacher's N actions (N, 3)
+Teacher = Callable[[np.ndarray], np.ndarray]
+
+
+def make_teacher(name: str, descriptions: Sequence[Any], shares: Sequence[int]) -> Teacher:
+    """The controller ``name`` for the training envs: the first ``shares[0]`` rows act with a
+    controller built from ``descriptions[0]``, the next ``shares[1]`` from ``descriptions[1]``,
+    and so on (one scenario: one description, all rows)."""
+    from capture_bench.agents.residual import make_base
+
+    controllers = [make_base(name, d) for d in descriptions]
+    bounds = np.cumsum([0, *shares])
+
+    def act(observations: np.ndarray) -> np.ndarray:
+        rows = [
+            np.asarray(c.predict(observations[lo:hi])[0], dtype=np.float32)
+            for c, lo, hi in zip(controllers, bounds[:-1], bounds[1:], strict=True)
+        ]
+        return np.concatenate(rows)
+
+    return act
+
+
+def mean_actions(policy: Any, observations: Any) -> Any:
+    """The policy's mean (deterministic, before clipping) actions, a torch tensor with grad."""
+    return policy.get_distribution(observations).distribution.mean
+
+
+def fit(
+    policy: Any, observations: np.ndarray, targets: np.ndarray, epochs: int, seed: int
+) -> float:
+    """Fit the policy's mean action to ``targets`` (MSE, Adam on the actor's parameters,
+    minibatches of :data:`IMITATION_BATCH` in a seeded order); return the last epoch's mean loss."""
+    import torch
+
+    params = list(actor_parameters(policy))
+    optimizer = torch.optim.Adam(params, lr=IMITATION_LR)
+    rng = np.random.default_rng(seed)
+    x = torch.as_tensor(observations, dtype=torch.float32, device=policy.device)
+    y = torch.as_tensor(targets, dtype=torch.float32, device=policy.device)
+    policy.set_training_mode(True)
+    loss_sum = 0.0
+    for _ in range(epochs):
+        order = torch.as_tensor(rng.permutation(len(x)), device=policy.device)
+        loss_sum = 0.0
+        for start in range(0, len(x), IMITATION_BATCH):
+            batch = order[start : start + IMITATION_BATCH]
+            loss = torch.mean((mean_actions(policy, x[batch]) - y[batch]) ** 2)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            loss_sum += loss.item() * len(batch)
+    policy.set_training_mode(False)
+    return loss_sum / len(x)
+
+
+def actor_parameters(policy: Any) -> list[Any]:
+    """The parameters that shape the policy's action and not the critic's value: the actor's
+    layers, the action head, the log std, and the features extractor where the actor has its own
+    (SB3's ``share_features_extractor=False``) or it is shared with the critic."""
+    extractor = getattr(policy, "pi_features_extractor", policy.features_extractor)
+    found = [
+        *extractor.parameters(),
+        *policy.mlp_extractor.policy_net.parameters(),
+        *policy.action_net.parameters(),
+    ]
+    import torch
+
+    if isinstance(getattr(policy, "log_std", None), torch.nn.Parameter):
+        found.append(policy.log_std)
+    return found
+
+
+def dagger(  # noqa: PLR0913
+    model: Any,
+    venv: Any,
+    teacher: Teacher,
+    rounds: int,
+    steps: int,
+    epochs: int,
+    seed: int,
+    log: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring.
+    Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
+    share of the round's actions on which policy and teacher agree within 0.05 in every joint
+    (None for round 0, where the teacher acts), and the wall clock, s."""
+    start = time.perf_counter()
+    per_round = max(1, math.ceil(steps / venv.num_envs))
+    observations, labels = [], []
+    losses: list[float] = []
+    agreement: list[float | None] = []
+    obs = venv.reset()
+    for r in range(rounds):
+        close = []
+        for _ in range(per_round):
+            target = teacher(obs)
+            observations.append(np.array(obs, dtype=np.float32))
+            labels.append(target)
+            if r == 0:
+                action = target
+            else:
+                action, _ = model.policy.predict(obs, deterministic=True)
+                close.append(np.all(np.abs(action - target) <= 0.05, axis=1))
+            obs, _, _, _ = venv.step(np.asarray(action, dtype=np.float32))
+        loss = fit(model.policy, np.concatenate(observations), np.concatenate(labels), epochs,
+                   seed + r)  # fmt: skip
+        losses.append(loss)
+        agreement.append(float(np.mean(np.concatenate(close))) if close else None)
+        rows = sum(len(o) for o in observations)
+        note = "" if r == 0 else f", policy within 0.05 of the teacher on {agreement[-1]:.0%}"
+        log(f"imitation round {r + 1}/{rounds}: {rows} labelled steps, fit MSE {loss:.2e}{note}")
+    return {
+        "rounds": rounds,
+        "environment_steps": rounds * per_round * venv.num_envs,
+        "labelled_steps": sum(len(o) for o in observations),
+        "fit_mse": losses,
+        "agreement": agreement,
+        "wall_time_s": round(time.perf_counter() - start, 1),
+    }
+
+
+class FrozenActor(BaseCallback):
+    """Keep the actor's parameters (:func:`actor_parameters`) out of the algorithm's updates for
+    the first ``steps`` environment steps of the run: only the critic learns meanwhile."""
+
+    def __init__(self, steps: int) -> None:
+        super().__init__()
+        self.steps = int(steps)
+        self._frozen: bool | None = None
+
+    def _set(self, frozen: bool) -> None:
+        if frozen != self._frozen:
+            for p in actor_parameters(self.model.policy):
+                p.requires_grad_(not frozen)
+            self._frozen = frozen
+
+    def _on_training_start(self) -> None:
+        self._on_rollout_start()
+
+    def _on_rollout_start(self) -> None:
+        self._set(self.num_timesteps < self.steps)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_training_end(self) -> None:
+        self._set(False)
