@@ -1,0 +1,141 @@
+"""Imitation before reinforcement (capture_bench/training/imitation.py): DAgger's labels are the
+controller's actions on every visited observation (a mixture's rows each by their scenario's
+controller), the fit brings the policy's actions to the controller's, the frozen warm-up leaves
+the actor alone while the critic learns, and what imitation cannot take is one line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import train
+from capture_bench.agents.residual import make_base
+from capture_bench.envs.core import describe_task
+from capture_bench.task.scenarios import load_scenario
+from capture_bench.training.imitation import FrozenActor, actor_parameters, dagger, make_teacher
+
+TINY = ["n_envs=4", "total_timesteps=256", "n_steps=32", "batch_size=64", "eval_freq=128",
+        "eval_episodes=2", "checkpoint_freq=0", "policy_kwargs.net_arch=[16]"]  # fmt: skip
+
+
+def _model(n_envs: int, scenario: str = "paper", **kwargs):
+    from stable_baselines3 import PPO
+
+    from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+
+    venv = CaptureSB3VecEnv(n_envs, scenario, seed=0)
+    policy_kwargs = {"net_arch": [32, 32], "log_std_init": -2.0}
+    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=2, seed=0,
+                policy_kwargs=policy_kwargs, device="cpu", **kwargs)  # fmt: skip
+    return model, venv
+
+
+def test_a_mixtures_teacher_acts_on_each_share_with_its_scenarios_controller():
+    paper, grasp = load_scenario("paper"), load_scenario("grasp")
+    assert paper.capture_tolerance != grasp.capture_tolerance  # the descriptions differ
+    descriptions = [describe_task(paper), describe_task(grasp)]
+    teacher = make_teacher("incremental_ik", descriptions, [2, 3])
+    rng = np.random.default_rng(0)
+    obs = rng.uniform(-1, 1, (5, 16)).astype(np.float32)
+    own = [make_base("incremental_ik", d) for d in descriptions]
+    expected = np.concatenate([own[0].predict(obs[:2])[0], own[1].predict(obs[2:])[0]])
+    np.testing.assert_array_equal(teacher(obs), expected)
+
+
+def test_dagger_labels_with_the_teacher_and_the_fit_brings_the_policy_to_it():
+    """After DAgger on paper, the policy's deterministic actions on states neither has seen are
+    closer (by half) to incremental_ik's than the untrained policy's were."""
+    from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+
+    model, venv = _model(16)
+    teacher = make_teacher("incremental_ik", [describe_task(load_scenario("paper"))], [16])
+    probe = CaptureSB3VecEnv(16, "paper", seed=7)
+    try:
+        obs = probe.reset()
+        states = []
+        for _ in range(40):
+            states.append(obs)
+            obs, _, _, _ = probe.step(teacher(obs))
+        target = np.concatenate([teacher(block) for block in states])  # 16 rows at a time
+        states = np.concatenate(states)
+
+        def error() -> float:
+            action, _ = model.policy.predict(states, deterministic=True)
+            return float(np.mean((action - target) ** 2))
+
+        before = error()
+        done = dagger(model, venv, teacher, rounds=2, steps=3200, epochs=20, seed=0,
+                      log=lambda line: None)  # fmt: skip
+        after = error()
+    finally:
+        probe.close()
+        venv.close()
+    assert done["rounds"] == 2 and done["environment_steps"] == 2 * 200 * 16
+    assert done["labelled_steps"] == done["environment_steps"]
+    assert done["agreement"][0] is None and 0.0 <= done["agreement"][1] <= 1.0
+    assert done["fit_mse"][-1] < done["fit_mse"][0]
+    assert after < 0.5 * before, (before, after)
+
+
+def test_the_warm_up_trains_the_critic_alone():
+    import torch
+
+    model, venv = _model(4)
+    try:
+        actor = [p.detach().clone() for p in actor_parameters(model.policy)]
+        critic = [p.detach().clone() for p in model.policy.value_net.parameters()]
+        model.learn(256, callback=FrozenActor(10_000))
+        assert all(torch.equal(a, p) for a, p in zip(actor, actor_parameters(model.policy)))
+        assert not all(
+            torch.equal(a, p) for a, p in zip(critic, model.policy.value_net.parameters())
+        )
+        assert all(p.requires_grad for p in actor_parameters(model.policy))  # let go at the end
+        model.learn(256, callback=FrozenActor(0), reset_num_timesteps=False)
+        assert not all(torch.equal(a, p) for a, p in zip(actor, actor_parameters(model.policy)))
+    finally:
+        venv.close()
+
+
+def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_policy_first(tmp_path):
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=2",
+            "imitation_epochs=2", "imitation_warmup=128"]  # fmt: skip
+    argv = ["--scenario", "paper,grasp", *(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]
+    assert train.main(argv) == 0
+    done = json.loads((run_dir / "imitation.json").read_text())
+    assert done["rounds"] == 2 and done["environment_steps"] == 2 * 16 * 4
+    steps = [line.split(",")[0] for line in (run_dir / "validations.csv").read_text().split()]
+    assert steps[1:] == ["0", "128", "256"]
+    saved = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
+    assert saved["imitate"] == "incremental_ik" and saved["imitation_warmup"] == 128
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--algo", "sac", "--set", "imitate=dls"], "fits an actor-critic policy (ppo or a2c)"),
+        (["--set", "imitation_steps=10"], "needs imitate"),
+        (["--set", "imitate=oracle"], "expected one of incremental_ik"),
+        (["--set", "imitate=dls", "--set", "residual=dls"], "choose one"),
+        (["--set", "imitate=dls", "--set", "normalize=true"], "set normalize: false"),
+        (
+            [
+                "--set",
+                "imitate=dls",
+                "--observation-source",
+                "pixels",
+                "--config",
+                "configs/pixels/ppo.yaml",
+            ],
+            "not pixels",
+        ),
+    ],
+)
+def test_what_imitation_cannot_take_is_one_line(tmp_path, capsys, argv, expected):
+    run_dir = tmp_path / "run"
+    assert train.main([*argv, "--run-dir", str(run_dir)]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and len(err.strip().splitlines()) == 1, err
+    assert not run_dir.exists()
