@@ -139,3 +139,23 @@ def test_what_imitation_cannot_take_is_one_line(tmp_path, capsys, argv, expected
     err = capsys.readouterr().err
     assert expected in err and len(err.strip().splitlines()) == 1, err
     assert not run_dir.exists()
+
+
+def test_a_run_resumed_inside_its_warm_up_keeps_the_actor_frozen_and_does_not_imitate_again(
+    tmp_path,
+):
+    import torch
+
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "checkpoint_freq=128", "imitate=incremental_ik", "imitation_steps=64",
+            "imitation_rounds=1", "imitation_epochs=2", "imitation_warmup=100000"]  # fmt: skip
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) == 0
+    first = torch.load(run_dir / "policy.pt", weights_only=True)
+    (run_dir / "imitation.json").unlink()
+    assert train.main(["--resume", str(run_dir), "--total-timesteps", "512"]) == 0
+    assert not (run_dir / "imitation.json").exists()  # the checkpoint holds the imitated policy
+    second = torch.load(run_dir / "policy.pt", weights_only=True)
+    actor = [k for k in first if not k.startswith(("mlp_extractor.value_net", "value_net"))]
+    critic = [k for k in first if k.startswith(("mlp_extractor.value_net", "value_net"))]
+    assert actor and all(torch.equal(first[k], second[k]) for k in actor)
+    assert not all(torch.equal(first[k], second[k]) for k in critic)

@@ -719,13 +719,14 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     start = time.perf_counter()
     status = 0
     try:
-        if checkpoint is None and "imitate" in hp:
+        if "imitate" in hp:  # a resumed run's warm-up goes on frozen where it stopped
             from capture_bench.training.imitation import FrozenActor
 
+            callbacks.append(FrozenActor(hp["imitation_warmup"]))
+        if checkpoint is None and "imitate" in hp:
             done = imitate(config, hp, model, venv)
             atomic_write(run_dir / IMITATION_FILE, json.dumps(done, indent=2).encode())
             progress.validate_at_start = True  # the imitated policy's validation, at step 0
-            callbacks.append(FrozenActor(hp["imitation_warmup"]))
         model.learn(
             total_timesteps=max(target - model.num_timesteps, 0),
             callback=callbacks,
