@@ -159,3 +159,27 @@ def test_a_run_resumed_inside_its_warm_up_keeps_the_actor_frozen_and_does_not_im
     critic = [k for k in first if k.startswith(("mlp_extractor.value_net", "value_net"))]
     assert actor and all(torch.equal(first[k], second[k]) for k in actor)
     assert not all(torch.equal(first[k], second[k]) for k in critic)
+
+
+def test_a_run_stopped_during_its_imitation_saves_no_checkpoint_and_resumes_from_the_start(
+    tmp_path, monkeypatch, capsys
+):
+    from capture_bench.training import imitation
+
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=1",
+            "imitation_epochs=1"]  # fmt: skip
+    real = imitation.dagger
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(imitation, "dagger", stopped)
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) != 0
+    assert "interrupted during the imitation" in capsys.readouterr().out
+    assert not list((run_dir / "checkpoints").glob("step_*"))
+    assert not (run_dir / "imitation.json").exists()
+    monkeypatch.setattr(imitation, "dagger", real)
+    assert train.main(["--resume", str(run_dir)]) == 0
+    assert json.loads((run_dir / "imitation.json").read_text())["rounds"] == 1
+    assert (run_dir / "policy.pt").is_file()

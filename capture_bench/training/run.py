@@ -182,6 +182,10 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         if is_mixture(config.scenario):  # e.g. --vec-env dummy: a mixture trains batched
             _check_mixture(config, hp, len(mixture_scenarios(config.scenario)))
         found = list_checkpoints(run_dir / "checkpoints")
+        if not found and "imitate" in hp and not (run_dir / IMITATION_FILE).is_file():
+            # stopped during its imitation, which is not checkpointed: it starts again
+            check_writable(run_dir, "--resume")
+            return config, hp, run_dir, None
         if not found:
             raise ConfigError(
                 f"{run_dir}: no complete checkpoint (checkpoints/step_<N>/) to resume"
@@ -717,15 +721,17 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     progress = Progress(config, hp, target)
     callbacks = [checkpointer, RolloutMetrics(), progress, *curriculum_callbacks(config, hp)]
     start = time.perf_counter()
-    status = 0
+    status, imitating = 0, False
     try:
         if "imitate" in hp:  # a resumed run's warm-up goes on frozen where it stopped
             from capture_bench.training.imitation import FrozenActor
 
             callbacks.append(FrozenActor(hp["imitation_warmup"]))
-        if checkpoint is None and "imitate" in hp:
+        imitating = checkpoint is None and "imitate" in hp
+        if imitating:
             done = imitate(config, hp, model, venv)
             atomic_write(run_dir / IMITATION_FILE, json.dumps(done, indent=2).encode())
+            imitating = False
             progress.validate_at_start = True  # the imitated policy's validation, at step 0
         model.learn(
             total_timesteps=max(target - model.num_timesteps, 0),
@@ -735,6 +741,10 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
         )
     except KeyboardInterrupt as exc:
         status = exit_status(exc)
+        if imitating:  # a half-imitated policy is no checkpoint: the imitation starts again
+            print(f"\ninterrupted during the imitation (not checkpointed); start it again with: "
+                  f"python train.py --resume {run_dir}")  # fmt: skip
+            return status
         path = checkpointer.save(model)
         add_wall_time(run_dir, time.perf_counter() - start)
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint {path}; "
