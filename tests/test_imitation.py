@@ -183,3 +183,20 @@ def test_a_run_stopped_during_its_imitation_saves_no_checkpoint_and_resumes_from
     assert train.main(["--resume", str(run_dir)]) == 0
     assert json.loads((run_dir / "imitation.json").read_text())["rounds"] == 1
     assert (run_dir / "policy.pt").is_file()
+
+
+def test_the_card_of_an_imitated_policy_says_what_it_imitated_and_counts_every_step(tmp_path):
+    from capture_bench.training.model_card import ship
+
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "imitate=incremental_ik_uncapped", "imitation_steps=64",
+            "imitation_rounds=2", "imitation_epochs=1", "imitation_warmup=1000"]  # fmt: skip
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) == 0
+    target = ship(run_dir, "tiny", episodes=2, out=tmp_path / "models")
+    card = json.loads((target / "metadata.json").read_text())["model_card"]
+    assert card["imitation"]["teacher"] == "incremental_ik_uncapped"
+    assert card["imitation"]["environment_steps"] == 2 * 16 * 4
+    readme = (target / "README.md").read_text()
+    assert "started by imitating `incremental_ik_uncapped`" in readme
+    assert f"environment steps: {256 + 128:,} (256 of them the algorithm's)" in readme
+    assert "the critic alone learned: the policy is the imitation's" in readme

@@ -24,7 +24,7 @@ from typing import Any
 from capture_bench.files import atomic_write
 from capture_bench.paths import models_dir
 from capture_bench.task.scenarios import ConfigError, load_scenario
-from capture_bench.training.policy_export import BEST_DIR, VALIDATION_FILE
+from capture_bench.training.policy_export import BEST_DIR, IMITATION_FILE, VALIDATION_FILE
 
 #: The fields every model card has (``metadata.json`` key ``model_card``).
 CARD_FIELDS = ("command", "total_timesteps", "wall_time_s", "hardware", "training_seed",
@@ -122,6 +122,12 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
             else {"kind": "final"}
         ),
     }
+    imitation_file = config_file.parent / IMITATION_FILE
+    if imitation_file.is_file():  # DAgger before the algorithm (training/imitation.py)
+        card["imitation"] = {
+            "teacher": meta.get("hyperparameters", {}).get("imitate"),
+            **json.loads(imitation_file.read_text()),
+        }
     meta["model_card"] = card
     atomic_write(tmp / "metadata.json", json.dumps(meta, indent=2).encode())
     atomic_write(tmp / "README.md", _readme(name, meta, card).encode())
@@ -154,11 +160,27 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
         for scenario, v in card["validation"].items()
     ]  # fmt: skip
     residual = meta.get("residual")
+    imitation = card.get("imitation")
     kind = (
         f"a hybrid: a residual on `{residual['base']}` scaled by {residual['scale']}"
         if residual
         else "a learned controller on its own"
+        + (f", started by imitating `{imitation['teacher']}`" if imitation else "")
     )
+    steps = card["total_timesteps"] + (imitation["environment_steps"] if imitation else 0)
+    imitated = []
+    if imitation:
+        warm = hp.get("imitation_warmup", 0)
+        imitated = [
+            f"- imitation: DAgger from `{imitation['teacher']}`, {imitation['rounds']} rounds, "
+            f"{imitation['environment_steps']:,} environment steps on training seeds, "
+            f"{hp.get('imitation_epochs')} passes of the fit after each (last fit MSE "
+            f"{imitation['fit_mse'][-1]:.1e}), {imitation['wall_time_s']:.0f} s; then "
+            f"{card['total_timesteps']:,} steps of {meta.get('algorithm')}, the actor frozen "
+            f"for the first {min(warm, card['total_timesteps']):,}"
+            + (" (the critic alone learned: the policy is the imitation's)"
+               if warm >= card["total_timesteps"] else "")
+        ]  # fmt: skip
     return "\n".join([
         f"# {name}",
         "",
@@ -169,14 +191,16 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
         "## How it was trained",
         "",
         f"- command: `{card['command']}`",
-        f"- environment steps: {card['total_timesteps']:,}",
+        f"- environment steps: {steps:,}"
+        + (f" ({card['total_timesteps']:,} of them the algorithm's)" if imitation else ""),
+        *imitated,
         *(
             [f"- policy: the run's best periodic validation (`best/`), at step "
              f"{card['policy']['step']:,}, on {card['policy']['seeds']} validation seeds"]
             if card["policy"]["kind"] != "final" else []
         ),  # fmt: skip
         f"- training wall-clock: {card['wall_time_s']:.0f} s "
-        f"({meta.get('steps_per_second')} steps/s, validations included)",
+        f"({steps / max(card['wall_time_s'], 1e-9):.1f} steps/s, validations included)",
         f"- hardware: {hardware['cpu']}, {hardware['cores']} cores ({hardware['system']}); "
         f"torch on {meta.get('device')}",
         f"- training seed: {card['training_seed']} (training seeds only)",

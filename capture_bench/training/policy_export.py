@@ -39,6 +39,8 @@ SELECTION_RULE = (
 #: Every validation of a run, one row each: ``step``, ``wall_time_s`` (training time of the run
 #: so far, validations included), then the statistics. Read by :mod:`capture_bench.training.curves`.
 VALIDATIONS_FILE = "validations.csv"
+#: What a run's imitation did (:func:`capture_bench.training.imitation.dagger`), as JSON.
+IMITATION_FILE = "imitation.json"
 
 
 def append_validation(

@@ -68,6 +68,7 @@ from capture_bench.training.options import (
     TrainConfig,
     parse_args,
 )
+from capture_bench.training.policy_export import IMITATION_FILE
 from capture_bench.training.seeds import TrainingSeeds, check_training_seed
 
 #: Memory one training environment holds (a pybullet world, the estimator, the recordings):
@@ -76,8 +77,6 @@ ENV_MEMORY_BYTES = 40 * 2**20
 #: The same for one sub-env of the batched env, which shares one pybullet world: measured
 #: ~0.5 MB per sub-env beyond ~40 MB for the env itself (16 vs 128 sub-envs, 250 steps).
 BATCHED_ENV_MEMORY_BYTES = 2 * 2**20
-#: What the imitation did (:func:`capture_bench.training.imitation.dagger`), in the run.
-IMITATION_FILE = "imitation.json"
 #: Share of the available memory the environments may take.
 MEMORY_SHARE = 0.8
 #: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
