@@ -106,6 +106,9 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
     assert train.main(argv) == 0
     done = json.loads((run_dir / "imitation.json").read_text())
     assert done["rounds"] == 2 and done["environment_steps"] == 2 * 16 * 4
+    # the imitation's learning curve: the policy validated after each round (pooled seeds)
+    assert [v["environment_steps"] for v in done["validations"]] == [64, 128]
+    assert all(0.0 <= v["capture_rate"] <= 1.0 for v in done["validations"])
     steps = [line.split(",")[0] for line in (run_dir / "validations.csv").read_text().split()]
     assert steps[1:] == ["0", "128", "256"]
     saved = json.loads((run_dir / "config.json").read_text())["hyperparameters"]

@@ -291,24 +291,20 @@ class Progress(BaseCallback):
             line += f"  capture rate {np.mean(successes):.2f} (last {len(successes)} episodes)"
         print(line, flush=True)
 
-    def evaluate(self) -> dict[str, float]:
-        """Run the validation episodes now; log and return their statistics.
-
-        Returns:
-            :func:`~capture_bench.training.episode_stats.summarize`'s statistics of the episodes:
-            ``capture_rate``, ``mean_reward``, ``median_capture_time`` (s),
-            ``median_ratio_to_limit`` (NaN if nothing captured), ``mean_score``,
-            ``failure/<reason>``, ``estimate_position_error_m`` (m).
-        """
+    def play(self, model: Any) -> tuple[dict[str, float], list[int], dict[str, dict[str, float]]]:
+        """Play the validation episodes with ``model`` (nothing logged): the pooled statistics
+        (:func:`~capture_bench.training.episode_stats.summarize`; each scenario of a mixture
+        weighs the same), the seeds, and on a mixture each scenario's own statistics."""
         from capture_bench.envs.vector_env import CaptureVectorEnv
         from capture_bench.training.hyperparameters import image_size
         from capture_bench.training.mixture import mixture_scenarios
         from capture_bench.training.validation_run import run_validation
 
-        stats = self.model.get_vec_normalize_env()
+        stats = model.get_vec_normalize_env()
         normalize = None if stats is None else stats.normalize_obs
         scenarios = mixture_scenarios(self.config.scenario)  # one, or a mixture's
         episodes, seeds = [], []
+        own: dict[str, dict[str, float]] = {}
         for scenario in scenarios:
             chosen = list(scenario.validation_seeds[: self.hp["eval_episodes"]])
             if scenario.name not in self._envs:
@@ -320,23 +316,35 @@ class Progress(BaseCallback):
                     image_size=image_size(self.hp),
                 )
             env = self._envs[scenario.name]
-            predictor: Any = self.model
+            predictor: Any = model
             scaled = normalize
             if self.hp["residual"] != "none":  # the base sees the raw observation
                 from capture_bench.agents.residual import ResidualAgent, make_base
 
-                learned = _Normalized(self.model, normalize)
+                learned = _Normalized(model, normalize)
                 base = make_base(self.hp["residual"], env.description)
                 predictor, scaled = ResidualAgent(base, learned, self.hp["residual_scale"]), None
             played = run_validation(predictor, env, chosen, scaled)
-            if len(scenarios) > 1:  # a mixture: each scenario's own figures too
-                own = summarize(played)
-                for key in ("capture_rate", "median_ratio_to_limit"):
-                    if np.isfinite(own[key]):
-                        self.logger.record(f"eval/{scenario.name}/{key}", own[key])
+            if len(scenarios) > 1:
+                own[scenario.name] = summarize(played)
             episodes += played
             seeds += chosen
-        result = summarize(episodes)  # pooled: each scenario weighs the same
+        return summarize(episodes), seeds, own
+
+    def evaluate(self) -> dict[str, float]:
+        """Run the validation episodes now; log and return their statistics.
+
+        Returns:
+            :func:`~capture_bench.training.episode_stats.summarize`'s statistics of the episodes:
+            ``capture_rate``, ``mean_reward``, ``median_capture_time`` (s),
+            ``median_ratio_to_limit`` (NaN if nothing captured), ``mean_score``,
+            ``failure/<reason>``, ``estimate_position_error_m`` (m).
+        """
+        result, seeds, own = self.play(self.model)
+        for name, stats in own.items():  # a mixture: each scenario's own figures too
+            for key in ("capture_rate", "median_ratio_to_limit"):
+                if np.isfinite(stats[key]):
+                    self.logger.record(f"eval/{name}/{key}", stats[key])
         for key, value in finite_items(result).items():
             self.logger.record(f"eval/{key}", value)
         line = (

@@ -113,16 +113,20 @@ def dagger(  # noqa: PLR0913
     epochs: int,
     seed: int,
     log: Callable[[str], None] = print,
+    validate: Callable[[], dict[str, float]] | None = None,
 ) -> dict[str, Any]:
     """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring.
     Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
     share of the round's actions on which policy and teacher agree within 0.05 in every joint
-    (None for round 0, where the teacher acts), and the wall clock, s."""
+    (None for round 0, where the teacher acts), the wall clock, s, and with ``validate`` (the
+    run's validation: pooled statistics of the policy on validation seeds) the policy's
+    validation after each round, its learning curve (``validations``)."""
     start = time.perf_counter()
     per_round = max(1, math.ceil(steps / venv.num_envs))
     observations, labels = [], []
     losses: list[float] = []
     agreement: list[float | None] = []
+    curve: list[dict[str, float]] = []
     obs = venv.reset()
     for r in range(rounds):
         close = []
@@ -142,6 +146,12 @@ def dagger(  # noqa: PLR0913
         agreement.append(float(np.mean(np.concatenate(close))) if close else None)
         rows = sum(len(o) for o in observations)
         note = "" if r == 0 else f", policy within 0.05 of the teacher on {agreement[-1]:.0%}"
+        if validate is not None:
+            stats = validate()
+            keys = ("capture_rate", "median_ratio_to_limit", "mean_score")
+            curve.append({"environment_steps": rows, **{k: _finite(stats[k]) for k in keys}})
+            note += (f"; validation capture rate {stats['capture_rate']:.2f}, median ratio "
+                     f"{stats['median_ratio_to_limit']:.2f}")  # fmt: skip
         log(f"imitation round {r + 1}/{rounds}: {rows} labelled steps, fit MSE {loss:.2e}{note}")
     return {
         "rounds": rounds,
@@ -150,7 +160,13 @@ def dagger(  # noqa: PLR0913
         "fit_mse": losses,
         "agreement": agreement,
         "wall_time_s": round(time.perf_counter() - start, 1),
+        **({"validations": curve} if validate is not None else {}),
     }
+
+
+def _finite(value: float) -> float | None:
+    """``value`` as a float, None for NaN (JSON has no NaN)."""
+    return None if math.isnan(value) else float(value)
 
 
 class FrozenActor(BaseCallback):

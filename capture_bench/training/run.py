@@ -426,10 +426,11 @@ def check_imitation(config: TrainConfig, hp: dict) -> None:
         )
 
 
-def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any) -> dict[str, Any]:
+def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any) -> dict[str, Any]:
     """DAgger from ``hp["imitate"]`` on the run's training envs (``venv`` inside ``VecMonitor``,
-    so the imitation's episodes stay out of the algorithm's statistics):
-    :func:`capture_bench.training.imitation.dagger`."""
+    so the imitation's episodes stay out of the algorithm's statistics), the policy validated
+    after each round where the run validates (``eval_freq``; ``progress``'s validation, nothing
+    logged): :func:`capture_bench.training.imitation.dagger`."""
     from capture_bench.envs.core import describe_task, resolve_scenario
     from capture_bench.training.imitation import dagger, make_teacher
 
@@ -441,8 +442,9 @@ def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any) -> dict[str, A
     descriptions = [describe_task(sc) for sc in scenarios]
     teacher = make_teacher(hp["imitate"], descriptions, shares)
     raw = venv.venv  # inside VecMonitor (no VecNormalize: check_imitation)
+    validate = (lambda: progress.play(model)[0]) if hp["eval_freq"] else None
     return dagger(model, raw, teacher, hp["imitation_rounds"], hp["imitation_steps"],
-                  hp["imitation_epochs"], config.seed or 0)  # fmt: skip
+                  hp["imitation_epochs"], config.seed or 0, validate=validate)  # fmt: skip
 
 
 def check_shaping(hp: dict) -> None:
@@ -728,7 +730,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
             callbacks.append(FrozenActor(hp["imitation_warmup"]))
         imitating = checkpoint is None and "imitate" in hp
         if imitating:
-            done = imitate(config, hp, model, venv)
+            done = imitate(config, hp, model, venv, progress)
             atomic_write(run_dir / IMITATION_FILE, json.dumps(done, indent=2).encode())
             imitating = False
             progress.validate_at_start = True  # the imitated policy's validation, at step 0
