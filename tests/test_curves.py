@@ -221,3 +221,29 @@ def test_arms_of_a_mixture_read_their_runs_against_incremental_ik_pooled_over_it
     assert numbers["baseline"]["capture_rate"] == pytest.approx((paper + grasp) / 2)
     page = (tmp_path / "out" / "learning_curves.md").read_text()
     assert "| PPO-HOLD |" in page and "each of paper, grasp (pooled)" in page
+
+
+def test_arms_read_the_seeds_they_have_and_an_arm_with_none_is_one_line(tmp_path, capsys):
+    import shutil
+
+    runs = tmp_path / "runs"
+    for name in ("paper-ppo-0", "paper-ppo-1", "paper-ppo-hold-1"):
+        (runs / name).mkdir(parents=True)
+        (runs / name / "config.json").write_text(
+            json.dumps({"hyperparameters": {"eval_episodes": 2}})
+        )
+        (runs / name / "validations.csv").write_text(
+            "step,wall_time_s,capture_rate,median_ratio_to_limit,mean_score\n"
+            "100,1.0,0.5,1.5,0.3\n200,2.0,1.0,1.2,0.8\n"
+        )
+    out = tmp_path / "out"
+    argv = ["--arms", "ppo", "ppo-hold", "--seeds", "0", "1", "--runs", str(runs), "--out"]
+    assert main([*argv, str(out)]) == 0
+    numbers = json.loads((out / "curves.json").read_text())
+    assert numbers["curves"]["ppo"]["capture_rate"]["n"] == [2, 2]
+    assert numbers["curves"]["ppo-hold"]["capture_rate"]["n"] == [1, 1]
+    assert "ppo: 0, 1; ppo-hold: 1" in (out / "learning_curves.md").read_text()
+    shutil.rmtree(runs / "paper-ppo-hold-1")
+    assert main([*argv, str(tmp_path / "out2")]) == 2
+    err = capsys.readouterr().err
+    assert "no run of arm 'ppo-hold'" in err and len(err.strip().splitlines()) == 1, err

@@ -287,14 +287,31 @@ def _format_time(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
 
 
-def report(
-    runs: Path, out: Path, scenario: str, algos: list[str], seeds: list[int], command: str
+def report(  # noqa: PLR0913
+    runs: Path,
+    out: Path,
+    scenario: str,
+    algos: list[str],
+    seeds: list[int],
+    command: str,
+    present_only: bool = False,
 ) -> Path:
-    """Write the report page from the runs in ``runs``; return the markdown file."""
+    """Write the report page from the runs in ``runs``; return the markdown file.
+    ``present_only``: each arm reads those of ``seeds`` whose run exists (at least one)."""
     from capture_bench.provenance import git_state, machine
 
     name = mixture_name(scenario)
-    curves = {a: [read_curve(run_path(runs, name, a, s), a, s) for s in seeds] for a in algos}
+    chosen = {
+        a: [s for s in seeds if not present_only or run_path(runs, name, a, s).is_dir()]
+        for a in algos
+    }
+    for a, found in chosen.items():
+        if not found:
+            raise ConfigError(
+                f"{runs}: no run of arm {a!r} for seeds {' '.join(map(str, seeds))} "
+                f"({run_path(runs, name, a, seeds[0])}, ...)"
+            )
+    curves = {a: [read_curve(run_path(runs, name, a, s), a, s) for s in chosen[a]] for a in algos}
     episodes = {c.episodes for cs in curves.values() for c in cs}
     if len(episodes) != 1:
         raise ConfigError(
@@ -341,12 +358,15 @@ def report(
     ratio = baseline["median_ratio_to_limit"]
     names = [sc.name for sc in mixture_scenarios(scenario)]
     where = f"`{scenario}`" if len(names) == 1 else f"each of {', '.join(names)} (pooled)"
+    seed_text = ", ".join(map(str, seeds))
+    if any(chosen[a] != list(seeds) for a in algos):
+        seed_text = "; ".join(f"{a}: {', '.join(map(str, chosen[a]))}" for a in algos)
     lines = [
         f"# Learning curves on `{scenario}`",
         "",
         f"Validation on the first {n_episodes} validation seeds of {where} (never a published "
         "evaluation seed), deterministic actions, every `eval_freq` steps of each run; mean over "
-        f"the training seeds {', '.join(map(str, seeds))} with a 95% interval (Student's t over "
+        f"the training seeds {seed_text} with a 95% interval (Student's t over "
         "the seeds). The dashed line is `incremental_ik` on the same seeds: capture rate "
         f"{level:.2f}, median ratio to the physical limit {ratio:.2f}. Wall-clock is each run's "
         "training time, validations included.",
@@ -495,7 +515,8 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         metavar="ARM",
         help="instead of --algos: runs of these names, <runs>/<scenario>-<arm>-<seed>, each "
-        "trained by its own command (e.g. ppo ppo-hold ppo-weighted); read only, not with --train",
+        "trained by its own command (e.g. ppo ppo-hold ppo-weighted), those of --seeds that exist; "
+        "read only, not with --train",
     )
     parser.add_argument(
         "--scenario",
@@ -550,7 +571,9 @@ def main(argv: list[str] | None = None) -> int:
             if status:
                 return status
         command = "python -m capture_bench curves " + " ".join(args_list)
-        page = report(runs, out, args.scenario, arms, list(args.seeds), command)
+        page = report(
+            runs, out, args.scenario, arms, list(args.seeds), command, present_only=bool(args.arms)
+        )
     except ConfigError as exc:
         print(f"curves: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
