@@ -109,8 +109,9 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
     # the imitation's learning curve: the policy validated after each round (pooled seeds)
     assert [v["environment_steps"] for v in done["validations"]] == [64, 128]
     assert all(0.0 <= v["capture_rate"] <= 1.0 for v in done["validations"])
-    steps = [line.split(",")[0] for line in (run_dir / "validations.csv").read_text().split()]
-    assert steps[1:] == ["0", "128", "256"]
+    rows = [line.split(",") for line in (run_dir / "validations.csv").read_text().split()]
+    assert [r[0] for r in rows[1:]] == ["0", "128", "256"]
+    assert float(rows[1][1]) >= done["wall_time_s"]  # the step-0 wall-clock counts the imitation
     saved = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
     assert saved["imitate"] == "incremental_ik" and saved["imitation_warmup"] == 128
 

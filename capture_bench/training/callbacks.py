@@ -257,6 +257,7 @@ class Progress(BaseCallback):
         self.run_dir = Path(run_dir) if run_dir else None
         self.best = BestModel(self.run_dir) if keep_best and self.run_dir else None
         self.validate_at_start = False  # also validate before the first step (after imitation)
+        self.extra_wall_s = 0.0  # this session's time before learning (the imitation), s
 
     def _on_training_start(self) -> None:
         self._next_print = (self.num_timesteps // self.print_every + 1) * self.print_every
@@ -354,7 +355,12 @@ class Progress(BaseCallback):
         if not np.isnan(result["median_ratio_to_limit"]):
             line += f", median ratio to the physical limit {result['median_ratio_to_limit']:.2f}"
         if self.run_dir is not None:
-            wall = recorded_wall_time(self.run_dir) + time.perf_counter() - self._session_start
+            wall = (
+                recorded_wall_time(self.run_dir)
+                + self.extra_wall_s
+                + time.perf_counter()
+                - self._session_start
+            )
             append_validation(self.run_dir, self.num_timesteps, wall, result)
             if self.best is not None:
                 metadata = policy_metadata(self.model, self.config, self.hp, wall, sb3_files=True)

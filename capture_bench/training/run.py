@@ -734,6 +734,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
             atomic_write(run_dir / IMITATION_FILE, json.dumps(done, indent=2).encode())
             imitating = False
             progress.validate_at_start = True  # the imitated policy's validation, at step 0
+            progress.extra_wall_s = time.perf_counter() - start  # on the curves' clock too
         model.learn(
             total_timesteps=max(target - model.num_timesteps, 0),
             callback=callbacks,
