@@ -28,6 +28,7 @@ from capture_bench.task.scenarios import ConfigError, Scenario, SeedConfig, load
 from capture_bench.training.hyperparameters import (
     ALGO_KEYS,
     ALGORITHMS,
+    IMITATION_DEFAULTS,
     POLICY_KWARGS,
     TRAINING_KEYS,
     load_hyperparameters,
@@ -495,6 +496,13 @@ def _rule_values(rule: Rule) -> dict[str, Any]:
             st.one_of(_real(-1e3, 1e3), st.just("auto"), positive.map(lambda x: f"auto_{x}")),
             st.one_of(NON_FINITE, HUGE_INT, st.sampled_from(["auto_nan", "auto_inf", "automatic", "auto_x", "manual"]), st.booleans(), st.none()),
         )  # fmt: skip
+    if rule.kind == "weights":
+        names = st.text(alphabet="abcdefghij_", min_size=1, max_size=8)
+        bad = st.one_of(_real(-1e3, 0.0), NON_FINITE, st.booleans(), st.none(), st.just([1.0]))
+        return _kind(
+            st.dictionaries(names, _real(1e-6, 1e3), min_size=1, max_size=4),
+            st.one_of(st.just({}), st.dictionaries(names, bad, min_size=1, max_size=3), JUNK_TEXT, st.integers(), st.lists(names, min_size=1)),
+        )  # fmt: skip
     raise AssertionError(f"no fuzz values for rule kind {rule.kind!r}")
 
 
@@ -589,6 +597,9 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
     named = isinstance(kwargs, dict) and "features_extractor" in kwargs
     if not bad and named and dict_policy != (features == "combined"):
         bad.add("policy_kwargs.features_extractor")  # reads another observation than the policy
+    for key in IMITATION_DEFAULTS:  # checked first: an imitation setting needs imitate
+        if not bad and key in data and "imitate" not in data:
+            bad.add(key)
     curricula = ("curriculum_tolerance", "curriculum_hold")
     for key in ("curriculum_steps", "curriculum_delay"):
         if not bad and key in data and not any(k in data for k in curricula):

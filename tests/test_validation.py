@@ -29,6 +29,7 @@ from capture_bench.validation import ConfigError, Rule, check_mapping
         (Rule("float_or_auto"), "auto_0.1", "auto_0.1"),
         (Rule("optional_float", 0.0), None, None),
         (Rule("layers", choices=("pi", "vf")), {"pi": [64], "vf": [64, 64]}, None),
+        (Rule("weights"), {"grasp": 7, "paper": "0.5"}, {"grasp": 7.0, "paper": 0.5}),
     ],
 )
 def test_a_valid_value_comes_back_canonical(rule, value, canonical):
@@ -59,6 +60,11 @@ def test_a_valid_value_comes_back_canonical(rule, value, canonical):
         (Rule("schedule"), -1),
         (Rule("layers", choices=("pi",)), {"qf": [64]}),
         (Rule("layers"), [64, True]),
+        (Rule("weights"), {}),
+        (Rule("weights"), {"grasp": 0}),
+        (Rule("weights"), {"grasp": True}),
+        (Rule("weights"), {"": 1.0}),
+        (Rule("weights"), ["grasp"]),
     ],
 )
 def test_an_invalid_value_is_one_message_naming_where_what_and_what_is_valid(rule, value):
