@@ -91,14 +91,14 @@ def actor_parameters(policy: Any) -> list[Any]:
     """The parameters that shape the policy's action and not the critic's value: the actor's
     layers, the action head, the log std, and the features extractor where the actor has its own
     (SB3's ``share_features_extractor=False``) or it is shared with the critic."""
+    import torch
+
     extractor = getattr(policy, "pi_features_extractor", policy.features_extractor)
     found = [
         *extractor.parameters(),
         *policy.mlp_extractor.policy_net.parameters(),
         *policy.action_net.parameters(),
     ]
-    import torch
-
     if isinstance(getattr(policy, "log_std", None), torch.nn.Parameter):
         found.append(policy.log_std)
     return found

@@ -63,8 +63,8 @@ def mixture_shares(
     Without ``weights``, an equal share each (``n_envs`` must be a multiple of the count). With
     ``weights`` (scenario name -> weight > 0; a scenario left out weighs 1), shares in proportion
     to the weights, rounded by the largest remainder (ties to the earlier scenario), so they sum
-    to ``n_envs``: ``mixture_shares(64, 8 names, {"grasp": 25/7})`` gives grasp 25 and each other
-    scenario about 5.6 (6 or 5).
+    to ``n_envs``: of 64 sub-envs and 8 scenarios, ``{"grasp": 7}`` gives grasp 32 and each other
+    scenario 4 or 5 (64 / 14 each, about 4.6).
 
     Raises:
         ConfigError: uneven without weights, a weight for a scenario not in the mixture, or a
