@@ -46,7 +46,8 @@ class Rule:
     > 0 or ``lin_<number>``), ``float_or_auto`` (a number, ``auto`` or ``auto_<number>``),
     ``optional_float`` (a number or null), ``layers`` (a list of layer widths, or a mapping of
     ``choices`` to such lists), ``mapping`` (checked by a nested schema), ``weights`` (a
-    non-empty mapping of names to numbers > 0).
+    non-empty mapping of names to numbers > 0), ``choice_per_name`` (one of ``choices``, or a
+    non-empty mapping of names to them).
     """
 
     kind: str
@@ -76,6 +77,12 @@ class Rule:
         if kind == "names":
             also = f", or {' or '.join(map(repr, self.choices))}" if self.choices else ""
             return "a non-empty list of names" + also
+        if kind == "choice_per_name":
+            other = self.choices[1 % len(self.choices)]
+            return (
+                f"one of {', '.join(self.choices)}, or a mapping of scenario names (and "
+                f"default) to them, like {{default: {other}, grasp: {self.choices[0]}}}"
+            )
         if kind == "layers":
             keys = ", ".join(f"{k}: [...]" for k in self.choices)
             return f"a list of layer widths like [64, 64] or a mapping {{{keys}}}"
@@ -173,6 +180,17 @@ def _check_weights(rule: Rule, value: Any) -> tuple[bool, Any]:
     return ok, numbers if ok else None
 
 
+def _check_choice_per_name(rule: Rule, value: Any) -> tuple[bool, Any]:
+    if isinstance(value, str):
+        return value in rule.choices, value
+    ok = (
+        isinstance(value, dict)
+        and bool(value)
+        and all(isinstance(k, str) and k and v in rule.choices for k, v in value.items())
+    )
+    return ok, dict(value) if ok else None
+
+
 def _check_prefixed(rule: Rule, value: Any) -> tuple[bool, Any]:
     """``schedule`` (a number > 0 or lin_<number > 0>) and ``float_or_auto``."""
     if isinstance(value, str) and _number(value) is None:
@@ -219,6 +237,7 @@ _CHECKS = {
     "layers": _check_layers,
     "mapping": lambda rule, v: (isinstance(v, dict), v),
     "weights": _check_weights,
+    "choice_per_name": _check_choice_per_name,
 }
 
 #: A schema: key -> Rule, or key -> nested schema (a mapping under that key).

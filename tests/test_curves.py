@@ -247,3 +247,33 @@ def test_arms_read_the_seeds_they_have_and_an_arm_with_none_is_one_line(tmp_path
     assert main([*argv, str(tmp_path / "out2")]) == 2
     err = capsys.readouterr().err
     assert "no run of arm 'ppo-hold'" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_run_that_imitated_first_starts_its_curve_at_the_imitations_rounds(tmp_path):
+    """imitation.json's validations are the curve's first points, at the environment steps the
+    imitation played; the algorithm's validations follow, shifted by all of them (its step 0,
+    the imitation's last policy, stands for the last round); a run without the file is as it
+    was recorded."""
+    import train
+    from capture_bench.training.curves import SCORE, read_curve
+
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "batch_size=64", "imitate=incremental_ik", "imitation_steps=32", "imitation_rounds=2",
+            "imitation_epochs=1"]  # fmt: skip
+    argv = [*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]
+    assert train.main(argv) == 0
+    done = json.loads((run_dir / "imitation.json").read_text())
+    first = done["validations"][0]
+    assert first["wall_time_s"] <= done["wall_time_s"]
+    curve = read_curve(run_dir, "dagger", 0)
+    rows = list(csv.DictReader((run_dir / "validations.csv").open()))
+    total = done["environment_steps"]
+    assert curve.steps.tolist() == [
+        first["environment_steps"],
+        *(total + int(r["step"]) for r in rows),
+    ]
+    assert curve.values["capture_rate"][0] == first["capture_rate"]
+    assert curve.values[SCORE][1:].tolist() == [float(r["mean_score"]) for r in rows]
+    assert curve.wall[0] == first["wall_time_s"]
+    (run_dir / "imitation.json").unlink()
+    assert read_curve(run_dir, "dagger", 0).steps.tolist() == [int(r["step"]) for r in rows]

@@ -503,6 +503,13 @@ def _rule_values(rule: Rule) -> dict[str, Any]:
             st.dictionaries(names, _real(1e-6, 1e3), min_size=1, max_size=4),
             st.one_of(st.just({}), st.dictionaries(names, bad, min_size=1, max_size=3), JUNK_TEXT, st.integers(), st.lists(names, min_size=1)),
         )  # fmt: skip
+    if rule.kind == "choice_per_name":
+        one = _choice(*rule.choices)
+        names = st.text(alphabet="abcdefghij_", min_size=1, max_size=8)
+        return _kind(
+            st.one_of(one["valid"], st.dictionaries(names, one["valid"], min_size=1, max_size=4)),
+            st.one_of(one["invalid"], st.just({}), st.dictionaries(names, one["invalid"], min_size=1, max_size=3)),
+        )  # fmt: skip
     raise AssertionError(f"no fuzz values for rule kind {rule.kind!r}")
 
 

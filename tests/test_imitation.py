@@ -14,7 +14,16 @@ import train
 from capture_bench.agents.residual import make_base
 from capture_bench.envs.core import describe_task
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.training.imitation import FrozenActor, actor_parameters, dagger, make_teacher
+from capture_bench.training.imitation import (
+    FrozenActor,
+    actor_parameters,
+    dagger,
+    describe_teacher,
+    label_weights,
+    make_teacher,
+    teacher_names,
+)
+from capture_bench.validation import ConfigError
 
 TINY = ["n_envs=4", "total_timesteps=256", "n_steps=32", "batch_size=64", "eval_freq=128",
         "eval_episodes=2", "checkpoint_freq=0", "policy_kwargs.net_arch=[16]"]  # fmt: skip
@@ -36,12 +45,56 @@ def test_a_mixtures_teacher_acts_on_each_share_with_its_scenarios_controller():
     paper, grasp = load_scenario("paper"), load_scenario("grasp")
     assert paper.capture_tolerance != grasp.capture_tolerance  # the descriptions differ
     descriptions = [describe_task(paper), describe_task(grasp)]
-    teacher = make_teacher("incremental_ik", descriptions, [2, 3])
+    teacher = make_teacher(["incremental_ik"] * 2, descriptions, [2, 3])
     rng = np.random.default_rng(0)
     obs = rng.uniform(-1, 1, (5, 16)).astype(np.float32)
     own = [make_base("incremental_ik", d) for d in descriptions]
     expected = np.concatenate([own[0].predict(obs[:2])[0], own[1].predict(obs[2:])[0]])
     np.testing.assert_array_equal(teacher(obs), expected)
+
+
+def test_each_scenario_of_a_mixture_can_have_its_own_teacher():
+    """``imitate: {default: A, grasp: B}``: grasp's rows are labelled by B, the others' by A,
+    each built from its scenario's description; the two controllers differ on these rows."""
+    names = teacher_names(
+        {"default": "incremental_ik_uncapped", "grasp": "incremental_ik"}, ["paper", "grasp"]
+    )
+    assert names == ["incremental_ik_uncapped", "incremental_ik"]
+    descriptions = [describe_task(load_scenario(n)) for n in ("paper", "grasp")]
+    teacher = make_teacher(names, descriptions, [3, 3])
+    from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+
+    venv = CaptureSB3VecEnv(6, "paper", seed=0)
+    try:
+        obs = venv.reset()
+        for _ in range(60):  # close to the target, where the cap on the last step acts
+            obs, _, _, _ = venv.step(make_teacher(["incremental_ik"], descriptions[:1], [6])(obs))
+    finally:
+        venv.close()
+    expected = np.concatenate([
+        make_base("incremental_ik_uncapped", descriptions[0]).predict(obs[:3])[0],
+        make_base("incremental_ik", descriptions[1]).predict(obs[3:])[0],
+    ])  # fmt: skip
+    np.testing.assert_array_equal(teacher(obs), expected)
+    capped = make_base("incremental_ik", descriptions[0]).predict(obs[:3])[0]
+    assert not np.array_equal(capped, expected[:3])
+    assert teacher_names("dls", ["paper", "grasp"]) == ["dls", "dls"]
+    assert teacher_names({"paper": "dls", "grasp": "dls"}, ["paper", "grasp"]) == ["dls", "dls"]
+    assert describe_teacher({"default": "dls", "grasp": "incremental_ik"}) == (
+        "dls (grasp: incremental_ik)"
+    )
+
+
+@pytest.mark.parametrize(
+    ("mapping", "expected"),
+    [
+        ({"default": "dls", "tumbling": "dls"}, "'tumbling', which is not a scenario of this run"),
+        ({"grasp": "dls"}, "gives scenario 'paper' no controller"),
+    ],
+)
+def test_a_teacher_mapping_that_misses_the_runs_scenarios_is_refused(mapping, expected):
+    with pytest.raises(ConfigError, match=expected):
+        teacher_names(mapping, ["paper", "grasp"])
 
 
 def test_dagger_labels_with_the_teacher_and_the_fit_brings_the_policy_to_it():
@@ -50,7 +103,7 @@ def test_dagger_labels_with_the_teacher_and_the_fit_brings_the_policy_to_it():
     from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
 
     model, venv = _model(16)
-    teacher = make_teacher("incremental_ik", [describe_task(load_scenario("paper"))], [16])
+    teacher = make_teacher(["incremental_ik"], [describe_task(load_scenario("paper"))], [16])
     probe = CaptureSB3VecEnv(16, "paper", seed=7)
     try:
         obs = probe.reset()
@@ -79,6 +132,20 @@ def test_dagger_labels_with_the_teacher_and_the_fit_brings_the_policy_to_it():
     assert after < 0.5 * before, (before, after)
 
 
+def test_the_relative_fit_weighs_a_small_step_as_much_as_a_full_one():
+    """With a floor, label_weights * |a - a_T|^2 is the same for the same relative error on a
+    full-speed label and on a last step a hundred times smaller (floor well below both), the
+    weights average 1, and floor 0 is plain MSE."""
+    targets = np.array([[1.0, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 0.5]], dtype=np.float32)
+    assert label_weights(targets, 0.0) is None
+    w = label_weights(targets, 1e-4)
+    assert w.dtype == np.float32 and np.isclose(w.mean(), 1.0)
+    errors = w * np.sum((0.1 * targets) ** 2, axis=1)  # 10 % of each action
+    np.testing.assert_allclose(errors, errors[0], rtol=1e-3)
+    wide = label_weights(targets, 10.0)  # a floor far above every action: nearly equal weights
+    np.testing.assert_allclose(wide, 1.0, rtol=1e-2)
+
+
 def test_the_warm_up_trains_the_critic_alone():
     import torch
 
@@ -101,7 +168,7 @@ def test_the_warm_up_trains_the_critic_alone():
 def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_policy_first(tmp_path):
     run_dir = tmp_path / "run"
     sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=2",
-            "imitation_epochs=2", "imitation_warmup=128"]  # fmt: skip
+            "imitation_epochs=2", "imitation_warmup=128", "imitation_floor=0.05"]  # fmt: skip
     argv = ["--scenario", "paper,grasp", *(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]
     assert train.main(argv) == 0
     done = json.loads((run_dir / "imitation.json").read_text())
@@ -114,6 +181,7 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
     assert float(rows[1][1]) >= done["wall_time_s"]  # the step-0 wall-clock counts the imitation
     saved = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
     assert saved["imitate"] == "incremental_ik" and saved["imitation_warmup"] == 128
+    assert saved["imitation_floor"] == 0.05
 
 
 @pytest.mark.parametrize(
@@ -121,7 +189,10 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
     [
         (["--algo", "sac", "--set", "imitate=dls"], "fits an actor-critic policy (ppo or a2c)"),
         (["--set", "imitation_steps=10"], "needs imitate"),
+        (["--set", "imitate=dls", "--set", "imitation_floor=-1"], "expected a number in [0, 10]"),
         (["--set", "imitate=oracle"], "expected one of incremental_ik"),
+        (["--set", "imitate={paper: oracle}"], "or a mapping of scenario names (and default)"),
+        (["--set", "imitate={grasp: dls}"], "'grasp', which is not a scenario of this run"),
         (["--set", "imitate=dls", "--set", "residual=dls"], "choose one"),
         (["--set", "imitate=dls", "--set", "normalize=true"], "set normalize: false"),
         (

@@ -32,7 +32,9 @@ level is then pooled the same way. ``--arms`` reads runs of any name instead of 
 training recipes trained by their own commands).
 
 Every number comes from the runs' ``validations.csv`` (written by train.py's periodic
-validation: :data:`capture_bench.training.policy_export.VALIDATIONS_FILE`), so the page is
+validation: :data:`capture_bench.training.policy_export.VALIDATIONS_FILE`) and, for a run that
+imitated a controller first, its ``imitation.json`` (the policy validated after each DAgger
+round: the curve starts there, and the algorithm's steps follow the imitation's), so the page is
 regenerated without training again. Validation seeds only: nothing here reads a published
 evaluation seed. Wall-clock time is the run's training time including its validations.
 """
@@ -58,7 +60,7 @@ from capture_bench.files import atomic_write, check_writable
 from capture_bench.task.scenarios import ConfigError
 from capture_bench.training import run_plan, seed_statistics
 from capture_bench.training.mixture import mixture_name, mixture_scenarios
-from capture_bench.training.policy_export import VALIDATIONS_FILE
+from capture_bench.training.policy_export import IMITATION_FILE, VALIDATIONS_FILE
 from capture_bench.training.run_plan import is_finished, run_path, train_argv
 
 METRICS = (
@@ -112,13 +114,43 @@ def read_curve(run_dir: Path, algo: str, seed: int) -> Curve:
     saved = json.loads((run_dir / "config.json").read_text())
     episodes = int(saved["hyperparameters"]["eval_episodes"])
     values = {m: column(m) for m, _ in METRICS}
-    return Curve(
+    curve = Curve(
         algo,
         seed,
         np.array(steps),
         column("wall_time_s"),
         {**values, SCORE: _scores(column(SCORE), values["capture_rate"])},
         episodes,
+    )
+    return _with_imitation(curve, run_dir / IMITATION_FILE)
+
+
+def _with_imitation(curve: Curve, path: Path) -> Curve:
+    """``curve`` of a run that imitated first (``path``, its ``imitation.json``): the policy's
+    validation after each DAgger round, at the environment steps the imitation had played, then
+    the algorithm's validations shifted by all of the imitation's steps (its step 0 is the
+    imitation's last policy, so the last round's own point gives way to it; a file that records
+    no validations shifts the algorithm's alone). Without the file, ``curve`` as it is."""
+    try:
+        done = json.loads(path.read_text())
+        total = int(done["environment_steps"])
+        rounds = done.get("validations", [])
+    except (OSError, ValueError, KeyError, TypeError):
+        return curve
+    rounds = [v for v in rounds if int(v["environment_steps"]) < total + curve.steps[0]]
+
+    def each(key: str) -> np.ndarray:
+        return np.array([math.nan if v.get(key) is None else float(v[key]) for v in rounds])
+
+    return Curve(
+        curve.algo,
+        curve.seed,
+        np.concatenate([[int(v["environment_steps"]) for v in rounds], total + curve.steps]).astype(
+            int
+        ),
+        np.concatenate([each("wall_time_s"), curve.wall]),
+        {k: np.concatenate([each(k), v]) for k, v in curve.values.items()},
+        curve.episodes,
     )
 
 

@@ -73,14 +73,18 @@ TRAINING_KEYS = {
     # a tolerance curriculum, training only: eq. 20 counts a capture at curriculum_tolerance (m)
     # at first, shrinking geometrically to the scenario's epsilon over curriculum_steps
     "curriculum_tolerance": Rule("float", 0.0, 1.0, low_inclusive=False),
-    # imitation first (capture_bench/training/imitation.py): DAgger from this analytic controller,
+    # imitation first (capture_bench/training/imitation.py): DAgger from this analytic controller
+    # (or, in a mixture, one per scenario: {default: <controller>, <scenario>: <controller>}),
     # imitation_rounds rounds of imitation_steps environment steps, imitation_epochs passes of the
     # fit after each; then imitation_warmup steps of the algorithm train the critic alone
-    "imitate": Rule("choice", choices=RESIDUAL_BASES),
+    "imitate": Rule("choice_per_name", choices=RESIDUAL_BASES),
     "imitation_rounds": POS_INT,
     "imitation_steps": POS_INT,
     "imitation_epochs": POS_INT,
     "imitation_warmup": NONNEG_INT,
+    # > 0: the fit weighs each label by 1 / (|a|^2 + imitation_floor^2), the error relative to
+    # the teacher's action a (the small last steps onto the capture point as much as the rest)
+    "imitation_floor": Rule("float", 0.0, 10.0),
     # a mixture's sub-envs per scenario, relative to the scenarios it leaves out (weight 1 each):
     # {grasp: 4} gives grasp four times the share of each other scenario (mixture.mixture_shares)
     "mixture_weights": Rule("weights"),
@@ -100,6 +104,7 @@ IMITATION_DEFAULTS = {
     "imitation_steps": 200_000,
     "imitation_epochs": 10,
     "imitation_warmup": 0,
+    "imitation_floor": 0.0,
 }
 #: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
 CURRICULA = ("curriculum_tolerance", "curriculum_hold")

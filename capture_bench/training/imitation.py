@@ -2,15 +2,18 @@
 controller, then the run's own algorithm goes on from the imitated policy.
 
 With ``imitate: <controller>`` (one of :data:`~capture_bench.agents.residual.RESIDUAL_BASES`:
-deterministic, acting from the observation alone), a new run first plays ``imitation_rounds``
-rounds of ``imitation_steps`` environment steps on its own training envs (training seeds only).
-Every visited observation is labelled with the controller's action (the teacher's, built from
-each scenario's public description, so a mixture's sub-envs each get their scenario's); round 0
-follows the teacher, the later rounds follow the policy being trained (deterministic actions),
-so the data set also holds the states the policy itself reaches, DAgger's point. After each round
-the policy's mean action is fitted to the labels of every round so far (mean squared error, Adam,
-``imitation_epochs`` passes). The policy then acts alone: nothing of the controller is left in
-it, unlike a residual (:mod:`capture_bench.training.residual_vec_env`).
+deterministic, acting from the observation alone; in a mixture, also a controller per scenario,
+``{default: <controller>, <scenario>: <controller>}``: :func:`teacher_names`), a new run first
+plays ``imitation_rounds`` rounds of ``imitation_steps`` environment steps on its own training
+envs (training seeds only). Every visited observation is labelled with the controller's action
+(the teacher's, built from each scenario's public description, so a mixture's sub-envs each get
+their scenario's); round 0 follows the teacher, the later rounds follow the policy being trained
+(deterministic actions), so the data set also holds the states the policy itself reaches,
+DAgger's point. After each round the policy's mean action is fitted to the labels of every round
+so far (mean squared error, Adam, ``imitation_epochs`` passes; with ``imitation_floor`` > 0 each
+label's error is taken relative to the teacher's action above that floor,
+:func:`label_weights`). The policy then acts alone: nothing of the controller is left in it,
+unlike a residual (:mod:`capture_bench.training.residual_vec_env`).
 
 ``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
 (:class:`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
@@ -35,13 +38,54 @@ IMITATION_BATCH = 1024
 Teacher = Callable[[np.ndarray], np.ndarray]
 
 
-def make_teacher(name: str, descriptions: Sequence[Any], shares: Sequence[int]) -> Teacher:
-    """The controller ``name`` for the training envs: the first ``shares[0]`` rows act with a
-    controller built from ``descriptions[0]``, the next ``shares[1]`` from ``descriptions[1]``,
-    and so on (one scenario: one description, all rows)."""
+def teacher_names(imitate: str | dict[str, str], scenarios: Sequence[str]) -> list[str]:
+    """The controller each of ``scenarios`` imitates: ``imitate`` itself (a controller name), or
+    its entry in a mapping of scenario names (and ``default``, for the scenarios it does not name)
+    to controller names.
+
+    Raises:
+        ConfigError: the mapping names a scenario outside ``scenarios``, or leaves one without a
+            controller and has no ``default``.
+    """
+    from capture_bench.validation import ConfigError
+
+    if isinstance(imitate, str):
+        return [imitate] * len(scenarios)
+    unknown = sorted(set(imitate) - {"default", *scenarios})
+    if unknown:
+        raise ConfigError(
+            f"imitate names {unknown[0]!r}, which is not a scenario of this run; valid keys: "
+            f"default, {', '.join(scenarios)}"
+        )
+    missing = [name for name in scenarios if name not in imitate and "default" not in imitate]
+    if missing:
+        raise ConfigError(
+            f"imitate gives scenario {missing[0]!r} no controller; name it, or add default: "
+            "<controller> for the scenarios the mapping leaves out"
+        )
+    return [imitate.get(name, imitate.get("default", "")) for name in scenarios]
+
+
+def describe_teacher(imitate: str | dict[str, str]) -> str:
+    """``imitate`` in words: ``incremental_ik``, or ``incremental_ik_uncapped (grasp:
+    incremental_ik)`` for a mapping whose default is the first controller."""
+    if isinstance(imitate, str):
+        return imitate
+    others = ", ".join(f"{k}: {v}" for k, v in imitate.items() if k != "default")
+    if "default" not in imitate:
+        return others
+    return imitate["default"] + (f" ({others})" if others else "")
+
+
+def make_teacher(
+    names: Sequence[str], descriptions: Sequence[Any], shares: Sequence[int]
+) -> Teacher:
+    """The controllers for the training envs: the first ``shares[0]`` rows act with controller
+    ``names[0]`` built from ``descriptions[0]``, the next ``shares[1]`` with ``names[1]`` from
+    ``descriptions[1]``, and so on (one scenario: one name and description, all rows)."""
     from capture_bench.agents.residual import make_base
 
-    controllers = [make_base(name, d) for d in descriptions]
+    controllers = [make_base(n, d) for n, d in zip(names, descriptions, strict=True)]
     bounds = np.cumsum([0, *shares])
 
     def act(observations: np.ndarray) -> np.ndarray:
@@ -59,11 +103,28 @@ def mean_actions(policy: Any, observations: Any) -> Any:
     return policy.get_distribution(observations).distribution.mean
 
 
+def label_weights(targets: np.ndarray, floor: float) -> np.ndarray | None:
+    """Each label's weight in the fit: None (all equal, plain MSE) for ``floor`` 0, else
+    1 / (||a||^2 + floor^2) scaled to a mean of 1, so the fit minimises the error relative to the
+    teacher's action ``a`` wherever ||a|| is above ``floor``: the small last steps onto the capture
+    point count as much as the full-speed ones."""
+    if floor <= 0:
+        return None
+    w = 1.0 / (np.sum(np.square(targets, dtype=np.float64), axis=1) + floor**2)
+    return (w / w.mean()).astype(np.float32)
+
+
 def fit(
-    policy: Any, observations: np.ndarray, targets: np.ndarray, epochs: int, seed: int
+    policy: Any,
+    observations: np.ndarray,
+    targets: np.ndarray,
+    epochs: int,
+    seed: int,
+    floor: float = 0.0,
 ) -> float:
-    """Fit the policy's mean action to ``targets`` (MSE, Adam on the actor's parameters,
-    minibatches of :data:`IMITATION_BATCH` in a seeded order); return the last epoch's mean loss."""
+    """Fit the policy's mean action to ``targets`` (squared error, weighted by
+    :func:`label_weights` of ``floor``; Adam on the actor's parameters, minibatches of
+    :data:`IMITATION_BATCH` in a seeded order); return the last epoch's mean loss."""
     import torch
 
     params = list(actor_parameters(policy))
@@ -71,6 +132,8 @@ def fit(
     rng = np.random.default_rng(seed)
     x = torch.as_tensor(observations, dtype=torch.float32, device=policy.device)
     y = torch.as_tensor(targets, dtype=torch.float32, device=policy.device)
+    weights = label_weights(targets, floor)
+    w = None if weights is None else torch.as_tensor(weights[:, None], device=policy.device)
     policy.set_training_mode(True)
     loss_sum = 0.0
     for _ in range(epochs):
@@ -78,7 +141,8 @@ def fit(
         loss_sum = 0.0
         for start in range(0, len(x), IMITATION_BATCH):
             batch = order[start : start + IMITATION_BATCH]
-            loss = torch.mean((mean_actions(policy, x[batch]) - y[batch]) ** 2)
+            squared = (mean_actions(policy, x[batch]) - y[batch]) ** 2
+            loss = torch.mean(squared if w is None else w[batch] * squared)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -114,13 +178,15 @@ def dagger(  # noqa: PLR0913
     seed: int,
     log: Callable[[str], None] = print,
     validate: Callable[[], dict[str, float]] | None = None,
+    floor: float = 0.0,
 ) -> dict[str, Any]:
-    """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring.
+    """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring
+    (``floor``: the fit's :func:`label_weights`).
     Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
     share of the round's actions on which policy and teacher agree within 0.05 in every joint
     (None for round 0, where the teacher acts), the wall clock, s, and with ``validate`` (the
     run's validation: pooled statistics of the policy on validation seeds) the policy's
-    validation after each round, its learning curve (``validations``)."""
+    validation after each round and the wall clock then, its learning curve (``validations``)."""
     start = time.perf_counter()
     per_round = max(1, math.ceil(steps / venv.num_envs))
     observations, labels = [], []
@@ -141,7 +207,7 @@ def dagger(  # noqa: PLR0913
                 close.append(np.all(np.abs(action - target) <= 0.05, axis=1))
             obs, _, _, _ = venv.step(np.asarray(action, dtype=np.float32))
         loss = fit(model.policy, np.concatenate(observations), np.concatenate(labels), epochs,
-                   seed + r)  # fmt: skip
+                   seed + r, floor)  # fmt: skip
         losses.append(loss)
         agreement.append(float(np.mean(np.concatenate(close))) if close else None)
         rows = sum(len(o) for o in observations)
@@ -149,7 +215,9 @@ def dagger(  # noqa: PLR0913
         if validate is not None:
             stats = validate()
             keys = ("capture_rate", "median_ratio_to_limit", "mean_score")
-            curve.append({"environment_steps": rows, **{k: _finite(stats[k]) for k in keys}})
+            wall = round(time.perf_counter() - start, 1)
+            curve.append({"environment_steps": rows, **{k: _finite(stats[k]) for k in keys},
+                          "wall_time_s": wall})  # fmt: skip
             note += (f"; validation capture rate {stats['capture_rate']:.2f}, median ratio "
                      f"{stats['median_ratio_to_limit']:.2f}")  # fmt: skip
         log(f"imitation round {r + 1}/{rounds}: {rows} labelled steps, fit MSE {loss:.2e}{note}")

@@ -124,8 +124,10 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
     }
     imitation_file = config_file.parent / IMITATION_FILE
     if imitation_file.is_file():  # DAgger before the algorithm (training/imitation.py)
+        from capture_bench.training.imitation import describe_teacher
+
         card["imitation"] = {
-            "teacher": meta.get("hyperparameters", {}).get("imitate"),
+            "teacher": describe_teacher(meta.get("hyperparameters", {}).get("imitate", "")),
             **json.loads(imitation_file.read_text()),
         }
     meta["model_card"] = card

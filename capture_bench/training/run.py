@@ -239,7 +239,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         config.observation_source = config.observation_source or scenario.estimator.source
         check_curricula(hp, scenario)
     check_observation(config, hp)
-    check_imitation(config, hp)
+    check_imitation(config, hp, [s.name for s in scenarios])
     kind = config.algo if hp["residual"] == "none" else f"{config.algo}-residual"
     name = mixture_name(config.scenario) if mixed else scenario.name
     if config.run_dir is None:
@@ -399,13 +399,17 @@ def check_curricula(hp: dict, scenario: Any) -> None:
         )
 
 
-def check_imitation(config: TrainConfig, hp: dict) -> None:
+def check_imitation(config: TrainConfig, hp: dict, scenarios: list[str]) -> None:
     """``imitate`` fits an actor-critic policy to a controller that reads the same observation,
     and leaves the learned policy alone: PPO or A2C, the estimate's observation, no residual and
-    no VecNormalize (whose statistics the controller would not see)."""
+    no VecNormalize (whose statistics the controller would not see); a controller per scenario
+    names only ``scenarios`` (the run's) and gives each one."""
     if "imitate" not in hp:
         return
-    teacher = hp["imitate"]
+    from capture_bench.training.imitation import describe_teacher, teacher_names
+
+    teacher_names(hp["imitate"], scenarios)
+    teacher = describe_teacher(hp["imitate"])
     if config.algo not in ("ppo", "a2c"):
         raise ConfigError(
             f"imitate {teacher}: fits an actor-critic policy (ppo or a2c), not {config.algo}"
@@ -432,7 +436,7 @@ def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any)
     after each round where the run validates (``eval_freq``; ``progress``'s validation, nothing
     logged): :func:`capture_bench.training.imitation.dagger`."""
     from capture_bench.envs.core import describe_task, resolve_scenario
-    from capture_bench.training.imitation import dagger, make_teacher
+    from capture_bench.training.imitation import dagger, make_teacher, teacher_names
 
     if is_mixture(config.scenario):
         scenarios, shares = mixture_scenarios(config.scenario), shares_of(config, hp)
@@ -440,11 +444,13 @@ def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any)
         scenarios = [resolve_scenario(config.scenario, config.observation_source)]
         shares = [venv.num_envs]
     descriptions = [describe_task(sc) for sc in scenarios]
-    teacher = make_teacher(hp["imitate"], descriptions, shares)
+    names = teacher_names(hp["imitate"], [sc.name for sc in scenarios])
+    teacher = make_teacher(names, descriptions, shares)
     raw = venv.venv  # inside VecMonitor (no VecNormalize: check_imitation)
     validate = (lambda: progress.play(model)[0]) if hp["eval_freq"] else None
     return dagger(model, raw, teacher, hp["imitation_rounds"], hp["imitation_steps"],
-                  hp["imitation_epochs"], config.seed or 0, validate=validate)  # fmt: skip
+                  hp["imitation_epochs"], config.seed or 0, validate=validate,
+                  floor=hp["imitation_floor"])  # fmt: skip
 
 
 def check_shaping(hp: dict) -> None:
