@@ -9,6 +9,7 @@ name                        what                                                
 ==========================  ==========================================================  =========
 ``incremental_ik``          Dong & Zhu (2016) eqs. 13-19, lambda_max, with step cap     public
 ``incremental_ik_uncapped`` the same, paper-exact (``cap=False``)                        public
+``incremental_ik_through``  the capped step aims 2 mm past X_T' (``follow_through``)        public
 ``pure_pursuit``            straight at X^_T, no look-ahead                             public
 ``intercept``               straight at the predicted interception point                public
 ``dls``                     damped-least-squares resolved rate, feed-forward + P term   public
@@ -35,7 +36,7 @@ from capture_bench.agents.baselines import (
     PurePursuit,
     RandomAgent,
 )
-from capture_bench.agents.incremental_ik import IncrementalIK, incremental_step
+from capture_bench.agents.incremental_ik import FOLLOW_THROUGH, IncrementalIK, incremental_step
 from capture_bench.agents.oracle import Oracle
 from capture_bench.agents.protocol import Agent
 
@@ -60,6 +61,7 @@ def _oracle(env: Any, **kwargs: Any) -> Agent:
 AGENTS: dict[str, AgentFactory] = {
     "incremental_ik": _public(IncrementalIK),
     "incremental_ik_uncapped": _public(IncrementalIK, cap=False),
+    "incremental_ik_through": _public(IncrementalIK, follow_through=FOLLOW_THROUGH),
     "pure_pursuit": _public(PurePursuit),
     "intercept": _public(Intercept),
     "dls": _public(DampedLeastSquares),

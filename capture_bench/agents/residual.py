@@ -23,7 +23,14 @@ from capture_bench.task.observation import TaskDescription
 
 #: The analytic controllers a residual may sit on: deterministic, acting from the observation
 #: alone (built from the task's public description).
-RESIDUAL_BASES = ("incremental_ik", "incremental_ik_uncapped", "pure_pursuit", "intercept", "dls")
+RESIDUAL_BASES = (
+    "incremental_ik",
+    "incremental_ik_uncapped",
+    "incremental_ik_through",
+    "pure_pursuit",
+    "intercept",
+    "dls",
+)
 
 
 def make_base(name: str, description: TaskDescription) -> Any:
