@@ -157,6 +157,36 @@ def test_step_cap_lands_on_the_predicted_target():
         assert miss < 0.05 * np.linalg.norm(x_pred - forward_kinematics(theta)) and miss < 1e-4
 
 
+def test_follow_through_carries_the_capped_step_m_past_the_predicted_target():
+    """With follow_through m the capped step lands m beyond X_T' along n (to first order); a
+    step that lambda_max bounds is the capped controller's; 0 is the capped controller."""
+    from capture_bench.agents.incremental_ik import FOLLOW_THROUGH
+
+    rng = np.random.default_rng(3)
+    m = FOLLOW_THROUGH
+    for theta in random_poses(rng, 50):
+        x_e = forward_kinematics(theta)
+        x_pred = x_e + rng.normal(size=3) * 1e-3
+        n = (x_pred - x_e) / np.linalg.norm(x_pred - x_e)
+        step = incremental_step(theta, x_pred, np.zeros(3), DESCRIPTION, follow_through=m)
+        assert step.speed < step.lambda_max
+        landed = forward_kinematics(theta + step.increment)
+        assert np.linalg.norm(landed - (x_pred + m * n)) < 1e-4
+        plain = incremental_step(theta, x_pred, np.zeros(3), DESCRIPTION)
+        zero = incremental_step(theta, x_pred, np.zeros(3), DESCRIPTION, follow_through=0.0)
+        assert np.array_equal(zero.increment, plain.increment)
+        far = x_e + n * 0.3
+        assert np.array_equal(
+            incremental_step(theta, far, np.zeros(3), DESCRIPTION, follow_through=m).increment,
+            incremental_step(theta, far, np.zeros(3), DESCRIPTION).increment,
+        )
+    agent = make_agent("incremental_ik_through", PublicEnv())
+    assert agent.cap and agent.follow_through == m
+    for bad in (-0.001, float("nan")):
+        with pytest.raises(ValueError, match="follow_through must be a finite length >= 0 m"):
+            IncrementalIK(DESCRIPTION, follow_through=bad)
+
+
 def test_singular_pose_uses_the_dls_fallback_without_nan():
     for theta in singular_poses():
         assert abs(jacobian_determinant(theta)) < 1e-3
@@ -410,7 +440,15 @@ def _observations(rng: np.random.Generator, n: int) -> np.ndarray:
 
 @pytest.mark.parametrize(
     "name",
-    ["incremental_ik", "incremental_ik_uncapped", "pure_pursuit", "intercept", "dls", "hold"],
+    [
+        "incremental_ik",
+        "incremental_ik_uncapped",
+        "incremental_ik_through",
+        "pure_pursuit",
+        "intercept",
+        "dls",
+        "hold",
+    ],
 )
 def test_a_batched_analytic_agent_equals_itself_applied_row_by_row(name):
     agent = make_agent(name, PublicEnv())
