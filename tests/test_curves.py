@@ -277,3 +277,10 @@ def test_a_run_that_imitated_first_starts_its_curve_at_the_imitations_rounds(tmp
     assert curve.wall[0] == first["wall_time_s"]
     (run_dir / "imitation.json").unlink()
     assert read_curve(run_dir, "dagger", 0).steps.tolist() == [int(r["step"]) for r in rows]
+
+
+def test_a_wall_clock_not_recorded_reads_as_a_dash():
+    from capture_bench.training.curves import _format_time
+
+    assert _format_time(float("nan")) == "-"
+    assert _format_time(30.0) == "30 s" and _format_time(600.0) == "10.0 min"

@@ -316,6 +316,9 @@ def profile_figure(profiles: dict[str, dict[str, list[float]]]) -> bytes:
 
 
 def _format_time(seconds: float) -> str:
+    """Seconds in words; an imitation round of a run that did not record its wall clock: '-'."""
+    if math.isnan(seconds):
+        return "-"
     return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
 
 
@@ -372,7 +375,8 @@ def report(  # noqa: PLR0913
         )
         if reached:
             steps = int(np.median([h[0] for h in reached]))
-            wall = _format_time(float(np.median([h[1] for h in reached])))
+            walls = [h[1] for h in reached if not math.isnan(h[1])]
+            wall = _format_time(float(np.median(walls)) if walls else math.nan)
             table.append(
                 f"| {algo.upper()} | {len(reached)} of {len(cs)} | {steps:,} | {wall} "
                 f"| {per_seed} |"
