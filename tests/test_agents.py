@@ -10,6 +10,7 @@ import pytest
 import capture_bench.agents as agents
 from capture_bench.agents import AGENTS, IncrementalIK, Oracle, make_agent
 from capture_bench.agents.incremental_ik import incremental_step, lambda_max_of
+from capture_bench.agents.residual import RESIDUAL_BASES
 from capture_bench.sim.kinematics import (
     HOME,
     JOINT_LOWER,
@@ -440,15 +441,7 @@ def _observations(rng: np.random.Generator, n: int) -> np.ndarray:
 
 @pytest.mark.parametrize(
     "name",
-    [
-        "incremental_ik",
-        "incremental_ik_uncapped",
-        "incremental_ik_through",
-        "pure_pursuit",
-        "intercept",
-        "dls",
-        "hold",
-    ],
+    [*RESIDUAL_BASES, "hold"],  # every deterministic analytic controller
 )
 def test_a_batched_analytic_agent_equals_itself_applied_row_by_row(name):
     agent = make_agent(name, PublicEnv())
