@@ -1,12 +1,24 @@
 """SIGTERM handled as Ctrl-C, so both CLIs end the same way on either signal; and both held back
-where an interrupt must not land (:func:`held_interrupts`)."""
+where an interrupt must not land (:func:`held_interrupts`).
+
+A Python signal handler runs in the main thread wherever that thread is, which may be a weakref
+callback or a ``__del__`` that the garbage collector calls; an exception raised there is printed
+("Exception ignored in ...") and dropped, and the interrupt would be lost. While these handlers
+are installed, such a dropped interrupt is delivered again by the same signal, a moment
+later, so that it lands at the next point where it can propagate (:func:`_redelivered`).
+"""
 
 from __future__ import annotations
 
 import contextlib
 import signal
+import sys
+import threading
 from collections.abc import Iterator
 from typing import Any
+
+#: How long after an interrupt was dropped it is sent again.
+REDELIVERY_DELAY_S = 0.05
 
 
 class Terminated(KeyboardInterrupt):
@@ -16,7 +28,13 @@ class Terminated(KeyboardInterrupt):
 
 def exit_status(interrupt: KeyboardInterrupt) -> int:
     """The conventional status of a command ended by this signal: 128 + the signal's number."""
-    return 128 + (signal.SIGTERM if isinstance(interrupt, Terminated) else signal.SIGINT)
+    return 128 + _signal_of(interrupt)
+
+
+def _signal_of(interrupt: KeyboardInterrupt) -> int:
+    """The signal whose handler raises this interrupt: SIGTERM for :class:`Terminated`, else
+    SIGINT."""
+    return signal.SIGTERM if isinstance(interrupt, Terminated) else signal.SIGINT
 
 
 @contextlib.contextmanager
@@ -28,7 +46,8 @@ def sigterm_as_interrupt() -> Iterator[None]:
 
     previous = signal.signal(signal.SIGTERM, handler)
     try:
-        yield
+        with _redelivered((signal.SIGTERM,)):
+            yield
     finally:
         signal.signal(signal.SIGTERM, previous)
 
@@ -61,6 +80,19 @@ class HeldInterrupts:
         finally:
             self._raising = False
 
+    @contextlib.contextmanager
+    def holding(self) -> Iterator[None]:
+        """Within the block the signals are held, even inside a :meth:`raising` block, which then
+        raises one that came as this block ends: for bookkeeping inside the interruptible work
+        (a trial's writes to its study's database while it trains)."""
+        was_raising, self._raising = self._raising, False
+        try:
+            yield
+        finally:
+            self._raising = was_raising
+        if was_raising and self.pending is not None:
+            raise self.pending
+
 
 @contextlib.contextmanager
 def held_interrupts(signals: tuple[int, ...]) -> Iterator[HeldInterrupts]:
@@ -69,10 +101,39 @@ def held_interrupts(signals: tuple[int, ...]) -> Iterator[HeldInterrupts]:
     held = HeldInterrupts()
     previous = {signum: signal.signal(signum, held.handle) for signum in signals}
     try:
-        yield held
+        with _redelivered(signals):
+            yield held
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+
+
+@contextlib.contextmanager
+def _redelivered(signals: tuple[int, ...]) -> Iterator[None]:
+    """Within the block, an interrupt raised by the handler of one of ``signals`` where Python
+    drops exceptions (``sys.unraisablehook``) is sent again to the main thread by that signal,
+    :data:`REDELIVERY_DELAY_S` later; other unraisable exceptions go to the previous hook. Sent
+    from the hook itself, the signal's handler would run inside the hook, where the exception is
+    dropped again: a timer thread sends it once the hook has long returned."""
+    previous = sys.unraisablehook
+
+    def hook(unraisable: Any) -> None:
+        exc = unraisable.exc_value
+        if isinstance(exc, KeyboardInterrupt) and _signal_of(exc) in signals:
+            main = threading.main_thread().ident
+            timer = threading.Timer(
+                REDELIVERY_DELAY_S, signal.pthread_kill, (main, _signal_of(exc))
+            )
+            timer.daemon = True
+            timer.start()
+        else:
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
 
 
 @contextlib.contextmanager
@@ -85,6 +146,18 @@ def signals_held() -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+@contextlib.contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Within the block (main thread), SIGINT and SIGTERM are held and one that came is raised
+    as it ends: for short work that must finish before an interrupt can be handled, in a
+    process with other threads, where blocking the signals for this thread alone would not hold
+    them (another thread receives the signal and the handler still runs here)."""
+    with held_interrupts((signal.SIGINT, signal.SIGTERM)) as held:
+        yield
+        with held.raising():
+            pass
 
 
 @contextlib.contextmanager

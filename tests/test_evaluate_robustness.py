@@ -111,6 +111,30 @@ def test_a_signal_ends_evaluate_at_once_with_no_worker_left(signum, status, tmp_
     assert sorted(p.name for p in out.iterdir()) == ["quick"]  # no staging folder left
 
 
+def test_an_interrupt_while_the_workers_start_waits_until_each_can_be_killed(monkeypatch):
+    """A signal that comes while the pool starts its workers lands once every one is started
+    and in the pool's record: then each is killed (one cut off as it started would be missed,
+    outlive evaluate.py and fail to read its start-up data)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from capture_bench.evaluation import backends
+
+    started: list = []
+
+    class SignalledPool(ProcessPoolExecutor):
+        def submit(self, fn, /, *args, **kwargs):
+            os.kill(os.getpid(), signal.SIGINT)  # comes as each worker starts
+            future = super().submit(fn, *args, **kwargs)
+            started[:] = self._processes.values()
+            return future
+
+    monkeypatch.setattr(backends, "ProcessPoolExecutor", SignalledPool)
+    with pytest.raises(KeyboardInterrupt):
+        backends.map_processes(time.sleep, [30.0, 30.0], workers=2)
+    assert len(started) == 2  # both started before the interrupt landed
+    assert all(p.exitcode == -signal.SIGKILL for p in started)
+
+
 def test_an_unreachable_ray_cluster_is_refused_in_seconds(tmp_path):
     """Ray's own connect retries a dead address for many minutes; the run is refused first, as
     bad input (in a child process: a hang must fail the test, not stall it)."""

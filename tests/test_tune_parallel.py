@@ -27,7 +27,7 @@ from capture_bench.training.search_spaces import sample
 from capture_bench.training.tune import open_study, parse_args, prepare
 from capture_bench.training.tune_options import TuneConfig
 from capture_bench.training.tune_sampler import configure
-from capture_bench.training.tune_workers import STOP_GRACE_S, WORKER_ATTR, shares
+from capture_bench.training.tune_workers import STOP_GRACE_S, WORKER_ATTR, HeldTrial, shares
 
 ROOT = Path(__file__).parents[1]
 COMPLETE = optuna.trial.TrialState.COMPLETE
@@ -235,3 +235,30 @@ def test_an_interrupt_outside_training_is_held_until_training_starts():
             os.kill(os.getpid(), signal.SIGTERM)  # raised at once
             time.sleep(5)
     assert signal.getsignal(signal.SIGTERM) == before  # the previous handler restored
+
+
+def test_an_interrupt_inside_a_trials_storage_call_lands_once_the_call_is_done():
+    """A signal during a trial's write to its study (inside ``raising()``) waits for the write to
+    finish, and is raised as it returns: a write cut in half would leave its SQLite transaction
+    open and every other writer waiting on its lock."""
+
+    class Trial:
+        number = 7
+
+        def __init__(self) -> None:
+            self.written: list[tuple[str, int]] = []
+
+        def set_user_attr(self, key: str, value: int) -> None:
+            os.kill(os.getpid(), signal.SIGTERM)  # the signal comes inside the write
+            self.written.append((key, value))
+
+    inner = Trial()
+    with held_interrupts((signal.SIGTERM,)) as held:
+        trial = HeldTrial(inner, held)
+        assert trial.number == 7
+        with pytest.raises(Terminated), held.raising():
+            trial.set_user_attr("a", 1)
+            pytest.fail("the held interrupt was not raised as the write returned")
+        assert inner.written == [("a", 1)]
+        trial.set_user_attr("b", 2)  # outside training: held, not raised
+        assert inner.written == [("a", 1), ("b", 2)] and held.pending is not None

@@ -44,6 +44,7 @@ from capture_bench.evaluation.rollout import (
     run_episode,
     run_episodes,
 )
+from capture_bench.interrupts import interrupts_deferred
 from capture_bench.ray_cluster import import_ray, start_ray
 from capture_bench.task.target_side import EpisodeCache
 from capture_bench.worker_processes import (
@@ -349,7 +350,11 @@ def map_processes(
         workers, mp_context=context, initializer=_start_worker, initargs=(watched,)
     )
     try:
-        with single_threaded_children():  # workers (and the forkserver) start on submit
+        # The workers (and the forkserver) start on submit. An interrupt waits until each has
+        # started and is in the pool's record, which _kill_workers reads: one cut off as it
+        # started would be missed by the kill, and fail to read its start-up data (a traceback)
+        # once this process is gone.
+        with interrupts_deferred(), single_threaded_children():
             pending = {pool.submit(function, item): i for i, item in enumerate(items)}
         while pending:
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)

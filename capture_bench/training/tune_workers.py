@@ -11,7 +11,8 @@ threads: training is CPU-bound Python, which threads would run one at a time.
 
 Stopping. Ctrl-C or SIGTERM ends a trial the same way wherever it runs: the running trial is
 recorded as failed (user attribute ``interrupted``) and no other starts; one that comes while
-Optuna creates or records a trial waits until that is done (:func:`run_trials`). Local workers
+Optuna creates or records a trial, or while the trial writes to the storage, waits until that is
+done (:func:`run_trials`, :class:`HeldTrial`). Local workers
 ignore SIGINT (Ctrl-C reaches the whole process group): ``tune.py`` sends each SIGTERM, which a
 worker takes as Ctrl-C, waits up to :data:`STOP_GRACE_S` for them (a second Ctrl-C: not at
 all), kills the rest and records the trials they left running as failed. A worker whose
@@ -23,6 +24,7 @@ cancelled, which raises KeyboardInterrupt in them.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import signal
@@ -33,7 +35,13 @@ from multiprocessing.connection import Connection
 from signal import SIGINT, SIGTERM
 from typing import TYPE_CHECKING, Any
 
-from capture_bench.interrupts import exit_status, held_interrupts, sigterm_as_interrupt
+from capture_bench.interrupts import (
+    HeldInterrupts,
+    exit_status,
+    held_interrupts,
+    interrupts_deferred,
+    sigterm_as_interrupt,
+)
 from capture_bench.ray_cluster import import_ray, start_ray
 from capture_bench.training.tune_storage import open_storage, shared_url
 from capture_bench.worker_processes import (
@@ -95,7 +103,8 @@ def run_trials(
     them (None if none did).
 
     ``signals`` (handled in this, the main, thread) interrupt a trial's training; one that comes
-    while Optuna creates or records a trial is held until that is done
+    while Optuna creates or records a trial, or inside one of the trial's methods
+    (:class:`HeldTrial`), is held until that is done
     (:func:`~capture_bench.interrupts.held_interrupts`), so no trial is left marked running, and
     then no other trial starts. In a Ray task (``signals`` empty) Ray's cancellation raises
     KeyboardInterrupt wherever the task is.
@@ -110,7 +119,7 @@ def run_trials(
             trial.set_user_attr(WORKER_ATTR, name)
             try:
                 with held.raising():
-                    return run_trial(trial, setup)
+                    return run_trial(HeldTrial(trial, held), setup)
             except KeyboardInterrupt as exc:
                 interrupts.append(exc)
                 trial.set_user_attr("interrupted", True)
@@ -130,6 +139,30 @@ def run_trials(
     return interrupts[0] if interrupts else None
 
 
+class HeldTrial:
+    """An Optuna trial whose methods run with the interrupts held (:meth:`~capture_bench.
+    interrupts.HeldInterrupts.holding`). Each method reads or writes the study's storage; an
+    interrupt raised inside a SQLite transaction would leave it open, its lock held, and every
+    later write to the study, this worker's recording of the interrupted trial as failed and the
+    other workers', waiting on that lock."""
+
+    def __init__(self, trial: Any, held: HeldInterrupts) -> None:
+        self._trial = trial
+        self._held = held
+
+    def __getattr__(self, name: str) -> Any:
+        value = getattr(self._trial, name)
+        if not callable(value):
+            return value
+
+        @functools.wraps(value)
+        def held_call(*args: Any, **kwargs: Any) -> Any:
+            with self._held.holding():
+                return value(*args, **kwargs)
+
+        return held_call
+
+
 # ------------------------------------------------------------------------ local worker processes
 
 
@@ -146,7 +179,9 @@ def run_processes(study: Any, setup: Setup, parts: list[int]) -> Outcome:
     ]
     interrupt = None
     try:
-        with single_threaded_children():
+        # An interrupt waits until every worker has started: one cut off as it started would
+        # have no pid here to stop it by.
+        with interrupts_deferred(), single_threaded_children():
             for process in processes:
                 process.start()
         for process in processes:
