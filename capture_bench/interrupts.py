@@ -119,11 +119,10 @@ def _redelivered(signals: tuple[int, ...]) -> Iterator[None]:
 
     def hook(unraisable: Any) -> None:
         exc = unraisable.exc_value
-        if isinstance(exc, KeyboardInterrupt) and _signal_of(exc) in signals:
+        signum = _signal_of(exc) if isinstance(exc, KeyboardInterrupt) else None
+        if signum in signals:
             main = threading.main_thread().ident
-            timer = threading.Timer(
-                REDELIVERY_DELAY_S, signal.pthread_kill, (main, _signal_of(exc))
-            )
+            timer = threading.Timer(REDELIVERY_DELAY_S, signal.pthread_kill, (main, signum))
             timer.daemon = True
             timer.start()
         else:
@@ -137,23 +136,12 @@ def _redelivered(signals: tuple[int, ...]) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def signals_held() -> Iterator[None]:
-    """Within the block, SIGINT and SIGTERM wait (blocked for this thread) and arrive when it
-    ends: for work that must not stop half-way, such as renaming a folder into place (Unix)."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-
-
-@contextlib.contextmanager
 def interrupts_deferred() -> Iterator[None]:
     """Within the block (main thread), SIGINT and SIGTERM are held and one that came is raised
-    as it ends: for short work that must finish before an interrupt can be handled, in a
-    process with other threads, where blocking the signals for this thread alone would not hold
-    them (another thread receives the signal and the handler still runs here)."""
+    as it ends: for short work that must not stop half-way (starting worker processes, renaming
+    a folder into place). Held by their handlers, not by blocking them for this thread: in a
+    process with other threads, another thread would receive the signal and its handler would
+    still run here."""
     with held_interrupts((signal.SIGINT, signal.SIGTERM)) as held:
         yield
         with held.raising():

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.files import atomic_write
-from capture_bench.interrupts import signals_held, sigterm_as_interrupt
+from capture_bench.interrupts import interrupts_deferred, sigterm_as_interrupt
 from capture_bench.task.scenarios import ConfigError
 from capture_bench.training.run_plan import resumable_step
 from capture_bench.training.sweep_task import RunResult, RunSpec, train_run, unpack
@@ -166,7 +166,7 @@ def execute(
             run = refs.pop(ref)
             try:
                 result = ray.get(ref)
-                with signals_held():  # a run directory is never left half-renamed
+                with interrupts_deferred():  # a run directory is never left half-renamed
                     record(run, result, runs)
             except ray.exceptions.TaskCancelledError:
                 continue  # cancelled before it started: "not started"
