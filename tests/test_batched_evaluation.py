@@ -5,8 +5,7 @@ written for one observation at a time."""
 
 from __future__ import annotations
 
-import csv
-import json
+import importlib.util
 import math
 from pathlib import Path
 
@@ -22,22 +21,15 @@ from capture_bench.evaluation.pipeline import EvaluationConfig, plan_evaluation
 from capture_bench.evaluation.rollout import TIMING_COLUMNS, run_episode, run_episodes
 from capture_bench.task.scenarios import load_scenario
 
-#: The default suite's episodes on the first two published seeds of every scenario, every agent
-#: (256), as ``python evaluate.py`` wrote them in ``episodes.csv`` when every episode ran in its
-#: own single ``CaptureEnv`` (commit c8c4260), timing columns removed; the ``.json`` beside it
-#: names the machine and packages that made it.
-REFERENCE = Path(__file__).parent / "data" / "default_suite_reference.csv"
-
-
-def _fingerprint(machine: dict, packages: dict) -> dict:
-    """What decides the last bits of a float here: the CPU, its instruction sets, numpy's BLAS,
-    and the numerical packages' versions."""
-    return {
-        "cpu_id": machine.get("cpu_id"),
-        "simd": list(machine.get("simd") or []),
-        "blas": machine.get("blas"),
-        **{name: packages.get(name) for name in ("numpy", "torch", "pybullet")},
-    }
+#: The default suite's episodes on the first two published seeds of every scenario, every agent,
+#: each played in its own single ``CaptureEnv`` (``python evaluate.py`` at commit c8c4260, and
+#: the agents added since by the same path), timing columns removed; the ``.json`` beside it
+#: names the machine and packages that made it. ``scripts/suite_reference.py`` adds an agent's rows.
+_SPEC = importlib.util.spec_from_file_location(
+    "suite_reference", Path(__file__).resolve().parent.parent / "scripts" / "suite_reference.py"
+)
+suite_reference = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(suite_reference)
 
 
 def _same(value: object, expected: str) -> bool:
@@ -74,19 +66,28 @@ def test_the_default_suites_episodes_equal_the_stored_reference(default_suite_re
     aside. Floats agree bit for bit only on the kind of machine that made the reference
     (docs/evaluation.md, Reproducibility); elsewhere the next test still holds the batched
     path to the single env."""
-    from capture_bench.provenance import machine, package_versions
-
-    made = json.loads(REFERENCE.with_suffix(".json").read_text())
-    here = _fingerprint(machine(), package_versions())
-    there = _fingerprint(made["machine"], made["packages"])
-    if here != there:
-        pytest.skip(f"the reference was made on {there}; this machine is {here}")
-    with REFERENCE.open(newline="") as f:
-        expected = {(r["agent"], r["scenario"], r["seed"]): r for r in csv.DictReader(f)}
+    made, expected = suite_reference.stored()
+    there = suite_reference.fingerprint(made["machine"], made["packages"])
+    if suite_reference.this_machine() != there:
+        pytest.skip(
+            f"the reference was made on {there}; this machine is {suite_reference.this_machine()}"
+        )
     tasks, records = default_suite_records
-    assert len(tasks) == len(expected) == 256
+    missing = suite_reference.missing_agents(tasks, expected)
+    assert not missing, f"no reference rows for {missing}: run python scripts/suite_reference.py"
     assert {(r.agent, r.scenario, str(r.seed)) for r in records} == set(expected)
     assert _differences(records, expected) == []
+
+
+def test_the_reference_names_an_agent_of_the_suite_it_has_no_rows_for(default_suite_records):
+    """On any machine: every agent of the default suite has its rows in the reference, and an
+    agent whose rows are gone is named (what ``scripts/suite_reference.py`` would add)."""
+    tasks, _ = default_suite_records
+    _, expected = suite_reference.stored()
+    assert suite_reference.missing_agents(tasks, expected) == []
+    assert len(expected) == len(tasks)
+    without_hold = {key: row for key, row in expected.items() if key[0] != "hold"}
+    assert suite_reference.missing_agents(tasks, without_hold) == ["hold"]
 
 
 def test_the_batched_evaluation_equals_the_single_env_on_every_agent(default_suite_records):
