@@ -90,6 +90,23 @@ def test_the_reference_names_an_agent_of_the_suite_it_has_no_rows_for(default_su
     assert suite_reference.missing_agents(tasks, without_hold) == ["hold"]
 
 
+def test_adding_reference_rows_elsewhere_is_one_line_and_writes_nothing(monkeypatch, capsys):
+    """Rows made on another kind of machine would differ in their last bits: the script refuses
+    them before playing an episode and leaves the reference as it is."""
+    made, expected = suite_reference.stored()
+    before = suite_reference.REFERENCE.read_bytes()
+    without_hold = {key: row for key, row in expected.items() if key[0] != "hold"}
+    monkeypatch.setattr(suite_reference, "stored", lambda: (made, without_hold))
+    monkeypatch.setattr(suite_reference, "this_machine", lambda: {"cpu_id": "another CPU"})
+    with pytest.raises(SystemExit) as stop:
+        suite_reference.main([])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "only on the reference's kind of machine" in err and "another CPU" in err
+    assert suite_reference.REFERENCE.read_bytes() == before
+
+
 def test_the_batched_evaluation_equals_the_single_env_on_every_agent(default_suite_records):
     """The same tasks, each played alone in a single ``CaptureEnv`` (the oracle's path, and
     the evaluation's before it was batched), give the same records on any machine."""
