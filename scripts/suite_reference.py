@@ -17,6 +17,7 @@ for bit only there (docs/evaluation.md, Reproducibility). Rows already there are
 from __future__ import annotations
 
 import csv
+import io
 import json
 import sys
 from collections.abc import Mapping
@@ -93,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     from capture_bench.evaluation.backends import run_task
     from capture_bench.evaluation.report import csv_value
     from capture_bench.evaluation.rollout import EPISODE_COLUMNS, TIMING_COLUMNS
+    from capture_bench.files import atomic_write
     from capture_bench.provenance import git_state
 
     there = fingerprint(made["machine"], made["packages"])
@@ -109,11 +111,11 @@ def main(argv: list[str] | None = None) -> int:
         )
     columns = [c for c in EPISODE_COLUMNS if c not in TIMING_COLUMNS]
     added = [task for task in tasks if task_key(task)[0] in missing]
-    with REFERENCE.open("a", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=columns, lineterminator="\n")
-        for task in added:
-            record = run_task(task)[0]
-            writer.writerow({c: csv_value(getattr(record, c)) for c in columns})
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
+    for task in added:  # every episode played before a byte is written
+        record = run_task(task)[0]
+        writer.writerow({c: csv_value(getattr(record, c)) for c in columns})
     made.setdefault("added", []).append(
         {
             "agents": missing,
@@ -122,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
             "git": git,
         }
     )
-    REFERENCE.with_suffix(".json").write_text(json.dumps(made, indent=2) + "\n")
+    atomic_write(REFERENCE, (REFERENCE.read_text() + buffer.getvalue()).encode())
+    atomic_write(REFERENCE.with_suffix(".json"), (json.dumps(made, indent=2) + "\n").encode())
     print(f"added {len(added)} rows: {', '.join(missing)} at {git['commit'][:7]}")
     return 0
 
