@@ -111,8 +111,10 @@ def main(argv: list[str] | None = None) -> int:
         )
     columns = [c for c in EPISODE_COLUMNS if c not in TIMING_COLUMNS]
     added = [task for task in tasks if task_key(task)[0] in missing]
+    old = REFERENCE.read_bytes()
+    newline = "\r\n" if old.split(b"\n", 1)[0].endswith(b"\r") else "\n"  # the file's own
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator="\n")
+    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator=newline)
     for task in added:  # every episode played before a byte is written
         record = run_task(task)[0]
         writer.writerow({c: csv_value(getattr(record, c)) for c in columns})
@@ -124,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             "git": git,
         }
     )
-    atomic_write(REFERENCE, (REFERENCE.read_text() + buffer.getvalue()).encode())
+    atomic_write(REFERENCE, old + buffer.getvalue().encode())
     atomic_write(REFERENCE.with_suffix(".json"), (json.dumps(made, indent=2) + "\n").encode())
     print(f"added {len(added)} rows: {', '.join(missing)} at {git['commit'][:7]}")
     return 0
