@@ -18,6 +18,7 @@ from capture_bench.sim.kinematics import (
     L1,
     L2,
     forward_kinematics,
+    inverse_kinematics,
     jacobian_determinant,
 )
 from capture_bench.task.observation import TaskDescription, decode_observation, encode_observation
@@ -486,3 +487,45 @@ def test_an_analytic_controller_written_for_one_observation_is_not_batched_but_p
 
 def test_random_agent_acts_one_episode_at_a_time():
     assert not make_agent("random", PublicEnv()).batched
+
+
+def _first_reachable_step(theta0, p0, v, limit_steps):
+    """Brute force: the first k whose target point ``p0 + v k t_s`` has an IK solution inside the
+    joint limits that k steps at full rate reach from ``theta0``, every k and solution tried."""
+    for k in range(1, limit_steps + 1):
+        goal = p0 + v * k * T_S
+        for solution in inverse_kinematics(goal):
+            inside = np.all(solution >= JOINT_LOWER) and np.all(solution <= JOINT_UPPER)
+            if inside and np.all(np.abs(solution - theta0) <= RATES * k * T_S):
+                return k
+    return None
+
+
+def test_joint_intercept_arrives_at_the_first_step_a_brute_force_finds_reachable():
+    """With the estimate exact (a target drifting at constant velocity), the capped joint
+    intercept lands the end-effector on the target at the first step at which any IK solution of
+    the target's position is within reach of every joint, and the uncapped one runs its slowest
+    joint at full rate; brute force over every step and IK solution, not the physical limit's
+    search."""
+    exact = TaskDescription(capture_tolerance=np.full(3, 1e-9))  # no near solutions
+    capped = make_agent("joint_intercept", PublicEnv(exact))
+    uncapped = make_agent("joint_intercept_uncapped", PublicEnv(exact))
+    rng = np.random.default_rng(11)
+    checked = 0
+    for theta0 in random_poses(rng, 12):
+        p0 = forward_kinematics(random_poses(rng, 1)[0])
+        v = rng.uniform(-0.05, 0.05, 3)
+        k_first = _first_reachable_step(theta0, p0, v, 120)
+        if k_first is None or k_first < 2:
+            continue
+        theta = theta0.copy()
+        for j in range(k_first):
+            obs = observe(theta, p0 + v * j * T_S, v)
+            full = uncapped.predict(obs)[0]
+            assert np.isclose(np.max(np.abs(full)), 1.0)
+            theta = theta + exact.action_to_increment(capped.predict(obs)[0])
+            if j + 1 < k_first:
+                assert np.linalg.norm(forward_kinematics(theta) - (p0 + v * (j + 1) * T_S)) > 1e-4
+        assert np.linalg.norm(forward_kinematics(theta) - (p0 + v * k_first * T_S)) < 1e-5
+        checked += 1
+    assert checked >= 6

@@ -6,6 +6,8 @@ they are held to the same joint-rate limits as every other agent.
 
 * :class:`PurePursuit` — aims at the current estimate X^_T, no look-ahead.
 * :class:`Intercept` — aims at the predicted interception point, re-planned every step.
+* :class:`JointIntercept` — the joints straight to the earliest pose that meets the predicted
+  target, the physical limit's test on the estimate, re-planned every step.
 * :class:`DampedLeastSquares` — resolved-rate control with feed-forward and a proportional term.
 * :class:`RandomAgent` — uniform actions from its own seeded generator.
 * :class:`Hold` — never moves.
@@ -20,6 +22,7 @@ from capture_bench.agents.base import AnalyticController, safe_action
 from capture_bench.agents.incremental_ik import incremental_steps, lambda_max_of, resolve_direction
 from capture_bench.sim.kinematics import forward_kinematics, jacobian
 from capture_bench.task.observation import TaskDescription
+from capture_bench.task.physical_limit import first_feasible
 
 FloatArray = NDArray[np.float64]
 
@@ -165,6 +168,75 @@ class Intercept(AnalyticController):
         self.last_tau = None
 
 
+class JointIntercept(AnalyticController):
+    """Drive the joints straight to the earliest pose that meets the predicted target.
+
+    The physical limit's test (``capture_bench/task/physical_limit.py``) on the estimate instead
+    of the truth, re-planned every control period: with the target predicted at
+    ``P(tau) = X^_T + Xdot^_T tau``, ``tau`` is the first multiple of t_s within ``horizon`` at
+    which ``P(tau)`` has an IK solution ``Theta*`` inside the joint limits and the box
+    ``|Theta*_i - Theta_i| <= theta_dot_max_i tau`` that the rate limits let each joint reach
+    (within ``|epsilon|``: :func:`~capture_bench.task.physical_limit.first_feasible`). Where
+    Cartesian controllers move the end-effector along a line at the speed the slowest joint allows
+    (eq. 18), every joint here runs at up to its own rate.
+
+    * Capped (``cap=True``): ``a = clip((Theta* - Theta) / (theta_dot_max t_s), -1, 1)``, each
+      joint at full rate until its last step lands on ``Theta*``: it arrives.
+    * Uncapped (``cap=False``): the same direction scaled so that the joint furthest from
+      ``Theta*`` in steps runs at full rate every step, sweeping through the pose.
+
+    With no such pose within the horizon it takes the paper's incremental IK step (eqs. 13-19,
+    with the same cap). Rows do not mix.
+
+    Args:
+        description: the environment's public description.
+        horizon: longest look-ahead, s.
+        cap: arrive (default) or sweep through at full rate.
+    """
+
+    def __init__(self, description: TaskDescription, horizon: float = 6.0, cap: bool = True):
+        super().__init__(description)
+        self.horizon = horizon
+        self.cap = cap
+
+    def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
+        """Actions for N observations, (N, 16) -> (N, 3), float32, in [-1, 1]."""
+        obs = self.decode(observations)
+        arm, t_s = self.description.arm, self.description.control_period
+        theta = np.asarray(obs.joint_angles, dtype=float)
+        n = theta.shape[0]
+        taus = t_s * np.arange(1, int(round(self.horizon / t_s)) + 1)  # (K,)
+        k = taus.size
+        predicted = (
+            obs.target_position[:, None] + taus[None, :, None] * obs.target_velocity[:, None]
+        )
+        first, theta_star = first_feasible(
+            predicted.reshape(n * k, 3),
+            np.tile(taus, n),
+            np.arange(n + 1) * k,  # row i's taus are one segment
+            np.repeat(theta, k, axis=0),
+            arm.joint_rate_limits,
+            arm.joint_lower,
+            arm.joint_upper,
+            self.description.capture_tolerance,
+        )
+        action = (theta_star - theta) / (arm.joint_rate_limits * t_s)
+        if not self.cap:
+            steps = np.max(np.abs(action), axis=1, keepdims=True)
+            action = np.divide(action, steps, out=np.zeros_like(action), where=steps > 0)
+        none = first >= n * k
+        if np.any(none):
+            step = incremental_steps(
+                theta[none],
+                obs.target_position[none],
+                obs.target_velocity[none],
+                self.description,
+                cap=self.cap,
+            )
+            action[none] = self.description.increment_to_action(step.increment)
+        return safe_action(action)
+
+
 class DampedLeastSquares(AnalyticController):
     """Damped-least-squares resolved-rate control with feed-forward and a proportional term.
 
@@ -240,6 +312,7 @@ __all__ = [
     "DampedLeastSquares",
     "Hold",
     "Intercept",
+    "JointIntercept",
     "PurePursuit",
     "RandomAgent",
     "interception_times",

@@ -29,6 +29,8 @@ RESIDUAL_BASES = (
     "incremental_ik_through",
     "pure_pursuit",
     "intercept",
+    "joint_intercept",
+    "joint_intercept_uncapped",
     "dls",
 )
 
