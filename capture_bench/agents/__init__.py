@@ -4,21 +4,21 @@ Every agent follows :class:`capture_bench.agents.protocol.Agent` (SB3-style ``pr
 ``reset``) and acts in the shared action space ``Box(-1, 1, (3,))``. Build one by name with
 :func:`make_agent`:
 
-==============================  ============================================================  ============
-name                            what                                                          sees
-==============================  ============================================================  ============
-``incremental_ik``              Dong & Zhu (2016) eqs. 13-19, lambda_max, with step cap       public
-``incremental_ik_uncapped``     the same, paper-exact (``cap=False``)                         public
-``incremental_ik_through``      the capped step aims 2 mm past X_T' (``follow_through``)      public
-``pure_pursuit``                straight at X^_T, no look-ahead                               public
-``intercept``                   straight at the predicted interception point                  public
-``joint_intercept``             each joint to the earliest pose meeting the prediction        public
-``joint_intercept_uncapped``    the same at full rate, sweeping through that pose             public
-``dls``                         damped-least-squares resolved rate, feed-forward + P term     public
-``random``                      uniform random actions (seeded)                               public
-``hold``                        zero action                                                   public
-``oracle``                      "oracle (privileged)": drives to the physical-limit pose      ground truth
-==============================  ============================================================  ============
+==============================  ======================================================  ============
+name                            what                                                    sees
+==============================  ======================================================  ============
+``incremental_ik``              Dong & Zhu (2016) eqs. 13-19, lambda_max, step cap      public
+``incremental_ik_uncapped``     the same, paper-exact (``cap=False``)                   public
+``incremental_ik_through``      capped step aims 2 mm past X_T' (``follow_through``)    public
+``pure_pursuit``                straight at X^_T, no look-ahead                         public
+``intercept``                   straight at the predicted interception point            public
+``joint_intercept``             each joint to the earliest pose meeting the prediction  public
+``joint_intercept_uncapped``    the same at full rate, sweeping through that pose       public
+``dls``                         damped least squares resolved rate, feed-forward + P    public
+``random``                      uniform random actions (seeded)                         public
+``hold``                        zero action                                             public
+``oracle``                      "oracle (privileged)": to the physical-limit pose       ground truth
+==============================  ======================================================  ============
 
 Analytic agents are built from ``env.unwrapped.description`` (a
 :class:`capture_bench.task.observation.TaskDescription`) and nothing else; only the oracle keeps a
