@@ -92,16 +92,14 @@ def main(argv: list[str] | None = None) -> int:
         return 1 if missing else 0
 
     from capture_bench.evaluation.backends import run_task
-    from capture_bench.evaluation.report import csv_value
-    from capture_bench.evaluation.rollout import EPISODE_COLUMNS, TIMING_COLUMNS
+    from capture_bench.evaluation.merge import episode_cells
     from capture_bench.files import atomic_write
     from capture_bench.provenance import git_state
 
-    there = fingerprint(made["machine"], made["packages"])
-    if this_machine() != there:
+    there, here = fingerprint(made["machine"], made["packages"]), this_machine()
+    if here != there:
         parser.error(
-            f"rows are added only on the reference's kind of machine ({there}); this "
-            f"one is {this_machine()}"
+            f"rows are added only on the reference's kind of machine ({there}); this one is {here}"
         )
     git = git_state()
     if git.get("dirty"):
@@ -109,15 +107,13 @@ def main(argv: list[str] | None = None) -> int:
             "the working tree has uncommitted changes: add rows at a clean commit, so "
             "the .json can name the code that made them"
         )
-    columns = [c for c in EPISODE_COLUMNS if c not in TIMING_COLUMNS]
     added = [task for task in tasks if task_key(task)[0] in missing]
+    rows = [episode_cells(run_task(task)[0]) for task in added]  # all played before a write
     old = REFERENCE.read_bytes()
     newline = "\r\n" if old.split(b"\n", 1)[0].endswith(b"\r") else "\n"  # the file's own
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=columns, lineterminator=newline)
-    for task in added:  # every episode played before a byte is written
-        record = run_task(task)[0]
-        writer.writerow({c: csv_value(getattr(record, c)) for c in columns})
+    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator=newline)
+    writer.writerows(rows)
     made.setdefault("added", []).append(
         {
             "agents": missing,

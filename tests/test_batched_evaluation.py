@@ -68,10 +68,9 @@ def test_the_default_suites_episodes_equal_the_stored_reference(default_suite_re
     path to the single env."""
     made, expected = suite_reference.stored()
     there = suite_reference.fingerprint(made["machine"], made["packages"])
-    if suite_reference.this_machine() != there:
-        pytest.skip(
-            f"the reference was made on {there}; this machine is {suite_reference.this_machine()}"
-        )
+    here = suite_reference.this_machine()
+    if here != there:
+        pytest.skip(f"the reference was made on {there}; this machine is {here}")
     tasks, records = default_suite_records
     missing = suite_reference.missing_agents(tasks, expected)
     assert not missing, f"no reference rows for {missing}: run python scripts/suite_reference.py"

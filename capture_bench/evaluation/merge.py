@@ -143,7 +143,7 @@ def _same_agents(reports: Sequence[SourceReport]) -> None:
                 )
 
 
-def _cells(record: EpisodeRecord) -> dict[str, Any]:
+def episode_cells(record: EpisodeRecord) -> dict[str, Any]:
     """An episode's columns as ``episodes.csv`` writes them, the timing columns left out."""
     return {c: csv_value(getattr(record, c)) for c in EPISODE_COLUMNS if c not in TIMING_COLUMNS}
 
@@ -162,7 +162,7 @@ def merge_records(reports: Sequence[SourceReport]) -> list[EpisodeRecord]:
                 kept[key] = (record, report)
                 continue
             earlier, source = kept[key]
-            mine, theirs = _cells(earlier), _cells(record)
+            mine, theirs = episode_cells(earlier), episode_cells(record)
             column = next((c for c in mine if mine[c] != theirs[c]), None)
             if column is not None:
                 raise EvaluationError(
