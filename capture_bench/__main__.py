@@ -31,6 +31,7 @@ from collections.abc import Callable
 from typing import Any
 
 from capture_bench.argparsing import OneLineParser
+from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 
 PROG = "python -m capture_bench"
 DELEGATED = {
@@ -132,32 +133,56 @@ def list_everything() -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command; returns the exit code (0, or 2 for a malformed command line)."""
+    """Run the command; returns the exit code (0, 2 for a malformed command line, 130 or 143 for
+    Ctrl-C or SIGTERM). An interrupt that the command does not handle itself (``list``, or one
+    while a command's modules import) ends it with one line on stderr: "python -m
+    capture_bench: interrupted", with "while starting; nothing written" before the command runs.
+    """
     args = sys.argv[1:] if argv is None else list(argv)
+    with sigterm_as_interrupt():
+        command = None
+        try:
+            command = _command(args)
+            return command()
+        except KeyboardInterrupt as exc:
+            said = (
+                "interrupted while starting; nothing written" if command is None else "interrupted"
+            )
+            print(f"{PROG}: {said}", file=sys.stderr)
+            return exit_status(exc)
+
+
+def _command(args: list[str]) -> Callable[[], int]:
+    """The command of the command line ``args``, its modules imported, ready to run."""
     if args and args[0] == "evaluate":
         from capture_bench.evaluation.cli import main as evaluate
 
-        return evaluate(args[1:])
+        return functools.partial(evaluate, args[1:])
     if args and args[0] == "train":
         from capture_bench.training.run import main as train
 
-        return train(args[1:])
+        return functools.partial(train, args[1:])
     if args and args[0] == "tune":
         from capture_bench.training.tune import main as tune
 
-        return tune(args[1:])
+        return functools.partial(tune, args[1:])
     if args and args[0] == "curves":
         from capture_bench.training.curves import main as curves
 
-        return curves(args[1:])
+        return functools.partial(curves, args[1:])
     if args and args[0] == "zoo-hyperparams":
         from capture_bench.training.zoo import main as zoo_hyperparams
 
-        return zoo_hyperparams(args[1:])
+        return functools.partial(zoo_hyperparams, args[1:])
     if args and args[0] == "sweep":
         from capture_bench.training.sweep import main as sweep
 
-        return sweep(args[1:])
+        return functools.partial(sweep, args[1:])
+    return functools.partial(_list, args)
+
+
+def _list(args: list[str]) -> int:
+    """``list`` (or ``--help``, or a bad command line: one line, status 2)."""
     try:
         build_parser().parse_args(args)
     except SystemExit as exc:  # --help (0) or a bad command (2, already printed in one line)

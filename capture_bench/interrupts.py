@@ -25,6 +25,9 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the main thread is, so that ``except KeyboardInterrupt`` handles it
     exactly as Ctrl-C (exit status 143 instead of 130)."""
 
+    #: The signal (the root scripts read it: they catch interrupts before this module imports).
+    signum = signal.SIGTERM
+
 
 def exit_status(interrupt: KeyboardInterrupt) -> int:
     """The conventional status of a command ended by this signal: 128 + the signal's number."""

@@ -13,6 +13,8 @@ interface the oracle uses.
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +32,7 @@ from capture_bench.envs.core import (
 )
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
-from capture_bench.sensing.workspace_image import IMAGE_SIZE, WorkspaceImager
+from capture_bench.sensing.workspace_image import WorkspaceImager
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World
@@ -53,6 +55,21 @@ from capture_bench.task.target_side import (
 
 __all__ = ["FAILURES", "CaptureEnv", "check_actions", "describe_task", "resolve_scenario"]
 _ALL = slice(None)  # the single env's one episode, as rows of the step rule
+
+
+def _check_display(render_mode: str | None) -> None:
+    """``ValueError`` where ``render_mode="human"`` cannot open its window: pybullet's GUI is an X11
+    window on Linux and the other Unix systems but macOS, and without ``DISPLAY`` its connection
+    ends the process (exit status 1, nothing printed)."""
+    if render_mode != "human" or os.name != "posix" or sys.platform == "darwin":
+        return
+    if not os.environ.get("DISPLAY"):
+        raise ValueError(
+            'render_mode="human" opens a pybullet window, which needs an X display, and '
+            'DISPLAY is not set (a headless machine?); use render_mode="rgb_array" for images '
+            "(render() returns them; gymnasium.wrappers.RecordVideo saves a video), or run under "
+            "a display (e.g. xvfb-run)"
+        )
 
 
 def _check_render_size(size: Any) -> tuple[int, int]:
@@ -170,9 +187,12 @@ class CaptureEnv(TaskAccess, gym.Env):
     ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the scenario's), or ``"pixels"``
     (the image and the arm's state; the scenario's estimator runs for ``info``); anything else:
     ``ConfigError`` (a ``ValueError``). ``image_size``: with ``"pixels"``, the image's (width,
-    height), pixels, default (84, 84); two whole numbers from 1 to 924 (the largest crop of the
-    shipped camera), else ``ValueError``. ``reward``: ``"dense"``, ``"sparse"`` or ``"shaped"``.
-    ``render_mode``: ``"rgb_array"`` or ``"human"``. ``render_size``: (width, height) of the image
+    height), pixels, default None: (84, 84); two whole numbers from 1 to 924 (the largest crop
+    of the shipped camera), else ``ValueError``; given with any other observation source,
+    ``ConfigError`` (it sizes nothing there). ``reward``: ``"dense"``, ``"sparse"`` or
+    ``"shaped"``. ``render_mode``: ``"rgb_array"`` or ``"human"`` (a pybullet window: it needs a
+    display; on Linux without ``DISPLAY``, ``ValueError`` at construction, suggesting
+    ``"rgb_array"``). ``render_size``: (width, height) of the image
     ``render()`` returns, pixels, default (640, 480) (a video of many episodes asks for less:
     pybullet's TinyRenderer takes ~50 ms a frame at 640 x 480, ~12 ms at 320 x 240); two whole
     numbers >= 1, else ``ValueError``. ``reuse_target_side``: when True,
@@ -220,7 +240,7 @@ class CaptureEnv(TaskAccess, gym.Env):
         reuse_target_side: bool = False,
         episode_cache: EpisodeCache | None = None,
         render_view: str | None = None,
-        image_size: tuple[int, int] = IMAGE_SIZE,
+        image_size: tuple[int, int] | None = None,
     ) -> None:
         self.task = task = CaptureTask(
             scenario, observation_source=observation_source, reward=reward, image_size=image_size
@@ -240,6 +260,7 @@ class CaptureEnv(TaskAccess, gym.Env):
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
                 f"got {render_mode!r}"
             )
+        _check_display(render_mode)
         self.render_mode = render_mode
         self.render_size = _check_render_size(render_size)
         self.reuse_target_side = bool(reuse_target_side)

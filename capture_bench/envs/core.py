@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from capture_bench.sensing.camera import Camera
 from capture_bench.sensing.rendered_sensor import RenderSettings
 from capture_bench.sensing.sources import ENV_OBSERVATIONS, PIXELS
-from capture_bench.sensing.workspace_image import IMAGE_SIZE, WorkspaceImager, check_image_size
+from capture_bench.sensing.workspace_image import WorkspaceImager, check_image_size
 from capture_bench.sim import kinematics
 from capture_bench.task.observation import (
     TaskDescription,
@@ -103,8 +103,10 @@ class CaptureTask:
             (:func:`~capture_bench.task.observation.pixel_observation_space`) and the scenario's
             estimator runs for ``info`` only.
         reward: one of :data:`capture_bench.task.rewards.REWARD_MODES` (checked).
-        image_size: with ``"pixels"``, the image's (width, height), pixels (checked, whatever
-            the source: :func:`~capture_bench.sensing.workspace_image.check_image_size`).
+        image_size: with ``"pixels"``, the image's (width, height), pixels (checked:
+            :func:`~capture_bench.sensing.workspace_image.check_image_size`); None (default):
+            :data:`~capture_bench.sensing.workspace_image.IMAGE_SIZE`. Given with any other
+            source, ``ConfigError``: it sizes nothing there.
 
     Attributes:
         scenario: the resolved ``Scenario``.
@@ -126,7 +128,7 @@ class CaptureTask:
         *,
         observation_source: str | None = None,
         reward: str = "dense",
-        image_size: tuple[int, int] = IMAGE_SIZE,
+        image_size: tuple[int, int] | None = None,
     ) -> None:
         if observation_source is not None and observation_source not in ENV_OBSERVATIONS:
             raise ConfigError(
@@ -140,6 +142,12 @@ class CaptureTask:
         self.camera: Camera
         self.camera, self.features = scenario_camera(self.scenario)
         self.pixels = observation_source == PIXELS
+        if image_size is not None and not self.pixels:
+            raise ConfigError(
+                f'image_size={image_size!r} applies only with observation_source="pixels" (it '
+                f"sizes the pixel observation; given observation_source={observation_source!r}); "
+                'drop image_size or pass observation_source="pixels"'
+            )
         self.image_size = check_image_size(image_size, self.camera.model)
         self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self.single_observation_space: spaces.Space = (

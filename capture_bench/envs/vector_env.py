@@ -53,7 +53,7 @@ from capture_bench.envs.core import CaptureTask, Observation, TaskAccess, check_
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, SceneCameraView, joint_path
-from capture_bench.sensing.workspace_image import IMAGE_SIZE, WorkspaceImager
+from capture_bench.sensing.workspace_image import WorkspaceImager
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
@@ -110,7 +110,8 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             ``"pixels"``: the camera's image and the arm's state, as ``CaptureEnv``'s; the
             scenario's estimator runs for ``info``.
         reward: ``"dense"`` or ``"sparse"``.
-        image_size: with ``"pixels"``, the image's (width, height), pixels (as ``CaptureEnv``).
+        image_size: with ``"pixels"``, the image's (width, height), pixels (default None:
+            (84, 84)); with any other source, ``ConfigError`` (as ``CaptureEnv``).
         reuse_target_side: must be True (accepted so that ``make_vec(id, n,
             reuse_target_side=True)`` means the same for every vectorization mode).
         render_mode: must be None (the vector env does not render).
@@ -168,7 +169,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         reference_target_side: bool = False,
         episode_cache: EpisodeCache | None = None,
-        image_size: tuple[int, int] = IMAGE_SIZE,
+        image_size: tuple[int, int] | None = None,
     ) -> None:
         if not reuse_target_side:
             raise ValueError(

@@ -19,8 +19,10 @@ that is not it (``--suite my/default.yaml``): ``reports/<suite>/`` only ever hol
 defined; the output names the folder written. Bad input (unknown agent, scenario or suite, a
 missing, corrupt or untrusted model, mismatched spaces, an output folder that cannot be written,
 an empty option value) prints one line to stderr and exits with code 2, before any episode runs
-or any file is written. Ctrl-C (SIGINT) or SIGTERM stops every worker and exits with 130 or 143,
-writing nothing and leaving the previous report as it was. The summary table printed at the end
+or any file is written. Ctrl-C (SIGINT) or SIGTERM stops every worker and exits with 130 or 143
+and one line saying what is on disk: no report written (the previous report as it was), or, once
+the new report is in place, the report written (a signal while it replaces the previous one lands
+just after; :func:`main`). The summary table printed at the end
 fits the terminal (80 columns in a pipe or a CI log: then without the per-scenario columns).
 Models load without unpickling anything (``--trust-model`` to allow an SB3 ``.zip``).
 ``--merge DIR DIR ...`` plays no episode: it merges finished reports into
@@ -431,15 +433,22 @@ def _main(argv: list[str] | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (0 done, 2 bad input, 130/143 interrupted)."""
-    with sigterm_as_interrupt():
+    """Run the CLI; returns the exit code (0 done, 2 bad input, 130/143 interrupted). An
+    interrupt's one line says what is on disk: no report written (a previous one as it was), or
+    the report folder written before it came (an interrupt during the replacement lands once the
+    new report is in place: :func:`~capture_bench.evaluation.report.write_report`)."""
+    from capture_bench.evaluation.report import reports_written
+
+    with sigterm_as_interrupt(), reports_written() as written:
         try:
             return _main(argv)
         except KeyboardInterrupt as exc:
-            print(
-                f"{program(PROG)}: interrupted; no report written (a previous report is as it was)",
-                file=sys.stderr,
+            said = (
+                f"interrupted after the report was written to {written[-1]}/"
+                if written
+                else "interrupted; no report written (a previous report is as it was)"
             )
+            print(f"{program(PROG)}: {said}", file=sys.stderr)
             return exit_status(exc)
 
 

@@ -5,11 +5,14 @@ self-contained file, figures embedded as base64 PNG and the episodes to watch as
 ``results.csv`` (one row per agent x scenario), ``episodes.csv`` (one row per episode),
 ``results.json`` (rows, ranking, the rliable statistics, provenance), the PNG figures and the
 GIFs. Everything is written into a temporary directory next to the target and renamed into place
-at the end, so a failed run never leaves a half-written report.
+at the end, so a failed run never leaves a half-written report. The renaming is one step that
+Ctrl-C and SIGTERM do not cut: one that comes during it is raised once the new report is in place,
+and :func:`reports_written` says so to the command, whose message then names the report written.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import html
 import json
@@ -17,7 +20,8 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -36,6 +40,7 @@ from capture_bench.evaluation.paired import Paired, PairedSection
 from capture_bench.evaluation.rliable_report import RliableSection
 from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
 from capture_bench.evaluation.suites import VALIDATION_SUFFIX
+from capture_bench.interrupts import interrupts_deferred
 from capture_bench.provenance import REPRODUCIBILITY, provenance_text
 
 if TYPE_CHECKING:
@@ -562,6 +567,22 @@ def _sanitise(o: Any) -> Any:
     return json_value(o)
 
 
+#: The lists of the :func:`reports_written` blocks open, innermost last.
+_WRITTEN: list[list[Path]] = []
+
+
+@contextlib.contextmanager
+def reports_written() -> Iterator[list[Path]]:
+    """Within the block, the list it yields gains each report directory :func:`write_report`
+    puts in place, as it is put there: what a command stopped by an interrupt has written."""
+    written: list[Path] = []
+    _WRITTEN.append(written)
+    try:
+        yield written
+    finally:
+        _WRITTEN[:] = [w for w in _WRITTEN if w is not written]
+
+
 def write_report(data: ReportData, out_dir: Path, images: dict[str, bytes] | None = None) -> Path:
     """Write the report into ``out_dir/<suite>/`` atomically; returns that directory.
 
@@ -569,23 +590,41 @@ def write_report(data: ReportData, out_dir: Path, images: dict[str, bytes] | Non
 
     The files are written into a temporary sibling directory that replaces the target only once
     complete; on any error the temporary directory is removed and the old report (if any) stays.
+    The replacement (the old report moved aside, the new one renamed into place, the old one
+    removed) is not cut by Ctrl-C or SIGTERM (in the main thread): one that comes during it is
+    raised as it ends, with the new report in place and in :func:`reports_written`'s lists.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / data.suite
     staging = Path(tempfile.mkdtemp(prefix=f".{data.suite}.tmp-", dir=out_dir))
+    main_thread = threading.current_thread() is threading.main_thread()
     try:
         _write_all(data, staging, images)
         os.chmod(staging, 0o755)
-        old = None
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{data.suite}.old-", dir=out_dir))
-            os.rmdir(old)
-            os.replace(target, old)
-        os.replace(staging, target)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        with interrupts_deferred() if main_thread else contextlib.nullcontext():
+            _put_in_place(staging, target)
+            for written in _WRITTEN:
+                written.append(target)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return target
+
+
+def _put_in_place(staging: Path, target: Path) -> None:
+    """Rename the folder ``staging`` to ``target``, replacing a previous ``target`` folder, which
+    is put back if the rename fails and removed if it succeeds."""
+    old = None
+    if target.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+        os.rmdir(old)
+        os.replace(target, old)
+    try:
+        os.replace(staging, target)
+    except BaseException:
+        if old is not None:
+            os.replace(old, target)
+        raise
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

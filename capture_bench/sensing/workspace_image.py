@@ -66,9 +66,12 @@ def largest_crop_side(model: CameraModel) -> int:
 
 
 def check_image_size(size: Any, model: CameraModel) -> tuple[int, int]:
-    """``size`` as ``(width, height)``, or ``ValueError`` saying what is valid: two whole numbers
-    from 1 to :func:`largest_crop_side` (924 for the shipped camera)."""
+    """``size`` as ``(width, height)`` (None: :data:`IMAGE_SIZE`), or ``ValueError`` saying what
+    is valid: two whole numbers from 1 to :func:`largest_crop_side` (924 for the shipped
+    camera)."""
     largest = largest_crop_side(model)
+    if size is None:
+        size = IMAGE_SIZE
     try:
         width, height = size
     except (TypeError, ValueError):

@@ -460,13 +460,11 @@ def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
     return kwargs
 
 
-def image_size(hp: dict[str, Any]) -> tuple[int, int]:
+def image_size(hp: dict[str, Any]) -> tuple[int, int] | None:
     """The pixel observation's (width, height): ``image_size`` (square) where ``hp`` gives it,
-    else the env's default."""
-    from capture_bench.sensing.workspace_image import IMAGE_SIZE
-
+    else None, the env's default (an env that does not observe pixels refuses a size)."""
     side = hp.get("image_size")
-    return IMAGE_SIZE if side is None else (side, side)
+    return None if side is None else (side, side)
 
 
 def _linear(initial: float) -> Any:

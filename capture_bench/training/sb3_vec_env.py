@@ -36,7 +36,6 @@ from numpy.typing import NDArray
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
 from capture_bench.envs.vector_env import CaptureVectorEnv, sub_env_infos
-from capture_bench.sensing.workspace_image import IMAGE_SIZE
 from capture_bench.task.scenarios import Scenario
 from capture_bench.training.seeds import TrainingSeedDraw
 
@@ -51,7 +50,8 @@ class CaptureSB3VecEnv(VecEnv):
         observation_source: ``"ekf"``, ``"photogrammetry"`` or ``"truth"`` (default: the
             scenario's), or ``"pixels"``.
         reward: ``"dense"`` or ``"sparse"``.
-        image_size: with ``"pixels"``, the image's (width, height), pixels.
+        image_size: with ``"pixels"``, the image's (width, height), pixels (None: the env's
+            default).
 
     Observations: float32, (N, *single observation shape), or with pixels a dict of such arrays
     (``image`` uint8 (N, 3, H, W), ``state`` float32 (N, 7)), each row of which is replaced
@@ -69,7 +69,7 @@ class CaptureSB3VecEnv(VecEnv):
         seed: int = 0,
         observation_source: str | None = None,
         reward: str = "dense",
-        image_size: tuple[int, int] = IMAGE_SIZE,
+        image_size: tuple[int, int] | None = None,
     ) -> None:
         self.venv = CaptureVectorEnv(
             n_envs,
