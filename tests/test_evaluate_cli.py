@@ -153,14 +153,22 @@ def test_two_worker_processes_give_the_serial_results(quick_report, tmp_path):
     _same_results(quick_report, tmp_path / "quick")
 
 
-def test_ray_gives_the_serial_results(quick_report, tmp_path):
+@pytest.fixture
+def local_ray():
+    """A new Ray instance of two CPUs on the loopback, shut down after the test."""
     import ray  # the CI installs the 'ray' extra: a missing Ray is a failure, not a skip
 
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    from capture_bench.ray_cluster import start_local_ray
+
+    start_local_ray(num_cpus=2, log_to_driver=False)
     try:
-        assert main(["--suite", "quick", "--backend", "ray", "--out", str(tmp_path)]) == 0
+        yield ray
     finally:
         ray.shutdown()
+
+
+def test_ray_gives_the_serial_results(quick_report, tmp_path, local_ray):
+    assert main(["--suite", "quick", "--backend", "ray", "--out", str(tmp_path)]) == 0
     _same_results(quick_report, tmp_path / "quick")
 
 
@@ -245,8 +253,11 @@ def test_terminal_shows_a_progress_bar_with_eta_and_the_summary_table(tmp_path, 
 
 
 def test_ray_address_reaches_ray_init(monkeypatch, tmp_path):
-    """``--backend ray --ray-address A`` joins the cluster at A (ray.init is stopped there)."""
+    """``--backend ray --ray-address A`` checks that A answers, then joins the cluster at A
+    (ray.init is stopped there)."""
     import ray
+
+    from capture_bench import ray_cluster
 
     class Joined(Exception):
         pass
@@ -254,11 +265,19 @@ def test_ray_address_reaches_ray_init(monkeypatch, tmp_path):
     def fake_init(**kwargs):
         raise Joined(kwargs["address"])
 
+    checked = []
+
+    def answers(address, timeout):
+        checked.append(address)
+        return ray_cluster.socket.socket()  # closed by the check
+
     monkeypatch.setattr(ray, "is_initialized", lambda: False)
     monkeypatch.setattr(ray, "init", fake_init)
+    monkeypatch.setattr(ray_cluster.socket, "create_connection", answers)
     argv = ["--suite", "quick", "--backend", "ray", "--ray-address", "ray://head:10001"]
     with pytest.raises(Joined, match="ray://head:10001"):
         main([*argv, "--out", str(tmp_path)])
+    assert ("head", 10001) in checked
     assert not (tmp_path / "quick").exists()  # nothing half-written
 
 

@@ -139,18 +139,20 @@ def test_an_interrupt_while_the_workers_start_waits_until_each_can_be_killed(mon
     assert not outliving([p.pid for p in started], 5)
 
 
-def test_an_unreachable_ray_cluster_is_refused_in_seconds(tmp_path):
-    """Ray's own connect retries a dead address for many minutes; the run is refused first, as
-    bad input (in a child process: a hang must fail the test, not stall it)."""
+@pytest.mark.parametrize("address", ["127.0.0.1:1", "ray://127.0.0.1:1"])
+def test_an_unreachable_ray_cluster_is_refused_in_seconds(tmp_path, address):
+    """Ray's own connect retries a dead address for many minutes (its client for 30 s, then a
+    traceback); the run is refused first, as bad input (in a child process: a hang must fail
+    the test, not stall it)."""
     out = tmp_path / "reports"
     done = subprocess.run(
         [sys.executable, "evaluate.py", "--suite", "quick", "--backend", "ray",
-         "--ray-address", "127.0.0.1:1", "--out", str(out)],
+         "--ray-address", address, "--out", str(out)],
         cwd=ROOT, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and "127.0.0.1:1" in lines[0] and "Traceback" not in lines[0], lines
+    assert len(lines) == 1 and address in lines[0] and "Traceback" not in lines[0], lines
     assert not out.exists()
 
 

@@ -88,11 +88,18 @@ def _stop(nodes: list[subprocess.Popen]) -> list[int]:
     return left
 
 
+#: The nodes' address: on the loopback, not the machine's network address (which Ray takes for
+#: 127.0.0.1, and which some machines refuse connections to). Ray keeps a node at 127.0.0.1 only
+#: with multi-machine clusters off, and then refuses to start a second node.
+NODE_IP = "127.0.0.2"
+
+
 @pytest.fixture(scope="module")
 def cluster():
     """A Ray cluster of two nodes with one CPU each: a head and a worker, each started by its own
-    ``ray start`` process with its own temporary folder, token authentication on (a token made
-    for it). Every process the two started has ended after the module's tests."""
+    ``ray start`` process with its own temporary folder, both registered at :data:`NODE_IP`,
+    token authentication on (a token made for it). Every process the two started has ended after
+    the module's tests."""
     if importlib.util.find_spec("ray") is None:
         pytest.skip("Ray is not installed (pip install 'capture-bench[ray]')")
     # short: Ray's Unix socket paths live under it (at most 107 characters)
@@ -101,7 +108,7 @@ def cluster():
     env |= {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32),
             "RAY_USAGE_STATS_ENABLED": "0", "PYTHONPATH": str(ROOT)}  # fmt: skip
     port = _free_port()
-    node_args = ["--num-cpus=1", "--disable-usage-stats"]
+    node_args = ["--num-cpus=1", "--disable-usage-stats", f"--node-ip-address={NODE_IP}"]
     nodes = []
 
     def ports() -> list[str]:  # two nodes on one machine: each its own agents' ports
@@ -113,9 +120,9 @@ def cluster():
         head = ["--head", f"--port={port}", f"--ray-client-server-port={_free_port()}",
                 "--include-dashboard=false", f"--temp-dir={temp / 'head'}"]  # fmt: skip
         nodes.append(_start_node([*head, *node_args, *ports()], temp / "head.log", env))
-        worker = [f"--address=127.0.0.1:{port}", f"--temp-dir={temp / 'worker'}"]
+        worker = [f"--address={NODE_IP}:{port}", f"--temp-dir={temp / 'worker'}"]
         nodes.append(_start_node([*worker, *node_args, *ports()], temp / "worker.log", env))
-        yield Cluster(f"127.0.0.1:{port}", env)
+        yield Cluster(f"{NODE_IP}:{port}", env)
     finally:
         left = _stop(nodes)
         shutil.rmtree(temp, ignore_errors=True)
@@ -156,6 +163,7 @@ def test_every_run_lands_under_the_drivers_runs_from_both_nodes(cluster, tmp_pat
     assert [r["outcome"] for r in report["runs"]] == ["trained"] * 4
     used = {r["node_id"] for r in report["runs"]}
     assert used == set(report["nodes"])
+    assert {n["ip"] for n in report["nodes"].values()} == {NODE_IP}  # on the loopback
     assert any(not report["nodes"][n]["head"] for n in used), "no run ran on the worker node"
 
 

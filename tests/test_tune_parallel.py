@@ -148,6 +148,7 @@ def test_bad_workers_ray_address_or_storage_is_one_line_and_writes_nothing(
         (["--workers", "-2"], ["--workers must be >= 1, got -2"]),
         (["--workers", "two"], ["--workers", "two"]),
         (["--ray-address", "127.0.0.1:1"], ["--ray-address 127.0.0.1:1", "no Ray cluster"]),
+        (["--ray-address", "ray://127.0.0.1:1"], ["ray://127.0.0.1:1", "no Ray cluster"]),
         (["--ray-address", "nowhere"], ["--ray-address nowhere", "HOST:PORT"]),
         (
             ["--workers", "2", "--storage", "sqlite:///:memory:"],
@@ -206,15 +207,23 @@ def test_a_signal_leaves_no_worker_and_no_running_trial(signum, status, tmp_path
         assert len(list(csv.DictReader((out / "trials.csv").open()))) == 2
 
 
-def test_ray_tasks_run_the_trials_in_one_study(tmp_path):
+@pytest.fixture
+def local_ray():
+    """A new Ray instance of two CPUs on the loopback, shut down after the test."""
     ray = pytest.importorskip("ray")
-    out = tmp_path / "out"
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    from capture_bench.ray_cluster import start_local_ray
+
+    start_local_ray(num_cpus=2, log_to_driver=False)
     try:
-        argv = [*tiny_argv(tmp_path, out), "--trials", "2", "--workers", "2"]
-        assert tune.main([*argv, "--ray-address", "auto"]) == 0
+        yield ray
     finally:
         ray.shutdown()
+
+
+def test_ray_tasks_run_the_trials_in_one_study(tmp_path, local_ray):
+    out = tmp_path / "out"
+    argv = [*tiny_argv(tmp_path, out), "--trials", "2", "--workers", "2"]
+    assert tune.main([*argv, "--ray-address", "local"]) == 0  # the Ray initialised here
     study = load(out)
     assert [t.state for t in study.trials] == [COMPLETE, COMPLETE]
     assert len(workers_of(study)) == 2  # one trial in each task

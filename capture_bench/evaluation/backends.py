@@ -14,8 +14,9 @@ episode.
 The local pool's workers end with the process that started them, however it ends (``kill -9``
 included), and the forkserver and multiprocessing's resource tracker then end by themselves.
 
-Ray is imported only by the ``ray`` backend (``pip install capture-bench[ray]``), which joins
-or starts it as :mod:`capture_bench.ray_cluster` says (this checkout shipped to the workers;
+Ray is imported only by the ``ray`` backend (``pip install capture-bench[ray]``), which starts
+a new local instance on the loopback (no ``--ray-address``) or joins the cluster given, as
+:mod:`capture_bench.ray_cluster` says (this checkout shipped to the workers;
 :func:`~capture_bench.ray_cluster.check_ray_cluster` refuses a cluster that does not answer, in
 seconds). Model specs travel as written: name them ``models/<name>``.
 """

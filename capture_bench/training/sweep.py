@@ -2,8 +2,9 @@
 
 Trains every combination of ``--algos``, ``--scenarios`` and ``--seeds``, each run one Ray task
 (:func:`capture_bench.training.sweep_task.train_run`, asking Ray for ``--cpus-per-run`` CPUs and
-``--gpus-per-run`` GPUs) on a local Ray instance or on a running cluster (``--ray-address``;
-:mod:`capture_bench.ray_cluster` ships this checkout to the nodes). Each run is what
+``--gpus-per-run`` GPUs) on a new local Ray instance (on the loopback; no other cluster is
+joined) or on the running cluster ``--ray-address`` names (:mod:`capture_bench.ray_cluster`
+starts or joins it and ships this checkout to the nodes). Each run is what
 ``train.py`` writes, at ``<runs>/<scenario>-<arm>-<seed>`` (the naming of ``curves --train``:
 :mod:`capture_bench.training.run_plan`). The task trains in a temporary directory of its node and
 sends the directory back as a tar archive; this process unpacks it beside its place under
@@ -23,8 +24,8 @@ Every option is checked before Ray starts, and a mistake is one line on stderr, 
 with nothing written: the algorithms, scenarios and seeds (training seeds of every scenario:
 ``0-9`` or ``0 1 2``), ``--runs`` (writable; a folder there with a run's name must be a run), and
 each new run's options resolved as train.py resolves them (its ``prepare``, in a temporary
-folder). The cluster must then answer (in seconds) and have a node with the CPUs and GPUs a run
-asks for.
+folder). The cluster must then answer (in seconds; one that does not is one line, exit status
+2) and have a node with the CPUs and GPUs a run asks for.
 """
 
 from __future__ import annotations
@@ -147,8 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--ray-address",
-        help="a running cluster's address (HOST:PORT, as `ray start --head` prints, or auto); "
-        "default: the cluster `ray start` started on this machine, else a local Ray instance",
+        help="a running cluster's address (HOST:PORT, as `ray start --head` prints; auto: the "
+        "one `ray start` started on this machine; ray://HOST:PORT); default: a new Ray instance "
+        "on this machine, on the loopback",
     )
     parser.add_argument(
         "--cpus-per-run", type=float, default=1.0, help="CPUs Ray reserves per run (default 1)"
