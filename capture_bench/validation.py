@@ -9,6 +9,11 @@ keys), the bad value and what would be valid::
     configs/scenarios/x.yaml: unknown key 'camera.noise_pix'; valid keys: position, look_at, ...
     configs/suites/s.yaml: missing key 'episodes' (expected a whole number >= 1)
 
+A message stays one short line whatever the file holds: a value is shown by :func:`shown` (a
+bounded repr, however large or deeply nested the value, e.g. a YAML alias bomb), a file larger
+than :data:`MAX_FILE_BYTES` is refused before it is read, and a key given twice in one mapping is
+refused with its line (YAML would otherwise keep the last silently).
+
 The error type is the caller's (``ConfigError`` for scenarios and algorithms, ``SuiteError`` for
 suites), so each CLI keeps its own catch.
 """
@@ -16,6 +21,8 @@ suites), so each CLI keeps its own catch.
 from __future__ import annotations
 
 import math
+import re
+import reprlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,13 +41,44 @@ class ConfigError(ValueError):
 #: parser RecursionError on deep nesting; bytes that are not UTF-8 raise UnicodeDecodeError.
 YAML_ERRORS = (yaml.YAMLError, ValueError, KeyError, AttributeError, TypeError, RecursionError)
 
+#: The largest configuration file read, bytes (1 MiB; the shipped ones are a few kB). The size is
+#: checked before the file is read or parsed.
+MAX_FILE_BYTES = 1 << 20
+
+#: A name that becomes part of an env ID and of file names (a scenario's ``name``): lowercase
+#: letters, digits and ``_``, starting with a letter, at most 64 characters.
+IDENTIFIER = re.compile(r"[a-z][a-z0-9_]{0,63}")
+IDENTIFIER_TEXT = (
+    "a name of lowercase letters, digits and _ starting with a letter, at most 64 characters, "
+    "like grasp_rendered"
+)
+
+#: The longest :func:`shown` text, characters.
+SHOWN_CHARS = 100
+_SHORT = reprlib.Repr()
+_SHORT.maxlevel = 3
+_SHORT.maxtuple = _SHORT.maxlist = _SHORT.maxarray = _SHORT.maxdict = 6
+_SHORT.maxset = _SHORT.maxfrozenset = _SHORT.maxdeque = 6
+_SHORT.maxstring = 60
+_SHORT.maxlong = 40
+_SHORT.maxother = 60
+
+
+def shown(value: Any) -> str:
+    """``repr(value)`` for a message: at most :data:`SHOWN_CHARS` characters (``...`` where cut),
+    computed in a bounded time however long, large or deeply nested the value is (a YAML alias
+    bomb nests references that a full repr would expand exponentially)."""
+    text = _SHORT.repr(value)
+    return text if len(text) <= SHOWN_CHARS else text[: SHOWN_CHARS - 3] + "..."
+
 
 @dataclass(frozen=True)
 class Rule:
     """What one key accepts.
 
     ``kind``: ``int``, ``float`` (finite numbers in [low, high], ``low`` exclusive unless
-    ``low_inclusive``), ``bool``, ``string``, ``choice`` (one of ``choices``), ``numbers`` (a list
+    ``low_inclusive``), ``bool``, ``string``, ``identifier`` (a string matching
+    :data:`IDENTIFIER`), ``choice`` (one of ``choices``), ``numbers`` (a list
     of ``length`` numbers of ``item`` kind; a 2-float list is a [low, high] range), ``names`` (a
     non-empty list of non-empty strings, or one of ``choices`` as a whole), ``schedule`` (a number
     > 0 or ``lin_<number>``), ``float_or_auto`` (a number, ``auto`` or ``auto_<number>``),
@@ -73,7 +111,8 @@ class Rule:
             order = (
                 " [low, high] with low <= high" if self.length == 2 and self.item == "float" else ""
             )
-            return f"a list of {self.length} {what}{order}{self._range()}"
+            each = f", each{self._range()}" if self._range() else ""
+            return f"a list of {self.length} {what}{order}{each}"
         if kind == "names":
             also = f", or {' or '.join(map(repr, self.choices))}" if self.choices else ""
             return "a non-empty list of names" + also
@@ -89,6 +128,7 @@ class Rule:
         return {
             "bool": "true or false",
             "string": "a string",
+            "identifier": IDENTIFIER_TEXT,
             "schedule": "a number > 0 or 'lin_<number>' (linear decay to 0)",
             "float_or_auto": "a number, 'auto' or 'auto_<number>'",
             "mapping": "a mapping",
@@ -111,7 +151,7 @@ class Rule:
         ``numbers``), or ``error`` saying ``where: value is not valid; expected ...``."""
         ok, canonical = _CHECKS[self.kind](self, value)
         if not ok:
-            raise error(f"{where}: {value!r} is not valid; expected {self.describe()}")
+            raise error(f"{where}: {shown(value)} is not valid; expected {self.describe()}")
         return canonical
 
 
@@ -229,6 +269,7 @@ _CHECKS = {
     "optional_float": _check_optional_float,
     "bool": lambda rule, v: (isinstance(v, bool), v),
     "string": lambda rule, v: (isinstance(v, str), v),
+    "identifier": lambda rule, v: (isinstance(v, str) and IDENTIFIER.fullmatch(v) is not None, v),
     "choice": lambda rule, v: (isinstance(v, str) and v in rule.choices, v),
     "numbers": _check_numbers,
     "names": _check_names,
@@ -253,22 +294,80 @@ def is_file(path: Path) -> bool:
         return False
 
 
+class _DuplicateKey(Exception):
+    """A key given twice in one YAML mapping: the key and the lines (1-based) of both."""
+
+    def __init__(self, key: Any, first_line: int, line: int) -> None:
+        super().__init__(key, first_line, line)
+        self.key, self.first_line, self.line = key, first_line, line
+
+
+class UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, except that a key given twice in one mapping raises (the safe loader
+    keeps the last value silently). Keys that YAML reads as equal count as the same key (``1``
+    and ``true``); a key that a merge (``<<: *anchor``) brings in may be given again, as the
+    merge's override."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, yaml.Node] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.setdefault(key, key_node)
+                except TypeError:  # unhashable: the base constructor refuses it
+                    continue
+                if first is not key_node:
+                    raise _DuplicateKey(
+                        key, first.start_mark.line + 1, key_node.start_mark.line + 1
+                    )
+        return super().construct_mapping(node, deep=deep)
+
+
+def _one_line(text: str, limit: int = 200) -> str:
+    """``text`` on one line, at most ``limit`` characters."""
+    line = " ".join(text.split())
+    return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
+def _size_error(path: Path, size: int, error: type[ValueError]) -> ValueError:
+    return error(
+        f"{path}: the file's size, {size} bytes, is not valid; expected at most {MAX_FILE_BYTES} "
+        f"bytes ({MAX_FILE_BYTES // (1 << 20)} MiB) for a configuration file"
+    )
+
+
 def read_mapping(
     path: Path, what: str, error: type[ValueError] = ConfigError
 ) -> tuple[dict[str, Any], bytes]:
     """The YAML mapping in ``path`` and the file's bytes (for provenance hashes).
 
-    Raises ``error`` naming the file: it cannot be read, invalid YAML (the parser's message), or
-    not a mapping (``what`` says of what: "scenario keys", "hyper-parameters", ...).
+    Raises ``error`` naming the file: it cannot be read, it is larger than
+    :data:`MAX_FILE_BYTES` (checked before reading), invalid YAML (the parser's message), a key
+    given twice in one mapping (the key and both lines), or not a mapping (``what`` says of what:
+    "scenario keys", "hyper-parameters", ...).
     """
     try:
-        raw = path.read_bytes()
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise _size_error(path, size, error)
+        with path.open("rb") as file:
+            raw = file.read(MAX_FILE_BYTES + 1)
     except OSError as exc:  # missing, a folder, no permission, a name too long
         raise error(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if len(raw) > MAX_FILE_BYTES:  # it grew after the size was checked
+        raise _size_error(path, len(raw), error)
     try:
-        data = yaml.safe_load(raw)
+        data = yaml.load(raw, Loader=UniqueKeyLoader)  # a SafeLoader: plain data only
+    except _DuplicateKey as exc:
+        raise error(
+            f"{path}: key {shown(exc.key)} is given twice in one mapping (lines "
+            f"{exc.first_line} and {exc.line}); expected each key once"
+        ) from None
     except YAML_ERRORS as exc:
-        first = " ".join(str(exc).split()) or type(exc).__name__
+        first = _one_line(str(exc)) or type(exc).__name__
         raise error(f"{path}: invalid YAML ({first})") from None
     if not isinstance(data, dict):
         raise error(f"{path}: expected a mapping of {what}, got {type(data).__name__}")
@@ -296,21 +395,22 @@ def check_mapping(
         required: keys that must be present -> what they hold, for the message.
     """
     if not isinstance(data, dict):
-        where = f"key {prefix[:-1]!r}" if prefix else "the file"
-        raise error(f"{source}: {where} must be a mapping, got {data!r}")
+        where = f"key {shown(prefix[:-1])}" if prefix else "the file"
+        raise error(f"{source}: {where} must be a mapping, got {shown(data)}")
     unknown = [key for key in data if key not in schema]
     if unknown:
         raise error(
-            f"{source}: unknown key {prefix + str(unknown[0])!r}; valid keys: {', '.join(schema)}"
+            f"{source}: unknown key {shown(prefix + str(unknown[0]))}; valid keys: "
+            + ", ".join(schema)
         )
     for key, what in (required or {}).items():
         if key not in data:
-            raise error(f"{source}: missing key {prefix + key!r} ({what})")
+            raise error(f"{source}: missing key {shown(prefix + key)} ({what})")
     out: dict[str, Any] = {}
     for key, value in data.items():
         rule = schema[key]
         if isinstance(rule, Rule):
-            out[key] = rule.check(value, f"{source}: key {prefix + key!r}", error)
+            out[key] = rule.check(value, f"{source}: key {shown(prefix + key)}", error)
         else:
             out[key] = check_mapping(value, rule, source, error=error, prefix=f"{prefix}{key}.")
     return out

@@ -95,7 +95,9 @@ def _fraction(high: float) -> dict[str, Any]:
 def _whole(low: int, high: int | None = None) -> dict[str, Any]:
     above = [] if high is None else [st.integers(high + 1, 10 * high)]
     return _kind(
-        st.one_of(st.integers(low, high or 10**6), st.integers(low, 1000).map(float)),
+        st.one_of(
+            st.integers(low, high or 10**6), st.integers(low, min(high or 1000, 1000)).map(float)
+        ),
         st.one_of(
             st.integers(-(10**6), low - 1),
             *above,
@@ -122,11 +124,35 @@ def _vector(n: int, number: st.SearchStrategy) -> dict[str, Any]:
     )
 
 
-def _range() -> dict[str, Any]:
-    pair = st.lists(_real(-10.0, 10.0), min_size=2, max_size=2)
-    shape = _vector(2, _real(-10.0, 10.0))
+def _bounded(low: float, high: float, low_inclusive: bool = True) -> dict[str, Any]:
+    """A number in [low, high] ((low, high] unless ``low_inclusive``)."""
+    above = _real(high * (1 + 1e-6) + 1e-9, max(10 * high, 1e6))
+    below = _real(-1e6, low - 1e-9) if low_inclusive else _real(-1e6, low)
+    valid = _real(low, high) if low_inclusive else _real(low, high).filter(lambda x: x > low)
+    return _kind(valid, st.one_of(below, above, NON_FINITE, HUGE_INT, NON_NUMBERS))
+
+
+def _range(low: float, high: float, limit_low: float, limit_high: float) -> dict[str, Any]:
+    """A [low, high] pair drawn inside [low, high] (the key's valid range is [limit_low,
+    limit_high]); invalid: a wrong shape, reversed, or an end outside the valid range."""
+    pair = st.lists(_real(low, high), min_size=2, max_size=2)
+    shape = _vector(2, _real(low, high))
+    outside = st.lists(
+        st.one_of(_real(-1e6, limit_low - 1e-6), _real(limit_high + 1e-6, 1e6)),
+        min_size=1,
+        max_size=1,
+    )
+    mixed = st.tuples(outside, _real(low, high)).map(lambda v: sorted([v[0][0], v[1]]))
     reversed_pair = pair.filter(lambda v: v[0] > v[1])
-    return _kind(pair.map(sorted), st.one_of(shape["invalid"], reversed_pair))
+    return _kind(pair.map(sorted), st.one_of(shape["invalid"], reversed_pair, mixed))
+
+
+def _point(y_low: float, y_high: float) -> dict[str, Any]:
+    """A point in [-5, 5]^3 with y in [y_low, y_high]; invalid: a wrong shape, a non-number, or
+    a coordinate outside [-10, 10]."""
+    point = st.tuples(NUMBER3, _real(y_low, y_high), NUMBER3).map(list)
+    far = st.lists(st.one_of(_real(10.001, 1e6), _real(-1e6, -10.001)), min_size=3, max_size=3)
+    return _kind(point, st.one_of(_vector(3, NUMBER3)["invalid"], far))
 
 
 def _choice(*choices: str) -> dict[str, Any]:
@@ -137,51 +163,61 @@ def _choice(*choices: str) -> dict[str, Any]:
 
 
 TEXT = _kind(JUNK_TEXT, NON_STRINGS)
+NAME = _kind(
+    st.from_regex(r"[a-z][a-z0-9_]{0,20}", fullmatch=True),
+    st.one_of(
+        NON_STRINGS, st.sampled_from(["", "Paper", "../../etc/x", "a b", "_x", "1x", "x" * 65])
+    ),
+)
 NUMBER3 = _real(-5.0, 5.0)
 #: Every scenario key, as documented in capture_bench/task/scenarios.py (unit and valid range).
+#: Valid values are drawn where the rules that tie keys together hold whatever else the mapping
+#: says (tests/test_config_limits.py tests those rules): at most 50 s of steps of >= 0.01 s, the
+#: camera at y <= -2 looking at y >= -1, initial offsets >= 0.2 m and tolerances <= 0.1 m.
 SCENARIO_SPEC: dict[str, Any] = {
-    "name": TEXT,
+    "name": NAME,
     "description": TEXT,
-    "capture_tolerance": _positive(),
+    "capture_tolerance": _bounded(0.0, 0.1, low_inclusive=False),
     "lost_after": _positive(),
     "control": {
-        "period": _positive(),
+        "period": _kind(_real(0.01, 1.0), _bounded(0.001, 1.0)["invalid"]),
         "period_jitter": _fraction(0.9),
-        "episode_limit": _positive(),
+        "episode_limit": _kind(
+            _real(1e-9, 50.0), _bounded(0.0, 3600.0, low_inclusive=False)["invalid"]
+        ),
     },
     "camera": {
-        "position": _vector(3, NUMBER3),
-        "look_at": _vector(3, NUMBER3),
-        "focal_length": _positive(),
-        "pixel_pitch": _positive(),
-        "resolution": _vector(2, st.integers(1, 5000)),
-        "noise_px": _kind(  # any sigma >= 0 (no upper bound)
-            _real(0.0, 1e3), st.one_of(_real(-1e6, -1e-9), NON_FINITE, HUGE_INT, NON_NUMBERS)
+        "position": _point(-5.0, -2.0),
+        "look_at": _point(-1.0, 5.0),
+        "focal_length": _bounded(1e-4, 1.0),
+        "pixel_pitch": _bounded(1e-7, 1e-4),
+        "resolution": _kind(
+            st.lists(st.integers(1, 8192), min_size=2, max_size=2),
+            st.one_of(
+                _vector(2, st.integers(1, 5000))["invalid"],
+                st.lists(st.integers(8193, 10**9), min_size=2, max_size=2),
+            ),
         ),
+        "noise_px": _bounded(0.0, 100.0),
         "dropout": _fraction(1.0),
-        "latency_frames": _whole(0),
+        "latency_frames": _whole(0, high=100),
     },
     "estimator": {
         "source": _choice("ekf", "photogrammetry", "truth"),
-        "sigma_acceleration": _positive(),
-        "sigma_angular_acceleration": _positive(),
+        "sigma_acceleration": _bounded(0.0, 100.0, low_inclusive=False),
+        "sigma_angular_acceleration": _bounded(0.0, 100.0, low_inclusive=False),
     },
     "target": {
         "motion": _choice("drift", "circular", "tumbling", "evasive"),
         "feature_points": _choice("non_coplanar", "coplanar_square"),
-        **{
-            key: _range()
-            for key in (
-                "initial_offset",
-                "speed",
-                "tumble_rate_deg",
-                "capture_offset",
-                "circle_radius",
-                "circle_speed",
-                "jink_interval",
-                "jink_acceleration",
-            )
-        },  # fmt: skip
+        "initial_offset": _range(0.2, 1.4, 0.0, 1.4),
+        "speed": _range(0.0, 1.0, 0.0, 1.0),
+        "tumble_rate_deg": _range(0.0, 360.0, 0.0, 360.0),
+        "capture_offset": _range(0.0, 1.0, 0.0, 1.0),
+        "circle_radius": _range(0.001, 1.0, 0.001, 1.0),
+        "circle_speed": _range(0.0, 1.0, 0.0, 1.0),
+        "jink_interval": _range(0.001, 3600.0, 0.001, 3600.0),
+        "jink_acceleration": _range(0.0, 10.0, 0.0, 10.0),
     },
     "seeds": {
         "evaluation_start": _whole(0),

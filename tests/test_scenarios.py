@@ -28,14 +28,17 @@ def test_unknown_scenario_lists_the_valid_ones():
         ("camera:\n  noise_pix: 1.0\n", "unknown key 'camera.noise_pix'; valid keys: position"),
         (
             "camera:\n  noise_px: -1\n",
-            r"key 'camera.noise_px': -1 is not valid; expected a number >= 0",
+            r"key 'camera.noise_px': -1 is not valid; expected a number in \[0, 100\]",
         ),
         ("target:\n  motion: zigzag\n", "'zigzag' is not valid; expected one of drift, circular"),
         (
             "target:\n  speed: [0.05, 0.01]\n",
             r"is not valid; expected a list of 2 numbers \[low, high\] with low <= high",
         ),
-        ("control:\n  period: fast\n", "'fast' is not valid; expected a number > 0"),
+        (
+            "control:\n  period: fast\n",
+            r"'fast' is not valid; expected a number in \[0.001, 1\]",
+        ),
         ("- just\n- a list\n", "expected a mapping"),
         (
             "capture:\n  hold: -0.1\n",

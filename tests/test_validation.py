@@ -100,7 +100,7 @@ def test_the_three_kinds_of_file_give_the_same_message_shape(tmp_path):
             load(path)
         messages.append(str(err.value))
     assert messages == [
-        f"{scenario}: key 'control.period': -1 is not valid; expected a number > 0",
+        f"{scenario}: key 'control.period': -1 is not valid; expected a number in [0.001, 1]",
         f"{suite}: key 'episodes': -1 is not valid; expected a whole number >= 1",
         f"{algo}: key 'gamma': 2 is not valid; expected a number in [0, 1]",
     ]

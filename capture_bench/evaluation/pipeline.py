@@ -40,7 +40,7 @@ from capture_bench.evaluation.backends import (
     run_tasks,
     scenario_label,
 )
-from capture_bench.evaluation.errors import AgentSpecError, EvaluationError
+from capture_bench.evaluation.errors import AgentSpecError, EvaluationError, SuiteError
 from capture_bench.evaluation.report import ReportData, figure_groups, figures, write_report
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import (
@@ -64,6 +64,7 @@ from capture_bench.provenance import (
 )
 from capture_bench.ray_cluster import check_ray_cluster
 from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
+from capture_bench.validation import shown
 
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2. OSError:
 #: a named path that cannot even be looked at ("File name too long", "Permission denied").
@@ -208,7 +209,8 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     if not rliable_stats.installed():  # the report's aggregate statistics
         raise EvaluationError(rliable_stats.MISSING)
     config.resolved_backend()
-    suite = narrow(load_suite(config.suite), config.agents, config.scenarios, config.episodes)
+    loaded = load_suite(config.suite)
+    suite = narrow(loaded, config.agents, config.scenarios, config.episodes)
     scenarios = _scenario_names(suite)
     labels = [scenario_label(name) for name in scenarios]
     clash = next((x for x in labels if labels.count(x) > 1), None)
@@ -244,6 +246,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     duplicate = next((x for x in labels if labels.count(x) > 1), None)
     if duplicate:
         raise AgentSpecError(f"two agent specs are both named {duplicate!r} in the report")
+    _check_reference(loaded, suite, labels)
     to_check = [s for s in specs if s.kind != "builtin"]
     if to_check:
         for name in scenarios:
@@ -281,6 +284,17 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     if config.video is not None:
         check_writable(config.video, "--video")
     return Plan(suite, specs, scenarios, seeds, tasks, hashes, config.seed_set)
+
+
+def _check_reference(loaded: Suite, suite: Suite, labels: list[str]) -> None:
+    """``SuiteError`` if the suite file names a ``reference`` that is none of its agents (their
+    report names, ``labels``). Agents given on the command line (``--agents``) replace the
+    file's: the reference is then compared with whichever of them it is, if any."""
+    if loaded.reference_given and suite.agents == loaded.agents and suite.reference not in labels:
+        raise SuiteError(
+            f"{loaded.path}: key 'reference': {shown(suite.reference)} is not valid; expected "
+            f"one of the suite's agents: {', '.join(labels)}"
+        )
 
 
 def _provenance(

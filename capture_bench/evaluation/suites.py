@@ -6,7 +6,7 @@ A suite file::
     agents: [incremental_ik, pure_pursuit, ..., "models/*"]   # specs, see agents_loading
     scenarios: all               # or a list of scenario names
     episodes: 100                # first N published evaluation seeds of each scenario
-    reference: incremental_ik    # agent of the paired comparison
+    reference: incremental_ik    # agent of the paired comparison; one of the agents
     videos: true                 # the report's "Episodes to watch" (default true)
 
 The suite's name is its file stem, and its report goes to ``<out>/<name>/``; a suite file given
@@ -53,6 +53,9 @@ class Suite:
         videos: the report shows, for each scenario, the reference and the best-ranked trained
             model on one seed as animated GIFs (:mod:`capture_bench.evaluation.watch`); they are
             run again with rendering after the evaluation.
+        reference_given: the file names its ``reference`` (then it must be one of the file's
+            agents, checked where they are resolved); without it the reference is
+            ``incremental_ik``, and a suite that does not play it has no paired comparison.
     """
 
     name: str
@@ -64,6 +67,7 @@ class Suite:
     path: Path
     sha256: str
     videos: bool = True
+    reference_given: bool = False
 
 
 #: The seeds an evaluation can play (``EvaluationConfig.seed_set``).
@@ -133,6 +137,7 @@ def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite
         path=path,
         sha256=sha256,
         videos=checked.get("videos", True),
+        reference_given="reference" in checked,
     )
 
 

@@ -29,6 +29,9 @@ from capture_bench.sim.rotations import axis_angle_to_matrix
 
 FloatArray = NDArray[np.float64]
 _EYE3 = np.eye(3)
+#: The most acceleration changes an evasive trajectory may schedule over its horizon (the episode
+#: limit over the shortest ``jink_interval``); scenario validation refuses more.
+MAX_JINKS = 100_000
 
 
 @dataclass(frozen=True)
@@ -339,6 +342,12 @@ def sample_trajectory(
         centre = centre0 - radius * (np.cos(phase) * u + np.sin(phase) * v)
         translation = CircularPath(centre, radius, omega, phase, u, v)
     elif cfg.motion == "evasive":
+        shortest = cfg.jink_interval[0]
+        if not shortest > 0.0 or horizon / shortest > MAX_JINKS:
+            raise ValueError(
+                f"jink_interval {tuple(cfg.jink_interval)} s over {horizon} s: expected at most "
+                f"{MAX_JINKS} acceleration changes, each interval > 0"
+            )
         times = [0.0]
         while times[-1] < horizon:
             times.append(times[-1] + rng.uniform(*cfg.jink_interval))

@@ -3,6 +3,11 @@
 Every quantity has a unit in its name or its docstring; degrees appear only here (YAML) and are
 converted to radians by the consumers' ``*_rad`` properties. A bad file raises
 :class:`ConfigError` naming the file, the key, the bad value and what would be valid.
+
+Every number has a finite valid range, so that no value accepted here can make an episode
+allocate without bound, loop without end or fail after it starts; :func:`_checked` adds the rules
+that tie keys together (the steps of an episode, the camera's view direction, the capture box
+against the target's start, the evasive target's manoeuvres).
 """
 
 from __future__ import annotations
@@ -17,12 +22,35 @@ from typing import Any
 from capture_bench.paths import config_dir
 from capture_bench.sensing.camera import RENDERED_DETECTION_SIGMA_PX, CameraModel
 from capture_bench.sensing.sources import SOURCES
-from capture_bench.validation import ConfigError, Rule, check_mapping, is_file, read_mapping
+from capture_bench.sim.target_motion import MAX_JINKS
+from capture_bench.validation import (
+    IDENTIFIER,
+    IDENTIFIER_TEXT,
+    ConfigError,
+    Rule,
+    check_mapping,
+    is_file,
+    read_mapping,
+)
 
 CONFIG_DIR = config_dir()  # configs/: see capture_bench.paths
 SCENARIO_DIR = CONFIG_DIR / "scenarios"
 POSITIVE = (0.0, math.inf, False)  # (low, high, low inclusive)
 NON_NEGATIVE = (0.0, math.inf, True)
+
+#: The most control steps an episode may have, ``control.episode_limit`` over the shortest real
+#: period ``control.period (1 - control.period_jitter)``: every step's period is drawn at reset.
+MAX_EPISODE_STEPS = 100_000
+#: The largest ``target.initial_offset``, m: no point the arm reaches inside its joint limits is
+#: farther than 1.37 m from the home end-effector (joint 1 at +-170 deg, the arm stretched
+#: behind the column), so a larger offset could never start in reach.
+MAX_INITIAL_OFFSET = 1.4
+#: The closest ``camera.look_at`` may be to ``camera.position``, m (the view direction is their
+#: difference).
+MIN_LOOK_DISTANCE = 0.001
+#: The smallest angle between the view direction and the vertical, rad: the camera's z-axis is
+#: the global z made perpendicular to the view, undefined when looking straight up or down.
+MIN_VIEW_TILT = 1e-6
 
 
 OBSERVATION_SOURCES = SOURCES
@@ -35,9 +63,12 @@ def _f(
     doc: str,
     bounds: tuple[float, float, bool] | None = None,
     choices: tuple[str, ...] | None = None,
+    identifier: bool = False,
 ) -> Any:
-    """A dataclass field with its documentation and validation rule."""
-    meta = {"doc": doc, "bounds": bounds, "choices": choices}
+    """A dataclass field with its documentation and validation rule (``bounds``: (low, high, low
+    inclusive) of a number or of each item of a list; ``identifier``: a string that must match
+    :data:`~capture_bench.validation.IDENTIFIER`)."""
+    meta = {"doc": doc, "bounds": bounds, "choices": choices, "identifier": identifier}
     if isinstance(default, (list, tuple)):
         return field(default_factory=lambda: tuple(default), metadata=meta)
     return field(default=default, metadata=meta)
@@ -45,25 +76,35 @@ def _f(
 
 @dataclass(frozen=True)
 class ControlConfig:
-    period: float = _f(0.05, "nominal control period t_s, s", POSITIVE)
+    period: float = _f(0.05, "nominal control period t_s, s", (0.001, 1.0, True))
     period_jitter: float = _f(
         0.0, "real period drawn uniformly in t_s*(1 +- jitter); 0-0.9", (0.0, 0.9, True)
     )
-    episode_limit: float = _f(10.0, "episode time limit, s (simulated time)", POSITIVE)
+    episode_limit: float = _f(
+        10.0,
+        "episode time limit, s (simulated time); at most 100,000 control steps of the shortest"
+        " real period",
+        (0.0, 3600.0, False),
+    )
 
 
 @dataclass(frozen=True)
 class CameraConfig:
-    position: tuple[float, float, float] = _f((0.45, -1.2, 0.40), "image-plane centre, global, m")
-    look_at: tuple[float, float, float] = _f(
-        (0.45, 0.0, 0.40), "point the y-axis passes through, global, m"
+    position: tuple[float, float, float] = _f(
+        (0.45, -1.2, 0.40), "image-plane centre, global, m", (-10.0, 10.0, True)
     )
-    focal_length: float = _f(0.008, "focal length f, m", POSITIVE)
-    pixel_pitch: float = _f(3.75e-6, "pixel pitch, m", POSITIVE)
-    resolution: tuple[int, int] = _f((1280, 960), "sensor width, height, px", (1, math.inf, True))
-    noise_px: float = _f(1.0, "Gaussian image noise sigma, px", NON_NEGATIVE)
+    look_at: tuple[float, float, float] = _f(
+        (0.45, 0.0, 0.40),
+        "point the y-axis passes through, global, m; at least 1 mm from position, not straight"
+        " above or below it",
+        (-10.0, 10.0, True),
+    )
+    focal_length: float = _f(0.008, "focal length f, m", (0.0001, 1.0, True))
+    pixel_pitch: float = _f(3.75e-6, "pixel pitch, m", (1e-7, 1e-4, True))
+    resolution: tuple[int, int] = _f((1280, 960), "sensor width, height, px", (1, 8192, True))
+    noise_px: float = _f(1.0, "Gaussian image noise sigma, px", (0.0, 100.0, True))
     dropout: float = _f(0.0, "probability that a frame is lost, 0-1", (0.0, 1.0, True))
-    latency_frames: int = _f(0, "whole frames of latency", NON_NEGATIVE)
+    latency_frames: int = _f(0, "whole frames of latency", (0, 100, True))
     mode: str = _f(
         "analytic",
         "analytic: the markers' centres projected by eq. 2 plus noise_px; rendered: pybullet"
@@ -71,20 +112,26 @@ class CameraConfig:
         choices=CAMERA_MODES,
     )
     marker_radius: float = _f(
-        0.005, "sphere marker radius (rendered), m; larger ones hide each other more", POSITIVE
+        0.005,
+        "sphere marker radius (rendered), m; larger ones hide each other more",
+        (0.0, 0.05, False),
     )
     target_block: bool = _f(False, "a grey block between the markers that can hide them (rendered)")
     light_direction: tuple[float, float, float] = _f(
-        (0.0, 0.0, 0.0), "where the light comes from, global (rendered; all 0: from the lens)"
+        (0.0, 0.0, 0.0),
+        "where the light comes from, global (rendered; all 0: from the lens)",
+        (-10.0, 10.0, True),
     )
-    light_intensity: float = _f(1.0, "diffuse light, 1 = default (rendered)", NON_NEGATIVE)
+    light_intensity: float = _f(1.0, "diffuse light, 1 = default (rendered)", (0.0, 10.0, True))
     image_noise: float = _f(
-        0.0, "sensor noise sigma added to each pixel, grey levels 0-255 (rendered)", NON_NEGATIVE
+        0.0,
+        "sensor noise sigma added to each pixel, grey levels 0-255 (rendered)",
+        (0.0, 255.0, True),
     )
     exposure: float = _f(
         0.0,
         "exposure time, s: motion blur over [t - exposure, t] (rendered; 0: none)",
-        NON_NEGATIVE,
+        (0.0, 1.0, True),
     )
 
     def model(self) -> CameraModel:
@@ -102,8 +149,8 @@ class CameraConfig:
 @dataclass(frozen=True)
 class EstimatorConfig:
     source: str = _f("ekf", "observation source", choices=SOURCES)
-    sigma_acceleration: float = _f(0.01, "EKF process noise, m/s^2", POSITIVE)
-    sigma_angular_acceleration: float = _f(0.01, "EKF process noise, rad/s^2", POSITIVE)
+    sigma_acceleration: float = _f(0.01, "EKF process noise, m/s^2", (0.0, 100.0, False))
+    sigma_angular_acceleration: float = _f(0.01, "EKF process noise, rad/s^2", (0.0, 100.0, False))
 
 
 @dataclass(frozen=True)
@@ -113,22 +160,32 @@ class TargetConfig:
         "non_coplanar", "marker layout", choices=("non_coplanar", "coplanar_square")
     )
     initial_offset: tuple[float, float] = _f(
-        (0.25, 0.35), "capture point to home end-effector at t=0, m"
+        (0.25, 0.35),
+        "capture point to home end-effector at t=0, m; low above sqrt(3) capture_tolerance",
+        (0.0, MAX_INITIAL_OFFSET, True),
     )
     speed: tuple[float, float] = _f(
-        (0.005, 0.05), "drift speed of the centre (initial speed for evasive), m/s"
+        (0.005, 0.05),
+        "drift speed of the centre (initial speed for evasive), m/s",
+        (0.0, 1.0, True),
     )
-    tumble_rate_deg: tuple[float, float] = _f((0.0, 0.0), "tumble rate, deg/s")
+    tumble_rate_deg: tuple[float, float] = _f((0.0, 0.0), "tumble rate, deg/s", (0.0, 360.0, True))
     capture_offset: tuple[float, float] = _f(
-        (0.0, 0.0), "capture point distance from the centre of rotation, m"
+        (0.0, 0.0), "capture point distance from the centre of rotation, m", (0.0, 1.0, True)
     )
-    circle_radius: tuple[float, float] = _f((0.05, 0.15), "circular path radius, m")
-    circle_speed: tuple[float, float] = _f((0.01, 0.04), "speed along the circle, m/s")
+    circle_radius: tuple[float, float] = _f(
+        (0.05, 0.15), "circular path radius, m", (0.001, 1.0, True)
+    )
+    circle_speed: tuple[float, float] = _f(
+        (0.01, 0.04), "speed along the circle, m/s", (0.0, 1.0, True)
+    )
     jink_interval: tuple[float, float] = _f(
-        (0.5, 1.5), "time between acceleration changes (evasive), s"
+        (0.5, 1.5),
+        "time between acceleration changes (evasive), s; at most 100,000 in an episode",
+        (0.001, 3600.0, True),
     )
     jink_acceleration: tuple[float, float] = _f(
-        (0.005, 0.03), "acceleration magnitude (evasive), m/s^2"
+        (0.005, 0.03), "acceleration magnitude (evasive), m/s^2", (0.0, 10.0, True)
     )
 
 
@@ -162,9 +219,17 @@ class SeedConfig:
 class Scenario:
     """One benchmark scenario (a YAML file under ``configs/scenarios/``)."""
 
-    name: str = _f("custom", "scenario name; the env ID is CaptureBench/<Name>-v0")
+    name: str = _f(
+        "custom",
+        "scenario name (default: the file name); the env ID is CaptureBench/<Name>-v0",
+        identifier=True,
+    )
     description: str = _f("", "one line for people")
-    capture_tolerance: float = _f(0.001, "epsilon of eq. 20 (each component), m", POSITIVE)
+    capture_tolerance: float = _f(
+        0.001,
+        "epsilon of eq. 20 (each component), m; sqrt(3) epsilon below target.initial_offset's low",
+        (0.0, 0.1, False),
+    )
     lost_after: float = _f(
         0.5,
         "seconds without a usable frame, or with the target out of reach, before failing",
@@ -247,10 +312,13 @@ def list_scenarios(camera: str | None = None) -> list[str]:
 
 def invalid_scenarios() -> dict[str, str]:
     """The shipped scenario files that do not load: ``{name: the ConfigError message}`` (the
-    message names the file, the key and what is valid); ``load_scenario(name)`` raises it."""
+    message names the file, the key and what is valid; a file whose name is not a valid scenario
+    name, :data:`~capture_bench.validation.IDENTIFIER`, is one of them);
+    ``load_scenario(name)`` raises it."""
     invalid = {}
     for path in scenario_files():
         try:
+            _check_file_name(path, "a scenario under its folder is used by its file name")
             load_scenario(path)
         except ConfigError as exc:
             invalid[path.stem] = str(exc)
@@ -267,26 +335,81 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
         path = SCENARIO_DIR / f"{name_or_path}.yaml"
-        if not is_file(path):
+        if path.parent != SCENARIO_DIR or not is_file(path):  # a name, never a path
             valid = ", ".join(list_scenarios()) or "none"
             raise ConfigError(f"unknown scenario {str(name_or_path)!r}; valid: {valid}")
+        _check_file_name(path, "a scenario under its folder is used by its file name")
     if not is_file(path):
         raise ConfigError(f"{path}: no such scenario file")
     data, _ = read_mapping(path, "scenario keys")
-    data.setdefault("name", path.stem)
+    if "name" not in data:
+        _check_file_name(path, "a file without a 'name' key is named after it")
+        data["name"] = path.stem
     scenario = _checked(_build(Scenario, data, source=str(path), prefix=""), str(path))
     return scenario
 
 
+def _check_file_name(path: Path, why: str) -> None:
+    """``ConfigError`` unless the file's stem is a valid scenario name (``why`` says why it
+    must be)."""
+    if IDENTIFIER.fullmatch(path.stem) is None:
+        raise ConfigError(
+            f"{path}: the file name {path.stem!r} is not a valid scenario name ({why}); "
+            f"expected {IDENTIFIER_TEXT}"
+        )
+
+
 def _checked(scenario: Scenario, source: str) -> Scenario:
-    """``scenario``, or ``ConfigError`` if its training seeds overlap its evaluation or
-    validation seeds (the evaluation and validation ranges are adjacent by construction), or if
-    its hold is not shorter than its episode limit (no capture could complete)."""
+    """``scenario``, or ``ConfigError`` naming the keys if a rule that ties keys together is
+    broken:
+
+    * the hold is not shorter than the episode limit (no capture could complete);
+    * the episode has more than :data:`MAX_EPISODE_STEPS` control steps of the shortest real
+      period (each is drawn at reset);
+    * ``camera.look_at`` is within :data:`MIN_LOOK_DISTANCE` of ``camera.position`` or straight
+      above or below it (no view direction, or no camera z-axis);
+    * ``target.initial_offset``'s low end is not above sqrt(3) ``capture_tolerance``: the target
+      starts ``d`` from the home end-effector in a uniformly drawn direction ``u``, inside the
+      eq. 20 box when ``d max|u_i| < epsilon``, and ``max|u_i| >= 1/sqrt(3)`` (equal on the
+      box's diagonals), so a low end above sqrt(3) epsilon keeps every start outside it;
+    * an evasive target would change its acceleration more than
+      :data:`~capture_bench.sim.target_motion.MAX_JINKS` times in an episode;
+    * the training seeds overlap the evaluation or validation seeds (the evaluation and
+      validation ranges are adjacent by construction).
+    """
     hold, limit = scenario.capture.hold, scenario.control.episode_limit
     if hold >= limit:
         raise ConfigError(
             f"{source}: key 'capture.hold': {hold!r} is not valid; expected a number >= 0 and "
             f"less than control.episode_limit ({limit!r} s), or no capture could complete"
+        )
+    control = scenario.control
+    shortest = control.period * (1.0 - control.period_jitter)
+    steps = control.episode_limit / shortest
+    if steps > MAX_EPISODE_STEPS:
+        jitter = f" (1 - {control.period_jitter!r} jitter)" if control.period_jitter else ""
+        raise ConfigError(
+            f"{source}: keys 'control.episode_limit' and 'control.period': "
+            f"{control.episode_limit!r} s in steps of {control.period!r} s{jitter} is "
+            f"{steps:.4g} steps, not valid; expected at most {MAX_EPISODE_STEPS} steps per episode"
+        )
+    _check_view(scenario.camera, source)
+    low, epsilon = scenario.target.initial_offset[0], scenario.capture_tolerance
+    if not low > math.sqrt(3.0) * epsilon:
+        raise ConfigError(
+            f"{source}: keys 'target.initial_offset' and 'capture_tolerance': a start "
+            f"{low!r} m from the home end-effector can lie inside the capture box of "
+            f"{epsilon!r} m (eq. 20, each component), captured at t = 0; expected "
+            f"target.initial_offset's low above sqrt(3) x capture_tolerance "
+            f"({math.sqrt(3.0) * epsilon:.4g} m)"
+        )
+    target = scenario.target
+    if target.motion == "evasive" and limit / target.jink_interval[0] > MAX_JINKS:
+        raise ConfigError(
+            f"{source}: keys 'target.jink_interval' and 'control.episode_limit': "
+            f"{limit!r} s in jinks of {target.jink_interval[0]!r} s is "
+            f"{limit / target.jink_interval[0]:.4g} jinks, not valid; expected at most "
+            f"{MAX_JINKS} in an episode"
         )
     train = scenario.training_seeds
     held_out = range(scenario.seeds.evaluation_start, scenario.validation_seeds.stop)
@@ -297,6 +420,25 @@ def _checked(scenario: Scenario, source: str) -> Scenario:
             "seeds.training_start or seeds.evaluation_start so that the ranges are disjoint"
         )
     return scenario
+
+
+def _check_view(camera: CameraConfig, source: str) -> None:
+    """``ConfigError`` unless ``camera.look_at`` gives a view direction with a camera z-axis."""
+    view = [b - a for a, b in zip(camera.position, camera.look_at)]
+    distance = math.hypot(*view)
+    if distance < MIN_LOOK_DISTANCE:
+        raise ConfigError(
+            f"{source}: keys 'camera.look_at' and 'camera.position': {list(camera.look_at)!r} "
+            f"is {distance:.3g} m from {list(camera.position)!r}, not valid; expected a point at "
+            f"least {MIN_LOOK_DISTANCE:g} m away (the camera looks from position to look_at)"
+        )
+    if math.hypot(view[0], view[1]) / distance < math.sin(MIN_VIEW_TILT):
+        raise ConfigError(
+            f"{source}: keys 'camera.look_at' and 'camera.position': {list(camera.look_at)!r} "
+            f"is straight {'above' if view[2] > 0 else 'below'} {list(camera.position)!r}, not "
+            "valid; expected a view direction that is not vertical (the camera's z-axis is the "
+            "global z made perpendicular to it)"
+        )
 
 
 def _schema(cls: type) -> dict[str, Any]:
@@ -316,7 +458,8 @@ def _schema(cls: type) -> dict[str, Any]:
             )
         elif kind is str:
             choices = meta.get("choices")
-            schema[f.name] = Rule("choice", choices=choices) if choices else Rule("string")
+            plain = Rule("identifier") if meta.get("identifier") else Rule("string")
+            schema[f.name] = Rule("choice", choices=choices) if choices else plain
         else:
             low, high, inclusive = meta.get("bounds") or (-math.inf, math.inf, True)
             schema[f.name] = Rule(kind.__name__, low, high, inclusive)
