@@ -48,6 +48,22 @@ FORMAT = "capture-bench-policy/1"
 WEIGHTS_FILE = "policy.pt"
 METADATA_FILE = "metadata.json"
 
+# Model files (``policy.pt``, an SB3 ``.zip``, a checkpoint's ``parameters.pt``) are zip archives
+# whose members torch and SB3 read whole into memory, each member's buffer allocated at the size
+# the archive's central directory declares. So their sizes are checked before anything is read
+# (:func:`check_archive`): a few kilobytes of deflated zeros can declare gigabytes. The limits lie
+# far above any model train.py writes (the largest shipped file: 13 MB, the pixel policy's .zip).
+#: The most bytes a model file may hold on disk.
+MAX_MODEL_FILE_BYTES = 512 * 2**20
+#: The most bytes a model file's archive may declare, all its members uncompressed together.
+MAX_UNCOMPRESSED_BYTES = 512 * 2**20
+#: The highest ratio of the bytes an archive declares to its size on disk, where it declares more
+#: than :data:`RATIO_FLOOR_BYTES`: torch.save and SB3 store their members uncompressed (ratio 1;
+#: deflated weights would give ~1.1), while deflated zeros, a zip bomb, reach ~1000.
+MAX_COMPRESSION_RATIO = 100
+#: Below this many declared bytes the ratio is not checked (a small archive exhausts nothing).
+RATIO_FLOOR_BYTES = 16 * 2**20
+
 #: Algorithm -> (module, class) of the SB3 policy that acts for it.
 POLICY_CLASSES: dict[str, tuple[str, str]] = {
     "PPO": ("stable_baselines3.common.policies", "ActorCriticPolicy"),
@@ -443,18 +459,78 @@ def build_policy(declaration: PolicyDeclaration, where: str) -> Any:
     return policy
 
 
-def read_weights(path: Path) -> dict[str, Any]:
-    """The tensors of a ``policy.pt``, read with ``weights_only=True`` (nothing else unpickled).
+def _mib(count: int) -> str:
+    return f"{count / 2**20:.0f} MiB" if count >= 2**20 else f"{count} bytes"
+
+
+def check_archive(
+    path: Path,
+    error: type[ValueError] = PolicyLoadError,
+    *,
+    capped: bool = True,
+    require_zip: bool = True,
+) -> None:
+    """Refuse a model file whose size would exhaust memory when read, before reading it: more
+    than :data:`MAX_MODEL_FILE_BYTES` on disk, not a zip archive (torch.save writes one; its
+    legacy format allocates what it declares before reading it), or a central directory
+    declaring more than :data:`MAX_UNCOMPRESSED_BYTES` in all or more than
+    :data:`MAX_COMPRESSION_RATIO` times the size on disk. ``capped`` False: only the ratio is
+    checked (a checkpoint's replay buffer is as large as the run chose). ``require_zip`` False: a
+    file that is no zip archive is left to its reader to refuse (SB3's loader names an SB3
+    ``.zip`` that is not one).
 
     Raises:
-        PolicyLoadError: missing file, a file torch's weights-only reader refuses (for example
-            one that would build a Python object or call a function), or not a mapping of
-            parameter names to tensors.
+        ``error``: one line naming the file, its size and the limit.
+    """
+    import zipfile
+
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise error(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if capped and size > MAX_MODEL_FILE_BYTES:
+        raise error(
+            f"{path}: {_mib(size)} on disk, more than the {_mib(MAX_MODEL_FILE_BYTES)} a model "
+            "file may hold; refused before loading it"
+        )
+    try:
+        with zipfile.ZipFile(path) as archive:
+            declared = sum(info.file_size for info in archive.infolist())
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        if not require_zip:
+            return
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise error(
+            f"{path}: not a zip archive ({reason}), the form torch.save and numpy.savez write; "
+            "refused before any reader, torch.load(weights_only=True) included, sees it"
+        ) from None
+    if capped and declared > MAX_UNCOMPRESSED_BYTES:
+        raise error(
+            f"{path}: its zip archive declares {_mib(declared)} uncompressed, more than the "
+            f"{_mib(MAX_UNCOMPRESSED_BYTES)} a model file may hold; refused before loading it"
+        )
+    if declared > RATIO_FLOOR_BYTES and declared > MAX_COMPRESSION_RATIO * max(size, 1):
+        raise error(
+            f"{path}: its zip archive declares {_mib(declared)} uncompressed from {_mib(size)} "
+            f"on disk, a compression ratio above the {MAX_COMPRESSION_RATIO} a model file may "
+            "have (a zip bomb); refused before loading it"
+        )
+
+
+def read_weights(path: Path) -> dict[str, Any]:
+    """The tensors of a ``policy.pt``, read with ``weights_only=True`` (nothing else unpickled),
+    after :func:`check_archive` has checked its sizes.
+
+    Raises:
+        PolicyLoadError: missing file, too large a file or archive, a file torch's weights-only
+            reader refuses (for example one that would build a Python object or call a
+            function), or not a mapping of parameter names to tensors.
     """
     import torch
 
     if not path.is_file():
         raise PolicyLoadError(f"{path}: weights file is missing")
+    check_archive(path)
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises UnpicklingError, RuntimeError, EOFError, ...

@@ -52,6 +52,7 @@ from capture_bench.agents.policy_file import (
     PolicyDeclaration,
     PolicyLoadError,
     build_policy,
+    check_archive,
     load_weights,
     parse_declaration,
     read_weights,
@@ -61,6 +62,9 @@ from capture_bench.sensing.workspace_image import IMAGE_SIZE
 
 ALGORITHMS = tuple(POLICY_CLASSES)
 METADATA_FILES = ("metadata.json", "metadata.yaml", "metadata.yml")
+#: The most bytes a metadata file may hold (checked before it is read): a declaration is a few
+#: kilobytes of network settings, spaces and provenance.
+MAX_METADATA_BYTES = 16 * 2**20
 TRUST_HINT = (
     "an SB3 .zip holds pickled Python objects, which can run code when loaded: pass "
     "--trust-model (Python: trust_model=True) only if you trust its source, or convert it once "
@@ -205,8 +209,16 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
             f"naming the algorithm ({', '.join(ALGORITHMS)})"
         )
     try:
+        size = meta_file.stat().st_size
+        if size > MAX_METADATA_BYTES:
+            raise PolicyLoadError(
+                f"{meta_file}: {size / 2**20:.1f} MiB, more than the {MAX_METADATA_BYTES >> 20} "
+                "MiB a metadata file may hold; refused before reading it"
+            )
         text = meta_file.read_text()
         data = json.loads(text) if meta_file.suffix == ".json" else yaml.safe_load(text)
+    except PolicyLoadError:
+        raise
     except (OSError, ValueError, yaml.YAMLError) as exc:
         reason = " ".join(str(exc).split())
         raise PolicyLoadError(f"{meta_file}: unreadable metadata ({reason})") from None
@@ -360,6 +372,7 @@ def load_trusted(metadata: ModelMetadata) -> LoadedPolicy:
 
     if metadata.model_file is None:
         raise PolicyLoadError(f"{metadata.directory}: no SB3 .zip to load")
+    check_archive(metadata.model_file, require_zip=False)  # sizes, before anything reads it
     _check_zip_algorithm(metadata)
     if metadata.algorithm == "TQC":
         try:

@@ -206,6 +206,21 @@ def _check_state(state: Any, where: Path) -> dict[str, Any]:
     return state
 
 
+def _check_archive(path: Path, what: str) -> None:
+    """A checkpoint's archive (``parameters.pt``, ``replay_buffer.npz``) is a zip whose members
+    are stored as they are, not compressed: refuse one that is not a zip, or that declares far
+    more than it holds (a zip bomb), before torch or numpy allocates what it declares
+    (:func:`~capture_bench.agents.policy_file.check_archive`). Their size on disk is not capped:
+    a replay buffer is as large as the run chose (train.py's memory check bounds that)."""
+    from capture_bench.agents.policy_file import PolicyLoadError, check_archive
+
+    try:
+        check_archive(path, capped=False)
+    except PolicyLoadError as exc:
+        detail = str(exc).removeprefix(f"{path}: ")
+        raise CheckpointError(f"{path}: unreadable {what} ({detail})") from None
+
+
 def read_checkpoint(directory: Path) -> Checkpoint:
     """Read and validate the checkpoint in ``directory`` (a ``step_<N>``); unpickles nothing.
 
@@ -227,6 +242,7 @@ def read_checkpoint(directory: Path) -> Checkpoint:
         reason = " ".join(str(exc).split())
         raise CheckpointError(f"{state_file}: unreadable checkpoint state ({reason})") from None
     parameters_file = directory / PARAMETERS_FILE
+    _check_archive(parameters_file, "parameters")
     try:
         parameters = torch.load(parameters_file, map_location="cpu", weights_only=True)
     except Exception as exc:  # missing, truncated, or refused by the weights-only reader
@@ -241,6 +257,7 @@ def read_checkpoint(directory: Path) -> Checkpoint:
     buffer = None
     if state["replay_buffer"] is not None:
         buffer_file = directory / BUFFER_FILE
+        _check_archive(buffer_file, "replay buffer")
         try:
             with np.load(buffer_file, allow_pickle=False) as archive:
                 buffer = {name: archive[name] for name in archive.files}

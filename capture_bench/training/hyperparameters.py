@@ -16,6 +16,7 @@ import yaml
 
 from capture_bench.agents.algorithms import ALGORITHMS
 from capture_bench.agents.residual import RESIDUAL_BASES
+from capture_bench.task.observation import OBSERVATION_SIZE, STATE_SIZE
 from capture_bench.task.rewards import REWARD_MODES
 from capture_bench.task.scenarios import CONFIG_DIR, Scenario
 from capture_bench.validation import (
@@ -56,8 +57,23 @@ DICT_FEATURES = ("combined",)  # those that read a Dict observation
 MOST = 2**53
 POS_INT, NONNEG_INT = Rule("int", 1, MOST), Rule("int", 0, MOST)
 UNIT, NONNEG = Rule("float", 0.0, 1.0), Rule("float", 0.0)
+# Upper bounds of the keys that size memory: the envs, the rollout or replay buffer, the networks
+# and their update batch, the imitation's data set. Each lies far above what any shipped config
+# or experiment uses (n_envs 64, n_steps 64, batch_size 1024, buffer_size 500000, layers of 256,
+# 6 rounds of 400000 imitation steps), so that a typing slip is refused by its key at once; what
+# the limits still allow is checked against the machine's memory before anything is built
+# (memory_estimate, train.py's check). total_timesteps sizes no memory (at most MOST).
+MAX_ENVS = 65536  # n_envs (sub-envs of the batched env, or single envs)
+MAX_ROLLOUT_STEPS = 2**19  # n_steps, per env (524288)
+MAX_BATCH = 2**19  # batch_size (524288)
+MAX_BUFFER = 100_000_000  # buffer_size, transitions
+MAX_LAYER_WIDTH = 65536  # each width of policy_kwargs.net_arch (the safe policy format's bound)
+MAX_LAYERS = 64  # widths in one policy_kwargs.net_arch list
+MAX_HEADS = 1000  # policy_kwargs.n_critics and n_quantiles (the safe policy format's bound)
+MAX_IMITATION_ROUNDS = 1000
+MAX_IMITATION_STEPS = 100_000_000  # environment steps per round, all sub-envs together
 TRAINING_KEYS = {
-    "n_envs": POS_INT,
+    "n_envs": Rule("int", 1, MAX_ENVS),
     "total_timesteps": POS_INT,
     # MultiInputPolicy: the pixel observation's Dict (image and arm state), with ``combined``
     "policy": Rule("choice", choices=POLICIES),
@@ -78,8 +94,8 @@ TRAINING_KEYS = {
     # imitation_rounds rounds of imitation_steps environment steps, imitation_epochs passes of the
     # fit after each; then imitation_warmup steps of the algorithm train the critic alone
     "imitate": Rule("choice_per_name", choices=RESIDUAL_BASES),
-    "imitation_rounds": POS_INT,
-    "imitation_steps": POS_INT,
+    "imitation_rounds": Rule("int", 1, MAX_IMITATION_ROUNDS),
+    "imitation_steps": Rule("int", 1, MAX_IMITATION_STEPS),
     "imitation_epochs": POS_INT,
     "imitation_warmup": NONNEG_INT,
     # > 0: the fit weighs each label by 1 / (|a|^2 + imitation_floor^2), the error relative to
@@ -112,7 +128,7 @@ _SDE = {"use_sde": Rule("bool"), "sde_sample_freq": Rule("int", -1)}
 _ON = {  # PPO and A2C (OnPolicyAlgorithm)
     "learning_rate": Rule("schedule"),
     "gamma": UNIT,
-    "n_steps": Rule("int", 2),
+    "n_steps": Rule("int", 2, MAX_ROLLOUT_STEPS),
     "gae_lambda": UNIT,
     "ent_coef": NONNEG,
     "vf_coef": NONNEG,
@@ -123,8 +139,8 @@ _ON = {  # PPO and A2C (OnPolicyAlgorithm)
 _OFF = {  # OffPolicyAlgorithm
     "learning_rate": Rule("schedule"),
     "gamma": UNIT,
-    "batch_size": POS_INT,
-    "buffer_size": POS_INT,
+    "batch_size": Rule("int", 1, MAX_BATCH),
+    "buffer_size": Rule("int", 1, MAX_BUFFER),
     "learning_starts": NONNEG_INT,
     "tau": UNIT,
     "train_freq": POS_INT,
@@ -143,7 +159,7 @@ _DETERMINISTIC = {  # TD3 and DDPG: deterministic actor, Gaussian exploration no
 ALGO_KEYS: dict[str, dict[str, Rule]] = {
     "ppo": {
         **_ON,
-        "batch_size": POS_INT,
+        "batch_size": Rule("int", 1, MAX_BATCH),
         "n_epochs": POS_INT,
         "clip_range": Rule("schedule"),
         "target_kl": Rule("optional_float", 0.0),
@@ -172,7 +188,8 @@ _NET = {
     "features_extractor": Rule("choice", choices=FEATURES),
 }
 _ACTOR_CRITIC = {"net_arch": Rule("layers", choices=("pi", "vf")), **_NET}
-_Q = {"net_arch": Rule("layers", choices=("pi", "qf")), **_NET, "n_critics": POS_INT}
+_HEADS = Rule("int", 1, MAX_HEADS)
+_Q = {"net_arch": Rule("layers", choices=("pi", "qf")), **_NET, "n_critics": _HEADS}
 #: ``policy_kwargs`` each algorithm's SB3 policy accepts (of those the safe policy format
 #: declares: :mod:`capture_bench.agents.policy_file`).
 POLICY_KWARGS: dict[str, dict[str, Rule]] = {
@@ -181,12 +198,31 @@ POLICY_KWARGS: dict[str, dict[str, Rule]] = {
     "sac": {**_Q, "log_std_init": Rule("float")},
     "td3": _Q,
     "ddpg": _Q,
-    "tqc": {**_Q, "log_std_init": Rule("float"), "n_quantiles": POS_INT},
+    "tqc": {**_Q, "log_std_init": Rule("float"), "n_quantiles": _HEADS},
 }
 
 
 def _schema(algo: str) -> Schema:
     return {**TRAINING_KEYS, **ALGO_KEYS[algo], "policy_kwargs": POLICY_KWARGS[algo]}
+
+
+def _check(data: Any, schema: Schema, source: str, **kwargs: Any) -> dict[str, Any]:
+    """:func:`~capture_bench.validation.check_mapping`, then the bounds of
+    ``policy_kwargs.net_arch`` (at most :data:`MAX_LAYERS` widths per list, each at most
+    :data:`MAX_LAYER_WIDTH`), which the ``layers`` rule leaves open."""
+    out = check_mapping(data, schema, source, **kwargs)
+    arch = out.get("policy_kwargs", {}).get("net_arch")
+    lists = list(arch.values()) if isinstance(arch, dict) else [arch] if arch is not None else []
+    if any(
+        len(widths) > MAX_LAYERS or max(widths, default=1) > MAX_LAYER_WIDTH for widths in lists
+    ):
+        text = repr(arch) if len(repr(arch)) <= 60 else repr(arch)[:57] + "..."
+        raise ConfigError(
+            f"{source}: key '{kwargs.get('prefix', '')}policy_kwargs.net_arch': {text} is not "
+            f"valid; expected at most {MAX_LAYERS} layer widths per list, each in "
+            f"[1, {MAX_LAYER_WIDTH}]"
+        )
+    return out
 
 
 def validate_hyperparameters(
@@ -202,8 +238,8 @@ def validate_hyperparameters(
     """
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping of hyper-parameters, got {data!r}")
-    required = dict.fromkeys(("n_envs", "total_timesteps"), POS_INT.describe())
-    out = check_mapping(data, _schema(algo), source, required=required)
+    required = {key: TRAINING_KEYS[key].describe() for key in ("n_envs", "total_timesteps")}
+    out = _check(data, _schema(algo), source, required=required)
     features = out.get("policy_kwargs", {}).get("features_extractor", "flatten")
     if features not in ("flatten", *DICT_FEATURES) and out.get("normalize"):
         raise ConfigError(
@@ -264,6 +300,126 @@ def planned_steps(algo: str, hp: dict[str, Any], done: int = 0) -> int:
     in whole :func:`steps_per_update`, so the steps left are rounded up to a multiple."""
     unit = steps_per_update(algo, hp)
     return done + -(-max(hp["total_timesteps"] - done, 0) // unit) * unit
+
+
+#: The action: velocity commands of the 3 joints (the envs' action space, Box(-1, 1, (3,))).
+ACTION_SIZE = 3
+#: What SB3 builds where ``hp`` leaves a key out (for :func:`memory_estimate`): the networks'
+#: widths, the replay buffer, the batch sizes, the quantiles of TQC's critics.
+SB3_NET_ARCH = {"ppo": [64, 64], "a2c": [64, 64], "sac": [256, 256], "td3": [400, 300],
+                "ddpg": [400, 300], "tqc": [256, 256]}  # fmt: skip
+SB3_BUFFER_SIZE = 1_000_000
+SB3_BATCH_SIZE = {"ppo": 64, "sac": 256, "td3": 256, "ddpg": 256, "tqc": 256}
+SB3_N_QUANTILES = 25
+#: Entries ``relative_log_distance`` appends to the observation
+#: (:data:`capture_bench.agents.features.EXTRA_SIZE`, which imports torch; a test checks that
+#: they agree).
+EXTRA_FEATURES = 4
+#: The features of ``combined`` on the pixel observation: SB3's NatureCNN output on the image,
+#: beside the flattened state.
+CNN_FEATURES = 256
+#: Bytes per stored number (SB3 stores float32; a uint8 image is counted as float32 too, which
+#: older SB3 versions and torch's update use).
+NUMBER_BYTES = 4
+#: Copies of every network parameter during training: the weights, their gradients, Adam's two
+#: moments, and the copy a checkpoint serialises.
+PARAMETER_COPIES = 5
+#: Numbers kept per activation of an update's batch: the forward value, its gradient, a margin.
+ACTIVATION_COPIES = 3
+
+
+def _mlp_parameters(inputs: int, widths: Sequence[int], outputs: int) -> int:
+    sizes = [inputs, *widths, outputs]
+    return sum(a * b + b for a, b in zip(sizes, sizes[1:], strict=False))
+
+
+def _cnn(size: tuple[int, int]) -> tuple[int, int]:
+    """SB3's NatureCNN on a (width, height) RGB image: (parameters, activations per image)."""
+    width, height = size
+    shapes = []
+    for kernel, stride in ((8, 4), (4, 2), (3, 1)):
+        width, height = (width - kernel) // stride + 1, (height - kernel) // stride + 1
+        shapes.append(width * height)
+    parameters = (3 * 32 * 64 + 32) + (32 * 64 * 16 + 64) + (64 * 64 * 9 + 64)
+    parameters += 64 * shapes[-1] * CNN_FEATURES + CNN_FEATURES
+    activations = 3 * size[0] * size[1] + 32 * shapes[0] + 64 * shapes[1] + 64 * shapes[2]
+    return parameters, activations
+
+
+def memory_estimate(
+    algo: str, hp: dict[str, Any], pixels: bool, resume: bool = False
+) -> list[tuple[str, str, int]]:
+    """An upper estimate of the memory a run of ``algo`` with the validated ``hp`` allocates
+    beyond its envs, part by part, before anything is built: ``(keys, what, bytes)``, ``keys``
+    naming the hyper-parameters that size the part with their values. ``pixels``: the agent
+    observes the camera's image (``image_size``); ``resume``: a checkpoint's replay buffer is
+    read beside the one it fills.
+
+    The parts: the rollout buffer (PPO, A2C: ``n_steps x n_envs`` rows of the observation, the
+    action and six numbers, and the flattened copy SB3 makes of it for the update), or the replay
+    buffer (off-policy: ``buffer_size`` rows of two observations, the action and three numbers);
+    the networks (:data:`PARAMETER_COPIES` copies of each parameter: actor, critics and the
+    target copies, the CNN on pixels); an update's batch of activations; and the imitation's
+    data set (``imitation_rounds x imitation_steps`` observations and labels, and the copies
+    each round's fit makes).
+    """
+    n_envs = int(hp["n_envs"])
+    kwargs = hp.get("policy_kwargs", {})
+    if pixels:
+        from capture_bench.sensing.workspace_image import IMAGE_SIZE
+
+        side = image_size(hp) or IMAGE_SIZE
+        cnn_parameters, cnn_activations = _cnn(side)
+        observation = 3 * side[0] * side[1] + STATE_SIZE
+        features = CNN_FEATURES + STATE_SIZE
+    else:
+        cnn_parameters = cnn_activations = 0
+        observation = OBSERVATION_SIZE
+        features = OBSERVATION_SIZE + EXTRA_FEATURES
+    arch = kwargs.get("net_arch", SB3_NET_ARCH[algo])
+    second = "qf" if algo in OFF_POLICY else "vf"
+    pi, other = (
+        (arch.get("pi", []), arch.get(second, [])) if isinstance(arch, dict) else (arch,) * 2
+    )
+    arch_keys = f"policy_kwargs.net_arch {arch}"
+    parts = []
+    if algo in OFF_POLICY:
+        heads = int(kwargs.get("n_critics", 2))
+        outputs = int(kwargs.get("n_quantiles", SB3_N_QUANTILES)) if algo == "tqc" else 1
+        critic = _mlp_parameters(features + ACTION_SIZE, other, outputs)
+        # the actor (SAC's mean and log std) and the critics, each with its target copy
+        parameters = 2 * (_mlp_parameters(features, pi, 2 * ACTION_SIZE) + heads * critic)
+        buffer_size = int(hp.get("buffer_size", SB3_BUFFER_SIZE))
+        rows = max(buffer_size // n_envs, 1) * n_envs
+        size = rows * (2 * observation + ACTION_SIZE + 3) * NUMBER_BYTES * (2 if resume else 1)
+        parts.append((f"buffer_size {buffer_size}", "the replay buffer", size))
+        batch = int(hp.get("batch_size", SB3_BATCH_SIZE[algo]))
+        width = features + sum(pi) + ACTION_SIZE + 2 * heads * (features + sum(other) + outputs)
+        batch_keys = f"batch_size {batch}"
+    else:
+        parameters = cnn_parameters + ACTION_SIZE
+        parameters += _mlp_parameters(features, pi, ACTION_SIZE) + _mlp_parameters(
+            features, other, 1
+        )
+        n_steps = int(hp.get("n_steps", SB3_N_STEPS[algo]))
+        rows = n_steps * n_envs
+        size = 2 * rows * (observation + ACTION_SIZE + 6) * NUMBER_BYTES
+        parts.append((f"n_steps {n_steps} x n_envs {n_envs}", "the rollout buffer", size))
+        batch = int(hp.get("batch_size", SB3_BATCH_SIZE["ppo"])) if algo == "ppo" else rows
+        width = cnn_activations + features + sum(pi) + ACTION_SIZE + sum(other) + 1
+        batch_keys = (
+            f"batch_size {batch}" if algo == "ppo" else f"n_steps {n_steps} x n_envs {n_envs}"
+        )
+    parts.append((arch_keys, "the networks", parameters * NUMBER_BYTES * PARAMETER_COPIES))
+    activations = batch * width * NUMBER_BYTES * ACTIVATION_COPIES
+    parts.append((f"{batch_keys} with {arch_keys}", "an update's batch", activations))
+    if "imitate" in hp:
+        rounds, steps = int(hp["imitation_rounds"]), int(hp["imitation_steps"])
+        rows = rounds * -(-steps // n_envs) * n_envs
+        size = 3 * rows * (observation + 2 * ACTION_SIZE) * NUMBER_BYTES
+        keys = f"imitation_rounds {rounds} x imitation_steps {steps}"
+        parts.append((keys, "the imitation's data set", size))
+    return parts
 
 
 def load_hyperparameters(algo: str, path: str | Path | None = None) -> tuple[dict[str, Any], Path]:
@@ -364,7 +520,7 @@ def _read_layers(
                 f"scenario section ({', '.join(sorted(n for n in names if '/' not in n))} or "
                 "an env ID) holding a mapping of hyper-parameters"
             )
-        check_mapping(section, schema, str(file), prefix=f"{key}.")
+        _check(section, schema, str(file), prefix=f"{key}.")
     chosen = (
         [] if scenario is None else [k for k in sections if k in (scenario.name, scenario.env_id)]
     )
@@ -374,10 +530,10 @@ def _read_layers(
             f"{file}: two sections for scenario {scenario.name!r} ({chosen[0]!r} and "
             f"{chosen[1]!r}); keep one"
         )
-    top = check_mapping(flat, schema, str(file))
+    top = _check(flat, schema, str(file))
     if not chosen:
         return top, None
-    return top, (chosen[0], check_mapping(sections[chosen[0]], schema, str(file)))
+    return top, (chosen[0], _check(sections[chosen[0]], schema, str(file)))
 
 
 def parse_override(item: Any, algo: str) -> dict[str, Any]:
@@ -405,7 +561,7 @@ def parse_override(item: Any, algo: str) -> dict[str, Any]:
             f"{source}: key {key!r} is not valid; only policy_kwargs.<name> may be dotted"
         )
     data: dict[str, Any] = {parts[0]: value} if len(parts) == 1 else {parts[0]: {parts[1]: value}}
-    return check_mapping(data, _schema(algo), source)
+    return _check(data, _schema(algo), source)
 
 
 def _overlay(base: dict[str, Any], layer: dict[str, Any]) -> dict[str, Any]:

@@ -22,6 +22,7 @@ rounded total.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
@@ -47,8 +48,10 @@ from capture_bench.training.hyperparameters import (
     ALGORITHMS,
     CURRICULA,
     OFF_POLICY,
+    TRAINING_KEYS,
     algorithm_class,
     image_size,
+    memory_estimate,
     planned_steps,
     resolve_hyperparameters,
     sb3_kwargs,
@@ -69,6 +72,7 @@ from capture_bench.training.options import (
     parse_args,
 )
 from capture_bench.training.policy_export import IMITATION_FILE
+from capture_bench.training.run_lock import RunLock
 from capture_bench.training.seeds import TrainingSeeds, check_training_seed
 
 #: Memory one training environment holds (a pybullet world, the estimator, the recordings):
@@ -77,7 +81,9 @@ ENV_MEMORY_BYTES = 40 * 2**20
 #: The same for one sub-env of the batched env, which shares one pybullet world: measured
 #: ~0.5 MB per sub-env beyond ~40 MB for the env itself (16 vs 128 sub-envs, 250 steps).
 BATCHED_ENV_MEMORY_BYTES = 2 * 2**20
-#: Share of the available memory the environments may take.
+#: Share of the available memory a run may take: its environments (the count check), and its
+#: environments with its buffers, networks and update batch (the estimate,
+#: :func:`~capture_bench.training.hyperparameters.memory_estimate`).
 MEMORY_SHARE = 0.8
 #: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
 #: number it read from there). One: the networks are small (a few 256-wide layers, batches of
@@ -87,24 +93,52 @@ TORCH_THREADS = 1
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run ``train.py`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status."""
-    try:
-        config, given = parse_args(argv)
-        config, hp, run_dir, checkpoint = prepare(config, given)
-    except (ConfigError, CheckpointError, OSError) as exc:  # OSError: a path that cannot be read
-        print(f"{program('train.py')}: error: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 2
-    except SystemExit as exc:  # argparse: --help (0) or a bad option (2, already printed)
-        return int(exc.code or 0)
-    with sigterm_as_interrupt():
+    """Run ``train.py`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status.
+
+    The run directory is locked for the run's whole life (:class:`~capture_bench.training.
+    run_lock.RunLock`). A new run that fails before its first checkpoint (an interrupt while the
+    envs start, an error) leaves its directory as it found it, so the same command can be run
+    again."""
+    with RunLock() as lock:
         try:
-            return train(config, hp, run_dir, checkpoint)
-        except KeyboardInterrupt as exc:  # before learning started (imports, env start-up)
-            print("\ninterrupted before training started; nothing to save", file=sys.stderr)
-            return exit_status(exc)
-        except CheckpointError as exc:  # the newest checkpoint does not fit the run's model
-            print(f"{program('train.py')}: error: {' '.join(str(exc).split())}", file=sys.stderr)
-            return 2
+            config, given = parse_args(argv)
+            config, hp, run_dir, checkpoint = prepare(config, given, lock)
+        except (ConfigError, CheckpointError, OSError) as exc:  # OSError: a path unreadable
+            return _error(exc)
+        except SystemExit as exc:  # argparse: --help (0) or a bad option (2, already printed)
+            return int(exc.code or 0)
+        new = checkpoint is None and lock.found is not None  # a new run (not a resume)
+        with sigterm_as_interrupt():
+            try:
+                return train(config, hp, run_dir, checkpoint)
+            except KeyboardInterrupt as exc:  # before learning started (imports, env start-up)
+                _discard_unstarted(lock, run_dir, new)
+                print("\ninterrupted before training started; nothing to save", file=sys.stderr)
+                return exit_status(exc)
+            except CheckpointError as exc:  # the newest checkpoint does not fit the run's model
+                return _error(exc)
+            except MemoryError:  # the estimate (_check_memory) fell short of what SB3 allocated
+                _discard_unstarted(lock, run_dir, new)
+                return _error(
+                    f"out of memory ({_size(_memory_available() or 0)} available); choose "
+                    "smaller n_envs, n_steps, buffer_size, batch_size or policy_kwargs.net_arch"
+                )
+            except BaseException:
+                _discard_unstarted(lock, run_dir, new)
+                raise
+
+
+def _error(exc: object) -> int:
+    """Print train.py's one-line error; return the exit status of bad input, 2."""
+    print(f"{program('train.py')}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+    return 2
+
+
+def _discard_unstarted(lock: RunLock, run_dir: Path, new: bool) -> None:
+    """Remove what a new run wrote into ``run_dir`` where it has no checkpoint to resume from
+    (:meth:`~capture_bench.training.run_lock.RunLock.discard`)."""
+    if new and not list_checkpoints(run_dir / "checkpoints"):
+        lock.discard(run_dir)
 
 
 def _read_run_config(run_dir: Path) -> tuple[dict, TrainConfig]:
@@ -153,13 +187,29 @@ def _read_run_config(run_dir: Path) -> tuple[dict, TrainConfig]:
     return data, old
 
 
-def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Path, Path | None]:
+def prepare(
+    config: TrainConfig, given: set[str], lock: RunLock | None = None
+) -> tuple[TrainConfig, dict, Path, Path | None]:
     """Resolve and check the options before any work: the run's config, hyper-parameters,
-    directory and resume checkpoint. Raises :class:`ConfigError` naming what is wrong."""
+    directory and resume checkpoint. Raises :class:`ConfigError` naming what is wrong.
+
+    The run directory is locked with ``lock``, which the caller releases when the run ends
+    (without one, the lock is released on return); a directory another train.py holds is refused.
+    Nothing is written before every check has passed."""
+    if lock is not None:
+        return _prepare(config, given, lock)
+    with RunLock() as own:
+        return _prepare(config, given, own)
+
+
+def _prepare(
+    config: TrainConfig, given: set[str], lock: RunLock
+) -> tuple[TrainConfig, dict, Path, Path | None]:
     _check_device(config.device)
     if config.resume is not None:
         run_dir = Path(config.resume)
         data, old = _read_run_config(run_dir)
+        lock.acquire(run_dir)
         extra = sorted(given - set(RESUMABLE_OPTIONS) - {"resume"})
         if extra:
             flag = FLAGS.get(extra[0], "--" + extra[0].replace("_", "-"))
@@ -178,8 +228,10 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
         )
         if config.total_timesteps is not None:
             hp["total_timesteps"] = config.total_timesteps
+            _check_option_bounds(hp)
         if is_mixture(config.scenario):  # e.g. --vec-env dummy: a mixture trains batched
             _check_mixture(config, hp, len(mixture_scenarios(config.scenario)))
+        _check_memory(config, hp, resume=True)
         found = list_checkpoints(run_dir / "checkpoints")
         if not found and "imitate" in hp and not (run_dir / IMITATION_FILE).is_file():
             # stopped during its imitation, which is not checkpointed: it starts again
@@ -228,6 +280,7 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     fill_curriculum_steps(hp)  # after the options: half the budget they set
     config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
     _check_env_count(config.n_envs, config.vec_env)
+    _check_option_bounds(hp)
     if mixed:
         _check_mixture(config, hp, len(scenarios))
     elif "mixture_weights" in hp:
@@ -250,14 +303,23 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
                   f"goes to {run_dir} (--run-dir chooses another)")  # fmt: skip
     else:
         run_dir = Path(config.run_dir)
-    if (run_dir / "config.json").exists():
-        raise ConfigError(
-            f"{run_dir}: already holds a run; use --resume {run_dir} or another --run-dir"
-        )
+    _check_new_run_dir(run_dir)
     check_writable(run_dir, "--run-dir")
-    note_rounding(config.algo, hp)
+    _check_memory(config, hp)
     config.run_dir = str(run_dir)
+    created = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        lock.acquire(run_dir)
+        _check_new_run_dir(run_dir)  # again, locked: another train.py may have started it
+    except ConfigError:
+        if created:  # left empty, as it was not there
+            with contextlib.suppress(OSError):
+                run_dir.rmdir()
+        raise
+    lock.found = frozenset(entry.name for entry in run_dir.iterdir())
+    lock.created = created
+    note_rounding(config.algo, hp)
     from capture_bench.provenance import git_state
 
     payload = {
@@ -269,6 +331,14 @@ def prepare(config: TrainConfig, given: set[str]) -> tuple[TrainConfig, dict, Pa
     atomic_write(run_dir / "hyperparameters.yaml", resolved_yaml(config, hp, origin).encode())
     atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
     return config, hp, run_dir, None
+
+
+def _check_new_run_dir(run_dir: Path) -> None:
+    """A new run goes only where no run is."""
+    if (run_dir / "config.json").exists():
+        raise ConfigError(
+            f"{run_dir}: already holds a run; use --resume {run_dir} or another --run-dir"
+        )
 
 
 def free_run_dir(default: Path) -> Path:
@@ -511,6 +581,61 @@ def _available_memory() -> int | None:
     except (OSError, ValueError, IndexError):
         return None
     return None
+
+
+def _memory_available() -> int | None:
+    """Bytes of memory a new run may count on: Linux's MemAvailable, else the machine's physical
+    memory (``os.sysconf``), else None (unknown: not checked)."""
+    available = _available_memory()
+    if available is not None:
+        return available
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def _size(count: float) -> str:
+    """A byte count in words: ``512 MiB``, ``3.6 PiB``."""
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if count < 1024 or unit == "PiB":
+            return (
+                f"{count:.0f} {unit}" if count >= 100 or unit == "bytes" else f"{count:.1f} {unit}"
+            )
+        count /= 1024
+    raise AssertionError("unreachable")
+
+
+def _check_option_bounds(hp: dict) -> None:
+    """``--n-envs`` and ``--total-timesteps`` within the limits the hyper-parameter files have
+    (:data:`~capture_bench.training.hyperparameters.TRAINING_KEYS`)."""
+    for key in ("n_envs", "total_timesteps"):
+        high = int(TRAINING_KEYS[key].high)
+        if hp[key] > high:
+            raise ConfigError(f"--{key.replace('_', '-')} {hp[key]}: at most {high}")
+
+
+def _check_memory(config: TrainConfig, hp: dict, resume: bool = False) -> None:
+    """Refuse a run whose envs, buffers, networks and update batch
+    (:func:`~capture_bench.training.hyperparameters.memory_estimate`) need more than
+    :data:`MEMORY_SHARE` of the memory available, naming the keys of the largest part."""
+    available = _memory_available()
+    if available is None:
+        return
+    batched = config.vec_env == "batched" or is_mixture(config.scenario)
+    envs = int(hp["n_envs"]) * (BATCHED_ENV_MEMORY_BYTES if batched else ENV_MEMORY_BYTES)
+    parts = memory_estimate(config.algo, hp, config.observation_source == PIXELS, resume)
+    total = envs + sum(size for _, _, size in parts)
+    limit = available * MEMORY_SHARE
+    if total <= limit:
+        return
+    keys, what, size = max(parts, key=lambda part: part[2])
+    raise ConfigError(
+        f"{keys}: ~{_size(size)} for {what}; with the rest of the run (~{_size(total - size)}, "
+        f"the envs included) that is more than the {_size(limit)} train.py may use "
+        f"({MEMORY_SHARE:.0%} of the {_size(available)} of memory available); choose smaller "
+        "values"
+    )
 
 
 def _check_env_count(n_envs: int, vec_env: str) -> None:
