@@ -163,6 +163,31 @@ def describe_machine(provenance: Mapping[str, Any]) -> str:
     return f"{text}; {', '.join(versions)}" if versions else text
 
 
+#: The machine's fields and the packages that decide the last bits of a float here.
+REPRODUCTION_MACHINE_KEYS = ("cpu_id", "simd", "blas")
+REPRODUCTION_PACKAGES = ("numpy", "torch", "pybullet")
+
+
+def reproduction_key(
+    host: Mapping[str, Any] | None = None, packages: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """What decides the last bits of a float besides the code: the CPU (its identity and its
+    instruction sets), numpy's BLAS, and numpy's, torch's and pybullet's versions; this
+    machine's where ``host``/``packages`` are not given (a report's ``provenance["machine"]``
+    and ``["packages"]`` otherwise). The same code on two machines with equal keys gives the same
+    floats bit for bit; with other keys they agree to rounding, and an episode on a knife edge
+    can end differently."""
+    host = machine() if host is None else host
+    packages = package_versions() if packages is None else packages
+    return {
+        **{
+            key: list(host.get(key) or []) if key == "simd" else host.get(key)
+            for key in REPRODUCTION_MACHINE_KEYS
+        },
+        **{name: packages.get(name) for name in REPRODUCTION_PACKAGES},
+    }
+
+
 #: What a report's provenance promises, as the report states it.
 REPRODUCIBILITY = (
     "The same command on the same code and machine gives these results bit for bit. On another "

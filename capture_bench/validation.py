@@ -5,7 +5,7 @@ against a schema, a mapping of key to :class:`Rule` (or to a nested schema) by
 :func:`check_mapping`. Every message has one shape, names the file and the key (dotted for nested
 keys), the bad value and what would be valid::
 
-    configs/scenarios/x.yaml: key 'camera.noise_px': -1 is not valid; expected a number >= 0
+    configs/scenarios/x.yaml: key 'camera.noise_px': -1 is not valid; expected a number in [0, 100]
     configs/scenarios/x.yaml: unknown key 'camera.noise_pix'; valid keys: position, look_at, ...
     configs/suites/s.yaml: missing key 'episodes' (expected a whole number >= 1)
 

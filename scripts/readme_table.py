@@ -7,10 +7,10 @@
 A generated table sits between two markers, ``<!-- NAME:start -->`` and ``<!-- NAME:end -->``;
 everything between them is replaced. The blocks and their sources:
 
-* ``leaderboard``: the overall ranking of ``reports/default/results.json`` (what
-  ``python evaluate.py`` writes), the columns of the report's *Overall ranking* without its
-  ``scenarios`` column, each cell formatted by the report's own
-  :func:`capture_bench.evaluation.report.ranking_cells`;
+* ``leaderboard``: the overall ranking of ``reports/published/default/results.json`` (the
+  published leaderboard, which ``python evaluate.py --publish`` writes), the columns of the
+  report's *Overall ranking* without its ``scenarios`` column, each cell formatted by the
+  report's own :func:`capture_bench.evaluation.report.ranking_cells`;
 * ``leaderboard-scenarios``: the same report, one row per agent in ranking order, one column per
   scenario: capture rate · median ratio of capture time to the physical limit;
 * ``scenarios``: the shipped scenarios (``configs/scenarios/*.yaml``): env ID and description;
@@ -35,11 +35,12 @@ from typing import Any
 from capture_bench.argparsing import OneLineParser
 from capture_bench.evaluation.aggregate import RankingRow
 from capture_bench.evaluation.report import RANKING_HEADER, ranking_cells
+from capture_bench.evaluation.reproduction import json_number
 from capture_bench.task.scenarios import Scenario, list_scenarios, load_scenario
 from capture_bench.task.scenarios import _schema as scenario_schema  # the validator's own rules
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "reports" / "default" / "results.json"
+RESULTS = ROOT / "reports" / "published" / "default" / "results.json"
 DEFAULT_FILES = ("README.md", "docs/scenarios.md", "docs/results/leaderboard.md")
 DROPPED_COLUMN = "scenarios"  # the ranking's column README leaves out (every agent plays them all)
 
@@ -53,13 +54,6 @@ def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 def _text(value: str) -> str:
     """Plain text for a table cell: ``<`` and ``>`` would start HTML tags in Markdown."""
     return value.replace("<", "&lt;").replace(">", "&gt;")
-
-
-def _number(value: Any) -> float:
-    """A number of results.json: ``"inf"``/``"-inf"`` strings and ``null`` (NaN) decoded."""
-    if value is None:
-        return math.nan
-    return float(value)
 
 
 def _ranking(results: dict[str, Any]) -> list[RankingRow]:
@@ -90,7 +84,7 @@ def scenario_results_table(results: dict[str, Any]) -> str:
                 line.append("—")
                 continue
             text = f"{round(100 * cell['capture_rate'])}%"
-            ratio = _number(cell["ratio_median"])
+            ratio = json_number(cell["ratio_median"])
             if math.isfinite(ratio):
                 text += f" · {ratio:.2f}×"
             line.append(text)

@@ -31,20 +31,17 @@ EPISODES_PER_SCENARIO = 2
 
 
 def fingerprint(machine: Mapping[str, Any], packages: Mapping[str, Any]) -> dict[str, Any]:
-    """What decides the last bits of a float here: the CPU, its instruction sets, numpy's BLAS,
-    and the numerical packages' versions."""
-    return {
-        "cpu_id": machine.get("cpu_id"),
-        "simd": list(machine.get("simd") or []),
-        "blas": machine.get("blas"),
-        **{name: packages.get(name) for name in ("numpy", "torch", "pybullet")},
-    }
+    """What decides the last bits of a float here
+    (:func:`capture_bench.provenance.reproduction_key`)."""
+    from capture_bench.provenance import reproduction_key
+
+    return reproduction_key(machine, packages)
 
 
 def this_machine() -> dict[str, Any]:
-    from capture_bench.provenance import machine, package_versions
+    from capture_bench.provenance import reproduction_key
 
-    return fingerprint(machine(), package_versions())
+    return reproduction_key()
 
 
 def stored() -> tuple[dict[str, Any], dict[tuple[str, str, str], dict[str, str]]]:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).parents[1]
-REPORTS = sorted((ROOT / "reports").glob("*/results.json"))
+REPORTS = sorted((ROOT / "reports" / "published").glob("*/results.json"))
 
 
 def _git(*args: str) -> subprocess.CompletedProcess:

@@ -15,7 +15,7 @@ from capture_bench.evaluation.backends import EpisodeTask, close_envs, run_task
 from capture_bench.evaluation.rollout import TIMING_COLUMNS
 from capture_bench.task.scenarios import list_scenarios, load_scenario
 
-EPISODES = Path(__file__).parents[1] / "reports" / "default" / "episodes.csv"
+EPISODES = Path(__file__).parents[1] / "reports" / "published" / "default" / "episodes.csv"
 AGENTS = ("incremental_ik", "oracle")
 SEEDS_PER_CELL = 2
 

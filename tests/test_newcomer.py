@@ -20,7 +20,7 @@ from capture_bench.training import run as train_run
 from capture_bench.training import tune
 
 ROOT = Path(__file__).parents[1]
-COMMITTED = ROOT / "reports" / "default" / "results.json"
+COMMITTED = ROOT / "reports" / "published" / "default" / "results.json"
 TINY_SUITE = """\
 description: a newcomer's own suite, one agent, one scenario, one episode
 agents: [incremental_ik]

@@ -62,4 +62,4 @@ def test_a_fresh_report_renders_with_every_image_and_no_console_error(browser, t
 
 
 def test_the_committed_leaderboard_renders_with_every_image_and_no_console_error(browser):
-    _check_page(browser, ROOT / "reports" / "default" / "leaderboard.html")
+    _check_page(browser, ROOT / "reports" / "published" / "default" / "leaderboard.html")

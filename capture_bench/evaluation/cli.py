@@ -9,8 +9,13 @@
     python evaluate.py --backend ray --ray-address auto
     python evaluate.py --merge reports/custom-1 reports/custom-2   # reports of several machines
 
-Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures),
-replacing the previous report only once the new one is complete; with the suite's ``videos`` (the
+Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv, figures;
+``reports/`` by default, git-ignored), replacing the previous report only once the new one is
+complete, and ends by comparing it with the published report of the same suite,
+``reports/published/<suite>/``, value by value (printed, and written beside the report as
+``reproduction.md``/``.json``: :mod:`capture_bench.evaluation.reproduction`). Only ``--publish``
+writes the published report (a shipped suite as defined, on the published seeds), and no output
+option may point inside it otherwise; with the suite's ``videos`` (the
 default) its "Episodes to watch" show the reference and the best-ranked trained model on one seed
 of each scenario as GIFs. ``--agents``, ``--scenarios`` or
 ``--episodes`` that change the suite make a custom selection, written to
@@ -34,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import json
 import math
 import shlex
 import sys
@@ -42,6 +48,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from capture_bench.argparsing import OneLineParser, program
+from capture_bench.evaluation import reproduction
 from capture_bench.evaluation.aggregate import RankingRow
 from capture_bench.evaluation.backends import BACKENDS, prestart_workers
 from capture_bench.evaluation.merge import plan_merge
@@ -53,9 +60,18 @@ from capture_bench.evaluation.pipeline import (
     run_evaluation,
 )
 from capture_bench.evaluation.report import ReportData, write_report
+from capture_bench.evaluation.reproduction import (
+    PublishedReport,
+    as_json,
+    compare,
+    markdown,
+    read_published,
+    summary_lines,
+)
 from capture_bench.evaluation.suites import ALL, SEED_SETS, shadowed_suite
+from capture_bench.files import atomic_write
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
-from capture_bench.provenance import git_state
+from capture_bench.provenance import display_path, git_state
 from capture_bench.task.scenarios import invalid_scenarios
 
 if TYPE_CHECKING:
@@ -80,7 +96,8 @@ def _epilog() -> str:
     )
     return "\n".join([
         "examples:",
-        "  python evaluate.py                                   # the default leaderboard",
+        "  python evaluate.py                                   # default suite, vs the published",
+        "  python evaluate.py --publish                         # rewrite reports/published/",
         "  python evaluate.py --suite quick                     # a smoke run",
         "  python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper",
         "  python evaluate.py --agents runs/paper-ppo-0/best --episodes 20 --workers 2",
@@ -152,8 +169,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out",
         type=Path,
-        default=Path("reports"),
-        help="report root; the report goes to OUT/<suite>/ (default reports/)",
+        help="report root; the report goes to OUT/<suite>/ (default reports/, git-ignored); "
+        "never inside reports/published/",
+    )
+    parser.add_argument(
+        "--publish",
+        action="store_true",
+        help="write the published leaderboard, reports/published/<suite>/ (committed; what "
+        "README's table is read from): only a shipped suite as defined, on the published seeds",
     )
     parser.add_argument(
         "--episode-plots",
@@ -195,6 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 #: The options that choose or play episodes, which ``--merge`` (no episode played) refuses.
 EPISODE_OPTIONS = (
+    "--publish",
     "--suite",
     "--agents",
     "--scenarios",
@@ -254,12 +278,21 @@ def evaluation_config(args: argparse.Namespace) -> EvaluationConfig:
         backend=args.backend,
         workers=args.workers,
         ray_address=args.ray_address,
-        out=args.out,
+        out=_out(args),
         episode_plots=args.episode_plots,
         video=args.video,
         video_episodes=1 if args.video_episodes is None else args.video_episodes,
         trust_model=args.trust_model,
+        publish=args.publish,
     )
+
+
+def _out(args: argparse.Namespace) -> Path:
+    """The report root: ``--out``, else the published folder with ``--publish``, else
+    ``reports/`` (a ``--publish`` with an ``--out`` of its own is refused when planned)."""
+    if args.out is not None:
+        return args.out
+    return reproduction.published_dir() if args.publish else Path("reports")
 
 
 SUMMARY_CAPTION = (
@@ -407,7 +440,7 @@ def _main(argv: list[str] | None) -> int:
         return int(exc.code or 0)
     command = " ".join(["python", PROG, *(shlex.quote(a) for a in argv)])
     if args.merge is not None:
-        return _merge(args.merge, args.out, command, prog)
+        return _merge(args.merge, _out(args), command, prog)
     config = evaluation_config(args)
     try:
         if config.resolved_backend() == "process":
@@ -427,9 +460,34 @@ def _main(argv: list[str] | None) -> int:
     where = _where_note(config, plan)
     if where is not None:
         print(f"{prog}: note: {where}", file=sys.stderr)
+    published_folder = reproduction.published_dir() / plan.report_name
+    published = read_published(published_folder)  # before a --publish replaces it
     data, target = _run(plan, config, command)
     _print_summary(data, target)
+    _compare_with_published(published, target, config.publish, prog)
     return 0
+
+
+def _compare_with_published(
+    published: PublishedReport | None, target: Path, publishing: bool, prog: str
+) -> None:
+    """The run beside the published report of its suite (the previous one, with
+    ``--publish``): printed, and written into the run's report as ``reproduction.md`` and
+    ``reproduction.json`` (the published folder gets nothing beyond its report)."""
+    if published is None:
+        return
+    run = read_published(target)
+    if run is None:  # the report just written cannot be read back: say so, change nothing
+        print(f"{prog}: note: {target} could not be read back to compare", file=sys.stderr)
+        return
+    name = display_path(published.directory) + ("/ (before this run)" if publishing else "/")
+    comparison = compare(run, published, published_name=name)
+    for line in summary_lines(comparison):
+        print(line)
+    if not publishing:
+        atomic_write(target / "reproduction.md", markdown(comparison).encode())
+        text = json.dumps(as_json(comparison), indent=2, allow_nan=False) + "\n"
+        atomic_write(target / "reproduction.json", text.encode())
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -16,6 +16,7 @@ from typing import Any
 
 from capture_bench import rliable_stats
 from capture_bench.agents.sb3_policy import PolicyLoadError, read_metadata
+from capture_bench.evaluation import reproduction
 from capture_bench.evaluation.agents_loading import (
     AgentSpec,
     check_agent,
@@ -42,10 +43,12 @@ from capture_bench.evaluation.backends import (
 )
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError, SuiteError
 from capture_bench.evaluation.report import ReportData, figure_groups, figures, write_report
+from capture_bench.evaluation.reproduction import is_inside
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.evaluation.suites import (
     ALL,
     SEED_SETS,
+    SUITES_DIR,
     VALIDATION_NOTE,
     VALIDATION_SUFFIX,
     Suite,
@@ -97,6 +100,10 @@ class EvaluationConfig:
             the episodes evaluated).
         trust_model: load a model directory that has no safe policy file from its SB3 ``.zip``
             (pickles, which can run code): only for models whose source you trust.
+        publish: write the published report, ``reports/published/<suite>/``
+            (:func:`~capture_bench.evaluation.reproduction.published_dir`): only a shipped
+            suite as defined, on the published evaluation seeds, with ``out`` that folder.
+            Without it, no output (``out``, ``episode_plots``, ``video``) may lie there.
     """
 
     suite: str = "default"
@@ -112,6 +119,7 @@ class EvaluationConfig:
     video: Path | None = None
     video_episodes: int = 1
     trust_model: bool = False
+    publish: bool = False
 
     def resolved_workers(self) -> int:
         """Worker processes: as given, or every CPU this process may use."""
@@ -154,7 +162,7 @@ class Plan:
     def report_name(self) -> str:
         """The report's folder under ``--out``: the suite's name, and ``-validation`` after it
         on the validation seeds (so that report never replaces the leaderboard's)."""
-        return self.suite.name + ("" if self.seed_set == "evaluation" else VALIDATION_SUFFIX)
+        return report_folder_name(self.suite.name, self.seed_set)
 
     @property
     def description(self) -> str:
@@ -163,6 +171,12 @@ class Plan:
         if self.seed_set == "evaluation":
             return self.suite.description
         return f"{VALIDATION_NOTE} {self.suite.description}"
+
+
+def report_folder_name(suite: str, seed_set: str) -> str:
+    """The report's folder under ``--out``: the suite's name, and ``-validation`` after it on
+    the validation seeds."""
+    return suite + ("" if seed_set == "evaluation" else VALIDATION_SUFFIX)
 
 
 def _scenario_names(suite: Suite) -> list[str]:
@@ -278,12 +292,49 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         )
     if config.resolved_backend() == "ray":
         check_ray_cluster(config.ray_address, RAY_BACKEND)
+    _check_published_folder(config, suite, report_folder_name(suite.name, config.seed_set))
     check_writable(config.out, "--out")
     if config.episode_plots is not None:
         check_writable(config.episode_plots, "--episode-plots")
     if config.video is not None:
         check_writable(config.video, "--video")
     return Plan(suite, specs, scenarios, seeds, tasks, hashes, config.seed_set)
+
+
+def _check_published_folder(config: EvaluationConfig, suite: Suite, report_name: str) -> None:
+    """Only ``--publish`` writes under the published folder, and it publishes only a shipped
+    suite as defined on the published seeds; raises :class:`EvaluationError` otherwise."""
+    published = reproduction.published_dir()
+    if not config.publish:
+        for option, path in (
+            ("--out", config.out),
+            ("--out", Path(config.out) / report_name),  # the report's own folder
+            ("--episode-plots", config.episode_plots),
+            ("--video", config.video),
+        ):
+            if path is not None and is_inside(path, published):
+                raise EvaluationError(
+                    f"{option} {path}: {display_path(published)}/ holds the published "
+                    "leaderboard, which only python evaluate.py --publish writes; choose a "
+                    "folder outside it (the default, reports/, is git-ignored)"
+                )
+        return
+    shipped = SUITES_DIR / f"{suite.name}.yaml"
+    if (
+        config.seed_set != "evaluation"
+        or not shipped.is_file()
+        or suite.sha256 != file_sha256(shipped)
+    ):
+        raise EvaluationError(
+            f"--publish writes {display_path(published)}/<suite>/, the published leaderboard: "
+            "only a shipped suite as defined, on the published evaluation seeds; drop --agents, "
+            "--scenarios, --episodes and --seed-set, or drop --publish"
+        )
+    if Path(config.out).resolve() != published.resolve():
+        raise EvaluationError(
+            f"--publish writes {display_path(published)}/ and takes no --out ({config.out}); "
+            "drop --out"
+        )
 
 
 def _check_reference(loaded: Suite, suite: Suite, labels: list[str]) -> None:

@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
+import statistics
 import sys
 from pathlib import Path
 from typing import Any
@@ -38,6 +40,57 @@ COPIED = ("policy.pt", "metadata.json", "model.zip")
 #: millisecond, so an episode replays exactly only in the same batch: the test replays the
 #: card's first batch.
 CARD_BATCH = 4
+
+#: How a card's validation replays on a CPU other than the reference's: the replayed capture
+#: count within this many standard deviations of the difference of two binomial draws (99%), and
+#: the median relative change of the capture time, over the episodes captured in both, within
+#: :data:`REPLAY_TIME_TOLERANCE`.
+REPLAY_Z = 2.576
+REPLAY_TIME_TOLERANCE = 0.05
+#: What a card's README says of its replay (tests/test_model_cards.py holds the card to it).
+REPLAY_CHECK = (
+    "`tests/test_model_cards.py` replays some of them: bit for bit (each episode's outcome and "
+    "capture time) on the kind of machine that made the test suite's reference "
+    "(`tests/data/default_suite_reference.json`); on another CPU, where the floats differ in "
+    "their last bits and an episode on a knife edge can end the other way, the replayed capture "
+    f"count must lie within {REPLAY_Z} standard deviations (99%) of the card's and the median "
+    f"change of capture time within {REPLAY_TIME_TOLERANCE:.0%} (`replay_agrees`)."
+)
+
+
+def replay_agrees(recorded: list[dict[str, Any]], replayed: list[dict[str, Any]]) -> list[str]:
+    """Where a replay of a card's episodes disagrees with the card beyond what another CPU's
+    rounding explains (:data:`REPLAY_CHECK`); empty when it agrees.
+
+    ``recorded`` and ``replayed``: the same seeds in the same order, each ``{"seed",
+    "captured", "capture_time"}`` as :func:`validate_policy` writes them. The capture counts
+    ``k1``, ``k2`` of ``n`` episodes may differ by ``1 + z * sqrt(2 n p (1 - p))`` with ``p``
+    their pooled rate: two binomial draws of one policy whose knife-edge episodes fall either way.
+    """
+    if [e["seed"] for e in recorded] != [e["seed"] for e in replayed]:
+        return ["the replay played other seeds than the card's"]
+    n = len(recorded)
+    k1 = sum(bool(e["captured"]) for e in recorded)
+    k2 = sum(bool(e["captured"]) for e in replayed)
+    problems = []
+    pooled = (k1 + k2) / (2 * n) if n else 0.0
+    allowed = 1 + REPLAY_Z * math.sqrt(2 * n * pooled * (1 - pooled))
+    if abs(k1 - k2) > allowed:
+        problems.append(
+            f"captured {k2} of {n} on replay, the card {k1}: more than the {allowed:.1f} "
+            "episodes another CPU's rounding explains"
+        )
+    changes = [
+        abs(b["capture_time"] - a["capture_time"]) / a["capture_time"]
+        for a, b in zip(recorded, replayed)
+        if a["captured"] and b["captured"] and a["capture_time"]
+    ]
+    if changes and statistics.median(changes) > REPLAY_TIME_TOLERANCE:
+        problems.append(
+            f"capture times moved by a median {statistics.median(changes):.1%} on replay, more "
+            f"than {REPLAY_TIME_TOLERANCE:.0%}"
+        )
+    return problems
 
 
 def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[str, Any]:
@@ -216,9 +269,9 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
         "|---|---|---|---|",
         *rows,
         "",
-        "Each episode is in `metadata.json` (`model_card.validation`); "
-        "`tests/test_model_cards.py` replays a few of them. The leaderboard's figures on the "
-        "published evaluation seeds are in `reports/default`.",
+        "Each episode is in `metadata.json` (`model_card.validation`); " + REPLAY_CHECK
+        + " The leaderboard's figures on the published evaluation seeds are in "
+        "`reports/published/default`.",
         "",
     ])  # fmt: skip
 
