@@ -11,52 +11,18 @@ The same command is installed as ``capture-bench-train``. Everything it does is 
 
 from __future__ import annotations
 
-import signal
-import sys
-from collections.abc import Callable
+from script_entry import command_main, run
 
 __all__ = ["main"]
 
 PROG = "train.py"
-
-
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, raised as Ctrl-C is, before the command's own handler is in place."""
-
-    signum = signal.SIGTERM
-
-
-def _terminated(signum: int, frame: object) -> None:
-    raise _Terminated
-
-
-def _command() -> Callable[[list[str] | None], int]:
-    from capture_bench.training.run import main as command  # the heavy imports
-
-    return command
+COMMAND = "capture_bench.training.run:main"
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command (:func:`capture_bench.training.run.main`); returns the exit status."""
-    return _command()(argv)
-
-
-def _run() -> int:
-    """:func:`main`, Ctrl-C and SIGTERM ending it from the first moment with one line on stderr
-    and the exit status 130 or 143: the command's own line once it runs; while its modules
-    import (seconds), "train.py: interrupted while starting; nothing written". Only the standard
-    library is imported before SIGTERM's handler is installed here."""
-    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
-        signal.signal(signal.SIGTERM, _terminated)
-    command = None
-    try:
-        command = _command()
-        return command(None)
-    except KeyboardInterrupt as exc:  # one the command does not handle (before its handler)
-        said = "interrupted while starting; nothing written" if command is None else "interrupted"
-        print(f"{PROG}: {said}", file=sys.stderr)
-        return 128 + getattr(exc, "signum", signal.SIGINT)
+    return command_main(COMMAND)(argv)
 
 
 if __name__ == "__main__":
-    raise SystemExit(_run())
+    raise SystemExit(run(PROG, COMMAND))
