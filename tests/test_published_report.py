@@ -160,3 +160,16 @@ def test_the_published_leaderboard_is_committed_and_a_users_run_is_ignored():
     assert ignored("reports/default/results.json") and ignored("reports/custom-1234/x.png")
     assert not ignored("reports/published/default/results.json")
     assert (ROOT / "reports" / "published" / "default" / "results.json").is_file()
+
+
+def test_a_value_without_an_interval_is_reproduced_only_by_its_equal():
+    """A median of too few captures has no bootstrap interval: then the published value must
+    equal the run's (the same machine's case); an infinite median equals an infinite one."""
+    check = reproduction.ValueCheck
+    nan, inf = float("nan"), float("inf")
+    assert check("a", "s", "ratio_median", 6.386, 6.386, nan, nan).reproduced
+    assert not check("a", "s", "ratio_median", 6.386, 6.4, nan, nan).reproduced
+    assert check("a", "s", "ratio_median", inf, inf, nan, nan).reproduced
+    assert check("a", "s", "ratio_median", nan, nan, nan, nan).reproduced
+    assert not check("a", "s", "ratio_median", 2.0, nan, nan, nan).reproduced
+    assert check("a", "s", "capture_rate", 0.0, 0.0, 5.6e-17, 0.56).reproduced  # Wilson's 0

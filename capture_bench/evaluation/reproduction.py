@@ -122,11 +122,14 @@ class ValueCheck:
 
     @property
     def reproduced(self) -> bool:
-        """The published value lies inside the run's interval (both NaN: nothing to compare,
-        as for the median ratio of an agent that never captures)."""
-        if math.isnan(self.published) or math.isnan(self.low) or math.isnan(self.high):
-            return math.isnan(self.published) and math.isnan(self.value)
+        """The published value lies inside the run's interval; where the run has no interval
+        (too few captures to bootstrap a median), it equals the run's value (both NaN: nothing
+        to compare, as for the median ratio of an agent that never captures)."""
         slack = ROUNDING * max(1.0, abs(self.published))  # an interval's ends carry rounding
+        if math.isnan(self.low) or math.isnan(self.high):
+            if math.isnan(self.published) or math.isnan(self.value):
+                return math.isnan(self.published) and math.isnan(self.value)
+            return self.published == self.value or abs(self.published - self.value) <= slack
         return self.low - slack <= self.published <= self.high + slack
 
     def describe(self) -> str:
