@@ -289,6 +289,23 @@ def test_an_alias_bomb_in_a_suite_or_a_long_value_gives_a_short_message(tmp_path
     assert len(message) < ONE_LINE
 
 
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "{bomb}\n",
+        "policy_kwargs:\n  features_extractor: {bomb}\n",
+        "{{{bomb}: 1}}\n",
+    ],
+)
+def test_an_alias_bomb_in_an_algorithm_config_gives_a_short_message(tmp_path, text):
+    algo = tmp_path / "ppo.yaml"
+    algo.write_text(text.format(bomb=_alias_bomb(9)))
+    with pytest.raises(ConfigError) as raised:
+        load_hyperparameters("ppo", algo)
+    assert len(str(raised.value)) < ONE_LINE, str(raised.value)[:ONE_LINE]
+
+
 # -- 9. the size of a file ----------------------------------------------------------------------
 def test_a_file_over_1_mib_is_refused_before_it_is_read(tmp_path, monkeypatch):
     big = tmp_path / "big.yaml"

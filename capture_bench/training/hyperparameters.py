@@ -27,6 +27,7 @@ from capture_bench.validation import (
     check_mapping,
     is_file,
     read_mapping,
+    shown,
 )
 
 ALGO_DIR = CONFIG_DIR / "algos"
@@ -237,13 +238,13 @@ def validate_hyperparameters(
             ``source``, the key, the value and what is valid).
     """
     if not isinstance(data, dict):
-        raise ConfigError(f"{source}: expected a mapping of hyper-parameters, got {data!r}")
+        raise ConfigError(f"{source}: expected a mapping of hyper-parameters, got {shown(data)}")
     required = {key: TRAINING_KEYS[key].describe() for key in ("n_envs", "total_timesteps")}
     out = _check(data, _schema(algo), source, required=required)
     features = out.get("policy_kwargs", {}).get("features_extractor", "flatten")
     if features not in ("flatten", *DICT_FEATURES) and out.get("normalize"):
         raise ConfigError(
-            f"{source}: key 'policy_kwargs.features_extractor': {features!r}"
+            f"{source}: key 'policy_kwargs.features_extractor': {shown(features)}"
             + (f" (from {features_from}, under this file)" if features_from else "")
             + " reads the raw observation and cannot be combined with normalize: true; set "
             "normalize: false, or policy_kwargs.features_extractor: flatten"
@@ -254,7 +255,7 @@ def validate_hyperparameters(
     if dict_policy != (features in DICT_FEATURES) and "features_extractor" in out["policy_kwargs"]:
         fits = [f for f in FEATURES if (f in DICT_FEATURES) == dict_policy]
         raise ConfigError(
-            f"{source}: key 'policy_kwargs.features_extractor': {features!r}"
+            f"{source}: key 'policy_kwargs.features_extractor': {shown(features)}"
             + (f" (from {features_from}, under this file)" if features_from else "")
             + f" does not read the observation of policy {out['policy']}; valid: "
             + ", ".join(fits)
@@ -516,7 +517,7 @@ def _read_layers(
     for key, section in sections.items():
         if not (isinstance(key, str) and key in names and isinstance(section, dict)):
             raise ConfigError(
-                f"{file}: unknown key {str(key)!r}; valid keys: {', '.join(schema)}, or a "
+                f"{file}: unknown key {shown(str(key))}; valid keys: {', '.join(schema)}, or a "
                 f"scenario section ({', '.join(sorted(n for n in names if '/' not in n))} or "
                 "an env ID) holding a mapping of hyper-parameters"
             )
@@ -558,7 +559,7 @@ def parse_override(item: Any, algo: str) -> dict[str, Any]:
     parts = key.split(".")
     if len(parts) > 2 or (len(parts) == 2 and parts[0] != "policy_kwargs"):
         raise ConfigError(
-            f"{source}: key {key!r} is not valid; only policy_kwargs.<name> may be dotted"
+            f"{source}: key {shown(key)} is not valid; only policy_kwargs.<name> may be dotted"
         )
     data: dict[str, Any] = {parts[0]: value} if len(parts) == 1 else {parts[0]: {parts[1]: value}}
     return _check(data, _schema(algo), source)
