@@ -49,3 +49,15 @@ def sb3_model(algorithm: str, normalize: bool = False, learn: int = 0):
     if learn:
         model.learn(learn)
     return model, (venv if normalize else None)
+
+
+#: The smallest PPO run train.py takes (64 steps, one env, a 16-unit network), as a --config file.
+TINY_PPO = """\
+n_envs: 1
+total_timesteps: 64
+policy_kwargs: {net_arch: [16]}
+n_steps: 32
+batch_size: 32
+n_epochs: 1
+checkpoint_freq: 32
+"""

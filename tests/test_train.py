@@ -9,21 +9,14 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from stand_in import TINY_PPO
 
 import train
 from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
 from capture_bench.training.hyperparameters import load_hyperparameters, validate_hyperparameters
 from capture_bench.training.seeds import TrainingSeeds, check_training_seed
 
-TINY = """\
-n_envs: 1
-total_timesteps: 64
-policy_kwargs: {net_arch: [16]}
-n_steps: 32
-batch_size: 32
-n_epochs: 1
-checkpoint_freq: 32
-"""
+TINY = TINY_PPO
 
 
 @pytest.fixture(scope="module")

@@ -16,21 +16,14 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from stand_in import TINY_PPO
 
 import train
 from capture_bench.training import run as train_run
 
 ROOT = Path(__file__).parents[1]
 MODEL = ROOT / "models" / "ppo-paper"
-TINY = """\
-n_envs: 1
-total_timesteps: 64
-policy_kwargs: {net_arch: [16]}
-n_steps: 32
-batch_size: 32
-n_epochs: 1
-checkpoint_freq: 32
-"""
+TINY = TINY_PPO
 
 
 def one_line_error(capsys, argv: list[str], *expected: str) -> str:

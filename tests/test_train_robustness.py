@@ -13,19 +13,12 @@ from pathlib import Path
 
 import pytest
 from processes import alive, default_sigint, descendants
+from stand_in import TINY_PPO
 
 import train
 
 ROOT = Path(__file__).parents[1]
-TINY = """\
-n_envs: 1
-total_timesteps: 64
-policy_kwargs: {net_arch: [16]}
-n_steps: 32
-batch_size: 32
-n_epochs: 1
-checkpoint_freq: 32
-"""
+TINY = TINY_PPO
 
 
 @pytest.fixture(scope="module")
