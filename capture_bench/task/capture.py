@@ -19,6 +19,15 @@ joined where one chord's stay reaches its end and the next one's starts at its b
 next: the capture completes at entry + hold, and leaving the box before restarts the clock at the
 next entry. With ``hold = 0`` it is the first entry.
 
+The capture envelope adds a bound on speed (``capture.v_max`` of a scenario, m/s): a capture a
+gripper could make needs the *instantaneous* velocity of the end-effector relative to the capture
+point, ``v(s) = J(theta(s)) dtheta/dt - Xdot_T(t0 + s dt)``, to be at most ``v_max`` as well,
+for the whole hold (:func:`relative_velocities`). Within a step the joint rates are constant, but
+``J`` turns with the arm, so ``v`` is tested along the step: at :func:`speed_pieces` + 1 points,
+enough that ``v`` is within ``VELOCITY_RESOLUTION`` of the straight line between two of them
+(:func:`slow_intervals_along_arc`), each piece's slow stretch solved exactly on that line
+(:func:`slow_intervals`), and intersected with the stays inside the box (:func:`intersect`).
+
 Every test here takes M steps as rows, (M, 3) arrays; one step is the case M = 1. The arc walk and
 the hold are per step (a Python loop over the few steps that come near the target).
 """
@@ -31,10 +40,14 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.sim.kinematics import L1, L2, forward_kinematics
+from capture_bench.sim.kinematics import L1, L2, forward_kinematics, jacobian
 
 FloatArray = NDArray[np.float64]
+Intervals = list[tuple[float, float]]
 ARC_RESOLUTION = 1e-5  # m: largest allowed gap between the end-effector's arc and a test chord
+#: m/s: largest allowed gap between the end-effector's relative velocity along a step and the
+#: straight line between two of the points it is computed at
+VELOCITY_RESOLUTION = 1e-4
 
 
 def inside_intervals(
@@ -236,3 +249,116 @@ def row_norms(v: FloatArray) -> FloatArray:
     if v.shape[1] > 3:
         squared = squared.reshape(v.shape[0], v.shape[1] // 3, 3)
     return np.sqrt(np.add.reduce(squared, axis=-1))
+
+
+def relative_velocities(
+    theta: FloatArray, joint_rates: FloatArray, target_velocity: FloatArray
+) -> FloatArray:
+    """The end-effector's instantaneous velocity relative to the capture point,
+    ``J(theta) theta_dot - Xdot_T`` (eq. 9's Jacobian), m/s, (K, 3).
+
+    Args:
+        theta: joint angles, rad, (K, 3).
+        joint_rates: joint rates, rad/s, (K, 3) (a step's ``delta_theta / dt`` on each row).
+        target_velocity: Xdot_T at the same instants, global, m/s, (K, 3).
+    """
+    return np.einsum("kij,kj->ki", jacobian(theta), joint_rates) - target_velocity
+
+
+def slow_intervals(v0: FloatArray, v1: FloatArray, v_max: float) -> tuple[FloatArray, FloatArray]:
+    """The fractions ``(lo, hi)`` of each of M pieces, ``0 <= lo <= hi <= 1``, on which
+    ``|v0 + u (v1 - v0)| <= v_max``; NaN where never.
+
+    ``|v(u)|^2`` is a convex quadratic in u, so the set is one closed interval, solved in
+    closed form.
+
+    Args:
+        v0, v1: relative velocity at the start and the end of each piece, m/s, (M, 3).
+        v_max: the bound, m/s.
+    """
+    dv = v1 - v0
+    a = np.einsum("ij,ij->i", dv, dv)
+    b = 2.0 * np.einsum("ij,ij->i", v0, dv)
+    c = np.einsum("ij,ij->i", v0, v0) - v_max * v_max
+    disc = b * b - 4.0 * a * c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = np.sqrt(np.maximum(disc, 0.0))
+        u1, u2 = (-b - root) / (2.0 * a), (-b + root) / (2.0 * a)
+    flat = a == 0.0  # constant velocity over the piece
+    u1 = np.where(flat, np.where(c <= 0.0, 0.0, np.nan), u1)
+    u2 = np.where(flat, np.where(c <= 0.0, 1.0, np.nan), u2)
+    lo, hi = np.maximum(u1, 0.0), np.minimum(u2, 1.0)
+    never = (~flat & (disc < 0.0)) | ~(lo <= hi)  # NaN compares false: never
+    return np.where(never, np.nan, lo), np.where(never, np.nan, hi)
+
+
+def speed_pieces(delta_theta: ArrayLike, dt: float) -> int:
+    """How many pieces a step is cut into for the speed test: the end-effector's velocity
+    ``J(theta(s)) dtheta/dt`` has a second derivative in s of at most ``(l1 + l2) S^3 / dt``
+    (``S = sum |dtheta_i|``; every third derivative of f is bounded by l1 + l2), so on pieces of
+    ``1/K`` it is within ``(l1 + l2) S^3 / (8 dt K^2)`` of its chord, at most
+    ``VELOCITY_RESOLUTION``."""
+    total = float(np.abs(np.asarray(delta_theta, dtype=float)).sum())
+    curvature = (L1 + L2) * total**3 / dt
+    return max(1, math.ceil(math.sqrt(curvature / (8.0 * VELOCITY_RESOLUTION))))
+
+
+def slow_intervals_along_arc(
+    theta0: ArrayLike,
+    delta_theta: ArrayLike,
+    dt: float,
+    target_velocity_at: Callable[[FloatArray], FloatArray],
+    v_max: float,
+) -> Intervals:
+    """The fractions of one step during which the end-effector's instantaneous velocity
+    relative to the capture point is at most ``v_max``.
+
+    Args:
+        theta0: joint angles at the start of the step, rad, (3,).
+        delta_theta: the step's joint increment, rad, (3,) (constant rates ``delta_theta / dt``).
+        dt: the step's real period, s.
+        target_velocity_at: Xdot_T at fractions s of the step, (K,) -> (K, 3), global, m/s.
+        v_max: the bound, m/s.
+
+    Returns:
+        Closed intervals ``(lo, hi)`` of s in [0, 1], in order and disjoint, exact to
+        ``VELOCITY_RESOLUTION`` (the target's velocity is taken straight between the same
+        points: its acceleration, centimetres per second squared, bends it far less).
+    """
+    delta = np.asarray(delta_theta, dtype=float)
+    pieces = speed_pieces(delta, dt)
+    s = np.linspace(0.0, 1.0, pieces + 1)
+    theta = np.asarray(theta0, dtype=float)[None] + s[:, None] * delta[None]
+    rates = np.broadcast_to(delta / dt, theta.shape)
+    v = relative_velocities(theta, rates, target_velocity_at(s))
+    los, his = slow_intervals(v[:-1], v[1:], v_max)
+    out: Intervals = []
+    joins = -1  # the piece a slow stretch reaching its last piece's end goes on into
+    for k in np.flatnonzero(~np.isnan(los)).tolist():
+        width = s[k + 1] - s[k]
+        lo = float(s[k]) if los[k] == 0.0 else float(s[k] + los[k] * width)
+        hi = float(s[k + 1]) if his[k] == 1.0 else float(s[k] + his[k] * width)
+        if k == joins and los[k] == 0.0:
+            out[-1] = (out[-1][0], hi)  # the slow stretch goes on across the pieces' joint
+        else:
+            out.append((lo, hi))
+        joins = k + 1 if his[k] == 1.0 else -1
+    return out
+
+
+def intersect(
+    first: Sequence[tuple[float, float]], second: Sequence[tuple[float, float]]
+) -> Intervals:
+    """The fractions of a step in both lists of intervals (each in order and disjoint), in
+    order; a stretch where they only touch (``lo == hi``) is left out."""
+    out: Intervals = []
+    i = j = 0
+    while i < len(first) and j < len(second):
+        lo, hi = max(first[i][0], second[j][0]), min(first[i][1], second[j][1])
+        if lo < hi:
+            out.append((lo, hi))
+        if first[i][1] < second[j][1]:
+            i += 1
+        else:
+            j += 1
+    return out

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -196,6 +197,12 @@ class CaptureConfig:
         "how long eq. 20 must hold without a break for a capture, s (0: the paper's eq. 20, the"
         " first instant it holds; less than control.episode_limit)",
         NON_NEGATIVE,
+    )
+    v_max: float | None = _f(
+        None,
+        "largest instantaneous speed of the end-effector relative to the capture point while eq."
+        " 20 holds, m/s, tested along the arc (null: no bound, the paper's eq. 20)",
+        (0.0, 10.0, False),
     )
 
 
@@ -456,6 +463,9 @@ def _schema(cls: type) -> dict[str, Any]:
             schema[f.name] = Rule(
                 "numbers", low, high, inclusive, length=len(items), item=items[0].__name__
             )
+        elif typing.get_origin(kind) in (typing.Union, types.UnionType):  # a number or null
+            low, high, inclusive = meta.get("bounds") or (-math.inf, math.inf, True)
+            schema[f.name] = Rule("optional_float", low, high, inclusive)
         elif kind is str:
             choices = meta.get("choices")
             plain = Rule("identifier") if meta.get("identifier") else Rule("string")

@@ -8,12 +8,14 @@ read the target's half from a :class:`~capture_bench.task.recording.RecordedEpis
 :meth:`StepRule.step` applies the rules:
 
 * capture (eq. 20, ``|X_E - X_T| < epsilon`` component-wise) on the *true* target, tested along
-  the end-effector's arc over the whole step (:mod:`capture_bench.task.capture`); with a hold
-  (``capture.hold`` s of the scenario) eq. 20 must hold without a break for that long, and the
+  the end-effector's arc over the whole step (:mod:`capture_bench.task.capture`); with a speed
+  bound (``capture.v_max`` m/s: the capture envelope) the end-effector's instantaneous velocity
+  relative to the capture point must be at most ``v_max`` too, along the arc; with a hold
+  (``capture.hold`` s of the scenario) both must hold without a break for that long, and the
   capture is when the hold completes (:func:`~capture_bench.task.capture.held_capture`; the
   stay in progress is carried in :class:`ArmState`);
-* the same test (and hold) on the *estimated* target, the first time it completes
-  (``capture_time_estimated``: what the paper's hardware could judge);
+* eq. 20 and its hold on the *estimated* target, the first time they complete
+  (``capture_time_estimated``: what the paper's hardware could judge; without the speed bound);
 * the failure, in this order: ``collision``, ``unreachable``, ``target_lost`` (each only if the
   step did not capture), then ``timeout`` at the time limit (a truncation);
 * the reward terms (:mod:`capture_bench.task.rewards`);
@@ -52,7 +54,9 @@ from capture_bench.task.capture import (
     held_capture,
     inside_intervals,
     inside_intervals_along_arcs,
+    intersect,
     row_norms,
+    slow_intervals_along_arc,
 )
 from capture_bench.task.episode import TIME_SLACK, time_limit
 from capture_bench.task.observation import TaskDescription, encode_observation
@@ -199,6 +203,8 @@ class StepRule:
         self.info_keys = info_keys(reward_mode)
         self.set_tolerance(description.capture_tolerance)
         self.hold = scenario.capture.hold  # s
+        v_max = scenario.capture.v_max
+        self.v_max = math.inf if v_max is None else float(v_max)  # m/s
         self.control_period = description.control_period
         self.home = description.arm.home
         # numpy scalars: an array compares with one twice as fast as with a Python float
@@ -340,7 +346,9 @@ class StepRule:
         eq. 20's box in progress at its end began (NaN: outside), on the true target
         (:mod:`capture_bench.task.capture`): the stays are tested on the chord where the arc sags
         by at most ``ARC_RESOLUTION``, else along the arc where the chord passes within the
-        tolerance's radius plus the sag; :func:`~capture_bench.task.capture.held_capture` then
+        tolerance's radius plus the sag; with ``v_max`` the stays are cut to where the
+        end-effector's instantaneous velocity relative to the capture point is at most
+        ``v_max`` (the capture envelope); :func:`~capture_bench.task.capture.held_capture` then
         applies the hold. The steps that :func:`~capture_bench.task.capture.
         approach_lower_bounds` puts farther than that cannot enter the box and are not tested.
 
@@ -386,12 +394,31 @@ class StepRule:
                 continue
             else:
                 intervals = [(float(lo[j]), float(hi[j]))]
+            if self.v_max < math.inf:  # the envelope: slow as well as inside
+                intervals = intersect(intervals, self._slow(i, theta0, applied, t0, dt, trajectory))
             done, since_after[i] = held_capture(
                 intervals, float(since[i]), float(t0[i]), float(dt[i]), self.hold
             )
             if done is not None:
                 capture_time[i] = done
         return capture_time, since_after
+
+    def _slow(
+        self,
+        i: int,
+        theta0: FloatArray,
+        applied: FloatArray,
+        t0: FloatArray,
+        dt: FloatArray,
+        trajectory: Callable[[int], TargetTrajectory],
+    ) -> list[tuple[float, float]]:
+        """The fractions of step ``i`` during which the end-effector's instantaneous velocity
+        relative to the true capture point is at most ``v_max``
+        (:func:`~capture_bench.task.capture.slow_intervals_along_arc`)."""
+        traj, start, step = trajectory(i), float(t0[i]), float(dt[i])
+        return slow_intervals_along_arc(
+            theta0[i], applied[i], step, lambda f: traj.velocity(start + f * step), self.v_max
+        )
 
     def _estimated_capture(self, state, rows, before, after, x_e0, x_e, t0, dt) -> FloatArray:
         """Record the first time the capture test (and its hold) completed on the estimated
