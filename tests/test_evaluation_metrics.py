@@ -185,12 +185,12 @@ def test_the_overall_table_shows_the_median_relative_speed_at_capture():
     ranking = rank_agents(summarise_all(recs, reference_agent="slow"))
     assert [r.agent for r in ranking] == ["slow", "quick"]  # by capture rate, not by speed
     assert [r.mean_relative_speed_median for r in ranking] == pytest.approx([0.035, 0.2])
-    assert RANKING_HEADER[4] == "mean median rel. speed at capture, mm/s"
+    speed = RANKING_HEADER.index("mean median rel. speed at capture, mm/s")
     assert all(len(ranking_cells(r)) == len(RANKING_HEADER) for r in ranking)
-    assert [ranking_cells(r)[4] for r in ranking] == ["35", "200"]
+    assert [ranking_cells(r)[speed] for r in ranking] == ["35", "200"]
     nowhere = rank_agents(summarise_all([record("hold", s, None) for s in range(3)]))
     assert math.isnan(nowhere[0].mean_relative_speed_median)
-    assert ranking_cells(nowhere[0])[4] == "—"
+    assert ranking_cells(nowhere[0])[speed] == "—"
     data = _report_data()
     header = "| " + " | ".join(RANKING_HEADER) + " |"
     assert header in markdown(data).splitlines()

@@ -209,24 +209,42 @@ def heatmap_figure(rate: np.ndarray, ratio: np.ndarray, agents: Sequence[str],
 
 
 def ranking_figure(rows: Sequence[Any], colours: dict[str, str]) -> bytes:
-    """The ranking: mean capture rate over scenarios with its 95% bootstrap interval, best at the
-    top; "=" marks an agent indistinguishable from the one above it."""
+    """The ranking: mean capture rate over the ranked scenarios with its 95% bootstrap interval,
+    best at the top, each agent labelled with its rank and its 95% rank interval; the agents of
+    a tie group (rank intervals overlapping the agent ranked just above) share a shaded band
+    named by its ranks, and "=" marks an agent tied with the one above it."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8.0, 0.45 * len(rows) + 1.4))
+    shade = 0
     for k, row in enumerate(rows):
+        line = row.row
+        if line.tied and line.tie_first == line.rank:
+            size = line.tie_last - line.tie_first + 1
+            ax.axhspan(k - 0.45, k + size - 0.55, color=("0.86", "0.93")[shade % 2], zorder=0)
+            ax.text(1.01, k + (size - 1) / 2, f"tied: ranks {line.tie_first}–{line.tie_last}",
+                    transform=ax.get_yaxis_transform(), ha="left", va="center", fontsize=8,
+                    color="0.3")  # fmt: skip
+            shade += 1
         ax.errorbar(row.mean_capture_rate, k, xerr=[[row.mean_capture_rate - row.low],
                     [row.high - row.mean_capture_rate]], fmt="o", color=colours[row.agent],
-                    capsize=3)  # fmt: skip
+                    capsize=3, zorder=2)  # fmt: skip
         if row.tied_with_previous:
             ax.annotate("=", (row.high, k - 0.5), xytext=(6, 0), textcoords="offset points",
                         va="center", fontsize=11, color="0.3")  # fmt: skip
-    ax.set_yticks(range(len(rows)), [f"{k + 1}. {r.agent}" for k, r in enumerate(rows)])
-    ax.invert_yaxis()
-    ax.set_xlabel("mean capture rate over scenarios (95% paired bootstrap over seeds)")
+    ax.set_yticks(range(len(rows)), [_rank_label(r.row) for r in rows])
+    ax.set_ylim(len(rows) - 0.5, -0.5)
+    ax.set_xlabel("mean capture rate over ranked scenarios (95% paired bootstrap over seeds)")
     ax.set_xlim(-0.02, 1.05)
     ax.grid(alpha=0.3, axis="x")
-    ax.set_title('Overall ranking ("=": not distinguishable from the agent above)')
+    ax.set_title(
+        'Overall ranking: rank [95% rank interval]; shaded, "=": tied (rank intervals overlap)'
+    )
     return _png(fig)
+
+
+def _rank_label(row: Any) -> str:
+    interval = "" if row.rank_low is None else f" [{row.rank_low}–{row.rank_high}]"
+    return f"{row.rank}. {row.agent}{interval}"
 
 
 def improvement_figure(matrix: np.ndarray, agents: Sequence[str]) -> bytes:

@@ -33,6 +33,7 @@ from capture_bench.evaluation.aggregate import (
     Summary,
     failure_reasons,
     summary_row,
+    with_rank_intervals,
 )
 from capture_bench.evaluation.errors import EvaluationError
 from capture_bench.evaluation.metrics import Estimate
@@ -42,6 +43,7 @@ from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
 from capture_bench.evaluation.suites import VALIDATION_SUFFIX
 from capture_bench.interrupts import interrupts_deferred
 from capture_bench.provenance import REPRODUCIBILITY, provenance_text
+from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
 
 if TYPE_CHECKING:
     from capture_bench.evaluation.video import EpisodeVideo
@@ -62,7 +64,8 @@ class ReportData:
         reference: agent of the paired comparison.
         records: every episode, in a deterministic order.
         summaries: one per agent x scenario.
-        ranking: the overall ranking.
+        ranking: the overall ranking; a ranking without rank intervals gets them here, from
+            ``records`` (:func:`~capture_bench.evaluation.aggregate.with_rank_intervals`).
         provenance: JSON-ready provenance (git, hashes, versions, seeds, timing).
         videos: the episodes to watch (:mod:`capture_bench.evaluation.watch`), in display order.
     """
@@ -76,6 +79,10 @@ class ReportData:
     ranking: Sequence[RankingRow]
     provenance: dict[str, Any]
     videos: Sequence[EpisodeVideo] = ()
+
+    def __post_init__(self) -> None:
+        if self.records and any(r.rank is not None and r.rank_low is None for r in self.ranking):
+            object.__setattr__(self, "ranking", with_rank_intervals(self.ranking, self.records))
 
 
 def csv_value(value: Any) -> Any:
@@ -168,12 +175,17 @@ def detail_cells(s: Summary) -> list[str]:
 
 
 def ranking_cells(r: RankingRow) -> list[str]:
-    """One row of the overall ranking."""
+    """One row of the overall ranking: rank, agent, mean capture rate, 95% rank interval
+    (``low–high``), tie group (``ranks first–last``, "—" for an agent tied with no one), mean
+    median ratio, mean median relative speed, scenarios counted."""
     name = r.agent + (" (privileged)" if r.privileged else "")
+    interval = "—" if r.rank_low is None else f"{r.rank_low}–{r.rank_high}"
     return [
         "—" if r.rank is None else str(r.rank),
         name,
         f"{r.mean_capture_rate:.3f}",
+        interval,
+        f"ranks {r.tie_first}–{r.tie_last}" if r.tied else "—",
         _fmt(r.mean_ratio_median),
         _fmt(r.mean_relative_speed_median * 1e3, 0),
         str(r.scenarios),
@@ -184,6 +196,8 @@ RANKING_HEADER = (
     "rank",
     "agent",
     "mean capture rate",
+    "rank interval (95%)",
+    "tie group",
     "mean median ratio",
     "mean median rel. speed at capture, mm/s",
     "scenarios",
@@ -193,8 +207,12 @@ NOTES = (
     "fixed seed) otherwise. Times and ratios are over captured episodes; the KM median treats "
     "failures as censored at their end time. P(better than ref) and paired Δt compare with the "
     "reference agent seed by seed: a failure is worse than any capture, ties count 1/2, and Δt "
-    "uses only seeds both captured (negative = faster)."
+    "uses only seeds both captured (negative = faster). These intervals are per comparison (one "
+    "agent against the reference on one scenario), not corrected for multiple comparisons: "
+    "across the report's many agent x scenario cells some will exclude the no-difference value "
+    "by chance, and the report decides nothing from them."
 )
+NOT_RANKED_HEADER = ("agent", "scenario", "capture rate", "median ratio to limit")
 
 
 def paired_cells(c: Paired, first: str, reference: str) -> list[str]:
@@ -242,6 +260,102 @@ def _scenarios(data: ReportData) -> list[str]:
     return list(dict.fromkeys(s.scenario for s in data.summaries))
 
 
+def scenario_configs(data: ReportData) -> dict[str, Scenario]:
+    """Each scenario of the report that loads, by its name in the report: a file the
+    provenance's seeds name by path (under the name it has), else the shipped scenario of that
+    name."""
+    by_path: dict[str, Scenario] = {}
+    seeds = data.provenance.get("seeds")
+    for spec in seeds if isinstance(seeds, dict) else ():
+        if Path(str(spec)).suffix in (".yaml", ".yml"):
+            with contextlib.suppress(ConfigError):
+                loaded = load_scenario(str(spec))
+                by_path.setdefault(loaded.name, loaded)
+    out: dict[str, Scenario] = {}
+    for name in _scenarios(data):
+        if name in by_path:
+            out[name] = by_path[name]
+            continue
+        with contextlib.suppress(ConfigError):
+            out[name] = load_scenario(name)
+    return out
+
+
+def capture_rule(scenario: Scenario) -> str:
+    """The scenario's capture rule in words: the box of eq. 20 (``capture_tolerance``), the bound
+    on the relative speed (``capture.v_max``) and how long both must hold (``capture.hold``)."""
+    box = (
+        f"the end-effector within {scenario.capture_tolerance * 1e3:.4g} mm of the capture point "
+        "(each axis)"
+    )
+    v_max, hold = scenario.capture.v_max, scenario.capture.hold
+    speed = (
+        "at any speed" if v_max is None else f"moving at most {v_max * 1e3:.4g} mm/s relative to it"
+    )
+    if hold <= 0:
+        when = "at one instant"
+    else:
+        when = f"{'for' if v_max is None else 'both for'} {hold:.4g} s"
+    return f"{box}, {speed}, {when}"
+
+
+#: The rule of a scenario whose file is not at hand where the report is written.
+UNKNOWN_RULE = "as its scenario file says (not found where this report was written)"
+
+
+def capture_rule_text(scenarios: Sequence[str], configs: dict[str, Scenario]) -> str:
+    """One sentence: the capture rule of ``scenarios`` (names, in order; ``configs`` holds those
+    that loaded), each distinct rule once, with the scenarios it holds on where they differ."""
+    groups: dict[str, list[str]] = {}
+    for name in scenarios:
+        rule = capture_rule(configs[name]) if name in configs else UNKNOWN_RULE
+        groups.setdefault(rule, []).append(name)
+    if len(groups) == 1 and UNKNOWN_RULE not in groups:
+        return f"A capture: {next(iter(groups))}."
+    return "A capture: " + "; ".join(f"on {_listed(n)}, {r}" for r, n in groups.items()) + "."
+
+
+def _listed(names: Sequence[str]) -> str:
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} and {names[-1]}"
+
+
+def report_capture_rule(data: ReportData) -> str:
+    """The report's first line under its title: the capture rule of the scenarios evaluated."""
+    return capture_rule_text(_scenarios(data), scenario_configs(data))
+
+
+def not_ranked(data: ReportData) -> list[str]:
+    """The report's scenarios that count in no average of the ranking (``ranked: false``)."""
+    left_out = {name for r in data.ranking for name in r.unranked}
+    return [name for name in _scenarios(data) if name in left_out]
+
+
+NOT_RANKED_TEXT = (
+    "These scenarios say ranked: false: they count in none of the ranking's averages and in "
+    "none of its rank intervals. Their own sections below have every figure."
+)
+
+
+def not_ranked_rows(data: ReportData) -> list[list[str]]:
+    """The table of the scenarios not ranked: per scenario, each agent (ranking order) with its
+    capture rate and median ratio to the physical limit there."""
+    cells = {(s.agent, s.scenario): s for s in data.summaries}
+    rows = []
+    for scenario in not_ranked(data):
+        for r in data.ranking:
+            s = cells.get((r.agent, scenario))
+            if s is not None:
+                rows.append(
+                    [
+                        r.agent + (" (privileged)" if r.privileged else ""),
+                        scenario,
+                        f"{s.captured}/{s.episodes} = {fmt_estimate(s.capture_rate)}",
+                        fmt_estimate(s.figures["ratio_median"]),
+                    ]
+                )
+    return rows
+
+
 def _title(data: ReportData, quote: str) -> str:
     """``default suite``, ``custom-<hash> (custom selection)`` or ``merged-<hash> (merged
     reports)``: never a suite's name for a narrowed run or a merge; a run on the validation
@@ -265,6 +379,8 @@ def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
     lines = [
         f"# capture-bench leaderboard: {_title(data, '`')}",
         "",
+        report_capture_rule(data),
+        "",
         "Regenerate with:",
         "",
         "```",
@@ -285,11 +401,12 @@ def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
         "",
         *_md_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
         "",
-        NOTES,
-        "",
-        f"## {rliable_report.TITLE}",
-        "",
     ]
+    unranked = not_ranked(data)
+    if unranked:
+        lines += [f"### Not ranked: {', '.join(unranked)}", "", NOT_RANKED_TEXT, ""]
+        lines += [*_md_table(NOT_RANKED_HEADER, not_ranked_rows(data)), ""]
+    lines += [NOTES, "", f"## {rliable_report.TITLE}", ""]
     if stats is None:
         lines.append(f"Left out: {why}.")
     else:
@@ -321,16 +438,23 @@ def _agents(data: ReportData) -> list[str]:
 
 
 def summary_text(data: ReportData) -> str:
-    """One sentence on which ranked neighbours the seeds cannot tell apart."""
-    rows = summary.ranking_intervals(data.records, data.ranking)
-    ties = [
-        f"{rows[k - 1].agent} and {r.agent}" for k, r in enumerate(rows) if r.tied_with_previous
-    ]
-    if not ties:
-        return "Every agent is distinguishable from its neighbour in the ranking."
+    """One sentence on the tie groups of the ranking: the agents the seeds cannot order."""
+    groups: dict[int, list[str]] = {}
+    for r in data.ranking:
+        if r.tied and r.tie_first is not None:
+            groups.setdefault(r.tie_first, []).append(r.agent)
+    if not groups:
+        return (
+            "No two agents are tied: the 95% rank interval of each agent is clear of the "
+            "interval of the agent ranked just above it."
+        )
+    listed = "; ".join(
+        f"ranks {first}–{first + len(agents) - 1}: {', '.join(agents)}"
+        for first, agents in groups.items()
+    )
     return (
-        "Not distinguishable from the neighbour ranked above (the 95% paired bootstrap interval "
-        f"of the difference in mean capture rate contains 0): {'; '.join(ties)}."
+        "Tied, the seeds cannot order them (the 95% rank interval of each agent overlaps that "
+        f"of the agent ranked just above it): {listed}."
     )
 
 
@@ -461,6 +585,7 @@ def html_page(
         f'<html lang="en"><head><meta charset="utf-8"><title>capture-bench: {esc(data.suite)}'
         f"</title><style>{STYLE}</style></head><body>",
         f"<h1>capture-bench leaderboard: {esc(_title(data, ''))}</h1>",
+        f"<p><strong>{esc(report_capture_rule(data))}</strong></p>",
         f"<p>Regenerate with:</p><pre><code>{esc(data.command)}</code></pre>",
         f"<p>{esc(data.description)}</p>",
         "<h2>Summary</h2>",
@@ -468,9 +593,14 @@ def html_page(
         f"<p>{esc(summary_text(data))}</p>",
         f"<h2>Overall ranking</h2><p>{esc(RANKING_RULE)}</p>",
         _html_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
-        f"<p>{esc(NOTES)}</p>",
-        f"<h2>{esc(rliable_report.TITLE)}</h2>",
     ]
+    unranked = not_ranked(data)
+    if unranked:
+        parts.append(
+            f"<h3>Not ranked: {esc(', '.join(unranked))}</h3><p>{esc(NOT_RANKED_TEXT)}</p>"
+        )
+        parts.append(_html_table(NOT_RANKED_HEADER, not_ranked_rows(data)))
+    parts += [f"<p>{esc(NOTES)}</p>", f"<h2>{esc(rliable_report.TITLE)}</h2>"]
     if stats is None:
         parts.append(f"<p>Left out: {esc(str(why))}.</p>")
     else:

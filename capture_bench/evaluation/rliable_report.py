@@ -166,7 +166,9 @@ def text(section: RliableSection) -> str:
         "is 1 - the mean. Mean: the mean score over scenarios, each weighing the same. "
         f"P(agent > reference): rliable's probability of improvement over {reference}, the chance "
         "that an episode of the agent scores higher than an episode of the reference on the same "
-        "scenario (ties 1/2), averaged over scenarios; its value is the summary matrix's. The "
+        "scenario (ties 1/2), averaged over scenarios; its value is the summary matrix's, and "
+        "its interval is per comparison (each agent against the reference alone), not corrected "
+        "for multiple comparisons. The "
         f"performance profile ({FIGURE}) draws, for each score threshold tau in [0, 1], the "
         "share of the agent's episodes scoring above tau, with 95% bands."
     )

@@ -4,10 +4,11 @@ plot and the probability-of-improvement matrix at the top of the HTML show, as n
 * **heatmap**: agent x scenario, the capture rate and the median ratio to the physical limit of
   each cell (the same :class:`~capture_bench.evaluation.aggregate.Summary` figures as the
   tables);
-* **ranking with intervals**: each agent's mean capture rate over scenarios (the ranking's
-  number) with a 95% percentile-bootstrap interval, resampling the published seeds within each
-  scenario, the same resample for every agent (paired); two neighbours in the ranking are
-  *indistinguishable* when the interval of their paired difference contains 0;
+* **ranking with intervals**: each agent's mean capture rate over the ranked scenarios (the
+  ranking's number) with a 95% percentile-bootstrap interval, resampling the published seeds
+  within each scenario, the same resample for every agent (paired), beside its 95% rank interval
+  and its tie group (:func:`capture_bench.evaluation.aggregate.with_rank_intervals`: an agent is
+  tied with the agent ranked just above it when their rank intervals overlap);
 * **probability of improvement** P(X > Y), rliable's definition (Agarwal et al. 2021): per
   scenario, the Mann-Whitney U statistic of X's episode scores against Y's over n * m (ties count
   1/2: :func:`mann_whitney_u`, ``scipy.stats.mannwhitneyu``'s statistic), averaged over
@@ -25,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capture_bench.evaluation.aggregate import RankingRow, Summary
+from capture_bench.evaluation.aggregate import RankingRow, Summary, counted_scenarios
 from capture_bench.evaluation.rollout import EpisodeRecord
 from capture_bench.task.score import episode_score
 
@@ -35,14 +36,16 @@ BOOTSTRAP_SEED = 0
 
 @dataclass(frozen=True)
 class RankedInterval:
-    """One ranked agent: the mean capture rate over scenarios and its 95% interval; whether it
-    is indistinguishable from the agent ranked just above it (None for the first)."""
+    """One ranked agent: the mean capture rate over the ranked scenarios and its 95% interval;
+    whether it is tied with the agent ranked just above it (None for the first); its ranking row
+    (rank, rank interval, tie group)."""
 
     agent: str
     mean_capture_rate: float
     low: float
     high: float
     tied_with_previous: bool | None
+    row: RankingRow
 
 
 def _by_cell(records: Sequence[EpisodeRecord]) -> dict[tuple[str, str], dict[int, EpisodeRecord]]:
@@ -63,36 +66,32 @@ def ranking_intervals(
     records: Sequence[EpisodeRecord], ranking: Sequence[RankingRow]
 ) -> list[RankedInterval]:
     """The ranked (not privileged) agents, in ranking order, with bootstrap intervals of their
-    mean capture rate over scenarios and the neighbour test (module docstring)."""
-    ranked = [r.agent for r in ranking if not r.privileged]
+    mean capture rate over the scenarios the ranking counts (its rows' ``unranked`` left out),
+    and their tie groups (module docstring)."""
+    ranked = sorted((r for r in ranking if r.rank is not None), key=lambda r: r.rank or 0)
+    left_out = {name for r in ranking for name in r.unranked}
     cells = _by_cell(records)
-    scenarios = sorted({s for (_, s) in cells})
+    scenarios = sorted(counted_scenarios((s for (_, s) in cells), left_out))
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     # captured[agent] -> per scenario an array over that scenario's seeds (sorted)
-    captured: dict[str, list[np.ndarray]] = {a: [] for a in ranked}
+    captured: dict[str, list[np.ndarray]] = {r.agent: [] for r in ranked}
     draws = []
     for scenario in scenarios:
         # every seed any agent played here; a seed an agent did not play counts as a failure
-        seeds = sorted({seed for a in ranked for seed in cells.get((a, scenario), {})})
-        for agent in ranked:
+        seeds = sorted({seed for a in captured for seed in cells.get((a, scenario), {})})
+        for agent in captured:
             row = cells.get((agent, scenario), {})
             played = [s in row and row[s].outcome == "captured" for s in seeds]
             captured[agent].append(np.array(played, float))
         draws.append(rng.integers(0, len(seeds), (BOOTSTRAP_RESAMPLES, len(seeds))))
-    boot = {
-        agent: np.mean([c[d].mean(axis=1) for c, d in zip(captured[agent], draws)], axis=0)
-        for agent in ranked
-    }
     out = []
-    for i, agent in enumerate(ranked):
-        mean = float(np.mean([c.mean() for c in captured[agent]]))
-        low, high = np.percentile(boot[agent], [2.5, 97.5])
-        tied = None
-        if i:
-            diff = boot[ranked[i - 1]] - boot[agent]
-            d_low, d_high = np.percentile(diff, [2.5, 97.5])
-            tied = bool(d_low <= 0.0 <= d_high)
-        out.append(RankedInterval(agent, mean, float(low), float(high), tied))
+    for i, line in enumerate(ranked):
+        per = [c for c in captured[line.agent] if c.size]
+        mean = float(np.mean([c.mean() for c in per])) if per else math.nan
+        boot = [c[d].mean(axis=1) for c, d in zip(captured[line.agent], draws) if c.size]
+        low, high = np.percentile(np.mean(boot, axis=0), [2.5, 97.5]) if boot else (mean, mean)
+        tied = None if i == 0 else bool(line.tied and line.tie_first != line.rank)
+        out.append(RankedInterval(line.agent, mean, float(low), float(high), tied, line))
     return out
 
 

@@ -242,6 +242,11 @@ class Scenario:
         "seconds without a usable frame, or with the target out of reach, before failing",
         POSITIVE,
     )
+    ranked: bool = _f(
+        True,
+        "whether the scenario counts in the leaderboard's ranking; false: reported in its own"
+        " table (the paper's eq. 20 as published)",
+    )
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
