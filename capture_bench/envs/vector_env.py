@@ -58,7 +58,7 @@ from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World, limit_joint_increments
-from capture_bench.task.episode import EpisodePlan, episode_bounds, period_count
+from capture_bench.task.episode import EpisodePlan, draw_plans, episode_bounds, period_count
 from capture_bench.task.observation import TaskDescription
 from capture_bench.task.physical_limit import PhysicalLimit
 from capture_bench.task.recording import (
@@ -538,7 +538,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
                 self.episode_cache.keep_recording(key, episode, rng.bit_generator.state)
         episodes = [episode for episode in found if episode is not None]
         unbounded = [episode for episode in episodes if episode.bound is None]
-        if unbounded:  # recorded as the single env records (it computes the bound lazily)
+        if unbounded:  # recorded as the single env records (the bound is the plan's)
             bounds = episode_bounds([episode.plan for episode in unbounded], self.description)
             for episode, bound in zip(unbounded, bounds, strict=True):
                 episode.bound = bound
@@ -547,12 +547,17 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
     def _record_as_single_env(self, rngs: Sequence[np.random.Generator]) -> list[RecordedEpisode]:
         """The next episode of each generator recorded as ``CaptureEnv(reuse_target_side=True)``
         records it (the same draws, the same code, bit for bit; the photogrammetry's cold
-        solves batched, :meth:`TargetSide.record_many`); their bounds come after, in
+        solves batched, :meth:`TargetSide.record_many`; the plans drawn together,
+        :func:`~capture_bench.task.episode.draw_plans`); their bounds come after, in
         :meth:`_record`."""
         assert self._reference is not None
         sc, camera, features = self.scenario, self._camera, self._features
+        plans = draw_plans(sc, camera.model, features, rngs)
         return TargetSide.record_many(
-            [TargetSide.draw(sc, camera, self._reference, features, rng) for rng in rngs]
+            [
+                TargetSide.live(plan, camera, self._reference, features, rng)
+                for plan, rng in zip(plans, rngs, strict=True)
+            ]
         )
 
     def _to_record(

@@ -1,15 +1,17 @@
 """What ``reset`` draws for an episode before any step, and the rules built on it alone.
 
 An episode's target trajectory and the real period of every control step are drawn at reset from
-the env's seeded generator (:func:`draw_episode`). The time limit, the end of the last possible
-step, how far the joints can have moved by a given time, and the physical-limit bound are
-functions of that :class:`EpisodePlan` alone, so
+the env's seeded generator, and kept only if the episode can be won (:func:`draw_plans`, the one
+place every env, recording and evaluation draws from). The time limit, the end of the last
+possible step, how far the joints can have moved by a given time, and the physical-limit bound
+are functions of that :class:`EpisodePlan` alone, so
 :class:`~capture_bench.envs.capture_env.CaptureEnv` and the batched
 :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` share them here.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -27,6 +29,7 @@ from capture_bench.task.scenarios import ControlConfig, Scenario
 FloatArray = NDArray[np.float64]
 
 MAX_PLACEMENT_TRIES = 1000
+MAX_PLAN_DRAWS = 100  # plans drawn for one episode before no winnable one is an error
 PLACEMENT_MARGIN = 0.1  # markers start inside the central 90% of the sensor's width and height
 VIEW_CHECK_TIMES = (0.0, 1.0, 2.0, 3.0)  # s: ... and stay there on the true path at these times
 # Sums of control periods carry rounding (10 x 0.05 > 0.5); "longer than lost_after" means longer
@@ -95,11 +98,14 @@ def draw_periods(control: ControlConfig, rng: np.random.Generator) -> FloatArray
 @dataclass(frozen=True, eq=False)
 class EpisodePlan:
     """An episode as reset draws it: the scenario, the target's true trajectory and the real
-    control period of every step it can have (s)."""
+    control period of every step it can have (s); ``bound``, the physical limit
+    (:func:`episode_bounds` under :func:`bound_task`), as :func:`draw_plans` computed it to
+    keep the plan (None for a plan built otherwise: computed when asked)."""
 
     scenario: Scenario
     trajectory: TargetTrajectory
     periods: FloatArray
+    bound: PhysicalLimit | None = None
 
     @classmethod
     def draw(
@@ -109,9 +115,9 @@ class EpisodePlan:
         features: FloatArray,
         rng: np.random.Generator,
     ) -> EpisodePlan:
-        """The trajectory (:func:`place_target`), then the periods (:func:`draw_periods`)."""
-        trajectory = place_target(scenario, camera_model, features, rng)
-        return cls(scenario, trajectory, draw_periods(scenario.control, rng))
+        """The next winnable episode of ``rng``: :func:`draw_plans` of one generator."""
+        (plan,) = draw_plans(scenario, camera_model, features, [rng])
+        return plan
 
     def step_times(self) -> tuple[FloatArray, FloatArray]:
         """``(time, dt)`` of reset (0, t_s) and of every step up to the one that reaches the time
@@ -165,15 +171,104 @@ class EpisodePlan:
         return False
 
 
+def bound_task(scenario: Scenario) -> TaskDescription:
+    """The task the physical limit of a drawn plan is computed for: the arm, t_s and epsilon an
+    env of ``scenario`` publishes (what :func:`capture_bench.envs.core.describe_task` gives)."""
+    return TaskDescription(
+        arm=kinematics.ArmSpec(),
+        control_period=scenario.control.period,
+        capture_tolerance=np.full(3, scenario.capture_tolerance),
+    )
+
+
+def _same_task(a: TaskDescription, b: TaskDescription) -> bool:
+    """Whether two descriptions give every plan the same physical limit (the arm and epsilon)."""
+    arrays = ("joint_rate_limits", "joint_lower", "joint_upper", "home")
+    return (
+        a.arm.link_lengths == b.arm.link_lengths
+        and all(np.array_equal(getattr(a.arm, k), getattr(b.arm, k)) for k in arrays)
+        and np.array_equal(a.capture_tolerance, b.capture_tolerance)
+    )
+
+
+def draw_plans(
+    scenario: Scenario,
+    camera_model: CameraModel,
+    features: FloatArray,
+    rngs: Sequence[np.random.Generator],
+) -> list[EpisodePlan]:
+    """The next winnable episode of each generator: every episode can be captured in time.
+
+    The rule: from its generator, an episode draws the trajectory (:func:`place_target`), then
+    the control periods (:func:`draw_periods`), and computes the plan's physical limit
+    (:func:`episode_bounds` under :func:`bound_task`). The plan is kept if that limit is finite:
+    some joint-rate-limited motion of the arm captures the target before the time limit (and
+    before it has left the arm's reach for longer than ``lost_after``). Otherwise the same
+    generator draws a whole plan again (trajectory, then periods), and so on; after
+    ``MAX_PLAN_DRAWS`` plans with no finite limit, ``RuntimeError`` names the scenario. Only
+    then do the episode's other draws (the camera's noise and drop-outs) follow from the
+    generator. A seed's episode is therefore one function of the scenario and the seed in every
+    env, recording and evaluation, and a seed whose first plan is winnable keeps it (the
+    generator stands where it stood without the rule).
+
+    The kept plan carries its limit (:attr:`EpisodePlan.bound`), which :func:`episode_bounds`
+    gives again without computing it, so an episode's limit is computed once. The generators'
+    plans are drawn in turn and their limits computed together, a round per redraw: each
+    generator's plan is what it alone would draw (the limits of many plans are each one's own,
+    :func:`~capture_bench.task.physical_limit.physical_limits`).
+    """
+    task = bound_task(scenario)
+    plans: list[EpisodePlan | None] = [None] * len(rngs)
+    pending = list(range(len(rngs)))
+    for _ in range(MAX_PLAN_DRAWS):
+        if not pending:
+            break
+        drawn = []
+        for i in pending:
+            trajectory = place_target(scenario, camera_model, features, rngs[i])
+            drawn.append(EpisodePlan(scenario, trajectory, draw_periods(scenario.control, rngs[i])))
+        left = []
+        for i, plan, bound in zip(pending, drawn, _compute_bounds(drawn, task), strict=True):
+            if math.isfinite(bound.time):
+                plans[i] = dataclasses.replace(plan, bound=bound)
+            else:
+                left.append(i)
+        pending = left
+    if pending:
+        raise RuntimeError(
+            f"scenario {scenario.name!r}: no episode the arm can win (a finite physical limit "
+            f"before the time limit) in {MAX_PLAN_DRAWS} draws; check target.initial_offset, "
+            "target.speed and control.episode_limit"
+        )
+    return [plan for plan in plans if plan is not None]
+
+
 def episode_bounds(
     plans: Sequence[EpisodePlan], description: TaskDescription
 ) -> list[PhysicalLimit]:
     """The physical-limit bound of each episode (DESIGN.md), computed together: the earliest
     time eq. 20 can hold plus the scenario's ``capture.hold`` (see
     :mod:`capture_bench.task.physical_limit`); ``inf`` when that is after the episode's last step
-    ends, or when the target leaves the arm's reach for longer than ``lost_after`` before it."""
+    ends, or when the target leaves the arm's reach for longer than ``lost_after`` before it.
+    A plan that carries its bound (:func:`draw_plans`) gives it without a computation where
+    ``description`` is :func:`bound_task`'s (the same arm and epsilon)."""
     if not plans:
         return []
+    carried = [
+        plan.bound
+        if plan.bound is not None and _same_task(description, bound_task(plan.scenario))
+        else None
+        for plan in plans
+    ]
+    todo = [plan for plan, bound in zip(plans, carried, strict=True) if bound is None]
+    computed = iter(_compute_bounds(todo, description) if todo else [])
+    return [next(computed) if bound is None else bound for bound in carried]
+
+
+def _compute_bounds(
+    plans: Sequence[EpisodePlan], description: TaskDescription
+) -> list[PhysicalLimit]:
+    """:func:`episode_bounds` of plans that carry none, computed together."""
     arm = description.arm
     control = plans[0].scenario.control
     ends = [plan.end() for plan in plans]

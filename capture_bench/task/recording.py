@@ -36,7 +36,7 @@ from capture_bench.sensing.estimator import (
 )
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sim import kinematics
-from capture_bench.task.episode import EpisodePlan, episode_bounds
+from capture_bench.task.episode import EpisodePlan, draw_plans, episode_bounds
 from capture_bench.task.observation import TaskDescription
 from capture_bench.task.physical_limit import PhysicalLimit
 from capture_bench.task.scenarios import Scenario
@@ -72,8 +72,8 @@ class RecordedEpisode(EpisodeTruth):
     ``estimate_velocity`` (T+1, 3), NaN where not ``estimate_valid``; ``estimator_status`` (T+1,)
     index into :data:`capture_bench.sensing.estimator.STATUSES`; ``reachable`` (T+1,);
     ``position_error``, ``velocity_error``, ``nees`` (T+1,). ``bound`` is the episode's physical
-    limit (``inf`` as ``CaptureEnv.physical_limit`` gives it), None until computed (the single
-    env computes it lazily, at the end of an episode or when the oracle asks).
+    limit, None until asked for (the single env reads it from the plan, which carries it since
+    it was drawn, at the end of an episode or when the oracle asks).
     ``continuation`` is None when every row holds the estimator's output; a recording whose EKF
     was run for its first rows only (:func:`record_episodes` with ``estimated_steps``) says
     there where its estimates stop and the filter to continue from.
@@ -155,10 +155,10 @@ def record_episodes(
     """
     if estimated_steps is not None and estimated_steps < 1:
         raise ValueError(f"estimated_steps must be None or >= 1, got {estimated_steps}")
-    truths = []
-    for rng in rngs:
-        plan = EpisodePlan.draw(scenario, camera.model, features, rng)
-        truths.append(record_truth(plan, camera, features, rng))
+    plans = draw_plans(scenario, camera.model, features, rngs)
+    truths = [
+        record_truth(plan, camera, features, rng) for plan, rng in zip(plans, rngs, strict=True)
+    ]
     source = scenario.estimator.source
     continuations: list[EstimatorContinuation | None] = [None] * len(truths)
     if source == "ekf":

@@ -109,8 +109,8 @@ class TargetSide:
         features: FloatArray,
         rng: np.random.Generator,
     ) -> TargetSide:
-        """The next episode of ``rng``: its plan drawn (:meth:`EpisodePlan.draw`), then
-        :meth:`live` on it with the same generator."""
+        """The next episode of ``rng``: its plan drawn (:meth:`EpisodePlan.draw`, a winnable
+        one), then :meth:`live` on it with the same generator."""
         plan = EpisodePlan.draw(scenario, camera.model, features, rng)
         return cls.live(plan, camera, estimator, features, rng)
 
@@ -364,9 +364,10 @@ class EpisodeCache:
     def bound_of(
         self, key: EpisodeKey | None, plan: EpisodePlan, description: TaskDescription
     ) -> PhysicalLimit:
-        """The physical-limit bound of ``plan``: the one kept for ``key``, else computed now
-        (:func:`~capture_bench.task.episode.episode_bounds`) and kept for ``key`` (None: an
-        unseeded episode, not kept)."""
+        """The physical-limit bound of ``plan``: the one kept for ``key``, else
+        :func:`~capture_bench.task.episode.episode_bounds`' (the one the plan carries since it
+        was drawn, or computed now) and kept for ``key`` (None: an unseeded episode, not
+        kept)."""
         found = None if key is None else self.limit(key)
         if found is not None:
             return found
