@@ -146,12 +146,32 @@ class CaptureEnv(TaskAccess, gym.Env):
     The scenario's estimator still runs: ``info`` and the metrics are the same as with it.
 
     ## Rewards
-    ``reward="dense"`` (default): ``reward_progress = 10 (d_prev − d)`` (d: true distance, m),
-    ``reward_time = −0.01`` per step, ``reward_capture = +5`` on capture, ``reward_failure = −5`` on
-    collision, target_lost or unreachable. ``reward="sparse"``: 1 on capture, else 0.
-    ``reward="shaped"``: dense with ``reward_progress`` replaced by potential-based shaping,
-    ``reward_shaping = 0.99 Φ(d) − Φ(d_prev)`` with ``Φ(d) = −ln(1 + d / 1 mm)``, which resolves
-    the last millimetre (``capture_bench/task/rewards.py``). Each term is in ``info``.
+    The step's reward is the sum of its terms, each also in ``info`` under its name
+    (``capture_bench/task/rewards.py``). d_prev, d: true distance ||X_E − X_T|| before and after
+    the step, m; Φ(d) = −ln(1 + d / 1 mm); v: the end-effector's instantaneous speed relative to
+    the capture point at the step's end, ``|J(Θ) Θ̇ − Ẋ_T|`` (``info["relative_speed"]``), m/s;
+    c: the closest approach of X_E − X_T during the step (on the straight segment between its
+    ends), m; v_ref: the scenario's ``capture.v_max``, m/s.
+
+    | term            | formula                            | units      | when                   |
+    |-----------------|------------------------------------|------------|------------------------|
+    | reward_progress | 10 (d_prev − d)                    | 10 per m   | dense: every step      |
+    | reward_shaping  | 0.99 Φ(d) − Φ(d_prev)              | –          | shaped: every step     |
+    | reward_time     | −0.01                              | per step   | dense, shaped: always  |
+    | reward_speed    | −max(0, v − v_ref) · exp(−c/10 mm) | 1 per m/s  | dense, shaped: v_max set |
+    | reward_capture  | +5 (sparse: +1)                    | –          | the step that captures |
+    | reward_failure  | −5                                 | –          | a failure but timeout  |
+
+    ``reward="dense"`` (default): ``reward_progress``, ``reward_time``, ``reward_speed``,
+    ``reward_capture``, ``reward_failure``. ``reward="sparse"``: ``reward_capture`` alone (1 on
+    capture, else 0). ``reward="shaped"``: dense with ``reward_progress`` replaced by
+    potential-based shaping, ``reward_shaping``, which resolves the last millimetre.
+    ``reward_speed`` charges a pass through the target at speed (a collision, not a capture) on
+    the step that passes it, wherever that step ends, the capturing step included, so that
+    arriving slow pays more than flying through (beyond 0.2 m its weight, below 2.1e-9, is taken
+    as 0); it is not shaping and changes which policies are optimal, on purpose. A scenario
+    without a speed bound (``capture.v_max: null``: the paper's eq. 20, any speed) has no
+    charge: ``reward_speed`` is 0 there, as the rule asks nothing of the speed.
 
     ## Starting State
     Home pose. The capture point starts ``target.initial_offset`` m from the home end-effector in a
@@ -174,7 +194,14 @@ class CaptureEnv(TaskAccess, gym.Env):
     Every step: ``is_success``, ``failure`` (None or one of ``FAILURES``), ``capture_time`` (s:
     when the capture completed), ``capture_time_estimated`` (s: first time the same test, hold
     included, completed on the *estimated* position, as the paper's hardware could only judge),
-    ``time``, ``dt``, ``distance``, ``relative_speed``, ``estimate_position_error``,
+    ``time``, ``dt``, ``distance`` (true ||X_E − X_T|| at the step's end, m), ``relative_speed``
+    (the end-effector's instantaneous speed relative to the capture point at the step's end,
+    ``|J(Θ) Θ̇ − Ẋ_T|``, m/s; the joint rates are constant within a step), on the step that
+    captures (None on the others) ``distance_at_capture`` (true ||X_E − X_T|| at the capture
+    instant, m), ``relative_speed_at_capture`` (the same relative speed then, m/s) and
+    ``relative_speed_max_over_hold`` (its largest from the captured stay's entry to the capture,
+    m/s, sampled along each step at the speed test's points and the stay's ends, to 2e-4 m/s;
+    with no hold, ``relative_speed_at_capture``), ``estimate_position_error``,
     ``estimate_velocity_error``, ``estimate_nees``, ``saturated``, ``clipped``, ``path_length``,
     ``target_visible``, ``estimator_status``, ``reward_*``. At the end:
     ``physical_limit_time`` (s; the earliest time eq. 20 can hold plus the hold; ``inf`` when that

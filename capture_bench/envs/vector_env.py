@@ -25,8 +25,10 @@ episode; what both envs are made of is :class:`capture_bench.envs.core.CaptureTa
 Differences from N single envs, all in the format only:
 
 * ``info`` is gymnasium's vector form: each key holds an (N,) array and ``_key`` marks the sub-envs
-  that report it. ``capture_time``, ``capture_time_estimated`` and ``physical_limit_time`` are NaN
-  where the single env gives None (``physical_limit_time`` is marked only where an episode ended);
+  that report it. ``capture_time``, ``capture_time_estimated``, the capture instant's
+  ``distance_at_capture``, ``relative_speed_at_capture`` and ``relative_speed_max_over_hold``, and
+  ``physical_limit_time`` are NaN where the single env gives None (``physical_limit_time`` is
+  marked only where an episode ended);
   ``failure`` and ``estimator_status`` are object arrays of the single env's values. A sub-env
   that autoresets reports its reset ``info`` (``time``, ``distance``) that step.
 * No rendering, and no privileged API (oracle agents use the single env).

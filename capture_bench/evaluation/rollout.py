@@ -48,9 +48,15 @@ class EpisodeRecord:
         ratio: capture_time / physical_limit_time (>= 1 up to tolerance); NaN if failed or the
             bound is not finite and positive.
         capture_time_estimated: first time the estimate-based test held, s; NaN if never.
-        distance_at_capture: true end-effector-target distance on the capture step, m; NaN if
-            failed.
-        relative_speed_at_capture: relative speed on the capture step, m/s; NaN if failed.
+        distance_at_capture: true end-effector-target distance ||X_E - X_T|| at the capture
+            instant (within the capture step, where the capture completed), m; NaN if failed.
+        relative_speed_at_capture: the end-effector's instantaneous speed relative to the
+            capture point at the capture instant, ``|J(theta) dtheta/dt - Xdot_T|``, m/s; NaN
+            if failed.
+        relative_speed_max_over_hold: the largest instantaneous relative speed over the hold,
+            from the captured stay's entry to the capture (with hold 0 it is
+            ``relative_speed_at_capture``), m/s, sampled along each step as
+            :meth:`~capture_bench.task.step_rule.StepRule.capture_times` says; NaN if failed.
         position_rmse: RMS over steps of the estimated target position error, m.
         velocity_rmse: RMS over steps of the estimated target velocity error, m/s.
         mean_nees: mean over steps of the 6-dof position/velocity NEES (NaN steps skipped).
@@ -77,6 +83,8 @@ class EpisodeRecord:
     capture_time_estimated: float
     distance_at_capture: float
     relative_speed_at_capture: float
+    # keyword-only with a default, so that a record written without it (a synthetic one) is NaN
+    relative_speed_max_over_hold: float = field(default=math.nan, kw_only=True)
     position_rmse: float
     velocity_rmse: float
     mean_nees: float
@@ -151,6 +159,12 @@ class EpisodeTrace:
 def _float(info: dict[str, Any], key: str) -> float:
     value = info.get(key)
     return math.nan if value is None else float(value)
+
+
+def _at_capture(info: dict[str, Any], key: str, captured: bool) -> float:
+    """The capturing step's ``info[key]`` (the values at the capture instant), NaN if the
+    episode did not capture."""
+    return _float(info, key) if captured else math.nan
 
 
 def _seed_agent(agent: Agent, env: Any, seed: int) -> None:
@@ -237,8 +251,11 @@ class _EpisodeLog:
             physical_limit_time=limit,
             ratio=ratio,
             capture_time_estimated=_float(info, "capture_time_estimated"),
-            distance_at_capture=_float(info, "distance") if captured else math.nan,
-            relative_speed_at_capture=_float(info, "relative_speed") if captured else math.nan,
+            distance_at_capture=_at_capture(info, "distance_at_capture", captured),
+            relative_speed_at_capture=_at_capture(info, "relative_speed_at_capture", captured),
+            relative_speed_max_over_hold=_at_capture(
+                info, "relative_speed_max_over_hold", captured
+            ),
             position_rmse=_root_mean(self.pos_sq),
             velocity_rmse=_root_mean(self.vel_sq),
             mean_nees=float(np.mean(finite_nees)) if finite_nees else math.nan,

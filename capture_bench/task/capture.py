@@ -27,6 +27,8 @@ for the whole hold (:func:`relative_velocities`). Within a step the joint rates 
 enough that ``v`` is within ``VELOCITY_RESOLUTION`` of the straight line between two of them
 (:func:`slow_intervals_along_arc`), each piece's slow stretch solved exactly on that line
 (:func:`slow_intervals`), and intersected with the stays inside the box (:func:`intersect`).
+The speeds over a stretch of a step (:func:`speeds_between`: the largest relative speed over a
+hold) are taken on the same grid and at the stretch's ends.
 
 Every test here takes M steps as rows, (M, 3) arrays; one step is the case M = 1. The arc walk and
 the hold are per step (a Python loop over the few steps that come near the target).
@@ -344,6 +346,39 @@ def slow_intervals_along_arc(
             out.append((lo, hi))
         joins = k + 1 if his[k] == 1.0 else -1
     return out
+
+
+def speeds_between(
+    theta0: ArrayLike,
+    delta_theta: ArrayLike,
+    dt: float,
+    target_velocity_at: Callable[[FloatArray], FloatArray],
+    lo: float,
+    hi: float,
+) -> FloatArray:
+    """The end-effector's instantaneous speed relative to the capture point, ``|v(s)|`` (m/s),
+    over the stretch ``[lo, hi]`` of one step: at ``lo``, at the points of
+    :func:`slow_intervals_along_arc`'s grid strictly between, and at ``hi``, in that order (so
+    the first entry is ``|v(lo)|`` and the last ``|v(hi)|``; ``lo == hi`` gives that one value
+    twice).
+
+    Between two neighbouring points ``v`` is within ``VELOCITY_RESOLUTION`` of the straight line
+    between its values there, whose norm is largest at one of its ends, so the largest of these
+    speeds is within ``2 VELOCITY_RESOLUTION`` of the largest over the stretch.
+
+    Args:
+        theta0: joint angles at the start of the step, rad, (3,).
+        delta_theta: the step's joint increment, rad, (3,) (constant rates ``delta_theta / dt``).
+        dt: the step's real period, s.
+        target_velocity_at: Xdot_T at fractions s of the step, (K,) -> (K, 3), global, m/s.
+        lo, hi: the stretch, fractions of the step, ``0 <= lo <= hi <= 1``.
+    """
+    delta = np.asarray(delta_theta, dtype=float)
+    grid = np.linspace(0.0, 1.0, speed_pieces(delta, dt) + 1)
+    s = np.concatenate(([lo], grid[(grid > lo) & (grid < hi)], [hi]))
+    theta = np.asarray(theta0, dtype=float)[None] + s[:, None] * delta[None]
+    rates = np.broadcast_to(delta / dt, theta.shape)
+    return row_norms(relative_velocities(theta, rates, target_velocity_at(s)))
 
 
 def intersect(

@@ -1,9 +1,10 @@
 """The reward terms of a capture step, over N episodes at once (one definition, both envs).
 
 ``reward="dense"``: progress on the true distance ||X_E - X_T|| (eq. 20's quantity), a time
-penalty per step, a bonus on capture (eq. 20 held during the step) and a penalty on every failure
-but ``timeout``. ``reward="sparse"``: 1 on capture. ``reward="shaped"``: dense with its progress
-term replaced by potential-based shaping (Ng, Harada & Russell 1999),
+penalty per step, a charge for arriving fast, a bonus on capture (eq. 20 held during the step)
+and a penalty on every failure but ``timeout``. ``reward="sparse"``: 1 on capture.
+``reward="shaped"``: dense with its progress term replaced by potential-based shaping (Ng,
+Harada & Russell 1999),
 
     F = gamma * Phi(d') - Phi(d),   Phi(d) = -SHAPING_SCALE * ln(1 + d / SHAPING_LENGTH),
 
@@ -14,10 +15,27 @@ of this form leaves the optimal policy unchanged (for ``gamma`` equal to the tra
 :data:`SHAPING_GAMMA`); over an episode its discounted sum telescopes to
 gamma**T * Phi(d_T) - Phi(d_0) (``tests/test_rewards.py``). Each term is also reported in
 ``info`` under its name; :data:`REWARD_TERMS` names them per mode, in the order they are summed.
+
+The speed term (dense and shaped) pays for a capture a gripper could make rather than a pass
+through the capture point at speed, a collision:
+
+    reward_speed = -SPEED_GAIN * max(0, v - v_ref) * exp(-c / SPEED_LENGTH),
+
+with v the end-effector's instantaneous speed relative to the capture point at the step's end,
+``|J(theta) dtheta/dt - Xdot_T|`` (m/s; within a step the joint rates are constant, so this is
+also the speed at which the step passed the target, to the Jacobian's turn), ``v_ref`` the
+scenario's ``capture.v_max``, and c the closest approach of X_E - X_T during the step (m, on the
+straight segment between the step's ends): a fly-through is charged for the step that passes
+the target, wherever its end lands, the capturing step included. A scenario without a speed
+bound (``capture.v_max: null``, the paper's eq. 20) captures at any speed, and the term is 0
+there: the reward trains for the scenario's rule. It is not shaping: it changes which policies
+are optimal, on purpose (arriving slow pays more than flying through). The weight is taken as 0
+(it is below 2.1e-9) where a step stays beyond :data:`SPEED_REACH`.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -32,11 +50,15 @@ SHAPING_GAMMA = 0.99  # the discount the shaping assumes: train with gamma = SHA
 SHAPING_SCALE = 1.0  # Phi's scale
 SHAPING_LENGTH = 1e-3  # m, where Phi turns from linear to logarithmic: eq. 20's 1 mm tolerance
 
+SPEED_GAIN = 1.0  # reward per m/s of relative speed above v_ref, per step, at the target
+SPEED_LENGTH = 0.01  # m: the speed term's weight exp(-c / SPEED_LENGTH) falls by e per 10 mm
+SPEED_REACH = 20.0 * SPEED_LENGTH  # m: beyond it the weight (< 2.1e-9) is taken as 0
+
 #: The terms of each reward mode, in the order they are summed.
 REWARD_TERMS: dict[str, tuple[str, ...]] = {
-    "dense": ("reward_progress", "reward_time", "reward_capture", "reward_failure"),
+    "dense": ("reward_progress", "reward_time", "reward_speed", "reward_capture", "reward_failure"),
     "sparse": ("reward_capture",),
-    "shaped": ("reward_shaping", "reward_time", "reward_capture", "reward_failure"),
+    "shaped": ("reward_shaping", "reward_time", "reward_speed", "reward_capture", "reward_failure"),
 }
 REWARD_MODES = tuple(REWARD_TERMS)
 
@@ -46,17 +68,30 @@ Values = Any
 
 
 def reward_terms(
-    mode: str, previous_distance: Values, distance: Values, captured: Values, penalised: Values
+    mode: str,
+    previous_distance: Values,
+    distance: Values,
+    captured: Values,
+    penalised: Values,
+    *,
+    relative_speed: Values = 0.0,
+    closest: Values = np.inf,
+    speed_limit: float = math.inf,
 ) -> dict[str, Values]:
     """The reward of one step of M episodes (arrays (M,)), split into the named terms of
     ``mode``.
 
     Args:
-        mode: ``"dense"`` or ``"sparse"``.
+        mode: one of :data:`REWARD_MODES`.
         previous_distance: true ||X_E - X_T|| before the step, m.
         distance: the same after the step, m.
         captured: eq. 20 held during the step.
         penalised: the step ended with a failure other than :data:`UNPENALISED_FAILURES`.
+        relative_speed: the end-effector's instantaneous speed relative to the capture point at
+            the step's end, m/s.
+        closest: the closest approach of X_E - X_T during the step, m (inf: far).
+        speed_limit: v_ref, the scenario's ``capture.v_max``, m/s (default inf: no bound, and
+            no speed term).
 
     Returns:
         ``{term: values}`` with the keys of ``REWARD_TERMS[mode]``, in that order.
@@ -72,6 +107,11 @@ def reward_terms(
     return {
         **first,
         "reward_time": TIME_PENALTY + 0.0 * distance,
+        "reward_speed": (
+            0.0 * distance  # no speed bound: no charge
+            if speed_limit == math.inf
+            else speed_penalty(relative_speed, closest, speed_limit) + 0.0 * distance
+        ),
         "reward_capture": _where_flagged(captured, CAPTURE_BONUS),
         "reward_failure": _where_flagged(penalised, FAILURE_PENALTY),
     }
@@ -83,6 +123,14 @@ def _where_flagged(flags: Values, value: float) -> Values:
     out = np.zeros(flags.shape)
     out[flags] = value
     return out
+
+
+def speed_penalty(relative_speed: Values, closest: Values, speed_limit: float) -> Values:
+    """-SPEED_GAIN * max(0, v - v_ref) * exp(-c / SPEED_LENGTH): the speed term of a relative
+    speed v (m/s) at a closest approach c (m), v_ref = ``speed_limit`` (m/s); 0 where v <= v_ref
+    (always with v_ref inf) or c is inf."""
+    excess = np.maximum(relative_speed - speed_limit, 0.0)
+    return -SPEED_GAIN * excess * np.exp(closest * (-1.0 / SPEED_LENGTH))
 
 
 def potential(distance: Values) -> Values:

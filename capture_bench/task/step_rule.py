@@ -38,13 +38,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from capture_bench.sensing.estimator import STATUSES
 from capture_bench.sim import kinematics
+from capture_bench.sim.kinematics import L1, L2
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.task.capture import (
     ARC_RESOLUTION,
@@ -57,12 +58,14 @@ from capture_bench.task.capture import (
     intersect,
     row_norms,
     slow_intervals_along_arc,
+    speeds_between,
 )
 from capture_bench.task.episode import TIME_SLACK, time_limit
 from capture_bench.task.observation import TaskDescription, encode_observation
 from capture_bench.task.rewards import (
     REWARD_MODES,
     REWARD_TERMS,
+    SPEED_REACH,
     UNPENALISED_FAILURES,
     reward_terms,
     total_reward,
@@ -91,7 +94,7 @@ _SCREEN_MARGIN = 1e-9
 
 #: The tracks of the target side :meth:`StepRule.step` reads at a step's start (``before``); at
 #: its end (``after``) it reads every one of :data:`capture_bench.task.recording.STEP_TRACKS`.
-BEFORE_TRACKS = ("position", "estimate_valid", "estimate_position")
+BEFORE_TRACKS = ("position", "velocity", "estimate_valid", "estimate_position")
 
 #: ``info`` of every step, in this order (the reward terms of the mode follow).
 INFO_KEYS = (
@@ -102,7 +105,14 @@ INFO_KEYS = (
     "time",  # s since reset
     "dt",  # the step's real control period, s
     "distance",  # true ||X_E - X_T|| after the step, m
-    "relative_speed",  # ||X_E-dot (mean over the step) - X_T-dot||, m/s
+    # |J(theta) dtheta/dt - Xdot_T| at the step's end: the end-effector's instantaneous speed
+    # relative to the capture point, m/s
+    "relative_speed",
+    "distance_at_capture",  # true ||X_E - X_T|| at the capture instant, m (None / NaN)
+    "relative_speed_at_capture",  # the instantaneous relative speed then, m/s (None / NaN)
+    # the largest instantaneous relative speed over the hold, from the captured stay's entry to
+    # the capture, m/s (hold 0: relative_speed_at_capture; None / NaN)
+    "relative_speed_max_over_hold",
     "estimate_position_error",  # m, NaN without a valid estimate
     "estimate_velocity_error",  # m/s
     "estimate_nees",  # NEES of (position, velocity), NaN without a covariance
@@ -117,7 +127,13 @@ END_INFO_KEYS = ("physical_limit_time",)  # s, the episode's bound (inf: none)
 #: ``info`` of ``reset``.
 RESET_INFO_KEYS = ("time", "distance")
 #: Keys whose "none" is None in the single env and NaN in the vector env.
-OPTIONAL_KEYS = ("capture_time", "capture_time_estimated")
+OPTIONAL_KEYS = (
+    "capture_time",
+    "capture_time_estimated",
+    "distance_at_capture",
+    "relative_speed_at_capture",
+    "relative_speed_max_over_hold",
+)
 
 
 def info_keys(reward_mode: str) -> tuple[str, ...]:
@@ -141,6 +157,9 @@ class ArmState:
         inside_since: when the stay inside eq. 20's box (true target) in progress at the last
             step's end began, s; NaN if outside then, (N,).
         estimate_inside_since: the same for the estimated target, (N,).
+        stay_speed_max: the largest instantaneous relative speed over the stay of
+            ``inside_since`` up to the last step's end, m/s, sampled as
+            :meth:`StepRule.capture_times` says; NaN where no stay is in progress, (N,).
     """
 
     theta: FloatArray
@@ -152,6 +171,7 @@ class ArmState:
     capture_time_estimated: FloatArray
     inside_since: FloatArray
     estimate_inside_since: FloatArray
+    stay_speed_max: FloatArray
 
     @classmethod
     def empty(cls, n: int) -> ArmState:
@@ -167,7 +187,32 @@ class ArmState:
             np.full(n, np.nan),
             np.full(n, np.nan),
             np.full(n, np.nan),
+            np.full(n, np.nan),
         )
+
+
+class Captures(NamedTuple):
+    """What :meth:`StepRule.capture_times` found for M steps on the true target, (M,) arrays,
+    NaN where none.
+
+    Attributes:
+        time: when the capture completed, s.
+        since: when the stay in progress at the step's end began, s (on a capture, the captured
+            stay's entry).
+        stay_speed_max: the largest instantaneous relative speed over the stay in progress at
+            the step's end, up to that end, m/s (NaN on a capture).
+        distance: true ||X_E - X_T|| at the capture instant, m.
+        speed: the instantaneous relative speed |J(theta) dtheta/dt - Xdot_T| then, m/s.
+        speed_max: the largest instantaneous relative speed over the hold, from the captured
+            stay's entry to the capture, m/s (hold 0: ``speed``).
+    """
+
+    time: FloatArray
+    since: FloatArray
+    stay_speed_max: FloatArray
+    distance: FloatArray
+    speed: FloatArray
+    speed_max: FloatArray
 
 
 @dataclass
@@ -242,6 +287,7 @@ class StepRule:
         state.path_length[rows] = state.since_frame[rows] = state.unreachable_for[rows] = 0.0
         state.capture_time_estimated[rows] = np.nan
         state.inside_since[rows] = state.estimate_inside_since[rows] = np.nan
+        state.stay_speed_max[rows] = np.nan
         distance = np.linalg.norm(x_e - target_position, axis=1)
         state.distance[rows] = distance
         return {"time": np.zeros(distance.size), "distance": distance}
@@ -278,19 +324,27 @@ class StepRule:
         # The state at the step's start (views of it where ``rows`` is a slice): written back
         # only once every use below has read it.
         theta0, x_e0, d_prev = state.theta[rows], state.x_e[rows], state.distance[rows]
+        applied = theta - theta0
         moved = x_e - x_e0
+        d0 = x_e0 - before["position"]
         d1 = x_e - x_t
         t0 = time - dt
-        capture_time, inside_since = self.capture_times(
+        reach = approach_lower_bounds(d0, d1)  # a lower bound on the step's closest approach
+        capture = self.capture_times(
             theta0,
-            theta - theta0,
-            x_e0 - before["position"],
+            applied,
+            d0,
             d1,
             t0,
             dt,
             trajectory,
             state.inside_since[rows],
+            reach=reach,
+            positions=(before["position"], x_t),
+            velocities=(before["velocity"], after["velocity"]),
+            speed_max=state.stay_speed_max[rows],
         )
+        capture_time = capture.time
         captured = capture_time == capture_time  # not NaN
         estimated = self._estimated_capture(state, rows, before, after, x_e0, x_e, t0, dt)
         failure = self.failures(state, rows, after, captured, collides)
@@ -300,13 +354,22 @@ class StepRule:
             timeout &= ~ended
             failure[timeout] = TIMEOUT
 
-        # |X_E - X_T|, the step's length and X_E's mean velocity over it against X_T's: one norm
-        lengths = row_norms(
-            np.concatenate((d1, moved, moved / dt[:, None] - after["velocity"]), axis=1)
-        )
-        distance = lengths[:, 0]
+        # the end-effector's instantaneous velocity relative to the capture point at the end
+        end_velocity = _relative_velocities(theta, applied, dt, after["velocity"])
+        # |X_E - X_T|, the step's length and the relative speed at its end: one norm
+        lengths = row_norms(np.concatenate((d1, moved, end_velocity), axis=1))
+        distance, relative_speed = lengths[:, 0], lengths[:, 2]
         path_length = state.path_length[rows] + lengths[:, 1]
-        terms = reward_terms(self.reward_mode, d_prev, distance, captured, _PENALISED[failure])
+        terms = reward_terms(
+            self.reward_mode,
+            d_prev,
+            distance,
+            captured,
+            _PENALISED[failure],
+            relative_speed=relative_speed,
+            closest=self._closest(d0, d1, reach),
+            speed_limit=self.v_max,
+        )
         info: dict[str, NDArray] = {
             "is_success": captured,
             "failure": FAILURE_NAMES[failure],
@@ -315,7 +378,10 @@ class StepRule:
             "time": time,
             "dt": dt,
             "distance": distance,
-            "relative_speed": lengths[:, 2],
+            "relative_speed": relative_speed,
+            "distance_at_capture": capture.distance,
+            "relative_speed_at_capture": capture.speed,
+            "relative_speed_max_over_hold": capture.speed_max,
             "estimate_position_error": after["position_error"],
             "estimate_velocity_error": after["velocity_error"],
             "estimate_nees": after["nees"],
@@ -328,8 +394,27 @@ class StepRule:
             **terms,
         }
         state.theta[rows], state.x_e[rows], state.distance[rows] = theta, x_e, distance
-        state.path_length[rows], state.inside_since[rows] = path_length, inside_since
+        state.path_length[rows], state.inside_since[rows] = path_length, capture.since
+        state.stay_speed_max[rows] = capture.stay_speed_max
         return StepOutcome(total_reward(terms), ended, timeout, failure, info)
+
+    def _closest(self, d0: FloatArray, d1: FloatArray, reach: FloatArray) -> FloatArray:
+        """The reward's closeness: the closest approach of X_E - X_T over each step, on the
+        straight segment between its ends, m (:func:`~capture_bench.task.capture.
+        closest_approaches`); inf where the step's lower bound ``reach`` puts it beyond
+        :data:`~capture_bench.task.rewards.SPEED_REACH` (the speed term's weight is below 2.1e-9
+        there), and everywhere where the speed term is 0 anyway: under the sparse reward, and
+        without a speed bound."""
+        if self.reward_mode == "sparse" or self.v_max == math.inf:
+            return np.full(reach.size, np.inf)
+        near = reach <= SPEED_REACH
+        count = np.count_nonzero(near)
+        if count == reach.size:  # every step near (the single env's near steps): no indexing
+            return closest_approaches(d0, d1)
+        closest = np.full(reach.size, np.inf)
+        if count:
+            closest[near] = closest_approaches(d0[near], d1[near])
+        return closest
 
     def capture_times(
         self,
@@ -341,7 +426,12 @@ class StepRule:
         dt: FloatArray,
         trajectory: Callable[[int], TargetTrajectory],
         since: FloatArray,
-    ) -> tuple[FloatArray, FloatArray]:
+        *,
+        reach: FloatArray,
+        positions: tuple[FloatArray, FloatArray],
+        velocities: tuple[FloatArray, FloatArray],
+        speed_max: FloatArray,
+    ) -> Captures:
         """When each step's capture completed (NaN where it did not) and when the stay inside
         eq. 20's box in progress at its end began (NaN: outside), on the true target
         (:mod:`capture_bench.task.capture`): the stays are tested on the chord where the arc sags
@@ -349,8 +439,24 @@ class StepRule:
         tolerance's radius plus the sag; with ``v_max`` the stays are cut to where the
         end-effector's instantaneous velocity relative to the capture point is at most
         ``v_max`` (the capture envelope); :func:`~capture_bench.task.capture.held_capture` then
-        applies the hold. The steps that :func:`~capture_bench.task.capture.
-        approach_lower_bounds` puts farther than that cannot enter the box and are not tested.
+        applies the hold. The steps whose lower bound ``reach`` (:func:`~capture_bench.task.
+        capture.approach_lower_bounds`) puts farther than that cannot enter the box and are not
+        tested.
+
+        On each step with a stay (the one :func:`~capture_bench.task.capture.held_capture`
+        keeps: inside the box, and slow where ``v_max`` bounds the speed) it also takes the
+        instantaneous relative speed ``|J(theta) dtheta/dt - Xdot_T|`` over the stay's part of
+        the step, from its entry (or the step's start) to the capture (or the step's end),
+        sampled by :func:`~capture_bench.task.capture.speeds_between` (the part's ends and the
+        points of the speed test's grid between them; the largest is within
+        ``2 VELOCITY_RESOLUTION`` of the true largest), and joins its largest to
+        ``speed_max`` where the stay goes on from the last step; on a capture, the distance and
+        the relative speed at the capture instant. The arm is then on its true arc,
+        ``theta0 + s applied``; X_T and Xdot_T are taken straight between the step's ends
+        (``positions``, ``velocities``), exact for Xdot_T wherever the target's velocity is
+        linear in time over the step (a drift; an evasive target between two jinks), within
+        ``dt^2 / 8`` times its third derivative otherwise (~1e-5 m/s at the shipped rates), and
+        within ``|Delta a| dt / 4`` in a step holding an evasive jink (~4e-4 m/s at most).
 
         Args:
             theta0, applied: joint angles at the start and the increment, rad, (M, 3).
@@ -358,13 +464,17 @@ class StepRule:
             t0, dt: the step's start and real period, s, (M,).
             trajectory: the j-th episode's true trajectory.
             since: when the stay in progress at the step's start began, s, NaN if none, (M,).
+            reach: :func:`~capture_bench.task.capture.approach_lower_bounds` of ``d0, d1``,
+                m, (M,).
+            positions, velocities: X_T and Xdot_T at the step's start and end, (M, 3) each.
+            speed_max: the largest relative speed over the stay in progress at the step's start
+                (:attr:`ArmState.stay_speed_max`), m/s, (M,).
         """
-        capture_time = _nans(d0.shape[0])
-        since_after = capture_time.copy()
+        out = Captures(*_nans(6 * d0.shape[0]).reshape(6, -1))  # six (M,) rows of one block
         sag = arc_sag_bounds(applied)
-        near = approach_lower_bounds(d0, d1) - sag <= self._screen_radius
+        near = reach - sag <= self._screen_radius
         if not np.count_nonzero(near):  # the common case
-            return capture_time, since_after
+            return out
         steps = np.flatnonzero(near)
         lo, hi = inside_intervals(d0[steps], d1[steps], self.tolerance)
         closest = closest_approaches(d0[steps], d1[steps])
@@ -396,12 +506,63 @@ class StepRule:
                 intervals = [(float(lo[j]), float(hi[j]))]
             if self.v_max < math.inf:  # the envelope: slow as well as inside
                 intervals = intersect(intervals, self._slow(i, theta0, applied, t0, dt, trajectory))
-            done, since_after[i] = held_capture(
-                intervals, float(since[i]), float(t0[i]), float(dt[i]), self.hold
-            )
-            if done is not None:
-                capture_time[i] = done
-        return capture_time, since_after
+            carried = float(since[i])
+            done, start = held_capture(intervals, carried, float(t0[i]), float(dt[i]), self.hold)
+            out.since[i] = start
+            if done is not None or not math.isnan(start):  # a stay at the capture or the end
+                goes_on = not math.isnan(carried) and start == carried  # from an earlier step
+                self._stay_speeds(
+                    out,
+                    i,
+                    (start, done),
+                    float(speed_max[i]) if goes_on else math.nan,
+                    (theta0[i], applied[i], float(t0[i]), float(dt[i])),
+                    positions,
+                    velocities,
+                )
+        return out
+
+    @staticmethod
+    def _stay_speeds(
+        out: Captures,
+        i: int,
+        stay: tuple[float, float | None],
+        speed_max: float,
+        step: tuple[FloatArray, FloatArray, float, float],
+        positions: tuple[FloatArray, FloatArray],
+        velocities: tuple[FloatArray, FloatArray],
+    ) -> None:
+        """Row ``i`` of ``out``'s speeds over a stay (see :meth:`capture_times`).
+
+        Args:
+            out: where to write.
+            i: the step's row.
+            stay: when the stay began and when the capture completed (None: it goes on past
+                the step's end), s.
+            speed_max: the stay's largest relative speed before this step, m/s (NaN: it began
+                in this step).
+            step: the step's theta0, joint increment, start and real period.
+            positions, velocities: X_T and Xdot_T at the steps' starts and ends, (M, 3) each.
+        """
+        (start, done), (theta0, applied, t0, dt) = stay, step
+        end = 1.0 if done is None else min(max((done - t0) / dt, 0.0), 1.0)
+        entry = min(max((start - t0) / dt, 0.0), end)
+        v0, v1 = velocities[0][i], velocities[1][i]
+        speeds = speeds_between(
+            theta0, applied, dt, lambda f: (1.0 - f)[:, None] * v0 + f[:, None] * v1, entry, end
+        )
+        largest = float(speeds.max())
+        if not math.isnan(speed_max):
+            largest = max(largest, speed_max)
+        if done is None:
+            out.stay_speed_max[i] = largest
+            return
+        out.time[i] = done
+        out.speed[i] = float(speeds[-1])
+        out.speed_max[i] = largest
+        x_e = kinematics.forward_kinematics_point(theta0 + end * applied)
+        x_t = (1.0 - end) * positions[0][i] + end * positions[1][i]
+        out.distance[i] = math.sqrt(float(np.dot(x_e - x_t, x_e - x_t)))
 
     def _slow(
         self,
@@ -506,6 +667,30 @@ class StepRule:
             now["dt"],
             self.control_period,
         )
+
+
+def _relative_velocities(
+    theta: FloatArray, applied: FloatArray, dt: FloatArray, target_velocity: FloatArray
+) -> FloatArray:
+    """``J(theta) applied / dt - Xdot_T`` of M steps' ends, m/s, (M, 3): the numbers of
+    :func:`~capture_bench.task.capture.relative_velocities` at the joint rates ``applied / dt``
+    (to rounding), with :func:`capture_bench.sim.kinematics.jacobian`'s entries multiplied out,
+    in half its numpy calls. Element by element: a row's floats do not depend on the others."""
+    t1, t2, t3 = theta[:, 0], theta[:, 1], theta[:, 2]
+    rates = applied / dt[:, None]
+    w1, w2, w3 = rates[:, 0], rates[:, 1], rates[:, 2]
+    t23 = t2 + t3
+    c1, s1, c23, s23 = np.cos(t1), np.sin(t1), np.cos(t23), np.sin(t23)
+    r = L1 * np.cos(t2) + L2 * s23
+    forearm = L2 * c23
+    radial = (forearm - L1 * np.sin(t2)) * w2 + forearm * w3  # dr/dt
+    around = r * w1
+    out = np.empty(theta.shape)
+    out[:, 0] = radial * c1 - around * s1
+    out[:, 1] = radial * s1 + around * c1
+    out[:, 2] = r * w2 + L2 * s23 * w3
+    out -= target_velocity
+    return out
 
 
 def _nans(m: int) -> FloatArray:
