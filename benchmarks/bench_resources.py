@@ -2,7 +2,7 @@
 
 Three measurements (Linux: resident set sizes are read from /proc/<pid>/status):
 
-1. ``--envs N`` times ``gymnasium.make("CaptureBench/Paper-v0")``, ``reset(seed=i)``, a few
+1. ``--envs N`` times ``gymnasium.make("CaptureBench/Paper-v1")``, ``reset(seed=i)``, a few
    random steps, ``close()`` twice. Every pybullet client handed out (``pybullet.connect`` is
    wrapped to record the ids) must be disconnected by ``close()`` itself: checked with
    ``pybullet.isConnected`` while the env object is still alive, so that pybullet's ``__del__``
@@ -67,7 +67,7 @@ from capture_bench.sim.world import pybullet  # noqa: E402 (imported quietly the
 from capture_bench.task.scenarios import SCENARIO_DIR  # noqa: E402
 from capture_bench.task.target_side import DEFAULT_EPISODE_CACHE  # noqa: E402
 
-ENV_ID = "CaptureBench/Paper-v0"
+ENV_ID = "CaptureBench/Paper-v1"
 STEPS = 5  # random steps per environment before close()
 AGENTS = "incremental_ik,incremental_ik_uncapped,intercept,dls,oracle"  # all capture in ~2 s
 

@@ -1,14 +1,14 @@
 """capture-bench: robotic capture of a moving, non-cooperative target (Dong & Zhu 2016).
 
 Importing the package registers one gymnasium environment per shipped scenario,
-``CaptureBench/<Name>-v0`` (``gymnasium.make("CaptureBench/Paper-v0")``), with a batched vector
-env (``gymnasium.make_vec("CaptureBench/Paper-v0", num_envs=64)``,
+``CaptureBench/<Name>-v1`` (``gymnasium.make("CaptureBench/Paper-v1")``), with a batched vector
+env (``gymnasium.make_vec("CaptureBench/Paper-v1", num_envs=64)``,
 :mod:`capture_bench.envs.vector_env`).
 
 An invalid file under ``configs/scenarios/`` breaks only itself: importing never raises or prints
 because of it, every valid scenario is registered, and the file's error (file, key, what is valid)
 is raised as :class:`ConfigError` when it is used: ``load_scenario(name)``, or
-``gymnasium.make("CaptureBench/<Stem>-v0")`` (its ID is registered from the file name, since the
+``gymnasium.make("CaptureBench/<Stem>-v1")`` (its ID is registered from the file name, since the
 file cannot be trusted to name itself). ``python -m capture_bench list`` shows both kinds.
 """
 
@@ -39,7 +39,7 @@ def _register() -> None:
         try:
             env_id = load_scenario(path).env_id
         except ConfigError:  # registered under its file name; gym.make raises the file's error
-            env_id = f"CaptureBench/{path.stem.title().replace('_', '')}-v0"
+            env_id = f"CaptureBench/{path.stem.title().replace('_', '')}-v1"
         if env_id in registry:
             continue
         try:  # No TimeLimit: the env truncates itself at the scenario's limit in simulated seconds.

@@ -3,13 +3,16 @@ holds the evaluation to, bit for bit, on the kind of machine that made it.
 
     python scripts/suite_reference.py            # add the rows of agents the reference lacks
     python scripts/suite_reference.py --check    # list them; exit 1 if any
+    python scripts/suite_reference.py --rebuild  # every row anew (after a change of the rules)
 
 The reference (``tests/data/default_suite_reference.csv``) holds every default-suite agent's
 episodes on the first two published seeds of every scenario, as ``episodes.csv`` writes them,
-timing columns removed. Its first 256 rows are ``python evaluate.py``'s at commit c8c4260, when
-every episode ran in its own single ``CaptureEnv``; an agent added to the suite since gets its rows
-from that same path (:func:`~capture_bench.evaluation.backends.run_task`, one episode per env) at
-a clean commit, and the ``.json`` beside the file names the commit that made each agent's rows.
+timing columns removed, each episode played in its own single ``CaptureEnv``; an agent added to
+the suite gets its rows from that same path (:func:`~capture_bench.evaluation.backends.run_task`,
+one episode per env) at a clean commit, and the ``.json`` beside the file names the commit that
+made each agent's rows.
+``--rebuild`` replaces every row the same way, for a change of the task's rules that changes
+every score (a new environment version); the ``.json`` then names that commit alone.
 Rows are added only on a machine whose :func:`fingerprint` is the reference's: floats agree bit
 for bit only there (docs/evaluation.md, Reproducibility). Rows already there are never rewritten.
 """
@@ -79,10 +82,15 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = OneLineParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="list missing agents; exit 1 if any")
+    parser.add_argument(
+        "--rebuild", action="store_true", help="replace every row (a change of the task's rules)"
+    )
     args = parser.parse_args(argv)
 
     made, rows = stored()
     tasks = suite_tasks()
+    if args.rebuild:
+        rows = {}
     missing = missing_agents(tasks, rows)
     if args.check or not missing:
         print("agents without reference rows: " + (", ".join(missing) or "none"))
@@ -110,6 +118,18 @@ def main(argv: list[str] | None = None) -> int:
     newline = "\r\n" if old.split(b"\n", 1)[0].endswith(b"\r") else "\n"  # the file's own
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator=newline)
+    if args.rebuild:
+        from capture_bench.provenance import machine, package_versions
+
+        writer.writeheader()
+        old = b""
+        made = {
+            "made_by": "scripts/suite_reference.py --rebuild: each episode in its own single "
+            "CaptureEnv (run_task)",
+            "git": git,
+            "machine": machine(),
+            "packages": package_versions(),
+        }
     writer.writerows(rows)
     made.setdefault("added", []).append(
         {

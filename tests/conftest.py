@@ -23,7 +23,7 @@ def make_env():
     """Factory for registered envs; closes every env it made."""
     made = []
 
-    def _make(env_id="CaptureBench/Paper-v0", **kwargs):
+    def _make(env_id="CaptureBench/Paper-v1", **kwargs):
         env = gym.make(env_id, **kwargs)
         made.append(env)
         return env

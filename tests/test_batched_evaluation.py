@@ -22,9 +22,9 @@ from capture_bench.evaluation.rollout import TIMING_COLUMNS, run_episode, run_ep
 from capture_bench.task.scenarios import load_scenario
 
 #: The default suite's episodes on the first two published seeds of every scenario, every agent,
-#: each played in its own single ``CaptureEnv`` (``python evaluate.py`` at commit c8c4260, and
-#: the agents added since by the same path), timing columns removed; the ``.json`` beside it
-#: names the machine and packages that made it. ``scripts/suite_reference.py`` adds an agent's rows.
+#: each played in its own single ``CaptureEnv``, timing columns removed; the ``.json`` beside it
+#: names the commit, machine and packages that made it. ``scripts/suite_reference.py`` adds an
+#: agent's rows (``--rebuild``: every row, after a change of the rules).
 _SPEC = importlib.util.spec_from_file_location(
     "suite_reference", Path(__file__).resolve().parent.parent / "scripts" / "suite_reference.py"
 )

@@ -28,10 +28,10 @@ ROOT = Path(__file__).parents[1]
 @pytest.mark.parametrize(
     "make",
     [
-        lambda: gym.make("CaptureBench/Paper-v0", image_size=(64, 64)),
-        lambda: gym.make_vec("CaptureBench/Paper-v0", 2, image_size=(64, 64)),
+        lambda: gym.make("CaptureBench/Paper-v1", image_size=(64, 64)),
+        lambda: gym.make_vec("CaptureBench/Paper-v1", 2, image_size=(64, 64)),
         lambda: gym.make_vec(
-            "CaptureBench/Paper-v0", 2, vectorization_mode="sync", image_size=(64, 64)
+            "CaptureBench/Paper-v1", 2, vectorization_mode="sync", image_size=(64, 64)
         ),
         lambda: CaptureEnv("paper", observation_source="truth", image_size=(84, 84)),
         lambda: CaptureVectorEnv(2, "paper", observation_source="ekf", image_size=(84, 84)),
@@ -45,11 +45,11 @@ def test_an_image_size_without_pixels_is_refused(make):
 
 
 def test_the_image_size_default_and_the_pixels_size_still_work():
-    with gym.make("CaptureBench/Paper-v0") as env:
+    with gym.make("CaptureBench/Paper-v1") as env:
         assert env.observation_space.shape == (16,)
     with CaptureEnv("paper", image_size=None) as env:
         assert env.task.image_size == (84, 84)
-    with gym.make("CaptureBench/Paper-v0", observation_source="pixels", image_size=(64, 48)) as env:
+    with gym.make("CaptureBench/Paper-v1", observation_source="pixels", image_size=(64, 48)) as env:
         assert env.observation_space["image"].shape == (3, 48, 64)
     venv = CaptureVectorEnv(2, "paper", observation_source="pixels")
     assert venv.single_observation_space["image"].shape == (3, 84, 84)
@@ -75,7 +75,7 @@ def test_human_rendering_without_a_display_is_refused_when_the_env_is_made(monke
     and with one the env is made and closed without a reset (the window opens at reset)."""
     monkeypatch.delenv("DISPLAY", raising=False)
     for make in (
-        lambda: gym.make("CaptureBench/Paper-v0", render_mode="human"),
+        lambda: gym.make("CaptureBench/Paper-v1", render_mode="human"),
         lambda: CaptureEnv("paper", render_mode="human"),
     ):
         with pytest.raises(ValueError, match="DISPLAY is not set") as raised:

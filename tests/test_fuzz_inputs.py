@@ -119,7 +119,7 @@ def single_env():
 
 @pytest.fixture(scope="module")
 def vector_env():
-    envs = gym.make_vec("CaptureBench/Paper-v0", num_envs=4)
+    envs = gym.make_vec("CaptureBench/Paper-v1", num_envs=4)
     envs.reset(seed=0)
     yield envs
     envs.close()

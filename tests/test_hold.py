@@ -1,4 +1,4 @@
-"""``capture.hold`` (issue 13): a hold of 0 is today's eq. 20, the bound with a hold is the arrival
+"""``capture.hold``: a hold of 0 is the paper's eq. 20, the bound with a hold is the arrival
 plus the hold, and the ``grasp`` scenario that uses it."""
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def test_a_hold_of_zero_leaves_the_default_suites_episodes_unchanged():
     committed = _committed()
     shipped = sorted({scenario for _, scenario, _ in committed} & set(list_scenarios()))
     scenarios = [name for name in shipped if load_scenario(name).capture.hold == 0.0]
-    assert len(scenarios) >= 7  # every scenario but grasp (once a regenerated report has it)
+    assert scenarios  # paper_eq20, the paper's eq. 20 as published
     compared = 0
     try:
         for scenario in scenarios:
@@ -88,7 +88,7 @@ def test_grasp_is_shipped_in_the_default_suite_with_its_own_seeds():
     assert "grasp" in list_scenarios()
     assert load_suite("default").scenarios == ("all",)  # every analytic shipped scenario
     grasp = load_scenario("grasp")
-    assert grasp.env_id == "CaptureBench/Grasp-v0"
+    assert grasp.env_id == "CaptureBench/Grasp-v1"
     held_out = range(grasp.seeds.evaluation_start, grasp.validation_seeds.stop)
 
     def overlap(a: range, b: range) -> bool:

@@ -79,14 +79,14 @@ def test_the_wheel_registers_every_scenario_from_another_directory(installed):
     python, elsewhere = installed
     code = (
         "import gymnasium, capture_bench, json; "
-        "env = gymnasium.make('CaptureBench/Paper-v0'); env.reset(seed=0); "
+        "env = gymnasium.make('CaptureBench/Paper-v1'); env.reset(seed=0); "
         "env.step(env.action_space.sample()); env.close(); "
         "print(json.dumps([capture_bench.__file__, capture_bench.env_ids()]))"
     )
     where, ids = json.loads(_run([str(python), "-c", code], cwd=elsewhere).stdout)
     assert Path(where).is_relative_to(python.parents[1]), f"imported {where}, not the wheel"
     shipped = sorted(p.stem for p in (ROOT / "configs" / "scenarios").glob("*.yaml"))
-    assert len(ids) == len(shipped) and "CaptureBench/Paper-v0" in ids
+    assert len(ids) == len(shipped) and "CaptureBench/Paper-v1" in ids
 
 
 def test_the_console_script_writes_a_report(installed, tmp_path):
@@ -108,4 +108,4 @@ def test_python_m_capture_bench_runs_the_same_commands(installed):
         result = _run([str(python), "-m", "capture_bench", command, "--help"], cwd=elsewhere)
         assert f"usage: {command}.py" in result.stdout
     listing = _run([str(python), "-m", "capture_bench", "list"], cwd=elsewhere).stdout
-    assert "_data/configs/scenarios" in listing and "CaptureBench/Paper-v0" in listing
+    assert "_data/configs/scenarios" in listing and "CaptureBench/Paper-v1" in listing

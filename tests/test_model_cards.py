@@ -142,3 +142,22 @@ def test_shipping_a_directory_without_a_run_config_is_one_line(tmp_path, capsys)
     assert main([str(lone), "--name", "x"]) == 2
     err = capsys.readouterr().err
     assert "config.json: missing" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_revalidating_a_card_keeps_what_it_shipped_with_and_writes_one_section(tmp_path):
+    from capture_bench.training.model_card import ENVELOPE_SECTION, revalidate
+
+    run_dir = tmp_path / "run"
+    sets = ["n_envs=2", "n_steps=32", "batch_size=32", "n_epochs=1", "total_timesteps=64",
+            "policy_kwargs.net_arch=[8]"]  # fmt: skip
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) == 0
+    target = ship(run_dir, "tiny", episodes=2, out=tmp_path / "models")
+    shipped = json.loads((target / "metadata.json").read_text())["model_card"]["validation"]
+    for _ in range(2):  # a second run rewrites the section, keeps the first results as v0
+        after = revalidate(target)
+    card = json.loads((target / "metadata.json").read_text())["model_card"]
+    same = lambda a, b: json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)  # noqa: E731
+    assert same(card["validation_v0"], shipped) and same(card["validation"], after)
+    readme = (target / "README.md").read_text()
+    assert readme.count(ENVELOPE_SECTION) == 1 and "## Validation" in readme
+    _check_replay(target, card, count=2)

@@ -20,7 +20,7 @@ from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.sim.target_motion import FEATURE_POINTS
 from capture_bench.sim.world import World
 
-ENV_ID = "CaptureBench/Paper-v0"
+ENV_ID = "CaptureBench/Paper-v1"
 
 
 @pytest.fixture

@@ -160,7 +160,7 @@ def test_the_zoo_trains_a_few_thousand_steps_with_the_shipped_file(tmp_path):
 
     from capture_bench.agents.features import RelativeLogDistance
 
-    env_id, conf = "CaptureBench/Paper-v0", zoo_path(ZOO_DIR, "ppo")
+    env_id, conf = "CaptureBench/Paper-v1", zoo_path(ZOO_DIR, "ppo")
     command = [
         sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", env_id,
         "--gym-packages", "capture_bench", "--conf-file", str(conf), "-n", "2048",
@@ -174,14 +174,14 @@ def test_the_zoo_trains_a_few_thousand_steps_with_the_shipped_file(tmp_path):
     )  # fmt: skip
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert "rollout/" in done.stdout and "capture_rate" in done.stdout  # RolloutMetrics ran
-    run = tmp_path / "logs" / "ppo" / "CaptureBench-Paper-v0_1"
+    run = tmp_path / "logs" / "ppo" / "CaptureBench-Paper-v1_1"
     assert (run / "evaluations.npz").is_file()
     assert "is_success" in (run / "0.monitor.csv").read_text().splitlines()[1]
-    saved = yaml.load((run / "CaptureBench-Paper-v0" / "config.yml").read_text(), _ZooConfigLoader)
+    saved = yaml.load((run / "CaptureBench-Paper-v1" / "config.yml").read_text(), _ZooConfigLoader)
     ours = yaml.safe_load(conf.read_text(encoding="utf-8"))[env_id]
     assert saved == {**ours, "n_envs": 16}
     hp = _resolved("ppo", "paper")
-    model = PPO.load(run / "CaptureBench-Paper-v0.zip", device="cpu")  # the file it just wrote
+    model = PPO.load(run / "CaptureBench-Paper-v1.zip", device="cpu")  # the file it just wrote
     assert (model.n_steps, model.batch_size, model.n_epochs) == (64, 1024, 5)
     assert (model.n_steps, model.batch_size) == (hp["n_steps"], hp["batch_size"])
     assert model.lr_schedule(1.0) == hp["learning_rate"] and model.gamma == hp["gamma"]
@@ -195,10 +195,10 @@ def test_the_zoo_trains_a_few_thousand_steps_with_the_shipped_file(tmp_path):
 
     model_dir = tmp_path / "zoo-model"
     model_dir.mkdir()
-    shutil.copy(run / "CaptureBench-Paper-v0.zip", model_dir)
+    shutil.copy(run / "CaptureBench-Paper-v1.zip", model_dir)
     (model_dir / "metadata.json").write_text('{"algorithm": "PPO"}')
     assert convert([str(model_dir), "--trust-model"]) == 0
-    (model_dir / "CaptureBench-Paper-v0.zip").unlink()  # the safe form alone from here on
+    (model_dir / "CaptureBench-Paper-v1.zip").unlink()  # the safe form alone from here on
     env = gym.make(env_id)
     try:
         policy = load_sb3_policy(model_dir, env)

@@ -66,11 +66,11 @@ def test_import_registers_the_valid_scenarios_silently_and_gym_make_reports_a_ba
 ):
     importlib.reload(capture_bench)  # the import, run again on the folder with broken files
     assert capsys.readouterr() == ("", "")
-    assert capture_bench.env_ids() == ["CaptureBench/Paper-v0"]
-    assert "CaptureBench/Warp-v0" in registry  # under its file name, so that using it says why
+    assert capture_bench.env_ids() == ["CaptureBench/Paper-v1"]
+    assert "CaptureBench/Warp-v1" in registry  # under its file name, so that using it says why
     with pytest.raises(ConfigError, match=WARP_ERROR):
-        gym.make("CaptureBench/Warp-v0")
-    env = gym.make("CaptureBench/Paper-v0")
+        gym.make("CaptureBench/Warp-v1")
+    env = gym.make("CaptureBench/Paper-v1")
     env.close()
 
 
@@ -108,7 +108,7 @@ def test_list_command_shows_valid_and_invalid_scenarios_suites_and_algorithms(sc
     assert cli.main(["list"]) == 0
     out = capsys.readouterr().out.splitlines()
     paper = next(line for line in out if line.strip().startswith("paper "))
-    assert "CaptureBench/Paper-v0" in paper
+    assert "CaptureBench/Paper-v1" in paper
     assert "evaluation seeds 1000000-1000099 (100)" in paper
     assert "training seeds 0-999999 (1000000)" in paper
     header = out.index("invalid scenario files (skipped; using one raises this error):")

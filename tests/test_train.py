@@ -35,7 +35,7 @@ def test_run_writes_model_metadata_checkpoints_and_tensorboard(trained):
     run_dir, _ = trained
     meta = json.loads((run_dir / "metadata.json").read_text())
     assert meta["algorithm"] == "PPO" and meta["scenario"] == "paper"
-    assert meta["env_id"] == "CaptureBench/Paper-v0" and meta["model"] == "model.zip"
+    assert meta["env_id"] == "CaptureBench/Paper-v1" and meta["model"] == "model.zip"
     assert meta["observation_source"] == "ekf" and meta["seed"] == 3
     assert meta["total_timesteps"] == 64
     assert meta["hyperparameters"]["policy_kwargs"]["net_arch"] == [16]

@@ -112,7 +112,7 @@ policy_kwargs: {net_arch: [32], log_std_init: -1.0}
 tumbling:
   gamma: 0.95
   policy_kwargs: {net_arch: [64]}
-CaptureBench/Drift-v0:
+CaptureBench/Drift-v1:
   n_envs: 8
 """
 
@@ -126,7 +126,7 @@ def test_a_scenario_section_overrides_the_top_level_keys_and_set_overrides_both(
     assert hp["policy_kwargs"] == {**shipped["policy_kwargs"], "net_arch": [64]}  # by entry
     hp, _, origin = resolve_hyperparameters("ppo", load_scenario("drift"), path)
     assert (
-        hp["n_envs"] == 8 and hp["gamma"] == 0.99 and origin["section"] == "CaptureBench/Drift-v0"
+        hp["n_envs"] == 8 and hp["gamma"] == 0.99 and origin["section"] == "CaptureBench/Drift-v1"
     )
     hp, _, origin = resolve_hyperparameters(
         "ppo", load_scenario("paper"), path, ["gamma=0.9", "policy_kwargs.net_arch=[8, 8]"]
@@ -153,7 +153,7 @@ def test_a_scenario_section_overrides_the_top_level_keys_and_set_overrides_both(
         (SECTIONS + "paper: 3\n", ("unknown key 'paper'", "holding a mapping")),
         (SECTIONS + "paper:\n  gama: 0.9\n", ("unknown key 'paper.gama'", "valid keys")),
         (SECTIONS + "paper:\n  gamma: 2\n", ("key 'paper.gamma'", "[0, 1]")),
-        (SECTIONS + "CaptureBench/Tumbling-v0:\n  gamma: 0.9\n", ("two sections",)),
+        (SECTIONS + "CaptureBench/Tumbling-v1:\n  gamma: 0.9\n", ("two sections",)),
     ],
 )
 def test_a_bad_scenario_section_names_the_file_and_key(tmp_path, text, expected):

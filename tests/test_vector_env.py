@@ -80,13 +80,13 @@ def _run_pair(sync, batched, seed: int, steps: int, act) -> int:
 @pytest.mark.parametrize(
     ("env_id", "source"),
     [
-        ("CaptureBench/Paper-v0", None),
-        ("CaptureBench/Noisy-v0", None),  # drop-outs, divergences, target_lost
-        ("CaptureBench/Jitter-v0", None),  # episodes of different lengths in one batch
-        ("CaptureBench/Evasive-v0", None),
-        ("CaptureBench/Tumbling-v0", "photogrammetry"),
-        ("CaptureBench/Circular-v0", "truth"),
-        ("CaptureBench/Grasp-v0", None),  # a hold
+        ("CaptureBench/Paper-v1", None),
+        ("CaptureBench/Noisy-v1", None),  # drop-outs, divergences, target_lost
+        ("CaptureBench/Jitter-v1", None),  # episodes of different lengths in one batch
+        ("CaptureBench/Evasive-v1", None),
+        ("CaptureBench/Tumbling-v1", "photogrammetry"),
+        ("CaptureBench/Circular-v1", "truth"),
+        ("CaptureBench/Grasp-v1", None),  # a hold
     ],
 )
 def test_random_actions_match_single_envs_across_autoresets(env_id, source):
@@ -103,7 +103,7 @@ def test_random_actions_match_single_envs_across_autoresets(env_id, source):
     batched.close()
 
 
-@pytest.mark.parametrize("env_id", ["CaptureBench/Paper-v0", "CaptureBench/Grasp-v0"])
+@pytest.mark.parametrize("env_id", ["CaptureBench/Paper-v1", "CaptureBench/Grasp-v1"])
 def test_an_analytic_controller_captures_as_in_single_envs(env_id):
     """Captures, capture times and the bound at the episode's end (incremental IK on Paper, and
     on Grasp, whose captures need eq. 20 to hold for 0.3 s)."""
@@ -157,9 +157,9 @@ def test_seeding_reset_mask_and_autoreset_contract():
     with pytest.raises(ValueError, match="num_envs must be a positive integer"):
         CaptureVectorEnv(0, "paper")
     with pytest.raises(ValueError, match="does not render"):
-        gym.make_vec("CaptureBench/Paper-v0", 2, render_mode="rgb_array")
+        gym.make_vec("CaptureBench/Paper-v1", 2, render_mode="rgb_array")
     with pytest.raises(ValueError, match="vectorization_mode='sync'"):
-        gym.make_vec("CaptureBench/Paper-v0", 2, reuse_target_side=False)
+        gym.make_vec("CaptureBench/Paper-v1", 2, reuse_target_side=False)
     obs_d, _ = env.reset(seed=np.array([5, 6, 7]))  # numpy seeds too
     np.testing.assert_array_equal(obs_d, obs_a)
     info = env.step(np.zeros((3, 3)))[4]
@@ -388,7 +388,7 @@ def test_without_autoreset_sub_envs_play_their_seeds_and_ended_ones_stay_ended()
     leaves those as they are and steps the others; a masked reset with new seeds starts only
     those."""
     vector = gym.make_vec(
-        "CaptureBench/Paper-v0", 3, vectorization_mode="vector_entry_point",
+        "CaptureBench/Paper-v1", 3, vectorization_mode="vector_entry_point",
         autoreset_mode=AutoresetMode.DISABLED,
     )  # fmt: skip
     assert vector.metadata["autoreset_mode"] == AutoresetMode.DISABLED

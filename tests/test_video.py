@@ -167,7 +167,7 @@ def test_record_video_writes_an_mp4_over_the_registered_env(tmp_path):
     )
     from capture_bench.agents import make_agent
 
-    env = gymnasium.make("CaptureBench/Paper-v0", render_mode="rgb_array", render_size=(160, 120))
+    env = gymnasium.make("CaptureBench/Paper-v1", render_mode="rgb_array", render_size=(160, 120))
     env = gymnasium.wrappers.RecordVideo(env, str(tmp_path / "videos"), disable_logger=True)
     agent = make_agent("incremental_ik", env)
     observation, _ = env.reset(seed=PAPER_SEEDS[0])

@@ -1,6 +1,6 @@
 """``CaptureVectorEnv``: N capture episodes stepped together with stacked numpy.
 
-``gymnasium.make_vec("CaptureBench/Paper-v0", num_envs=64)`` builds one (the registered
+``gymnasium.make_vec("CaptureBench/Paper-v1", num_envs=64)`` builds one (the registered
 ``vector_entry_point``). Sub-env i behaves as ``CaptureEnv(scenario, reuse_target_side=True)``
 seeded like gymnasium's ``SyncVectorEnv`` seeds its i-th env, with next-step autoreset (or none,
 ``autoreset_mode=AutoresetMode.DISABLED``): the same episodes, the same observations, rewards and

@@ -102,7 +102,7 @@ _RECORDINGS = EpisodeCache(max_episodes=2 * SEEDS_PER_CHUNK)
 
 
 def make_env(scenario: str, **kwargs: Any) -> Any:
-    """The gymnasium environment of a shipped scenario (``CaptureBench/<Name>-v0``)."""
+    """The gymnasium environment of a shipped scenario (``CaptureBench/<Name>-v1``)."""
     import gymnasium
     from gymnasium.envs.registration import EnvSpec
 

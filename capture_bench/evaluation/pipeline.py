@@ -492,7 +492,8 @@ def run_evaluation(
         records, plan.suite.reference, workers if backend == "process" else 1
     )
     privileged = {s.label for s in plan.agents if s.privileged}
-    ranking = rank_agents(summaries, privileged)
+    unranked = [scenario_label(n) for n in plan.scenarios if not load_scenario(n).ranked]
+    ranking = rank_agents(summaries, privileged, unranked=unranked)
     seconds = time.perf_counter() - start
     data = ReportData(
         suite=plan.report_name,

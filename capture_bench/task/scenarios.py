@@ -193,15 +193,16 @@ class TargetConfig:
 @dataclass(frozen=True)
 class CaptureConfig:
     hold: float = _f(
-        0.0,
-        "how long eq. 20 must hold without a break for a capture, s (0: the paper's eq. 20, the"
-        " first instant it holds; less than control.episode_limit)",
+        0.3,
+        "how long the envelope (eq. 20 and v_max) must hold without a break for a capture, s (a"
+        " gripper closing; 0: the first instant it holds, as in the paper; less than"
+        " control.episode_limit)",
         NON_NEGATIVE,
     )
     v_max: float | None = _f(
-        None,
+        0.05,
         "largest instantaneous speed of the end-effector relative to the capture point while eq."
-        " 20 holds, m/s, tested along the arc (null: no bound, the paper's eq. 20)",
+        " 20 holds, m/s, tested along the arc (soft capture; null: no bound, the paper's eq. 20)",
         (0.0, 10.0, False),
     )
 
@@ -228,13 +229,14 @@ class Scenario:
 
     name: str = _f(
         "custom",
-        "scenario name (default: the file name); the env ID is CaptureBench/<Name>-v0",
+        "scenario name (default: the file name); the env ID is CaptureBench/<Name>-v1",
         identifier=True,
     )
     description: str = _f("", "one line for people")
     capture_tolerance: float = _f(
-        0.001,
-        "epsilon of eq. 20 (each component), m; sqrt(3) epsilon below target.initial_offset's low",
+        0.01,
+        "epsilon of eq. 20 (each component), m (the paper's: 0.001); sqrt(3) epsilon below"
+        " target.initial_offset's low",
         (0.0, 0.1, False),
     )
     lost_after: float = _f(
@@ -256,7 +258,7 @@ class Scenario:
 
     @property
     def env_id(self) -> str:
-        return f"CaptureBench/{self.name.title().replace('_', '')}-v0"
+        return f"CaptureBench/{self.name.title().replace('_', '')}-v1"
 
     @property
     def evaluation_seeds(self) -> list[int]:

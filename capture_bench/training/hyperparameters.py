@@ -447,7 +447,7 @@ def resolve_hyperparameters(
 
     1. the shipped defaults, ``configs/algos/<algo>.yaml``: its top-level keys (every scenario),
        then its section for the scenario, if any: a top-level key that is a scenario's name or
-       env ID (``paper:`` or ``CaptureBench/Paper-v0:``, RL Zoo style) holding a mapping of
+       env ID (``paper:`` or ``CaptureBench/Paper-v1:``, RL Zoo style) holding a mapping of
        hyper-parameters;
     2. ``path`` (``--config``), if given, the same way: its top-level keys, then its section
        for the scenario. A file may set a few keys; the others keep the shipped values;

@@ -6,7 +6,7 @@ up by), each made from ``configs/algos/<algo>.yaml`` with that scenario's sectio
 exactly as ``train.py`` resolves it (:func:`~capture_bench.training.hyperparameters.
 resolve_hyperparameters`), so that::
 
-    python -m rl_zoo3.train --algo ppo --env CaptureBench/Paper-v0 \\
+    python -m rl_zoo3.train --algo ppo --env CaptureBench/Paper-v1 \\
         --gym-packages capture_bench --conf-file configs/zoo/ppo.yml
 
 trains with our settings. What maps to what:
@@ -191,7 +191,7 @@ def zoo_file(algo: str) -> str:
         "per registered env ID,\n"
         f"# made from {ours} (and its scenario sections) by `{PROG}`.\n"
         "# Do not edit: tests/test_rl_zoo.py checks that this file is what the command makes.\n"
-        f"#   python -m rl_zoo3.train --algo {algo} --env CaptureBench/Paper-v0 "
+        f"#   python -m rl_zoo3.train --algo {algo} --env CaptureBench/Paper-v1 "
         "--gym-packages capture_bench \\\n"
         f"#       --conf-file configs/zoo/{algo}.yml --num-threads 1\n"
         '# What carries over and what does not: docs/training.md, "With the RL Zoo".\n'
