@@ -2,34 +2,62 @@
 
 **Privileged.** Unlike every other agent it reads the world's ground truth through the
 environment's privileged API (``env.unwrapped.physical_limit()``, ``true_target_position(t)``,
-``time``, ``next_control_period``). It is not a controller anyone could deploy; it exists to show
+``time``, ``next_control_period``, and under the capture envelope ``plan``: the trajectory and
+every step's period). It is not a controller anyone could deploy; it exists to show
 that the per-episode lower bound on capture time (``capture_bench/task/physical_limit.py``) is
 attainable, so ratios to the bound are meaningful. Label it "oracle (privileged)" wherever it
 appears.
 
-Plan, per episode:
+Plan, per episode, under the capture envelope (a scenario with ``capture.v_max``):
 
-1. *Go to the bound.* At the episode's first step it asks ``physical_limit()`` for ``(T, theta*)``:
-   the earliest time ``T`` at which the true capture point has an IK solution ``theta*`` inside the
-   box ``|theta_i - theta_i(0)| <= theta_dot_max_i t``. Each joint is driven straight toward
+1. *The entry.* At the episode's first step it asks ``physical_limit()`` for the arrival T (the
+   bound less the hold) and ``theta*``, and from T the earliest entry t_e from which the arm can
+   be in the envelope for the hold (:func:`~capture_bench.task.physical_limit.held_arrivals`,
+   the bound's own test: where the environment's bound is the envelope's, t_e is T).
+2. *Land slow.* Joint rates are constant within a step, so an arm that arrives at full rate is
+   still fast until the step ends, and the capture could start only a step later. Instead it
+   picks a step end ``t_m`` and the joint vector ``theta_m`` of the box reachable by then whose
+   end-effector is nearest eq. 20's box about ``X_T(t_m)`` (shrunk to ``LANDING_DEPTH``; alternate
+   projections from ``theta*`` and from each IK solution, or the joint vector nearest the box's
+   corner on the arm's side, whichever is deeper), drives every joint there at up to its
+   full rate, ``mode = "bound"``, and from ``t_m`` on takes the approach-and-track steps of 3.
+   Landing inside eq. 20's box, the stay starts at ``t_m``; landing just outside it one step
+   earlier, the slow approach enters it within the next step. Of the ``LANDING_CANDIDATES`` step
+   ends from the last one before t_e it keeps the one whose capture completes first, simulated
+   with the rule's own tests (eq. 20's box and the speed bound along each step's arc,
+   :func:`~capture_bench.task.capture.held_capture`).
+3. *Approach and track.* Each step ends the end-effector on ``X_T(t + dt)`` plus a relative
+   position that moves at ``0.99 v_max`` straight to eq. 20's box shrunk to ``APPROACH_DEPTH``,
+   then to the capture point: the exact one-step IK solution (within the joint limits), or where
+   none is within one step, the reachable joint vector nearest that box. The step's relative
+   velocity along its arc is checked with the rule's test
+   (:func:`~capture_bench.task.capture.slow_intervals_along_arc`); where it exceeds ``v_max``,
+   the slower ``APPROACH_SPEEDS`` are tried, down to keeping the relative position
+   (``mode = "track"``). If no landing captures in the simulation, it plays 4.-7. below.
+
+Without a speed bound (``v_max`` null), or if the plan of 1.-3. finds no capture:
+
+4. *Go to the bound.* It asks ``physical_limit()`` for ``(T, theta*)``: the earliest time ``T``
+   at which the true capture point has an IK solution ``theta*`` inside the box
+   ``|theta_i - theta_i(0)| <= theta_dot_max_i t``. Each joint is driven straight toward
    ``theta*`` at up to its full rate, ``a = clip((theta* - theta) / (theta_dot_max t_s), -1, 1)``,
    so every joint is at ``theta*`` by time T.
-2. *Close in one step.* Before each step it checks whether an IK solution (within joint limits) of
+5. *Close in one step.* Before each step it checks whether an IK solution (within joint limits) of
    the true target position at the *end* of the step, ``X_T(t + dt)``, is reachable in one step
    (dt: the step's real period, ``next_control_period``, which varies under ``jitter``); if so it
    commands exactly that, which captures at ``t + dt``. Because the bound's onset falls
    inside a control period, this is what makes the capture land within one period of T rather
    than the target drifting away from ``theta*`` while the arm waits there.
-3. *Track (with a hold).* Where the scenario asks eq. 20 to hold for ``hold`` s, the bound is the
+6. *Track (with a hold).* Where the scenario asks eq. 20 to hold for ``hold`` s, the bound is the
    arrival ``T`` plus ``hold``. From the step that ends at or after ``T`` (or once every joint
    is at ``theta*``), where no exact one-step solution exists, it moves to the joint vector
    within one step (and the joint limits) whose end-effector is nearest ``X_T(t + dt)``
    (``nearest_in_box`` of the bound's own search, started from ``theta*`` the first time),
    ``mode = "track"``, and never returns to ``theta*``: ``theta*`` is only within ``|epsilon|``
    of the capture point at ``T``, the bound's sphere, not yet inside eq. 20's cube. The exact
-   one-step solution of 2. then keeps the end-effector on the capture point at every step's
-   end. (Without a hold the episode ends at the entry, and the oracle goes on as before: 4.)
-4. *Fallback.* If the bound is infinite (the target is never reachable within the horizon), or the
+   one-step solution of 5. then keeps the end-effector on the capture point at every step's
+   end. (Without a hold the episode ends at the entry, and the oracle goes on as before: 7.)
+7. *Fallback.* If the bound is infinite (the target is never reachable within the horizon), or the
    plan is spent without a capture, it runs the paper's incremental IK step (eqs. 13-19, capped)
    on the true position one period ahead, ``X_T(t + t_s)``, and reports ``mode = "fallback"``.
 """
@@ -43,9 +71,30 @@ from numpy.typing import NDArray
 
 from capture_bench.agents.base import predict_each, safe_action
 from capture_bench.agents.incremental_ik import incremental_step
-from capture_bench.sim.kinematics import inverse_kinematics, within_limits
+from capture_bench.sim.kinematics import forward_kinematics, inverse_kinematics, within_limits
+from capture_bench.task.capture import (
+    held_capture,
+    inside_intervals,
+    inside_intervals_along_arc,
+    intersect,
+    slow_intervals_along_arc,
+)
 from capture_bench.task.observation import TaskDescription, decode_observation
-from capture_bench.task.physical_limit import nearest_in_box
+from capture_bench.task.physical_limit import held_arrivals, nearest_in_box
+
+FloatArray = NDArray[np.float64]
+#: The relative speeds of the slow approach, as fractions of ``v_max``, the fastest first.
+APPROACH_SPEEDS = (0.99, 0.9, 0.6, 0.3, 0.0)
+#: The approach aims at the nearest point of eq. 20's box shrunk to this fraction of epsilon.
+APPROACH_DEPTH = 0.5
+#: The landing point is the reachable point nearest eq. 20's box shrunk to this fraction.
+LANDING_DEPTH = 0.98
+#: Alternate projections between the reachable set and a box.
+PROJECTIONS = 4
+#: Step ends tried as the landing, from the last one before the entry.
+LANDING_CANDIDATES = 6
+#: Steps simulated after the hold's length before a landing counts as not capturing.
+SIMULATED_STEPS = 6
 
 
 class Oracle:
@@ -69,6 +118,8 @@ class Oracle:
         self.tracking = False
         self.mode = "plan"
         self._last_time = -np.inf
+        self.v_max: float | None = None
+        self.landing: tuple[float, FloatArray] | None = None  # (t_m, theta_m) under v_max
 
     def reset(self) -> None:
         """Forget the plan; the next ``predict`` asks the environment for the new bound."""
@@ -79,6 +130,8 @@ class Oracle:
         self.tracking = False
         self.mode = "plan"
         self._last_time = -np.inf
+        self.v_max = None
+        self.landing = None
 
     def _plan(self) -> None:
         limit = self.world.physical_limit()
@@ -88,6 +141,36 @@ class Oracle:
         finite = np.isfinite(self.bound_time) and limit.theta is not None
         self.theta_star = np.asarray(limit.theta, dtype=float) if finite else None
         self.mode = "bound" if finite else "fallback"
+        self.v_max = _speed_bound(self.world)
+        if self.v_max is not None and self.theta_star is not None:
+            entry, theta = self._held_arrival(self.arrival, self.theta_star)
+            if np.isfinite(entry):
+                self.landing = self._landing(entry, theta)
+
+    def _held_arrival(self, arrival: float, theta: FloatArray) -> tuple[float, FloatArray]:
+        """The earliest entry at or after ``arrival`` from which the envelope can be held
+        (:func:`~capture_bench.task.physical_limit.held_arrivals`; ``arrival`` itself where the
+        environment's bound already is the envelope's), and a joint vector there."""
+        plan = self.world.plan
+        desc, arm = self.description, self.description.arm
+        jitter = plan.scenario.control.period_jitter
+        entries, thetas = held_arrivals(
+            np.array([arrival]),
+            theta[None],
+            [plan.trajectory.position],
+            [plan.trajectory.velocity],
+            arm.home,
+            arm.joint_rate_limits,
+            arm.joint_lower,
+            arm.joint_upper,
+            desc.capture_tolerance,
+            horizons=[plan.end()],
+            period=desc.control_period,
+            travel_times=[plan.travel_time if jitter else None],
+            hold=self.hold,
+            v_max=self.v_max,
+        )
+        return float(entries[0]), thetas[0]
 
     def _true_position(self, t: float) -> NDArray[np.float64]:
         return np.asarray(self.world.true_target_position(float(t)), dtype=float).reshape(3)
@@ -122,6 +205,108 @@ class Oracle:
         hi = np.minimum(arm.joint_upper, theta + reach)
         return nearest_in_box(start[None], goal[None], lo[None], hi[None])[0]
 
+    def _landing(self, entry: float, theta_star: FloatArray) -> tuple[float, FloatArray] | None:
+        """Under a speed bound: the step end ``t_m`` and the joint vector ``theta_m`` the arm
+        goes to at full rate, after which the approach and the tracking complete the capture
+        the earliest (see the module docstring); None if none of them captures."""
+        plan = self.world.plan
+        arm = self.description.arm
+        eps = self.description.capture_tolerance
+        times, _ = plan.step_times()
+        travel = plan.travel_time(times) if plan.scenario.control.period_jitter else times
+        best: tuple[float, float, FloatArray] | None = None  # (capture, t_m, theta_m)
+        first = max(int(np.searchsorted(times, entry)) - 1, 0)  # the last step end before
+        for m in range(first, min(first + LANDING_CANDIDATES, times.size - 1)):
+            t_m = float(times[m])
+            if best is not None and t_m + self.hold >= best[0]:
+                break
+            reach = arm.joint_rate_limits * travel[m]
+            lo = np.maximum(arm.joint_lower, arm.home - reach)
+            hi = np.minimum(arm.joint_upper, arm.home + reach)
+            goal = self._true_position(t_m)
+            starts = np.vstack((theta_star, inverse_kinematics(goal)))
+            q = _nearest_in_box_about(starts, goal, LANDING_DEPTH * eps, eps, lo, hi)
+            speed = APPROACH_SPEEDS[0] * float(self.v_max)
+            misses = forward_kinematics(q) - goal
+            theta_m = q[int(np.argmin([_approach_time(miss, eps, speed) for miss in misses]))]
+            done = self._simulate(m, theta_m, times)
+            if best is None or done < best[0]:
+                best = (done, t_m, theta_m)
+        if best is None or not np.isfinite(best[0]):
+            return None
+        return best[1], best[2]
+
+    def _simulate(self, m: int, theta_m: FloatArray, times: FloatArray) -> float:
+        """When the capture completes if the arm is at ``theta_m`` at step end ``times[m]`` and
+        then takes :meth:`_track_step` every step (eq. 20's box and the speed bound along each
+        step's arc, held for ``hold``, as the env tests them); inf if not within
+        ``SIMULATED_STEPS`` steps after the hold."""
+        eps = self.description.capture_tolerance
+        trajectory = self.world.plan.trajectory
+        theta, since = theta_m, np.nan
+        last = min(
+            times.size - 1,
+            m + SIMULATED_STEPS + int(np.ceil(self.hold / self.description.control_period)),
+        )
+        for j in range(m, last):
+            t, dt = float(times[j]), float(times[j + 1] - times[j])
+            q = self._track_step(theta, t, dt)
+            inside = inside_intervals_along_arc(
+                theta, q - theta, lambda f, t=t, dt=dt: trajectory.position(t + f * dt), eps
+            )
+            slow = slow_intervals_along_arc(
+                theta,
+                q - theta,
+                dt,
+                lambda f, t=t, dt=dt: trajectory.velocity(t + f * dt),
+                self.v_max,
+            )
+            done, since = held_capture(intersect(inside, slow), since, t, dt, self.hold)
+            if done is not None:
+                return done
+            theta = q
+        return np.inf
+
+    def _track_step(self, theta: FloatArray, t: float, dt: float) -> FloatArray:
+        """The joint vector at the end of a step of the approach and the tracking: the end-effector
+        ends ``X_T(t + dt)`` plus the relative position moved along the approach (:func:`_advance`)
+        at ``APPROACH_SPEEDS`` of ``v_max``, the first of them at which the step's instantaneous
+        relative speed stays within ``v_max`` (the exact one-step IK solution; where none is within
+        one step, the reachable point nearest eq. 20's box)."""
+        trajectory = self.world.plan.trajectory
+        eps = self.description.capture_tolerance
+        here, ahead = self._true_position(t), self._true_position(t + dt)
+        miss = forward_kinematics(theta) - here
+        q = theta
+        for fraction in APPROACH_SPEEDS:
+            aim = _advance(miss, eps, fraction * float(self.v_max) * dt)
+            solution = self._one_step_solution(theta, ahead + aim, dt)
+            if solution is None:
+                arm = self.description.arm
+                reach = arm.joint_rate_limits * min(dt, self.description.control_period)
+                lo = np.maximum(arm.joint_lower, theta - reach * (1.0 - 1e-9))
+                hi = np.minimum(arm.joint_upper, theta + reach * (1.0 - 1e-9))
+                start = nearest_in_box(theta[None], (ahead + aim)[None], lo[None], hi[None])
+                solution = _nearest_in_box_about(start, ahead, APPROACH_DEPTH * eps, eps, lo, hi)[0]
+            q = solution
+            slow = slow_intervals_along_arc(
+                theta, q - theta, dt, lambda f: trajectory.velocity(t + f * dt), self.v_max
+            )
+            if slow == [(0.0, 1.0)]:
+                break
+        return q
+
+    def _envelope_action(self, theta: FloatArray, t: float, dt: float) -> NDArray[np.float32]:
+        """Under a speed bound: full rate to ``theta_m`` by ``t_m``, then :meth:`_track_step`."""
+        assert self.landing is not None
+        t_m, theta_m = self.landing
+        scale = self.description.arm.joint_rate_limits * self.description.control_period
+        if t + dt <= t_m + 1e-9:
+            self.mode = "bound"
+            return safe_action((theta_m - theta) / scale)
+        self.mode = "track"
+        return safe_action((self._track_step(theta, t, dt) - theta) / scale)
+
     def act(self, observation: NDArray) -> NDArray[np.float32]:
         """Action for one observation, shape (3,), float32, in [-1, 1]."""
         t = float(self.world.time)
@@ -131,6 +316,8 @@ class Oracle:
         desc = self.description
         theta = decode_observation(observation, desc.control_period).joint_angles
         dt = float(self.world.next_control_period)
+        if self.landing is not None:
+            return self._envelope_action(theta, t, dt)
         goal = self._true_position(t + dt)
         scale = desc.arm.joint_rate_limits * desc.control_period
         direct = self._one_step_solution(theta, goal, dt)
@@ -164,3 +351,65 @@ class Oracle:
         if episode_start is not None and bool(np.any(episode_start)):
             self.reset()
         return predict_each(self.act, observation), state
+
+
+def _speed_bound(world: Any) -> float | None:
+    """The scenario's ``capture.v_max`` (m/s; None: no speed bound, or a world without a plan)."""
+    plan = getattr(world, "plan", None)
+    capture = getattr(getattr(plan, "scenario", None), "capture", None)
+    v_max = getattr(capture, "v_max", None)
+    return None if v_max is None else float(v_max)
+
+
+def _approach_time(miss: FloatArray, eps: FloatArray, speed: float) -> float:
+    """How long the approach from the relative position ``miss`` (X_E - X_T, m) takes to enter
+    eq. 20's box at ``speed`` (m/s) (:func:`_advance`'s straight line), s."""
+    if np.all(np.abs(miss) < eps):
+        return 0.0
+    inner = np.clip(miss, -APPROACH_DEPTH * eps, APPROACH_DEPTH * eps)
+    lo, _ = inside_intervals(miss[None], inner[None], eps)
+    return float(lo[0]) * float(np.linalg.norm(inner - miss)) / speed if lo[0] == lo[0] else np.inf
+
+
+def _advance(miss: FloatArray, eps: FloatArray, step: float) -> FloatArray:
+    """The relative position ``step`` m further along the approach from ``miss`` (X_E - X_T, m):
+    straight to the nearest point of eq. 20's box shrunk to APPROACH_DEPTH, then straight to the
+    capture point."""
+    inner = np.clip(miss, -APPROACH_DEPTH * eps, APPROACH_DEPTH * eps)
+    here = miss
+    for aim in (inner, np.zeros(3)):
+        gap = aim - here
+        length = float(np.linalg.norm(gap))
+        if length > step:
+            return here + gap * (step / length)
+        here, step = aim, step - length
+    return here
+
+
+def _nearest_in_box_about(
+    starts: FloatArray,
+    point: FloatArray,
+    half: FloatArray,
+    eps: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+) -> FloatArray:
+    """From each of ``starts`` (K, 3), a joint vector in the box [lo, hi] whose end-effector is
+    near the box of half-widths ``half`` about ``point``, (K, 3): of the alternate projections'
+    result (the point of that box nearest the end-effector, then the joint vector nearest that
+    point) and the joint vector nearest the corner of eq. 20's box (``eps``, shrunk to
+    ``LANDING_DEPTH``) on the end-effector's side (where the reachable set's edge is flat, the
+    point of eq. 20's box deepest into it: reachable if any point of the box is), the one
+    whose largest component of the miss, over ``eps``, is least."""
+    k = starts.shape[0]
+    points, lo_k, hi_k = np.tile(point, (k, 1)), np.tile(lo, (k, 1)), np.tile(hi, (k, 1))
+    q = nearest_in_box(starts, points, lo_k, hi_k)
+    for _ in range(PROJECTIONS):
+        q = nearest_in_box(
+            q, points + np.clip(forward_kinematics(q) - points, -half, half), lo_k, hi_k
+        )
+    miss = forward_kinematics(q) - points
+    corner = nearest_in_box(q, points + LANDING_DEPTH * eps * np.sign(miss), lo_k, hi_k)
+    depth = np.max(np.abs(miss) / eps, axis=1)
+    corner_depth = np.max(np.abs(forward_kinematics(corner) - points) / eps, axis=1)
+    return np.where((corner_depth < depth)[:, None], corner, q)

@@ -10,13 +10,14 @@ How it is computed:
 
 1. On the grid ``t_k = k * period`` up to the horizon, every closed-form IK solution of X_T(t_k)
    is tested against the box (exact). Where none lies inside but one lies within
-   ``NEAR_BOX`` rad of it, the tolerance is used: from the solution clipped to the box,
+   :func:`near_box` rad of it, the tolerance is used: from the solution clipped to the box,
    :func:`nearest_in_box` (active-set projected Gauss-Newton) finds the box's joint vector whose
    end-effector is nearest X_T, and the point counts as feasible when that distance is below
    ``|epsilon|`` (the radius of the sphere around eq. 20's tolerance cube). Using the sphere, not
    the cube, keeps the bound a *lower* bound: anything eq. 20 accepts is inside the sphere. (Inside
-   the joint limits the end-effector moves at least ~0.07 m per rad of any joint, so a solution
-   further than ``NEAR_BOX`` = 0.1 rad outside the box is > 1.7 mm from anything near it.)
+   the joint limits the end-effector moves at least ``MIN_REACH`` ~0.07 m per rad of any joint,
+   so a solution further than ``2 |epsilon| / MIN_REACH`` outside the box, or ``NEAR_BOX`` =
+   0.1 rad where that is less, is far from anything in it.)
 2. Between the last infeasible and the first feasible grid time, the interval is searched
    ``REFINE_PASSES`` times with ``REFINE`` evenly spaced times, which finds the onset to
    ``period / REFINE**REFINE_PASSES`` (12 microseconds at t_s = 0.05 s). The
@@ -30,18 +31,46 @@ every time with :func:`feasible_solutions` would. :func:`physical_limits` runs t
 many episodes at once (one evaluation per round for all of them); :func:`physical_limit` is its
 one-episode case.
 
-With a hold (``capture.hold`` = h s), a capture needs eq. 20 to hold from some entry t_e to
-t_e + h; eq. 20 cannot hold before the arrival bound T, so t_e >= T and every capture completes at
-or after T + h: the bound is ``T + h`` (:func:`capture_bench.task.episode.episode_bounds`), still
-a lower bound. It is attainable where the arm can follow the capture point for h after arriving
-(the targets move centimetres per second, the joints far faster), which the oracle shows.
+The capture envelope (``capture.hold`` = h s, ``capture.v_max`` m/s): a capture needs, from some
+entry t_e through t_e + h, the end-effector inside eq. 20's box *and* its instantaneous velocity
+relative to the capture point within v_max. The joints have no acceleration limit: an arm that
+arrives at full rate can take the rates that follow the target at once, so the speed bound adds
+nothing at the arrival as such. The envelope's bound is ``t_e + h`` for the earliest entry t_e
+from which the arm can be in the envelope at every instant of ``[t_e, t_e + h]``, which at an
+instant t needs (:func:`envelope_feasible`):
 
-Why one file of ~510 lines: the bound's search, its pruning bound and its brute-force reference
-(:func:`feasible_solutions`, the test's definition of the answer) belong together.
+* *eq. 20's box*: a joint vector in the reachable box at t whose end-effector is inside eq. 20's
+  box about X_T(t), decided exactly (:func:`cube_reachable`: joint 1 turns the arm's plane, in
+  which eq. 20's box is a rectangle and the reach of joints 2 and 3 a region bounded by four
+  circular arcs); the box itself, not the sphere about it, so where the sphere reaches the
+  target before the box's faces do, and where the target leaves the arm's reach during the
+  hold, the entry is later;
+* *the tracking*, with v_max: joint rates within their limits that move the end-effector within
+  v_max of Xdot_T(t), at the IK solutions of X_T(t) (:func:`least_relative_speeds`, exact over
+  the rate box; the Jacobian is the capture point's own, where the arm within epsilon of it
+  has one a little different). The joints outrun the shipped targets (cm/s) so far that this
+  never binds there (1,500 drawn trajectories, 10 mm, 0.3 s: no bound changes with v_max = 50
+  mm/s); a target faster than the joints can follow does. Without v_max no instant's velocity
+  is bounded, and the box alone is tested.
+
+:func:`held_arrivals` tests both on a grid of ``HOLD_SAMPLES`` times per period over each
+candidate hold, from the arrival T of the search above (eq. 20's box lies inside the sphere, so
+t_e >= T), and refines the onset after a failing time to ``period / (HOLD_SAMPLES REFINE)``.
+Each condition is necessary, and a stretch shorter than the grid's step where one fails can only
+go unseen, so the bound stays a lower bound. It is attained where the arm, once in the envelope,
+can follow the capture point: the rates ``J^{-1} Xdot_T`` that follow it exactly are at most
+0.54 of the limits over the holds of 40 validation episodes of each shipped motion, and the
+oracle (``capture_bench/agents/oracle.py``) captures within a control period of it. With neither
+a hold nor a speed bound the bound is T, the search above alone.
+
+Why one file: the bound's search, its pruning bound and its brute-force reference
+(:func:`feasible_solutions`, the test's definition of the answer), and the envelope's tests on
+top of them, belong together.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -58,11 +87,16 @@ from capture_bench.sim.kinematics import (
 
 FloatArray = NDArray[np.float64]
 NEWTON_STEPS = 10
-NEAR_BOX = 0.1  # rad
+NEAR_BOX = 0.1  # rad: the least of near_box()
+MIN_REACH = 0.07  # m/rad: the least the end-effector moves per rad of a joint (joint limits)
 REFINE = 64
 REFINE_PASSES = 2
 CHUNK = 32
 BOUND_MARGIN = 1e-9  # m: rounding allowance of distance_lower_bound
+HOLD_SAMPLES = 8  # per control period: the times of a hold at which the envelope is tested
+#: The faces of the joint-rate box (:func:`least_relative_speeds`): each joint free (0) or at
+#: its lower (-1) or upper (+1) rate limit, every combination, (27, 3).
+RATE_FACES = np.array(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij")).reshape(3, -1).T
 
 
 @dataclass(frozen=True)
@@ -70,7 +104,8 @@ class PhysicalLimit:
     """The episode's bound.
 
     Attributes:
-        time: earliest feasible capture time, s: the earliest time eq. 20 can hold (the arrival)
+        time: earliest feasible capture time, s: the earliest time eq. 20 can hold (the arrival;
+            with the capture envelope, the earliest entry from which the envelope can be held)
             plus the capture's ``hold``; ``inf`` if the target is never reachable in time.
         theta: a joint vector, rad, (3,), whose end-effector is within ``|epsilon|`` of the capture
             point at the arrival (None if inf).
@@ -118,7 +153,7 @@ def feasible_solutions(
     theta = np.zeros((targets.shape[0], 3))
     first = np.argmax(inside, axis=1)
     theta[feasible] = solutions[feasible, first[feasible]]
-    near = ~feasible[:, None] & (excess < NEAR_BOX)  # False where NaN
+    near = ~feasible[:, None] & (excess < near_box(tolerance))  # False where NaN
     if np.any(near):
         rows, cols = np.nonzero(near)
         goal = targets[rows]
@@ -186,7 +221,7 @@ def first_feasible(
     found = first < n
     theta[found] = solutions[first[found], np.argmax(inside[first[found]], axis=1)]
     # Near solutions of the rows before their segment's first exactly feasible one.
-    near = (index < first[segment])[:, None] & (excess < NEAR_BOX)
+    near = (index < first[segment])[:, None] & (excess < near_box(tolerance))
     rows, cols = np.nonzero(near)  # ordered by row, then column
     if rows.size == 0:
         return first, theta
@@ -316,6 +351,14 @@ def distance_lower_bound(
     return bound
 
 
+def near_box(tolerance: FloatArray) -> float:
+    """How far outside the reachable box (rad, the largest excess over the joints) an IK solution
+    may lie and still be searched for a joint vector in the box within the tolerance:
+    ``max(NEAR_BOX, 2 |epsilon| / MIN_REACH)``. A joint vector that far outside moves the
+    end-effector by more than ``|epsilon|`` coming back, with a factor 2 to spare."""
+    return max(NEAR_BOX, 2.0 * float(np.linalg.norm(tolerance)) / MIN_REACH)
+
+
 def nearest_in_box(
     start: FloatArray,
     goal: FloatArray,
@@ -377,8 +420,13 @@ def physical_limit(
     horizon: float,
     period: float,
     travel_time: Callable[[FloatArray], FloatArray] | None = None,
+    *,
+    hold: float = 0.0,
+    v_max: float | None = None,
+    target_velocity: Callable[[FloatArray], FloatArray] | None = None,
 ) -> PhysicalLimit:
-    """The earliest time the true capture point can be reached (see module docstring).
+    """The earliest time the true capture point can be reached, and with ``hold`` or ``v_max``
+    held in the capture envelope, plus the hold (see module docstring).
 
     One episode of :func:`physical_limits` (the same implementation).
 
@@ -393,6 +441,12 @@ def physical_limit(
         travel_time: for times t (N,), how long each joint can have moved at its full rate by
             t, s (N,); default t itself. When the real control period varies, a step longer than
             t_s moves a joint at most theta_dot_max t_s (the action's range), so less than t.
+        hold: ``capture.hold``, s: how long the envelope must hold (0: one instant).
+        v_max: ``capture.v_max``, m/s (None: no speed bound).
+        target_velocity: Xdot_T(t) for times (N,) -> (N, 3), global, m/s; needed with v_max.
+
+    Returns:
+        The :class:`PhysicalLimit`: ``time`` the arrival plus ``hold``, ``hold`` as given.
     """
     (limit,) = physical_limits(
         [target_position],
@@ -404,6 +458,9 @@ def physical_limit(
         horizons=[horizon],
         period=period,
         travel_times=[travel_time],
+        hold=hold,
+        v_max=v_max,
+        target_velocities=None if target_velocity is None else [target_velocity],
     )
     return limit
 
@@ -418,6 +475,10 @@ def physical_limits(
     horizons: Sequence[float],
     period: float,
     travel_times: Sequence[Callable[[FloatArray], FloatArray] | None] | None = None,
+    *,
+    hold: float = 0.0,
+    v_max: float | None = None,
+    target_velocities: Sequence[Callable[[FloatArray], FloatArray]] | None = None,
 ) -> list[PhysicalLimit]:
     """:func:`physical_limit` for G episodes of one arm at once (a vectorised environment).
 
@@ -436,9 +497,13 @@ def physical_limits(
         period: grid spacing (the nominal control period t_s), s, shared.
         travel_times: per episode, as :func:`physical_limit`'s ``travel_time`` (None entries:
             t itself); None: t itself for every episode.
+        hold, v_max: the capture envelope, as :func:`physical_limit`'s, shared.
+        target_velocities: per episode, Xdot_T(t) for times (N,) -> (N, 3), global, m/s;
+            needed with ``v_max``.
 
     Returns:
-        One :class:`PhysicalLimit` per episode, in order.
+        One :class:`PhysicalLimit` per episode, in order: ``time`` the arrival (the search above,
+        then, with a hold or a speed bound, :func:`held_arrivals`) plus ``hold``.
     """
     count = len(target_positions)
     if len(horizons) != count:
@@ -511,8 +576,29 @@ def physical_limits(
         stage[fine] += 1
         over = fine[stage[fine] == REFINE_PASSES]
         time[over], done[over] = t_hi[over], True
+    if hold == 0.0 and v_max is None:
+        return [
+            PhysicalLimit(float(time[g]), best[g].copy() if np.isfinite(time[g]) else None)
+            for g in range(count)
+        ]
+    if v_max is not None and (target_velocities is None or len(target_velocities) != count):
+        raise ValueError("v_max needs target_velocities, one per target_positions")
+    time, best = held_arrivals(
+        time,
+        best,
+        target_positions,
+        target_velocities,
+        *args,
+        horizons=horizons,
+        period=period,
+        travel_times=travels,
+        hold=hold,
+        v_max=v_max,
+    )
     return [
-        PhysicalLimit(float(time[g]), best[g].copy() if np.isfinite(time[g]) else None)
+        PhysicalLimit(float(time[g]) + hold, best[g].copy(), hold)
+        if np.isfinite(time[g])
+        else PhysicalLimit(np.inf, None, hold)
         for g in range(count)
     ]
 
@@ -526,3 +612,346 @@ def refine_times(t_lo: FloatArray, t_hi: FloatArray) -> FloatArray:
     times += t_lo[:, None]
     times[:, -1] = t_hi
     return times
+
+
+def least_relative_speeds(
+    jac: FloatArray, target_velocity: FloatArray, joint_rate_limits: FloatArray
+) -> FloatArray:
+    """The least ``|J omega - Xdot_T|`` over joint rates ``|omega_i| <= theta_dot_max_i``, m/s,
+    (M,): how close to the capture point's velocity the end-effector can move at each row's
+    joint vector.
+
+    Exact: 0 where the rates ``J^{-1} Xdot_T`` that match it lie in the box; else the least of
+    the convex quadratic lies inside one face of the box (each joint free or at one of its rate
+    limits, :data:`RATE_FACES`), where it is the least squares over the free joints; the answer
+    is the smallest residual of the faces' least squares that lie in their face.
+
+    Args:
+        jac: J(theta), (M, 3, 3).
+        target_velocity: Xdot_T, global, m/s, (M, 3).
+        joint_rate_limits: theta_dot_max, rad/s, (3,).
+    """
+    out = np.zeros(jac.shape[0])
+    matching = np.einsum("mij,mj->mi", np.linalg.pinv(jac), target_velocity)
+    rows = np.flatnonzero(~np.all(np.abs(matching) <= joint_rate_limits, axis=1))
+    if rows.size == 0:
+        return out
+    free = RATE_FACES == 0  # (F, 3)
+    fixed = RATE_FACES * joint_rate_limits  # (F, 3), 0 where free
+    jac_r, velocity = jac[rows][:, None], target_velocity[rows][:, None]  # (R, 1, 3, 3), (R, 1, 3)
+    rest = velocity - np.einsum("rfij,fj->rfi", jac_r, fixed)  # (R, F, 3)
+    free_jac = jac_r * free[None, :, None, :]  # the fixed joints' columns zeroed
+    rates = np.einsum("rfij,rfj->rfi", np.linalg.pinv(free_jac), rest) * free + fixed
+    residual = np.linalg.norm(np.einsum("rfij,rfj->rfi", jac_r, rates) - velocity, axis=2)
+    in_face = np.all(np.abs(rates) <= joint_rate_limits * (1.0 + 1e-12), axis=2)
+    out[rows] = np.where(in_face, residual, np.inf).min(axis=1)
+    return out
+
+
+def envelope_feasible(
+    targets: FloatArray,
+    velocities: FloatArray | None,
+    times: FloatArray,
+    theta0: FloatArray,
+    joint_rate_limits: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    tolerance: FloatArray,
+    v_max: float | None,
+) -> NDArray[np.bool_]:
+    """For each time, whether the arm can be in the capture envelope then, (N,).
+
+    In the envelope: a joint vector in the reachable box puts the end-effector inside eq. 20's
+    box about X_T (:func:`cube_reachable`, exact), and, with ``v_max``, joint rates within
+    their limits can move it within ``v_max`` of Xdot_T (:func:`least_relative_speeds` at the
+    IK solutions of X_T within :func:`near_box` of the reachable box; where there is none, the
+    speed is not what rules the time out).
+
+    Args:
+        targets: X_T(t), global, m, (N, 3).
+        velocities: Xdot_T(t), global, m/s, (N, 3) (used with ``v_max`` only).
+        times ... tolerance: as :func:`feasible_solutions`.
+        v_max: m/s, or None: eq. 20's box alone.
+    """
+    box_lo, box_hi, solutions, excess = _box_solutions(
+        targets, times, theta0, joint_rate_limits, lower, upper
+    )
+    feasible = cube_reachable(targets, np.asarray(tolerance, dtype=float), box_lo, box_hi)
+    if v_max is None or velocities is None:
+        return feasible
+    near = excess < near_box(tolerance)  # (N, 4), False where NaN
+    rows, cols = np.nonzero(near & feasible[:, None])
+    slow = np.zeros_like(near)
+    slow[rows, cols] = (
+        least_relative_speeds(jacobian(solutions[rows, cols]), velocities[rows], joint_rate_limits)
+        <= v_max
+    )
+    return feasible & (slow.any(axis=1) | ~near.any(axis=1))
+
+
+def held_arrivals(
+    arrivals: FloatArray,
+    thetas: FloatArray,
+    target_positions: Sequence[Callable[[FloatArray], FloatArray]],
+    target_velocities: Sequence[Callable[[FloatArray], FloatArray]] | None,
+    theta0: FloatArray,
+    joint_rate_limits: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    tolerance: FloatArray,
+    *,
+    horizons: Sequence[float],
+    period: float,
+    travel_times: Sequence[Callable[[FloatArray], FloatArray] | None],
+    hold: float,
+    v_max: float | None,
+) -> tuple[FloatArray, FloatArray]:
+    """The earliest entry at or after each episode's arrival from which the arm can be in the
+    capture envelope for ``hold`` (see the module docstring), and a joint vector at the entry.
+
+    The envelope (:func:`envelope_feasible`) is tested on a grid of ``HOLD_SAMPLES`` times per
+    control period. A *scan* from a time s tests the grid from s over ``hold`` and ``CHUNK``
+    steps more: if it holds from s itself through ``s + hold``, s is the entry. Otherwise the
+    next candidate is the first grid time after a failing one from which it holds through the
+    hold, or, where no hold fits in the scan, the first passing time after the last failing
+    one; the onset within the grid step before that time is found by ``REFINE`` evenly spaced
+    times (to ``period / (HOLD_SAMPLES REFINE)``), and a scan from there follows. A scan that
+    passes nowhere after its last failure goes on from its end. No entry whose hold ends by
+    the horizon: ``inf``. Each round scans or refines every unfinished episode in one
+    :func:`envelope_feasible` call, whose rows are independent, so an episode's result is the
+    same in any batch.
+
+    Args:
+        arrivals: per episode, the arrival (the first feasible time), s (inf: none), (G,).
+        thetas: the joint vectors there, (G, 3).
+        target_positions ... tolerance, horizons, period: as :func:`physical_limits`.
+        travel_times: per episode, as :func:`physical_limit`'s ``travel_time`` (None: t).
+        hold, v_max: the envelope.
+
+    Returns:
+        ``(entry (G,), theta (G, 3))``.
+    """
+    step = period / HOLD_SAMPLES
+    span = math.floor(hold / step + 1e-9)  # grid steps within a hold
+    scan = step * np.arange(span + CHUNK + 1)  # a scan's times after its start
+    entry = np.array(arrivals, dtype=float)  # a scan's start, or the result
+    best = np.array(thetas, dtype=float)
+    last = np.asarray(horizons, dtype=float) - hold  # the latest entry
+    entry[~(entry <= last)] = np.inf
+    refining = np.zeros(entry.size, bool)  # else scanning from ``entry``
+    t_lo = np.zeros(entry.size)
+    active = np.flatnonzero(np.isfinite(entry))
+    args = (theta0, joint_rate_limits, lower, upper, tolerance, v_max)
+    while active.size:
+        times = [
+            refine_times(t_lo[g : g + 1], entry[g : g + 1])[0] if refining[g] else entry[g] + scan
+            for g in active.tolist()
+        ]
+        ok = _envelope_rows(active, times, target_positions, target_velocities, travel_times, args)
+        done = []
+        for g, row_ok, row_times in zip(active.tolist(), ok, times, strict=True):
+            if refining[g]:  # the first passing time; the last, entry[g], passes
+                k = int(np.argmax(row_ok))
+                entry[g], refining[g] = row_times[k], False
+                continue
+            failed = np.flatnonzero(~row_ok)
+            if failed.size == 0 or failed[0] > span:  # holds from the start
+                done.append(g)
+                continue
+            # Holds through the hold from k: no failure in k .. k + span
+            runs = np.convolve(~row_ok, np.ones(span + 1, int), mode="valid") == 0
+            holds = np.flatnonzero(runs[1:] & ~row_ok[:-1][: runs.size - 1]) + 1
+            passing = np.flatnonzero(row_ok[failed[-1] :]) + failed[-1]
+            k = int(holds[0]) if holds.size else int(passing[0]) if passing.size else -1
+            if k < 0:  # nothing passes after the last failure: scan on from the end
+                entry[g] = row_times[-1]
+            else:
+                t_lo[g], entry[g], refining[g] = row_times[k - 1], row_times[k], True
+            if not entry[g] <= last[g]:
+                entry[g] = np.inf
+                done.append(g)
+        active = np.setdiff1d(active, done)
+    held = np.flatnonzero(np.isfinite(entry))
+    if held.size:
+        best[held] = _nearest_at(
+            held, entry[held], best[held], target_positions, travel_times, args[:4]
+        )
+    return entry, best
+
+
+def _nearest_at(
+    episodes: NDArray[np.intp],
+    times: FloatArray,
+    starts: FloatArray,
+    target_positions: Sequence[Callable[[FloatArray], FloatArray]],
+    travel_times: Sequence[Callable[[FloatArray], FloatArray] | None],
+    args: tuple,
+) -> FloatArray:
+    """Per episode, the joint vector of the reachable box at its time whose end-effector is
+    nearest X_T then (:func:`nearest_in_box` from ``starts`` and from each IK solution), (E, 3);
+    ``args``: theta0, joint_rate_limits, lower, upper."""
+    t = times[:, None]
+    targets = np.concatenate([target_positions[g](t[i]) for i, g in enumerate(episodes.tolist())])
+    moved = np.array(
+        [
+            t[i, 0] if travel_times[g] is None else float(travel_times[g](t[i])[0])
+            for i, g in enumerate(episodes.tolist())
+        ]
+    )
+    box_lo, box_hi, solutions, _ = _box_solutions(targets, moved, *args)
+    candidates = np.concatenate((starts[:, None], solutions), axis=1)  # (E, 5, 3)
+    candidates = np.where(np.isnan(candidates), starts[:, None], candidates)
+    count = candidates.shape[1]
+    q = nearest_in_box(
+        candidates.reshape(-1, 3),
+        np.repeat(targets, count, axis=0),
+        np.repeat(box_lo, count, axis=0),
+        np.repeat(box_hi, count, axis=0),
+    ).reshape(-1, count, 3)
+    miss = np.linalg.norm(forward_kinematics(q) - targets[:, None], axis=2)
+    return q[np.arange(q.shape[0]), np.argmin(miss, axis=1)]
+
+
+def _envelope_rows(
+    episodes: NDArray[np.intp],
+    times: Sequence[FloatArray],
+    target_positions: Sequence[Callable[[FloatArray], FloatArray]],
+    target_velocities: Sequence[Callable[[FloatArray], FloatArray]] | None,
+    travel_times: Sequence[Callable[[FloatArray], FloatArray] | None],
+    args: tuple,
+) -> list[NDArray[np.bool_]]:
+    """:func:`envelope_feasible` of each episode's ``times``, in one call; per episode."""
+    targets, velocities, moved = [], [], []
+    for g, t in zip(episodes.tolist(), times, strict=True):
+        targets.append(target_positions[g](t))
+        if target_velocities is not None:
+            velocities.append(target_velocities[g](t))
+        travel = travel_times[g]
+        moved.append(t if travel is None else travel(t))
+    ok = envelope_feasible(
+        np.concatenate(targets),
+        np.concatenate(velocities) if velocities else None,
+        np.concatenate(moved),
+        *args,
+    )
+    return np.split(ok, np.cumsum([t.size for t in times])[:-1])
+
+
+def cube_reachable(
+    goal: FloatArray, tolerance: FloatArray, lo: FloatArray, hi: FloatArray
+) -> NDArray[np.bool_]:
+    """Whether some joint vector in the box [lo, hi] puts the end-effector inside eq. 20's box
+    about ``goal`` (closed; component-wise within ``tolerance``), exactly, (M,).
+
+    Joint 1 turns the arm about the z axis; joints 2 and 3 place the end-effector in the arm's
+    plane at ``(r, z)``, r its signed distance from the axis. Eq. 20's box seen in that plane
+    is the rectangle Q of the z range ``z +- epsilon_z`` and the r range between the least and
+    the largest distance of its horizontal square from the axis (every distance between is
+    met at some azimuth); r < 0 (joint 1 facing away, turned by pi) mirrors it. Where joint 1's
+    range covers every azimuth of the square (from the axis), the test is whether Q meets the
+    planar reach ``P = g([lo2, hi2] x [lo3, hi3])``, g the planar kinematics; where it covers
+    none, that side is out; where some, the answer is True (a lower bound stays one).
+
+    P is bounded by four circular arcs (``distance_lower_bound``): theta3 fixed, radius
+    ``||f||`` about joint 2 (the arm turns rigidly with theta2); theta2 fixed, radius l2 about
+    the elbow. Where ``|theta3| < pi/2`` over the box and theta2 spans less than pi, g is one to
+    one on it, and two such regions meet exactly where a corner of one lies in the other or
+    an arc crosses an edge of Q (closed sets: touching counts). Elsewhere the answer is True.
+
+    Args:
+        goal: capture points X_T, global, m, (M, 3).
+        tolerance: epsilon, m, (3,).
+        lo, hi: the reachable joint boxes, rad, (M, 3).
+    """
+    x, y, z = goal[:, 0], goal[:, 1], goal[:, 2]
+    ex, ey, ez = (float(e) for e in tolerance)
+    rho = np.hypot(x, y)
+    near = np.hypot(np.maximum(np.abs(x) - ex, 0.0), np.maximum(np.abs(y) - ey, 0.0))
+    far = np.hypot(np.abs(x) + ex, np.abs(y) + ey)
+    # joint 1: the square's azimuths (from the axis) lie within +-width of the goal's
+    circumradius = math.hypot(ex, ey)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        width = np.where(rho > circumradius, np.arcsin(np.minimum(circumradius / rho, 1.0)), np.pi)
+    azimuth = np.arctan2(y, x)
+    regular = (lo[:, 2] > -np.pi / 2) & (hi[:, 2] < np.pi / 2) & (hi[:, 1] - lo[:, 1] < np.pi)
+    out = np.zeros(goal.shape[0], bool)
+    for side in (1.0, -1.0):
+        centre = azimuth + (0.0 if side > 0 else np.pi)
+        shifted = lo[:, 0] + np.mod(centre - lo[:, 0], 2.0 * np.pi)  # in [lo1, lo1 + 2 pi)
+        missed = (
+            (width < np.pi)
+            & (shifted - width > hi[:, 0])
+            & (shifted + width - 2.0 * np.pi < lo[:, 0])
+        )
+        rows = np.flatnonzero(~missed & regular & ~out)
+        out |= ~missed & ~regular
+        if rows.size:
+            r_lo, r_hi = (near[rows], far[rows]) if side > 0 else (-far[rows], -near[rows])
+            out[rows] = _planar_meets(
+                r_lo, r_hi, z[rows] - ez, z[rows] + ez, lo[rows, 1:], hi[rows, 1:]
+            )
+    return out
+
+
+def _planar_meets(
+    r_lo: FloatArray,
+    r_hi: FloatArray,
+    z_lo: FloatArray,
+    z_hi: FloatArray,
+    lo: FloatArray,
+    hi: FloatArray,
+) -> NDArray[np.bool_]:
+    """Whether the rectangle ``[r_lo, r_hi] x [z_lo, z_hi]`` meets ``g([lo2, hi2] x [lo3, hi3])``
+    (``lo``, ``hi`` the (theta2, theta3) bounds, (M, 2)), g one to one there (see
+    :func:`cube_reachable`), (M,)."""
+    slack = 1e-12  # m, rad: touching counts
+    lo2, hi2, lo3, hi3 = lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]
+    # Q's corners in P: their (theta2, theta3) with cos theta3 > 0 in the box
+    r = np.stack([r_lo, r_hi, r_lo, r_hi])  # (4, M)
+    zz = np.stack([z_lo, z_lo, z_hi, z_hi])
+    s3 = (r * r + zz * zz - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
+    with np.errstate(invalid="ignore"):
+        t3 = np.arcsin(s3)  # NaN out of reach: compares False
+    t2 = np.arctan2(zz, r) + np.arctan2(L2 * np.cos(t3), L1 + L2 * s3)
+    t2 = lo2 + np.mod(t2 - lo2, 2.0 * np.pi)
+    inside = (t2 <= hi2 + slack) & (t3 >= lo3 - slack) & (t3 <= hi3 + slack)
+    meets = inside.any(axis=0)
+    # P's corners in Q
+    c2 = np.stack([lo2, hi2, lo2, hi2])
+    c3 = np.stack([lo3, lo3, hi3, hi3])
+    pr = L1 * np.cos(c2) + L2 * np.sin(c2 + c3)
+    pz = L1 * np.sin(c2) - L2 * np.cos(c2 + c3)
+    meets |= (
+        (pr >= r_lo - slack) & (pr <= r_hi + slack) & (pz >= z_lo - slack) & (pz <= z_hi + slack)
+    ).any(axis=0)
+    # P's arcs (4, M) across Q's edges (4, M). theta3 fixed: radius |L1 + L2 s3 - i L2 c3|
+    # about joint 2, at angle theta2 - atan2(L2 c3, L1 + L2 s3); theta2 fixed: radius L2 about
+    # the elbow, at angle theta2 + theta3 - pi/2.
+    a = L1 + L2 * np.sin(np.stack([lo3, hi3]))
+    b = L2 * np.cos(np.stack([lo3, hi3]))
+    beta = np.arctan2(b, a)
+    edge2 = np.stack([lo2, hi2])
+    zeros = np.zeros((2, lo2.size))
+    centre_r = np.concatenate((zeros, L1 * np.cos(edge2)))[:, None]  # (4, 1, M)
+    centre_z = np.concatenate((zeros, L1 * np.sin(edge2)))[:, None]
+    radius = np.concatenate((np.hypot(a, b), np.full((2, lo2.size), L2)))[:, None]
+    first = np.concatenate((lo2 - beta, edge2 + lo3 - np.pi / 2))[:, None]
+    span = np.concatenate((np.broadcast_to(hi2 - lo2, (2, lo2.size)), np.stack([hi3 - lo3] * 2)))
+    span = span[:, None]
+    # Q's edges: z = level (horizontal, r between low and high) or r = level (vertical)
+    level = np.stack([z_lo, z_hi, r_lo, r_hi])[None]  # (1, 4, M)
+    low = np.stack([r_lo, r_lo, z_lo, z_lo])[None]
+    high = np.stack([r_hi, r_hi, z_hi, z_hi])[None]
+    horizontal = np.array([True, True, False, False])[None, :, None]
+    centre_level = np.where(horizontal, centre_z, centre_r)  # (4, 4, M)
+    centre_other = np.where(horizontal, centre_r, centre_z)
+    offset = level - centre_level
+    with np.errstate(invalid="ignore"):
+        half = np.sqrt(radius * radius - offset * offset)  # NaN: the circle misses the line
+    for along in (half, -half):
+        angle = np.where(horizontal, np.arctan2(offset, along), np.arctan2(along, offset))
+        other = centre_other + along
+        crossing = (other >= low - slack) & (other <= high + slack)
+        on_arc = np.mod(angle - first + slack, 2.0 * np.pi) <= span + 2.0 * slack
+        meets |= (crossing & on_arc).any(axis=(0, 1))
+    return meets
