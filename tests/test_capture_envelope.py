@@ -105,8 +105,8 @@ def _captures(agent_name: str, **capture) -> int:
 def test_a_sweep_through_the_target_at_full_joint_rate_never_captures():
     """joint_intercept_uncapped drives every joint at full rate through the earliest pose that
     meets the target: inside a 5 mm box it captures every episode, under a 50 mm/s bound none."""
-    assert _captures("joint_intercept_uncapped") == len(SEEDS)
-    assert _captures("joint_intercept_uncapped", v_max=0.05) == 0
+    assert _captures("joint_intercept_uncapped", v_max=None, hold=0.0) == len(SEEDS)
+    assert _captures("joint_intercept_uncapped", v_max=0.05, hold=0.0) == 0
 
 
 @pytest.mark.parametrize("agent", ["incremental_ik", "joint_intercept", "oracle"])

@@ -289,7 +289,6 @@ def test_an_alias_bomb_in_a_suite_or_a_long_value_gives_a_short_message(tmp_path
     assert len(message) < ONE_LINE
 
 
-
 @pytest.mark.parametrize(
     "text",
     [

@@ -234,7 +234,7 @@ def test_a_scenario_with_no_winnable_episode_fails_loudly(monkeypatch):
     """After ``MAX_PLAN_DRAWS`` plans with no finite bound, ``RuntimeError`` names the
     scenario."""
     monkeypatch.setattr(episode_module, "MAX_PLAN_DRAWS", 3)
-    scenario = load_scenario("paper").replace(control={"episode_limit": 0.1})
+    scenario = load_scenario("paper").replace(capture={"hold": 0.0}, control={"episode_limit": 0.1})
     camera, features = scenario_camera(scenario)
     with pytest.raises(RuntimeError, match="scenario 'paper': no episode the arm can win"):
         draw_plans(scenario, camera.model, features, [seeding.np_random(0)[0]])

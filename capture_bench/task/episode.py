@@ -247,9 +247,10 @@ def episode_bounds(
     plans: Sequence[EpisodePlan], description: TaskDescription
 ) -> list[PhysicalLimit]:
     """The physical-limit bound of each episode (DESIGN.md), computed together: the earliest
-    time eq. 20 can hold plus the scenario's ``capture.hold`` (see
-    :mod:`capture_bench.task.physical_limit`); ``inf`` when that is after the episode's last step
-    ends, or when the target leaves the arm's reach for longer than ``lost_after`` before it.
+    entry into the capture envelope from which it can hold for the scenario's ``capture.hold``,
+    plus that hold (see :mod:`capture_bench.task.physical_limit`); ``inf`` when that is after
+    the episode's last step ends, or when the target leaves the arm's reach for longer than
+    ``lost_after`` before it.
     A plan that carries its bound (:func:`draw_plans`) gives it without a computation where
     ``description`` is :func:`bound_task`'s (the same arm and epsilon)."""
     if not plans:
@@ -270,7 +271,7 @@ def _compute_bounds(
 ) -> list[PhysicalLimit]:
     """:func:`episode_bounds` of plans that carry none, computed together."""
     arm = description.arm
-    control = plans[0].scenario.control
+    control, capture = plans[0].scenario.control, plans[0].scenario.capture
     ends = [plan.end() for plan in plans]
     limits = physical_limits(
         [plan.trajectory.position for plan in plans],
@@ -282,11 +283,14 @@ def _compute_bounds(
         horizons=ends,
         period=control.period,
         travel_times=[plan.travel_time if control.period_jitter else None for plan in plans],
+        hold=capture.hold,
+        v_max=capture.v_max,
+        target_velocities=[plan.trajectory.velocity for plan in plans],
     )
-    hold = plans[0].scenario.capture.hold
+    hold = capture.hold
     out = []
     for plan, end, limit in zip(plans, ends, limits, strict=True):
-        time = limit.time + hold  # inf stays inf
+        time = limit.time  # the envelope's: entry plus the hold; inf stays inf
         if time > end or plan.leaves_reach_before(time):
             out.append(PhysicalLimit(math.inf, None, hold))
         else:
