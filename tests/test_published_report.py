@@ -173,3 +173,15 @@ def test_a_value_without_an_interval_is_reproduced_only_by_its_equal():
     assert check("a", "s", "ratio_median", nan, nan, nan, nan).reproduced
     assert not check("a", "s", "ratio_median", 2.0, nan, nan, nan).reproduced
     assert check("a", "s", "capture_rate", 0.0, 0.0, 5.6e-17, 0.56).reproduced  # Wilson's 0
+
+
+def test_a_published_report_this_code_cannot_read_is_named_not_compared(
+    published, tmp_path, capsys
+):
+    episodes = published / "quick" / "episodes.csv"
+    episodes.write_text(episodes.read_text().replace("relative_speed_at_capture,", "", 1))
+    assert evaluate_cli.main([*QUICK, "--out", str(tmp_path / "run")]) == 0
+    captured = capsys.readouterr()
+    assert "cannot be read as a report of this code's" in captured.err
+    assert "against the published report" not in captured.out
+    assert not (tmp_path / "run" / "quick" / "reproduction.md").exists()

@@ -462,6 +462,12 @@ def _main(argv: list[str] | None) -> int:
         print(f"{prog}: note: {where}", file=sys.stderr)
     published_folder = reproduction.published_dir() / plan.report_name
     published = read_published(published_folder)  # before a --publish replaces it
+    if published is None and (published_folder / "results.json").is_file():
+        print(
+            f"{prog}: note: {display_path(published_folder)} cannot be read as a report of this "
+            "code's (made by other code?); the run is not compared with it",
+            file=sys.stderr,
+        )
     data, target = _run(plan, config, command)
     _print_summary(data, target)
     _compare_with_published(published, target, config.publish, prog)
