@@ -172,8 +172,9 @@ NAME = _kind(
 NUMBER3 = _real(-5.0, 5.0)
 #: Every scenario key, as documented in capture_bench/task/scenarios.py (unit and valid range).
 #: Valid values are drawn where the rules that tie keys together hold whatever else the mapping
-#: says (tests/test_config_limits.py tests those rules): at most 50 s of steps of >= 0.01 s, the
-#: camera at y <= -2 looking at y >= -1, initial offsets >= 0.2 m and tolerances <= 0.1 m.
+#: says (tests/test_config_limits.py tests those rules): 1-50 s of steps of >= 0.01 s (a hold of
+#: at most 0.9 s fits), the camera at y <= -2 looking at y >= -1, initial offsets >= 0.2 m and
+#: tolerances <= 0.1 m.
 SCENARIO_SPEC: dict[str, Any] = {
     "name": NAME,
     "description": TEXT,
@@ -183,9 +184,17 @@ SCENARIO_SPEC: dict[str, Any] = {
         "period": _kind(_real(0.01, 1.0), _bounded(0.001, 1.0)["invalid"]),
         "period_jitter": _fraction(0.9),
         "episode_limit": _kind(
-            _real(1e-9, 50.0), _bounded(0.0, 3600.0, low_inclusive=False)["invalid"]
+            _real(1.0, 50.0), _bounded(0.0, 3600.0, low_inclusive=False)["invalid"]
         ),
     },
+    "capture": {
+        "hold": _kind(_real(0.0, 0.9), _bounded(0.0, 1e6)["invalid"]),
+        "v_max": _kind(
+            st.one_of(st.none(), _real(1e-3, 10.0)),
+            _bounded(0.0, 10.0, low_inclusive=False)["invalid"].filter(lambda v: v is not None),
+        ),
+    },
+    "ranked": _kind(st.booleans(), NON_STRINGS.filter(lambda v: not isinstance(v, bool))),
     "camera": {
         "position": _point(-5.0, -2.0),
         "look_at": _point(-1.0, 5.0),

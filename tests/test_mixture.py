@@ -52,8 +52,8 @@ def test_the_mixture_steps_as_its_parts_side_by_side():
 
 
 def test_the_spec_names_every_or_some_scenarios():
-    analytic = list_scenarios(camera="analytic")  # "all": the analytic camera's scenarios
-    assert [s.name for s in mixture_scenarios("all")] == analytic
+    analytic = list_scenarios(camera="analytic")  # "all": the analytic camera's ranked ones
+    assert [s.name for s in mixture_scenarios("all")] == [n for n in analytic if n != "paper_eq20"]
     assert "paper_rendered" in list_scenarios() and "paper_rendered" not in analytic
     assert [s.name for s in mixture_scenarios("paper, grasp")] == ["paper", "grasp"]
     assert is_mixture("all") and is_mixture("paper,grasp") and not is_mixture("paper")
@@ -112,7 +112,7 @@ def test_a_tiny_mixture_run_trains_validates_each_scenario_loads_and_resumes(tmp
         (["--vec-env", "dummy"], "a mixture trains on --vec-env batched"),
         (["--set", "residual=incremental_ik"], "residual depends on one scenario"),
         (["--set", "curriculum_tolerance=0.0001"], "curriculum_tolerance 0.0001 moves on no"),
-        (["--scenario", "paper,tumbling", "--set", "curriculum_hold=0"], "(none asks a longer"),
+        (["--scenario", "paper_eq20,grasp", "--set", "curriculum_hold=0.3"], "(none asks a longer"),
         (["--n-envs", "4", "--set", "mixture_weights={grasp: 9}"], "no sub-env of n_envs 4"),
         (["--set", "mixture_weights={grasp: 0}"], "expected a mapping of names to numbers > 0"),
         (["--set", "mixture_weights=[grasp]"], "expected a mapping of names to numbers > 0"),
@@ -131,26 +131,29 @@ def test_what_a_mixture_cannot_take_is_one_line(tmp_path, capsys, argv, expected
 
 def test_a_mixtures_curricula_move_on_each_scenario_they_apply_to():
     """Each scenario of a mixture gets the curricula that move on it, on its own share of the
-    sub-envs, to its own rule: the hold only where the scenario asks one (grasp), the
-    tolerance on every scenario to its own epsilon."""
+    sub-envs, to its own rule: the hold only where the scenario asks one (grasp and tumbling,
+    not paper_eq20), the tolerance on every scenario to its own epsilon."""
     from capture_bench.training.run import mixture_curricula
 
-    scenarios = mixture_scenarios("paper,grasp,tumbling")
+    scenarios = mixture_scenarios("paper_eq20,grasp,tumbling")
     hp = {"curriculum_hold": 0.0, "curriculum_tolerance": 0.05, "curriculum_steps": 10,
           "curriculum_delay": 2}  # fmt: skip
     found = mixture_curricula(hp, scenarios, [4, 4, 4])
     holds = [kw for name, kw in found if name == "HoldCurriculum"]
-    assert [(kw["label"], kw["indices"]) for kw in holds] == [("grasp", [4, 5, 6, 7])]
+    assert [(kw["label"], kw["indices"]) for kw in holds] == [
+        ("grasp", [4, 5, 6, 7]),
+        ("tumbling", [8, 9, 10, 11]),
+    ]
     assert holds[0]["final"] == scenarios[1].capture.hold > 0
     tolerances = {kw["label"]: kw for name, kw in found if name == "ToleranceCurriculum"}
-    assert list(tolerances) == ["paper", "grasp", "tumbling"]
+    assert list(tolerances) == ["paper_eq20", "grasp", "tumbling"]
     assert tolerances["tumbling"]["indices"] == [8, 9, 10, 11]
     assert all(kw["steps"] == 10 and kw["delay"] == 2 for _, kw in found)
 
 
 def test_a_mixture_run_with_a_hold_curriculum_grows_grasps_hold_alone(tmp_path):
-    """train.py on paper+grasp with curriculum_hold=0: grasp's training hold grows from 0 (its
-    own TensorBoard tag), paper's rule is left alone, the validation keeps both rules."""
+    """train.py on paper_eq20+grasp with curriculum_hold=0: grasp's training hold grows from 0 (its
+    own TensorBoard tag), paper_eq20's rule is left alone, the validation keeps both rules."""
     from test_training_metrics import scalars
 
     import train
@@ -158,12 +161,12 @@ def test_a_mixture_run_with_a_hold_curriculum_grows_grasps_hold_alone(tmp_path):
     run_dir = tmp_path / "run"
     sets = [*TINY, "total_timesteps=384", "curriculum_hold=0", "curriculum_steps=256",
             "curriculum_delay=0"]  # fmt: skip
-    argv = ["--scenario", "paper,grasp", "--n-envs", "4", *(f"--set={s}" for s in sets)]
+    argv = ["--scenario", "paper_eq20,grasp", "--n-envs", "4", *(f"--set={s}" for s in sets)]
     assert train.main([*argv, "--run-dir", str(run_dir)]) == 0
     tags = scalars(run_dir / "tb")
     hold = [v for _, v in tags["train/capture_hold_s/grasp"]]
     assert hold[0] == 0.0 and hold == sorted(hold) and hold[-1] > 0.0
-    assert not any(tag.startswith("train/capture_hold_s/paper") for tag in tags)
+    assert not any(tag.startswith("train/capture_hold_s/paper_eq20") for tag in tags)
 
 
 def test_the_weights_split_the_sub_envs_in_proportion_and_sum_to_n_envs():
@@ -206,7 +209,7 @@ def test_shares_that_cannot_be_are_refused(n_envs, weights, expected):
 
 
 def test_a_weighted_run_gives_each_scenario_its_share_and_grasps_curriculum_its_own(tmp_path):
-    """paper+grasp weighted 1:2 on 6 sub-envs: paper's batched env has 2, grasp's 4, and the
+    """paper_eq20+grasp weighted 1:2 on 6 sub-envs: paper_eq20's batched env has 2, grasp's 4, and the
     hold curriculum moves grasp's 4 (sub-envs 2-5) alone."""
     from capture_bench.training.hyperparameters import resolve_hyperparameters
     from capture_bench.training.options import TrainConfig
@@ -215,12 +218,12 @@ def test_a_weighted_run_gives_each_scenario_its_share_and_grasps_curriculum_its_
     hp, _, _ = resolve_hyperparameters("ppo", None, None, [
         "n_envs=6", "mixture_weights={grasp: 2}", "curriculum_hold=0", "curriculum_steps=10",
         "curriculum_delay=0"])  # fmt: skip
-    config = TrainConfig(algo="ppo", scenario="paper,grasp", n_envs=6, vec_env="batched")
+    config = TrainConfig(algo="ppo", scenario="paper_eq20,grasp", n_envs=6, vec_env="batched")
     venv = build_venv(config, {**hp, "residual": "none"})
     try:
         mixture = venv.venv
         assert [part.num_envs for part in mixture.parts] == [2, 4]
-        assert [p.venv.scenario.name for p in mixture.parts] == ["paper", "grasp"]
+        assert [p.venv.scenario.name for p in mixture.parts] == ["paper_eq20", "grasp"]
     finally:
         venv.close()
     (hold,) = curriculum_callbacks(config, hp)
