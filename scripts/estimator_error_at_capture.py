@@ -21,6 +21,7 @@ import numpy as np
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
+from capture_bench.evaluation.rollout import run_episode
 from capture_bench.task.scenarios import list_scenarios, load_scenario
 
 NEAR = 0.02  # m: "closing in"
@@ -39,17 +40,14 @@ def errors(scenario: str, seeds: int, **envelope: float) -> tuple[list[float], l
     at_capture, near = [], []
     try:
         for seed in list(loaded.validation_seeds)[:seeds]:
-            obs, info = env.reset(seed=seed)
-            agent.reset()
-            terminated = truncated = False
-            while not (terminated or truncated):
-                action, _ = agent.predict(obs)
-                obs, _, terminated, truncated, info = env.step(action)
-                error = info["estimate_position_error"]
-                if info["distance"] < NEAR and np.isfinite(error):
-                    near.append(error)
-            if info["is_success"] and np.isfinite(info["estimate_position_error"]):
-                at_capture.append(info["estimate_position_error"])
+            record, trace = run_episode(
+                env, agent, agent_name="incremental_ik", scenario=scenario, seed=seed, trace=True
+            )
+            assert trace is not None
+            error = trace.position_error
+            near += error[(trace.distance < NEAR) & np.isfinite(error)].tolist()
+            if record.outcome == "captured" and np.isfinite(error[-1]):
+                at_capture.append(float(error[-1]))
     finally:
         env.close()
     return at_capture, near

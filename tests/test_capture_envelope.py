@@ -11,6 +11,7 @@ import pytest
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
+from capture_bench.evaluation.rollout import run_episode
 from capture_bench.sim.kinematics import forward_kinematics
 from capture_bench.task.capture import (
     VELOCITY_RESOLUTION,
@@ -90,13 +91,8 @@ def _captures(agent_name: str, **capture) -> int:
     captured = 0
     try:
         for seed in SEEDS:
-            obs, info = env.reset(seed=seed)
-            agent.reset()
-            terminated = truncated = False
-            while not (terminated or truncated):
-                action, _ = agent.predict(obs)
-                obs, _, terminated, truncated, info = env.step(action)
-            captured += bool(info["is_success"])
+            record, _ = run_episode(env, agent, agent_name=agent_name, scenario="paper", seed=seed)
+            captured += record.outcome == "captured"
     finally:
         env.close()
     return captured

@@ -12,6 +12,7 @@ from scipy.optimize import lsq_linear
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
+from capture_bench.evaluation.rollout import run_episode
 from capture_bench.sim import kinematics as k
 from capture_bench.sim.target_motion import sample_trajectory
 from capture_bench.task.physical_limit import (
@@ -307,16 +308,13 @@ def _oracle_gaps(scenario, seeds):
     out = []
     try:
         for seed in seeds:
-            obs, info = env.reset(seed=seed)
-            agent.reset()
-            terminated = truncated = False
-            while not (terminated or truncated):
-                action, _ = agent.predict(obs)
-                obs, _, terminated, truncated, info = env.step(action)
+            record, _ = run_episode(
+                env, agent, agent_name="oracle", scenario=scenario.name, seed=seed
+            )
             bound = envelope_bound(env.plan, scenario).time
             assert env.physical_limit().time <= bound + 1e-9  # the env's bound is below it
-            captured = info["capture_time"]
-            out.append((np.inf if captured is None else captured - bound, bound))
+            captured = record.capture_time  # NaN if not captured
+            out.append((np.inf if np.isnan(captured) else captured - bound, bound))
     finally:
         env.close()
     return np.array(out)
