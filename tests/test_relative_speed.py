@@ -13,15 +13,14 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
+from test_step_rule import _side as step_rule_side
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.core import CaptureTask
 from capture_bench.envs.vector_env import CaptureVectorEnv, sub_env_infos
 from capture_bench.evaluation.rollout import run_episode
-from capture_bench.sensing.estimator import STATUSES
 from capture_bench.sim.kinematics import HOME, forward_kinematics, jacobian
-from capture_bench.task.recording import STEP_TRACKS
 from capture_bench.task.rewards import REWARD_TERMS
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.task.step_rule import BEFORE_TRACKS, ArmState, scalar_info
@@ -203,24 +202,13 @@ class _Still:
 
 
 def _side(position: np.ndarray, time: float) -> dict[str, np.ndarray]:
-    """One step's target side, (1, ...) arrays: X_T at rest, estimated exactly, in view."""
-    values = {
-        "time": time,
-        "dt": 0.05,
-        "position": position,
-        "velocity": np.zeros(3),
-        "estimate_position": position,
-        "estimate_velocity": np.zeros(3),
-        "estimate_valid": True,
-        "estimator_status": STATUSES.index("ok"),
-        "visible": True,
-        "reachable": True,
-        "position_error": 0.0,
-        "velocity_error": 0.0,
-        "nees": math.nan,
-    }
-    assert set(values) == set(STEP_TRACKS)
-    return {name: np.array([value]) for name, value in values.items()}
+    """One step's target side, (1, ...) arrays: X_T at rest at ``position``, estimated exactly,
+    in view (test_step_rule's, with the target still)."""
+    still = np.zeros(3)
+    return step_rule_side(
+        time, 0.0, position=position, velocity=still, estimate_position=position,
+        estimate_velocity=still,
+    )  # fmt: skip
 
 
 V_MAX = 0.05  # m/s
