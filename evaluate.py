@@ -6,7 +6,7 @@
     python evaluate.py --help                # every option; python -m capture_bench list
 
 The same command is installed as ``capture-bench-evaluate``. Everything it does is in
-:mod:`capture_bench.evaluation.cli` (options, refusals, signals) and the modules it calls.
+`capture_bench.evaluation.cli` (options, refusals, signals) and the modules it calls.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ COMMAND = "capture_bench.evaluation.cli:main"
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command (:func:`capture_bench.evaluation.cli.main`); returns the exit status."""
+    """Run the command (`capture_bench.evaluation.cli.main`); returns the exit status."""
     return command_main(COMMAND)(argv)
 
 

@@ -2,7 +2,7 @@
 
 The project's layout keeps them at the top of the checkout; a wheel carries a copy under
 ``capture_bench/_data/`` so that a plain ``pip install .`` finds them from any working directory
-(:mod:`capture_bench.paths`). An editable install reads the checkout's own folders instead.
+(`capture_bench.paths`). An editable install reads the checkout's own folders instead.
 Everything else about the package is declared in ``pyproject.toml``.
 """
 

@@ -6,7 +6,7 @@
     tensorboard --logdir runs/paper-ppo-0/tb
 
 The same command is installed as ``capture-bench-train``. Everything it does is in
-:mod:`capture_bench.training.run` (options, hyper-parameters, checkpoints, the safe policy form).
+`capture_bench.training.run` (options, hyper-parameters, checkpoints, the safe policy form).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ COMMAND = "capture_bench.training.run:main"
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command (:func:`capture_bench.training.run.main`); returns the exit status."""
+    """Run the command (`capture_bench.training.run.main`); returns the exit status."""
     return command_main(COMMAND)(argv)
 
 

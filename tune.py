@@ -7,7 +7,7 @@
 
 The same command is installed as ``capture-bench-tune`` (needs the ``tune`` extra:
 ``pip install 'capture-bench[tune]'``). Everything it does is in
-:mod:`capture_bench.training.tune`.
+`capture_bench.training.tune`.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ COMMAND = "capture_bench.training.tune:main"
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command (:func:`capture_bench.training.tune.main`); returns the exit status."""
+    """Run the command (`capture_bench.training.tune.main`); returns the exit status."""
     return command_main(COMMAND)(argv)
 
 

@@ -91,7 +91,7 @@ class _Timer:
 def breakdown(episodes: int, suite: str) -> None:
     """Split episode time into env reset / env step / predict, per agent and per scenario, as a
     worker plays a chunk: every agent on the same ``episodes`` seeds, one batch per agent
-    (:func:`capture_bench.evaluation.backends.run_batch`; the first agent's reset records each
+    (`capture_bench.evaluation.backends.run_batch`; the first agent's reset records each
     seed's target side, the others replay it)."""
     sys.path.insert(0, str(ROOT))
     from capture_bench.envs.capture_env import CaptureEnv

@@ -7,8 +7,8 @@ Usage::
 
 Episodes come from every shipped scenario in turn (``CaptureEnv(name).reset(seed=s)``), with the
 arguments ``CaptureEnv.physical_limit`` passes. Prints milliseconds per episode (best of
-``--repeats``; CPU time of this process by default) for :func:`physical_limit` called episode
-by episode and for :func:`physical_limits` on consecutive groups of G episodes, and checks that
+``--repeats``; CPU time of this process by default) for `physical_limit` called episode
+by episode and for `physical_limits` on consecutive groups of G episodes, and checks that
 both give the same times.
 """
 

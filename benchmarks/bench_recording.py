@@ -1,5 +1,5 @@
 """Time the evaluation's recording of target sides: step by step (the live single env's way)
-against :meth:`TargetSide.record_many` (every step at once, the first frames' cold
+against `TargetSide.record_many` (every step at once, the first frames' cold
 photogrammetry as one batch), and check the two are equal field for field.
 
     python benchmarks/bench_recording.py                 # 60 seeds of every scenario

@@ -10,10 +10,10 @@ Prints, on one core (the process is pinned to the first CPU it may use):
   64 x 64 window, with the arm at home and the target in view (best of ``--repeats``);
 * milliseconds per detection of the four markers in a full frame and in a 64 x 64 window;
 * the detector's error against eq. 2 (and against the exact ellipse centre of
-  :func:`capture_bench.sensing.pixels.sphere_image`) over ``--poses`` random target poses at the
+  `capture_bench.sensing.pixels.sphere_image`) over ``--poses`` random target poses at the
   default camera placement (0.25-0.35 m from the home end-effector, markers in the central 90 % of
   the image, uniformly random orientation) that are unoccluded by geometry: no marker image can
-  overlap a nearer marker's or the block's (:func:`capture_bench.sensing.occlusion.hidden_markers`)
+  overlap a nearer marker's or the block's (`capture_bench.sensing.occlusion.hidden_markers`)
   and the target lies in front of the arm (global y < -0.06 m);
 * over every in-view pose drawn, occluded or not: the share of frames with all four markers found
   and each marker status's count, and the error of the markers found on frames that geometry says

@@ -5,7 +5,7 @@
 The paper's controller plays validation seeds of each rendered scenario three ways:
 
 * ``live``: ``CaptureEnv(scenario)``: every frame rendered, with the arm, in windows around the
-  markers (:class:`~capture_bench.sensing.scene_camera.RenderedSceneCamera`, no store);
+  markers (`RenderedSceneCamera`, no store);
 * ``first agent``: ``reuse_target_side=True``, a fresh cache: frames the arm cannot reach are
   rendered without it and kept by seed; the others with it;
 * ``next agent``: the same seeds again (what every agent after the first costs in an

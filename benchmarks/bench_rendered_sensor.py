@@ -1,4 +1,4 @@
-"""Speed and accuracy of the rendered camera sensor (:mod:`capture_bench.sensing.rendered_sensor`).
+"""Speed and accuracy of the rendered camera sensor (`capture_bench.sensing.rendered_sensor`).
 
 Usage::
 
@@ -7,7 +7,7 @@ Usage::
 
 Prints, on one core (the process pins itself to the first CPU it may use):
 
-* **speed**: captures per second of :meth:`RenderedCamera.capture` with the default settings, the
+* **speed**: captures per second of `RenderedCamera.capture` with the default settings, the
   windowed path and the full frame, the target 0.9-1.4 m from the lens anywhere in the central
   80 % of the image in a random orientation, the arm at home in view (best of ``--repeats`` passes
   over ``--timing-poses`` poses, a tenth of them for the full frame; CPU time of this process by
@@ -72,7 +72,7 @@ def draw_poses(
 ) -> list[Pose]:
     """Target poses with the capture point at a random pixel of the central 80 % of the image,
     ``depths`` m beyond the lens, every marker in the central 90 % and above the floor; with
-    ``clear``, no marker able to hide another (:func:`hidden_markers`)."""
+    ``clear``, no marker able to hide another (`hidden_markers`)."""
     poses: list[Pose] = []
     width, height = model.resolution
     while len(poses) < count:

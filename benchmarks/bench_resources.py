@@ -236,7 +236,7 @@ def evaluation(
 def _evaluation(
     work: Path, seeds: int, agents: list[str], workers: int, sample_every: int, curve: bool
 ) -> dict[str, Any]:
-    """:func:`evaluation` with its scenario and report in ``work``."""
+    """`evaluation` with its scenario and report in ``work``."""
     total = seeds * len(agents)
     backend = "serial" if workers == 1 else "process"
     config = EvaluationConfig(

@@ -3,11 +3,11 @@
 Importing the package registers one gymnasium environment per shipped scenario,
 ``CaptureBench/<Name>-v1`` (``gymnasium.make("CaptureBench/Paper-v1")``), with a batched vector
 env (``gymnasium.make_vec("CaptureBench/Paper-v1", num_envs=64)``,
-:mod:`capture_bench.envs.vector_env`).
+`capture_bench.envs.vector_env`).
 
 An invalid file under ``configs/scenarios/`` breaks only itself: importing never raises or prints
 because of it, every valid scenario is registered, and the file's error (file, key, what is valid)
-is raised as :class:`ConfigError` when it is used: ``load_scenario(name)``, or
+is raised as [`ConfigError`][capture_bench.ConfigError] when it is used: ``load_scenario(name)``, or
 ``gymnasium.make("CaptureBench/<Stem>-v1")`` (its ID is registered from the file name, since the
 file cannot be trusted to name itself). ``python -m capture_bench list`` shows both kinds.
 """

@@ -6,14 +6,14 @@
 ``capture-bench-train`` / ``capture-bench-tune``, with the same options.
 
 ``python -m capture_bench curves ...``: learning curves from several training seeds
-(:mod:`capture_bench.training.curves`).
+(`capture_bench.training.curves`).
 
 ``python -m capture_bench zoo-hyperparams``: the RL Zoo's hyper-parameter files
-(``configs/zoo/<algo>.yml``) made from ``configs/algos/`` (:mod:`capture_bench.training.zoo`).
+(``configs/zoo/<algo>.yml``) made from ``configs/algos/`` (`capture_bench.training.zoo`).
 
 ``python -m capture_bench sweep ...``: train every combination of algorithms, scenarios and
 training seeds, each run a Ray task, on this machine or a Ray cluster
-(:mod:`capture_bench.training.sweep`).
+(`capture_bench.training.sweep`).
 
 ``python -m capture_bench list``: what is installed, and what is broken, in one screen. It prints
 the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges), the

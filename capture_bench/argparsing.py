@@ -52,7 +52,7 @@ class OneLineParser(argparse.ArgumentParser):
 
     Args:
         prog: the script's name (``evaluate.py``); shown as the console script's name when the
-            process runs as that script (:func:`program`).
+            process runs as that script (`program`).
         hint: appended to every error, e.g. ``" (see --help)"``.
     """
 

@@ -14,7 +14,8 @@ from capture_bench.validation import ConfigError
 
 
 def check_writable(directory: str | Path, option: str) -> None:
-    """Raise :class:`ConfigError` unless files can be created in ``directory``.
+    """Raise [`ConfigError`][capture_bench.ConfigError] unless files can be created in
+    ``directory``.
 
     Nothing is left behind: a missing directory is not created; its nearest existing ancestor
     must be a directory where a probe file can be created (then removed). Run before the first

@@ -1,11 +1,11 @@
 """SIGTERM handled as Ctrl-C, so both CLIs end the same way on either signal; and both held back
-where an interrupt must not land (:func:`held_interrupts`).
+where an interrupt must not land (`held_interrupts`).
 
 A Python signal handler runs in the main thread wherever that thread is, which may be a weakref
 callback or a ``__del__`` that the garbage collector calls; an exception raised there is printed
 ("Exception ignored in ...") and dropped, and the interrupt would be lost. While these handlers
 are installed, such a dropped interrupt is delivered again by the same signal, a moment
-later, so that it lands at the next point where it can propagate (:func:`_redelivered`).
+later, so that it lands at the next point where it can propagate (`_redelivered`).
 """
 
 from __future__ import annotations
@@ -35,14 +35,14 @@ def exit_status(interrupt: KeyboardInterrupt) -> int:
 
 
 def _signal_of(interrupt: KeyboardInterrupt) -> int:
-    """The signal whose handler raises this interrupt: SIGTERM for :class:`Terminated`, else
+    """The signal whose handler raises this interrupt: SIGTERM for `Terminated`, else
     SIGINT."""
     return signal.SIGTERM if isinstance(interrupt, Terminated) else signal.SIGINT
 
 
 @contextlib.contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
-    """Within the block, SIGTERM raises :class:`Terminated` in the main thread."""
+    """Within the block, SIGTERM raises `Terminated` in the main thread."""
 
     def handler(signum: int, frame: Any) -> None:
         raise Terminated()
@@ -56,8 +56,8 @@ def sigterm_as_interrupt() -> Iterator[None]:
 
 
 class HeldInterrupts:
-    """SIGINT and SIGTERM (those :func:`held_interrupts` handles) raised only inside
-    :meth:`raising` blocks; one that comes elsewhere is held (:attr:`pending`) and raised as the
+    """SIGINT and SIGTERM (those `held_interrupts` handles) raised only inside
+    `raising` blocks; one that comes elsewhere is held (`pending`) and raised as the
     next such block starts. So an interrupt lands only where the code is ready for it (a trial's
     training), never halfway through bookkeeping that must finish (a database write)."""
 
@@ -85,7 +85,7 @@ class HeldInterrupts:
 
     @contextlib.contextmanager
     def holding(self) -> Iterator[None]:
-        """Within the block the signals are held, even inside a :meth:`raising` block, which then
+        """Within the block the signals are held, even inside a `raising` block, which then
         raises one that came as this block ends: for bookkeeping inside the interruptible work
         (a trial's writes to its study's database while it trains)."""
         was_raising, self._raising = self._raising, False
@@ -100,7 +100,7 @@ class HeldInterrupts:
 @contextlib.contextmanager
 def held_interrupts(signals: tuple[int, ...]) -> Iterator[HeldInterrupts]:
     """Within the block, ``signals`` (SIGINT, SIGTERM or both; main thread only) are handled by
-    the :class:`HeldInterrupts` it yields; the previous handlers are restored after it."""
+    the `HeldInterrupts` it yields; the previous handlers are restored after it."""
     held = HeldInterrupts()
     previous = {signum: signal.signal(signum, held.handle) for signum in signals}
     try:
@@ -115,7 +115,7 @@ def held_interrupts(signals: tuple[int, ...]) -> Iterator[HeldInterrupts]:
 def _redelivered(signals: tuple[int, ...]) -> Iterator[None]:
     """Within the block, an interrupt raised by the handler of one of ``signals`` where Python
     drops exceptions (``sys.unraisablehook``) is sent again to the main thread by that signal,
-    :data:`REDELIVERY_DELAY_S` later; other unraisable exceptions go to the previous hook. Sent
+    `REDELIVERY_DELAY_S` later; other unraisable exceptions go to the previous hook. Sent
     from the hook itself, the signal's handler would run inside the hook, where the exception is
     dropped again: a timer thread sends it once the hook has long returned."""
     previous = sys.unraisablehook

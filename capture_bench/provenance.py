@@ -105,7 +105,7 @@ def machine() -> dict[str, object]:
     Episodes are bit for bit the same on the same machine; on another CPU the linear algebra
     (numpy's BLAS, torch's kernels, pybullet) can round differently, so floats agree to rounding
     and an episode on a knife edge can end differently. The package versions are in
-    :func:`package_versions`.
+    `package_versions`.
     """
     info = _cpuinfo()
     flags = set(info.get("flags", "").split())

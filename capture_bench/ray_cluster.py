@@ -4,7 +4,7 @@ capture-bench[ray]``), a new local instance or the cluster the command was given
 address checked in seconds before any work, and this checkout shipped to the workers.
 
 Given no address (or ``local``), a command starts a new Ray instance on this machine
-(:func:`start_local_ray`): it never joins a cluster it was not given, neither the one ``ray
+(`start_local_ray`): it never joins a cluster it was not given, neither the one ``ray
 start`` recorded in Ray's temporary folder nor ``RAY_ADDRESS``'s, and its node is registered at
 127.0.0.1 with its servers listening there only. Given an address (``HOST:PORT``, ``auto``: the
 cluster ``RAY_ADDRESS`` names, else one running on this machine as Ray finds it, the one ``ray
@@ -48,7 +48,8 @@ LOCAL = (None, "local")
 
 
 def import_ray(needed_by: str) -> Any:
-    """The ``ray`` module; :class:`ConfigError` naming ``needed_by`` (an option) if it is not
+    """The ``ray`` module; [`ConfigError`][capture_bench.ConfigError] naming ``needed_by`` (an
+    option) if it is not
     installed."""
     try:
         import ray
@@ -85,7 +86,7 @@ def start_local_ray(needed_by: str = "a local Ray instance", **options: Any) -> 
     """Start a new Ray instance on this machine for this process, every local start's one way:
     ``ray.init(address="local")``, which reads neither ``RAY_ADDRESS`` nor the cluster recorded
     in Ray's temporary folder, so it never joins a cluster; its node registered at
-    :data:`LOOPBACK`, its servers listening there only; no dashboard. ``options``: ``ray.init``'s
+    `LOOPBACK`, its servers listening there only; no dashboard. ``options``: ``ray.init``'s
     other arguments (``num_cpus``, ``log_to_driver``, ``runtime_env``, ``_temp_dir``, ...).
     The caller shuts it down (``ray.shutdown()``)."""
     ray = import_ray(needed_by)
@@ -121,7 +122,8 @@ def _given(address: str) -> tuple[str, str]:
 def check_ray_cluster(
     address: str | None, needed_by: str, timeout_s: float = RAY_CONNECT_TIMEOUT_S
 ) -> None:
-    """Raise :class:`ConfigError` unless Ray can start for ``needed_by`` (the option asking for
+    """Raise [`ConfigError`][capture_bench.ConfigError] unless Ray can start for ``needed_by`` (the
+    option asking for
     it, named in the messages): Ray is installed, and the cluster at ``address`` accepts a TCP
     connection within ``timeout_s`` seconds (Ray's own connect retries an unreachable address
     for many minutes, its client for 30 s).
@@ -175,10 +177,10 @@ def check_ray_cluster(
 def start_ray(
     address: str | None, needed_by: str, log_to_driver: bool = False, excludes: Sequence[str] = ()
 ) -> bool:
-    """Make Ray ready for this process's tasks: checked (:func:`check_ray_cluster`), then, unless
-    it is already initialised here, a new local instance started (:func:`start_local_ray`; no
+    """Make Ray ready for this process's tasks: checked (`check_ray_cluster`), then, unless
+    it is already initialised here, a new local instance started (`start_local_ray`; no
     ``address``, or ``local``) or the cluster at ``address`` joined, with this checkout (less
-    :data:`RAY_EXCLUDES` and ``excludes``, gitignore patterns relative to it) as the job's
+    `RAY_EXCLUDES` and ``excludes``, gitignore patterns relative to it) as the job's
     ``working_dir``, the workers' output shown here if ``log_to_driver``; Ray's own log lines
     below warnings are not printed. Return whether it was started here (then the caller shuts it
     down).

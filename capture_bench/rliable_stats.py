@@ -1,32 +1,32 @@
 """Aggregate statistics of score matrices, computed by the ``rliable`` package (Agarwal et al.
 2021, "Deep Reinforcement Learning at the Edge of the Statistical Precipice", NeurIPS).
 
-The one module that imports rliable, lazily (:func:`require`): the evaluation report and the
+The one module that imports rliable, lazily (`require`): the evaluation report and the
 learning curves both call it, so it sits below both. A score matrix is rliable's: shape
 (runs, tasks), one row per run and one column per task, each entry a score in [0, 1]
-(:func:`capture_bench.task.score.episode_score`, or a mean of it). What a run is belongs to the
+(`capture_bench.task.score.episode_score`, or a mean of it). What a run is belongs to the
 caller: for the leaderboard an episode (a published seed) and a task a scenario; for the
 learning curves a training seed and the one task its scenario.
 
 * **IQM** (``rliable.metrics.aggregate_iqm``): the mean of the middle 50% of all run x task
   scores (25% trimmed from each end), robust to a few outlying runs;
-* **optimality gap** (``aggregate_optimality_gap``, gamma = :data:`GAMMA` = 1, the score's
+* **optimality gap** (``aggregate_optimality_gap``, gamma = `GAMMA` = 1, the score's
   maximum): 1 - mean(min(score, 1)) over all scores, how far the scores fall short of the
   best possible; lower is better (with every score <= 1 it is 1 - the mean);
 * **mean** (``aggregate_mean``): the mean over tasks of each task's mean score;
 * **performance profile** (``rliable.library.create_performance_profile``): for each tau in
-  [0, 1] (:data:`TAUS`), the share of all run x task scores above tau;
+  [0, 1] (`TAUS`), the share of all run x task scores above tau;
 * **probability of improvement** P(X > Y) (``rliable.metrics.probability_of_improvement``): per
   task, the probability that a run of X scores higher than a run of Y (Mann-Whitney U / (n m),
   ties counting 1/2), averaged over tasks.
 
 Every figure carries a 95% percentile interval from rliable's stratified bootstrap
 (``rliable.library.get_interval_estimates``): runs resampled with replacement within each task,
-:data:`REPS` resamples; for P(X > Y) X's and Y's runs are resampled independently.
+`REPS` resamples; for P(X > Y) X's and Y's runs are resampled independently.
 
 Determinism: rliable draws its resamples from numpy's global RandomState (``np.random.choice``;
 its ``random_state`` argument does not reach those draws), so each matrix (each pair for P(X > Y))
-is bootstrapped in its own call with the global state seeded to :data:`SEED`, and the caller's
+is bootstrapped in its own call with the global state seeded to `SEED`, and the caller's
 state is restored afterwards. An agent's intervals therefore depend on its scores alone (not on
 which other agents a report holds), are the same in any process, and move nobody else's stream.
 
@@ -57,7 +57,7 @@ CONFIDENCE = 0.95
 GAMMA = 1.0
 #: The performance profile's thresholds.
 TAUS = np.linspace(0.0, 1.0, 51)
-#: The aggregate figures of :func:`aggregate_estimates`, in order.
+#: The aggregate figures of `aggregate_estimates`, in order.
 AGGREGATES = ("iqm", "optimality_gap", "mean")
 MISSING = "the aggregate statistics need the rliable package: pip install rliable"
 CITATION = (
@@ -103,7 +103,7 @@ def require() -> tuple[Any, Any]:
     """rliable's ``library`` and ``metrics`` modules.
 
     Raises:
-        RliableMissing: rliable is not installed (:data:`MISSING`).
+        RliableMissing: rliable is not installed (`MISSING`).
     """
     try:
         from rliable import library, metrics
@@ -164,7 +164,7 @@ def _aggregates(metrics: Any) -> Any:
 def aggregate_estimates(
     scores: Mapping[str, np.ndarray], reps: int = REPS, seed: int = SEED
 ) -> dict[str, dict[str, IntervalEstimate]]:
-    """IQM, optimality gap and mean (:data:`AGGREGATES`) of each matrix with its 95% stratified
+    """IQM, optimality gap and mean (`AGGREGATES`) of each matrix with its 95% stratified
     bootstrap interval: ``{name: {figure: estimate}}``, in the order of ``scores``."""
     library, metrics = require()
     statistic = _aggregates(metrics)

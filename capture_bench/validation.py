@@ -1,17 +1,17 @@
 """One validator for every configuration file: scenarios, suites and algorithm hyper-parameters.
 
-A file is read once (:func:`read_mapping`: missing file, invalid YAML, not a mapping), then checked
-against a schema, a mapping of key to :class:`Rule` (or to a nested schema) by
-:func:`check_mapping`. Every message has one shape, names the file and the key (dotted for nested
+A file is read once (`read_mapping`: missing file, invalid YAML, not a mapping), then checked
+against a schema, a mapping of key to `Rule` (or to a nested schema) by
+`check_mapping`. Every message has one shape, names the file and the key (dotted for nested
 keys), the bad value and what would be valid::
 
     configs/scenarios/x.yaml: key 'camera.noise_px': -1 is not valid; expected a number in [0, 100]
     configs/scenarios/x.yaml: unknown key 'camera.noise_pix'; valid keys: position, look_at, ...
     configs/suites/s.yaml: missing key 'episodes' (expected a whole number >= 1)
 
-A message stays one short line whatever the file holds: a value is shown by :func:`shown` (a
+A message stays one short line whatever the file holds: a value is shown by `shown` (a
 bounded repr, however large or deeply nested the value, e.g. a YAML alias bomb), a file larger
-than :data:`MAX_FILE_BYTES` is refused before it is read, and a key given twice in one mapping is
+than `MAX_FILE_BYTES` is refused before it is read, and a key given twice in one mapping is
 refused with its line (YAML would otherwise keep the last silently).
 
 The error type is the caller's (``ConfigError`` for scenarios and algorithms, ``SuiteError`` for
@@ -53,7 +53,7 @@ IDENTIFIER_TEXT = (
     "like grasp_rendered"
 )
 
-#: The longest :func:`shown` text, characters.
+#: The longest `shown` text, characters.
 SHOWN_CHARS = 100
 _SHORT = reprlib.Repr()
 _SHORT.maxlevel = 3
@@ -65,7 +65,7 @@ _SHORT.maxother = 60
 
 
 def shown(value: Any) -> str:
-    """``repr(value)`` for a message: at most :data:`SHOWN_CHARS` characters (``...`` where cut),
+    """``repr(value)`` for a message: at most `SHOWN_CHARS` characters (``...`` where cut),
     computed in a bounded time however long, large or deeply nested the value is (a YAML alias
     bomb nests references that a full repr would expand exponentially)."""
     text = _SHORT.repr(value)
@@ -78,7 +78,7 @@ class Rule:
 
     ``kind``: ``int``, ``float`` (finite numbers in [low, high], ``low`` exclusive unless
     ``low_inclusive``), ``bool``, ``string``, ``identifier`` (a string matching
-    :data:`IDENTIFIER`), ``choice`` (one of ``choices``), ``numbers`` (a list
+    `IDENTIFIER`), ``choice`` (one of ``choices``), ``numbers`` (a list
     of ``length`` numbers of ``item`` kind; a 2-float list is a [low, high] range), ``names`` (a
     non-empty list of non-empty strings, or one of ``choices`` as a whole), ``schedule`` (a number
     > 0 or ``lin_<number>``), ``float_or_auto`` (a number, ``auto`` or ``auto_<number>``),
@@ -345,7 +345,7 @@ def read_mapping(
     """The YAML mapping in ``path`` and the file's bytes (for provenance hashes).
 
     Raises ``error`` naming the file: it cannot be read, it is larger than
-    :data:`MAX_FILE_BYTES` (checked before reading), invalid YAML (the parser's message), a key
+    `MAX_FILE_BYTES` (checked before reading), invalid YAML (the parser's message), a key
     given twice in one mapping (the key and both lines), or not a mapping (``what`` says of what:
     "scenario keys", "hyper-parameters", ...).
     """
@@ -388,7 +388,7 @@ def check_mapping(
 
     Args:
         data: the mapping read from the file.
-        schema: key -> :class:`Rule` or nested schema.
+        schema: key -> `Rule` or nested schema.
         source: the file (or ``<override>``), first in every message.
         error: the exception type raised.
         prefix: the dotted path of ``data`` inside the file (``"camera."``), for messages.

@@ -5,7 +5,7 @@ included).
 
 A worker learns that its parent is gone from a pipe: the parent holds the only write end and
 never writes, so the read end the worker waits on sees end-of-file when the parent ends, whoever
-ends it (:func:`end_with_parent`). Nothing else would end a worker: a pool worker waits for work
+ends it (`end_with_parent`). Nothing else would end a worker: a pool worker waits for work
 on a pipe it holds the write end of too, and the forkserver and multiprocessing's resource
 tracker exit only once every worker has closed their pipes (each forked worker inherits both).
 """
@@ -29,7 +29,7 @@ SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_N
 
 @contextlib.contextmanager
 def single_threaded_children() -> Iterator[None]:
-    """Set :data:`SINGLE_THREAD_ENV` (where the user has not) while worker processes start."""
+    """Set `SINGLE_THREAD_ENV` (where the user has not) while worker processes start."""
     added = {k: v for k, v in SINGLE_THREAD_ENV.items() if k not in os.environ}
     os.environ.update(added)
     try:

@@ -49,7 +49,8 @@ class Curve:
 
 
 def parse_run(item: str) -> tuple[str, Path]:
-    """``LABEL=PATH`` -> (label, path); :class:`ConfigError` for anything else."""
+    """``LABEL=PATH`` -> (label, path); [`ConfigError`][capture_bench.ConfigError] for anything
+    else."""
     label, sep, path = item.partition("=")
     if not sep or not label.strip() or not path.strip():
         raise ConfigError(f"run {item!r}: {_RUN_FORM}")
@@ -97,7 +98,8 @@ def read_curve(label: str, path: Path) -> Curve:
 
 
 def check_out(out: Path) -> str:
-    """The image format of ``--out`` (its suffix); :class:`ConfigError` unless it is a format
+    """The image format of ``--out`` (its suffix); [`ConfigError`][capture_bench.ConfigError] unless
+    it is a format
     matplotlib writes and a file that can be created."""
     from matplotlib.backend_bases import FigureCanvasBase
 

@@ -10,13 +10,13 @@ everything between them is replaced. The blocks and their sources:
 * ``leaderboard``: the overall ranking of ``reports/published/default/results.json`` (the
   published leaderboard, which ``python evaluate.py --publish`` writes), the columns of the
   report's *Overall ranking* without its ``scenarios`` column, each cell formatted by the
-  report's own :func:`capture_bench.evaluation.report.ranking_cells`;
+  report's own `capture_bench.evaluation.report.ranking_cells`;
 * ``leaderboard-scenarios``: the same report, one row per agent in ranking order, one column per
   scenario: capture rate · median ratio of capture time to the physical limit;
 * ``scenarios``: the shipped scenarios (``configs/scenarios/*.yaml``): env ID and description;
 * ``scenario-schema``: every key a scenario file may set, with its default, meaning and valid
-  values, read from the dataclasses of :mod:`capture_bench.task.scenarios` and the validator's
-  rules for them (:meth:`capture_bench.validation.Rule.describe`, the words of its error messages).
+  values, read from the dataclasses of `capture_bench.task.scenarios` and the validator's
+  rules for them (`capture_bench.validation.Rule.describe`, the words of its error messages).
 
 A file may hold any of the blocks; a file named on the command line must hold at least one.
 """

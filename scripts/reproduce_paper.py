@@ -59,7 +59,7 @@ class Episode:
 def run_episode(
     scenario: str, seed: int, source: str, agent_name: str, record_truth: bool = True
 ) -> Episode:
-    """Run one episode and record it (see :class:`Episode`)."""
+    """Run one episode and record it (see `Episode`)."""
     import gymnasium
 
     import capture_bench  # noqa: F401  (registers the env IDs)

@@ -8,12 +8,12 @@ holds the evaluation to, bit for bit, on the kind of machine that made it.
 The reference (``tests/data/default_suite_reference.csv``) holds every default-suite agent's
 episodes on the first two published seeds of every scenario, as ``episodes.csv`` writes them,
 timing columns removed, each episode played in its own single ``CaptureEnv``; an agent added to
-the suite gets its rows from that same path (:func:`~capture_bench.evaluation.backends.run_task`,
+the suite gets its rows from that same path (`run_task`,
 one episode per env) at a clean commit, and the ``.json`` beside the file names the commit that
 made each agent's rows.
 ``--rebuild`` replaces every row the same way, for a change of the task's rules that changes
 every score (a new environment version); the ``.json`` then names that commit alone.
-Rows are added only on a machine whose :func:`fingerprint` is the reference's: floats agree bit
+Rows are added only on a machine whose `fingerprint` is the reference's: floats agree bit
 for bit only there (docs/evaluation.md, Reproducibility). Rows already there are never rewritten.
 """
 
@@ -35,7 +35,7 @@ EPISODES_PER_SCENARIO = 2
 
 def fingerprint(machine: Mapping[str, Any], packages: Mapping[str, Any]) -> dict[str, Any]:
     """What decides the last bits of a float here
-    (:func:`capture_bench.provenance.reproduction_key`)."""
+    (`capture_bench.provenance.reproduction_key`)."""
     from capture_bench.provenance import reproduction_key
 
     return reproduction_key(machine, packages)

@@ -1,5 +1,5 @@
 """Eq. 20 over a whole step, against hand cases and a dense brute force; the hold. Every test
-takes M steps as rows; one step is M = 1 (:func:`_interval`)."""
+takes M steps as rows; one step is M = 1 (`_interval`)."""
 
 import math
 
@@ -23,7 +23,7 @@ EPS = np.full(3, 1e-3)
 
 
 def _interval(d0, d1, tolerance=EPS) -> tuple[float, float] | None:
-    """One step's stay inside the box, from :func:`inside_intervals` at M = 1 (None: none)."""
+    """One step's stay inside the box, from `inside_intervals` at M = 1 (None: none)."""
     lo, hi = inside_intervals(np.array([d0], float), np.array([d1], float), tolerance)
     return None if np.isnan(lo[0]) else (float(lo[0]), float(hi[0]))
 

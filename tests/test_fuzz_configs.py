@@ -1,8 +1,8 @@
 """Fuzzing the three YAML loaders (issue 10, item 7): scenario, suite and algorithm files.
 
 Each test writes a generated file under ``tmp_path`` and loads it. The only exception a loader may
-raise is its documented one (:class:`ConfigError` for scenarios and hyper-parameters,
-:class:`SuiteError` for suites), and its message names the file and the key at fault; a valid
+raise is its documented one ([`ConfigError`][capture_bench.ConfigError] for scenarios and hyper-parameters,
+`SuiteError` for suites), and its message names the file and the key at fault; a valid
 mapping builds the object with exactly the values written. Documents start valid and get a few
 mutations, each known to be invalid (a wrong type, a value out of range, NaN, a huge number, an
 unknown or non-string key, a section that is not a mapping), so every test knows which answer is

@@ -1,6 +1,6 @@
 """Imports point one way: down the data flow, never back up and never in a circle.
 
-Every module under ``capture_bench/`` is parsed with :mod:`ast` (nothing is imported), and every
+Every module under ``capture_bench/`` is parsed with `ast` (nothing is imported), and every
 import of a ``capture_bench`` module is read: at module level, inside functions, under
 ``TYPE_CHECKING`` (a type is a dependency too), relative ones, and ``importlib.import_module`` /
 ``__import__`` / ``"module:Name"`` entry points given as literal strings. An import of a name from
@@ -8,12 +8,12 @@ a module is an arrow to that module; ``from package import submodule`` is an arr
 submodule. Importing a submodule also runs its package's ``__init__.py``, but that is Python's
 doing, not the importing module's, so it is no arrow here.
 
-Stages, lowest first (:data:`STAGES`): the helpers any stage may use (top-level modules such as
+Stages, lowest first (`STAGES`): the helpers any stage may use (top-level modules such as
 ``paths.py``), ``sim``, ``sensing``, ``task``, ``envs``, the package's ``__init__.py`` (importing
 ``capture_bench`` registers the environments' IDs), ``agents``, then ``training`` and
 ``evaluation``, siblings that do not import each other, and ``__main__.py`` above all. A module may
 import its own stage and the stages below it. Anything that has to break this is listed in
-:data:`EXCEPTIONS` with its reason.
+`EXCEPTIONS` with its reason.
 """
 
 from __future__ import annotations

@@ -34,8 +34,8 @@ STATISTICAL_EPISODES = 16
 
 def _check_replay(model_dir: Path, card: dict, count: int, exact: bool = EXACT_HERE) -> None:
     """The card's first ``count`` episodes of each scenario replayed: bit for bit where
-    ``exact``, else within :func:`replay_agrees`'s statistics, over at least
-    :data:`STATISTICAL_EPISODES` episodes in all."""
+    ``exact``, else within `replay_agrees`'s statistics, over at least
+    `STATISTICAL_EPISODES` episodes in all."""
     if not exact:
         per_scenario = -(-STATISTICAL_EPISODES // len(card["validation"]))
         count = max(count, -(-per_scenario // CARD_BATCH) * CARD_BATCH)  # whole batches

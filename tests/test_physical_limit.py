@@ -100,7 +100,7 @@ def test_nearest_in_box_against_a_brute_force_grid():
 
 
 def reference_physical_limit(target_position, horizon, period, travel_time=None, eps=EPS):
-    """The single-episode search written out on :func:`feasible_solutions` (every row evaluated)."""
+    """The single-episode search written out on `feasible_solutions` (every row evaluated)."""
 
     def check(times):
         travel = times if travel_time is None else travel_time(times)

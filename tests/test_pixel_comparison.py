@@ -1,5 +1,5 @@
 """The report's pixels-vs-estimate section, on synthetic records: which agents pair, the paired
-figures (those of :func:`capture_bench.evaluation.paired.compare`, checked against independent
+figures (those of `capture_bench.evaluation.paired.compare`, checked against independent
 references in ``test_vision_report.py``), and where the section appears."""
 
 from __future__ import annotations

@@ -145,7 +145,7 @@ def test_rank_intervals_are_deterministic_whatever_the_order_of_the_records():
 
 
 def test_each_resample_is_ranked_by_the_ranking_rule_itself():
-    """The vectorised ranks of each resample against :func:`rank_agents` on summaries made from
+    """The vectorised ranks of each resample against `rank_agents` on summaries made from
     the resampled episodes by ``np.median``: level agents (the same mean capture rate and mean
     median ratio) span the ranks the name spreads them over."""
     rng = np.random.default_rng(3)

@@ -1,4 +1,4 @@
-"""Ray on this machine (:mod:`capture_bench.ray_cluster`): a command given no cluster address
+"""Ray on this machine (`capture_bench.ray_cluster`): a command given no cluster address
 (``evaluate.py --backend ray``, the training sweep, ``tune.py --ray-address local``) starts a new
 Ray instance, never the cluster recorded in Ray's temporary folder (a dead one here), with its
 node registered at 127.0.0.1 and every server of it listening on the loopback only; a cluster

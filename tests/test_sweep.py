@@ -97,7 +97,7 @@ NODE_IP = "127.0.0.2"
 @pytest.fixture(scope="module")
 def cluster():
     """A Ray cluster of two nodes with one CPU each: a head and a worker, each started by its own
-    ``ray start`` process with its own temporary folder, both registered at :data:`NODE_IP`,
+    ``ray start`` process with its own temporary folder, both registered at `NODE_IP`,
     token authentication on (a token made for it). Every process the two started has ended after
     the module's tests."""
     if importlib.util.find_spec("ray") is None:

@@ -34,7 +34,7 @@ LOST = (3, 7, 11, 15, 19)  # seeds the rendered camera loses
 
 
 def _paired(agent: str = "incremental_ik", seeds: int = 20) -> list:
-    """``agent`` captures every seed on paper; on paper_rendered it misses :data:`LOST` and is
+    """``agent`` captures every seed on paper; on paper_rendered it misses `LOST` and is
     slower by 0.5 + 0.01 * seed s (ratio = time: the synthetic bound is 1 s)."""
     recs = []
     for seed in range(seeds):

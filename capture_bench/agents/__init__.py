@@ -1,8 +1,9 @@
 """Agents for capture-bench: the paper's controller, classic baselines and the privileged oracle.
 
-Every agent follows :class:`capture_bench.agents.protocol.Agent` (SB3-style ``predict`` plus
+Every agent follows [`capture_bench.agents.protocol.Agent`][capture_bench.agents.protocol.Agent]
+(SB3-style ``predict`` plus
 ``reset``) and acts in the shared action space ``Box(-1, 1, (3,))``. Build one by name with
-:func:`make_agent`:
+[`make_agent`][capture_bench.agents.make_agent]:
 
 ==============================  ======================================================  ============
 name                            what                                                    sees
@@ -21,7 +22,8 @@ name                            what                                            
 ==============================  ======================================================  ============
 
 Analytic agents are built from ``env.unwrapped.description`` (a
-:class:`capture_bench.task.observation.TaskDescription`) and nothing else; only the oracle keeps a
+[`capture_bench.task.observation.TaskDescription`][capture_bench.task.observation.TaskDescription])
+and nothing else; only the oracle keeps a
 reference to the environment, and it carries ``privileged = True``.
 """
 
@@ -82,7 +84,7 @@ def make_agent(name: str, env: Any, **kwargs: Any) -> Agent:
     """Build the agent registered as ``name`` for ``env``.
 
     Args:
-        name: a key of :data:`AGENTS`.
+        name: a key of [`AGENTS`][capture_bench.agents.AGENTS].
         env: a capture-bench environment (or a wrapper of one).
         **kwargs: passed to the agent's constructor (e.g. ``cap=False``, ``seed=3``).
 

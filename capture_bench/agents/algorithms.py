@@ -1,6 +1,6 @@
 """The reinforcement-learning algorithms ``train.py`` trains, by the name ``--algo`` and
 ``configs/algos/<algo>.yaml`` give them. A model's metadata names its algorithm in SB3's spelling
-(``PPO``: :data:`capture_bench.agents.policy_file.POLICY_CLASSES`)."""
+(``PPO``: `capture_bench.agents.policy_file.POLICY_CLASSES`)."""
 
 from __future__ import annotations
 

@@ -1,11 +1,14 @@
 """What the analytic controllers share: decoding, SB3-style ``predict``, ``reset``, a safe action.
 
-An :class:`AnalyticController` subclass implements :meth:`~AnalyticController.act_batch` (N
+An [`AnalyticController`][capture_bench.agents.base.AnalyticController] subclass implements
+[`act_batch`][capture_bench.agents.base.AnalyticController.act_batch] (N
 observations, shape (N, 16), to N actions, shape (N, 3), each row computed as it would be alone)
-and gets :meth:`~AnalyticController.act` (one observation) and ``predict`` (one or a batch) from
-it (``batched`` is then True). A subclass that implements only :meth:`~AnalyticController.act`
-still works: ``predict`` applies it row by row (:func:`predict_each`), and ``batched`` is False.
-:func:`safe_action` is the last step of every controller: clip to [-1, 1] and never emit NaN.
+and gets [`act`][capture_bench.agents.base.AnalyticController.act] (one observation) and ``predict``
+(one or a batch) from
+it (``batched`` is then True). A subclass that implements only
+[`act`][capture_bench.agents.base.AnalyticController.act]
+still works: ``predict`` applies it row by row (`predict_each`), and ``batched`` is False.
+`safe_action` is the last step of every controller: clip to [-1, 1] and never emit NaN.
 """
 
 from __future__ import annotations
@@ -44,9 +47,11 @@ def safe_action(action: NDArray) -> NDArray[np.float32]:
 class AnalyticController:
     """Shared plumbing of the analytic controllers: decode, SB3-style ``predict``, ``reset``.
 
-    Subclasses implement :meth:`act_batch` (N observations -> N actions, vectorised, no row
-    depending on another) or, for a controller written for one observation, :meth:`act`. Built
-    from the environment's public :class:`TaskDescription` only, never from the world.
+    Subclasses implement [`act_batch`][capture_bench.agents.base.AnalyticController.act_batch] (N
+    observations -> N actions, vectorised, no row
+    depending on another) or, for a controller written for one observation,
+    [`act`][capture_bench.agents.base.AnalyticController.act]. Built
+    from the environment's public `TaskDescription` only, never from the world.
     """
 
     privileged = False
@@ -57,7 +62,8 @@ class AnalyticController:
     @property
     def batched(self) -> bool:
         """Whether ``predict`` handles a batch in one vectorised computation with per-row
-        results (the subclass implements :meth:`act_batch`)."""
+        results (the subclass implements
+        [`act_batch`][capture_bench.agents.base.AnalyticController.act_batch])."""
         return type(self).act_batch is not AnalyticController.act_batch
 
     def decode(self, observation: NDArray) -> Observation:
@@ -66,11 +72,12 @@ class AnalyticController:
 
     def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
         """Actions for N observations (N, 16) -> (N, 3), float32, in [-1, 1]; by default
-        :meth:`act` row by row."""
+        [`act`][capture_bench.agents.base.AnalyticController.act] row by row."""
         return predict_each(self.act, np.asarray(observations).reshape(-1, OBSERVATION_SIZE))
 
     def act(self, observation: NDArray) -> NDArray[np.float32]:
-        """Action for one observation (16,) -> (3,), float32, in [-1, 1]: :meth:`act_batch`'s
+        """Action for one observation (16,) -> (3,), float32, in [-1, 1]:
+        [`act_batch`][capture_bench.agents.base.AnalyticController.act_batch]'s
         row."""
         if not self.batched:
             raise NotImplementedError(f"{type(self).__name__} implements neither act nor act_batch")

@@ -1,16 +1,17 @@
 """Classic analytic baselines to compare with the paper's incremental IK controller.
 
-All of them see only the observation and the environment's public :class:`TaskDescription`, and
+All of them see only the observation and the environment's public
+[`TaskDescription`][capture_bench.agents.baselines.TaskDescription], and
 answer in the shared action space ``Box(-1, 1, (3,))`` (``dTheta = a * theta_dot_max * t_s``), so
 they are held to the same joint-rate limits as every other agent.
 
-* :class:`PurePursuit` — aims at the current estimate X^_T, no look-ahead.
-* :class:`Intercept` — aims at the predicted interception point, re-planned every step.
-* :class:`JointIntercept` — the joints straight to the earliest pose that meets the predicted
+* `PurePursuit` — aims at the current estimate X^_T, no look-ahead.
+* `Intercept` — aims at the predicted interception point, re-planned every step.
+* `JointIntercept` — the joints straight to the earliest pose that meets the predicted
   target, the physical limit's test on the estimate, re-planned every step.
-* :class:`DampedLeastSquares` — resolved-rate control with feed-forward and a proportional term.
-* :class:`RandomAgent` — uniform actions from its own seeded generator.
-* :class:`Hold` — never moves.
+* `DampedLeastSquares` — resolved-rate control with feed-forward and a proportional term.
+* `RandomAgent` — uniform actions from its own seeded generator.
+* `Hold` — never moves.
 """
 
 from __future__ import annotations
@@ -128,7 +129,7 @@ class Intercept(AnalyticController):
     Classic interception (collision-course / constant-bearing) guidance: rather than chase the
     target, head for the point where the target will be when the pursuer can get there, assuming it
     keeps its estimated velocity (Shneydor 1998, parallel navigation / collision course). The
-    interception time comes from :func:`interception_times`; the end-effector then moves at
+    interception time comes from `interception_times`; the end-effector then moves at
     lambda_max (eq. 18) toward ``P(max(tau, t_s))`` with the same step cap as the paper's
     controller. With no solution within the horizon it falls back to pure pursuit.
 
@@ -176,7 +177,7 @@ class JointIntercept(AnalyticController):
     ``P(tau) = X^_T + Xdot^_T tau``, ``tau`` is the first multiple of t_s within ``horizon`` at
     which ``P(tau)`` has an IK solution ``Theta*`` inside the joint limits and the box
     ``|Theta*_i - Theta_i| <= theta_dot_max_i tau`` that the rate limits let each joint reach
-    (within ``|epsilon|``: :func:`~capture_bench.task.physical_limit.first_feasible`). Where
+    (within ``|epsilon|``: `first_feasible`). Where
     Cartesian controllers move the end-effector along a line at the speed the slowest joint allows
     (eq. 18), every joint here runs at up to its own rate.
 

@@ -2,7 +2,7 @@
 
     python -m capture_bench.agents.convert DIR... --trust-model
 
-writes ``policy.pt`` and a declared ``metadata.json`` (:mod:`capture_bench.agents.policy_file`)
+writes ``policy.pt`` and a declared ``metadata.json`` (`capture_bench.agents.policy_file`)
 beside the ``.zip``, so the model then loads without unpickling anything. Converting unpickles
 the ``.zip`` (and VecNormalize statistics): only for files you trust. Every directory is checked
 (cheaply, before anything is unpickled) and loaded before any is written; every failure is one
@@ -54,7 +54,7 @@ def _check_directory(directory: Path) -> None:
 
 
 def _metadata_entries(meta_file: Path) -> dict[str, Any]:
-    """The entries of a metadata file, as read (the checks are :func:`read_metadata`'s)."""
+    """The entries of a metadata file, as read (the checks are `read_metadata`'s)."""
     kind = "JSON" if meta_file.suffix == ".json" else "YAML"
     expected = 'expected a mapping naming the algorithm, e.g. {"algorithm": "PPO"}'
     try:
@@ -84,7 +84,7 @@ def _check_plain_json(entries: dict[str, Any], meta_file: Path) -> None:
 
 def prepare_conversion(directory: Path) -> tuple[bytes, bytes]:
     """The ``policy.pt`` and ``metadata.json`` contents of the safe form of the SB3 model
-    directory ``directory``; nothing is written (:func:`write_policy_files` writes them).
+    directory ``directory``; nothing is written (`write_policy_files` writes them).
 
     The directory's files are checked first (cheaply, before anything is unpickled); then the
     ``.zip`` (and VecNormalize statistics) are unpickled: call it only on files you trust.
@@ -125,7 +125,7 @@ def prepare_conversion(directory: Path) -> tuple[bytes, bytes]:
 
 def convert(directory: Path) -> Path:
     """Write the safe form of the SB3 model directory ``directory`` beside its ``.zip``
-    (:func:`prepare_conversion`, then :func:`write_policy_files`); returns the metadata file.
+    (`prepare_conversion`, then `write_policy_files`); returns the metadata file.
 
     This unpickles the ``.zip`` (and VecNormalize statistics): call it only on files you trust.
     """

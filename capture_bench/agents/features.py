@@ -3,7 +3,7 @@ resolve millimetres, without changing the env's observation (its effect: docs/re
 
 The observation's relative vector (entries 12-14, eq. 13's predicted X^_T' - X_E, scaled by
 0.5 m) is of order 0.002 at eq. 20's 1 mm tolerance: to a network that starts with weights of
-order one, the last millimetre is invisible. :class:`RelativeLogDistance` appends
+order one, the last millimetre is invisible. `RelativeLogDistance` appends
 
 =====  ==============================================================  =====================
 index  quantity                                                        decodes to
@@ -12,10 +12,10 @@ index  quantity                                                        decodes t
 19     log10(max(|r|, 1 um) / 1 mm) / 3                                |r| = 1 mm * 1000**x
 =====  ==============================================================  =====================
 
-so 1 m reads 1, 1 mm reads 0 and 1 um reads -1 (:func:`relative_features` is the same in numpy,
-and :func:`decode_relative_features` undoes it). It is a function of the observation alone, so a
+so 1 m reads 1, 1 mm reads 0 and 1 um reads -1 (`relative_features` is the same in numpy,
+and `decode_relative_features` undoes it). It is a function of the observation alone, so a
 policy that uses it acts in any capture-bench env; the safe policy format declares it by name
-(``policy_kwargs.features_extractor``, :data:`FEATURE_EXTRACTORS`). It reads the raw observation:
+(``policy_kwargs.features_extractor``, `FEATURE_EXTRACTORS`). It reads the raw observation:
 it cannot be combined with ``normalize: true`` (train.py refuses the pair).
 """
 
@@ -40,7 +40,7 @@ EXTRA_SIZE = 4
 
 
 def relative_features(obs: NDArray) -> NDArray[np.float32]:
-    """The 4 entries :class:`RelativeLogDistance` appends, for observations (..., 16)."""
+    """The 4 entries `RelativeLogDistance` appends, for observations (..., 16)."""
     o = np.asarray(obs, dtype=np.float32)
     r = o[..., SLICES["relative_position"]] * np.float32(RELATIVE_SCALE)
     d = np.maximum(np.linalg.norm(r, axis=-1, keepdims=True), np.float32(MIN_DISTANCE))

@@ -16,7 +16,7 @@ Two additions, both documented and switchable:
   lambda_max every step the end-effector overshoots the 1 mm capture ball and chatters around it;
   the cap makes the last step land on X_T' (to first order). ``cap=False`` is the paper exactly.
 * **Follow-through** (``follow_through=m``, default 0; the ``incremental_ik_through`` agent:
-  :data:`FOLLOW_THROUGH`): the cap aims m past X_T' along n,
+  `FOLLOW_THROUGH`): the cap aims m past X_T' along n,
   ``lambda = min(lambda_max, (||X_T' - X_E|| + m) / t_s)``, so the last step's arc sweeps through
   the capture point instead of stopping on it, where first-order and estimate errors leave it
   just outside a 1 mm ball for a few periods; with m below a scenario's tolerance the arm then
@@ -211,7 +211,7 @@ def incremental_step(
     damping: float = DAMPING,
     follow_through: float = 0.0,
 ) -> IncrementalStep:
-    """:func:`incremental_steps` for one episode: Theta, X^_T, Xdot^_T of shape (3,)."""
+    """`incremental_steps` for one episode: Theta, X^_T, Xdot^_T of shape (3,)."""
     return incremental_steps(
         np.asarray(theta, dtype=float)[None],
         np.asarray(target_position, dtype=float)[None],
@@ -226,10 +226,10 @@ def incremental_step(
 
 class IncrementalIK(AnalyticController):
     """The paper's lambda_max controller (eqs. 13-19) as an
-    :class:`capture_bench.agents.protocol.Agent`.
+    [`capture_bench.agents.protocol.Agent`][capture_bench.agents.protocol.Agent].
 
     Args:
-        description: the environment's public :class:`TaskDescription` (the only thing it knows).
+        description: the environment's public `TaskDescription` (the only thing it knows).
         cap: step cap on (default) or the paper's uncapped eqs. 13-19 (``cap=False``).
         det_threshold: |det J| (m^3) below which the DLS fallback replaces J^-1.
         damping: DLS damping mu, m.

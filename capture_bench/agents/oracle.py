@@ -12,7 +12,7 @@ Plan, per episode, under the capture envelope (a scenario with ``capture.v_max``
 
 1. *The entry.* At the episode's first step it asks ``physical_limit()`` for the arrival T (the
    bound less the hold) and ``theta*``, and from T the earliest entry t_e from which the arm can
-   be in the envelope for the hold (:func:`~capture_bench.task.physical_limit.held_arrivals`,
+   be in the envelope for the hold (`held_arrivals`,
    the bound's own test: where the environment's bound is the envelope's, t_e is T).
 2. *Land slow.* Joint rates are constant within a step, so an arm that arrives at full rate is
    still fast until the step ends, and the capture could start only a step later. Instead it
@@ -25,13 +25,13 @@ Plan, per episode, under the capture envelope (a scenario with ``capture.v_max``
    earlier, the slow approach enters it within the next step. Of the ``LANDING_CANDIDATES`` step
    ends from the last one before t_e it keeps the one whose capture completes first, simulated
    with the rule's own tests (eq. 20's box and the speed bound along each step's arc,
-   :func:`~capture_bench.task.capture.held_capture`).
+   `held_capture`).
 3. *Approach and track.* Each step ends the end-effector on ``X_T(t + dt)`` plus a relative
    position that moves at ``0.99 v_max`` straight to eq. 20's box shrunk to ``APPROACH_DEPTH``,
    then to the capture point: the exact one-step IK solution (within the joint limits), or where
    none is within one step, the reachable joint vector nearest that box. The step's relative
    velocity along its arc is checked with the rule's test
-   (:func:`~capture_bench.task.capture.slow_intervals_along_arc`); where it exceeds ``v_max``,
+   (`slow_intervals_along_arc`); where it exceeds ``v_max``,
    the slower ``APPROACH_SPEEDS`` are tried, down to keeping the relative position
    (``mode = "track"``). If no landing captures in the simulation, it plays 4.-7. below.
 
@@ -149,7 +149,7 @@ class Oracle:
 
     def _held_arrival(self, arrival: float, theta: FloatArray) -> tuple[float, FloatArray]:
         """The earliest entry at or after ``arrival`` from which the envelope can be held
-        (:func:`~capture_bench.task.physical_limit.held_arrivals`; ``arrival`` itself where the
+        (`held_arrivals`; ``arrival`` itself where the
         environment's bound already is the envelope's), and a joint vector there."""
         plan = self.world.plan
         desc, arm = self.description, self.description.arm
@@ -238,7 +238,7 @@ class Oracle:
 
     def _simulate(self, m: int, theta_m: FloatArray, times: FloatArray) -> float:
         """When the capture completes if the arm is at ``theta_m`` at step end ``times[m]`` and
-        then takes :meth:`_track_step` every step (eq. 20's box and the speed bound along each
+        then takes `_track_step` every step (eq. 20's box and the speed bound along each
         step's arc, held for ``hold``, as the env tests them); inf if not within
         ``SIMULATED_STEPS`` steps after the hold."""
         eps = self.description.capture_tolerance
@@ -269,7 +269,7 @@ class Oracle:
 
     def _track_step(self, theta: FloatArray, t: float, dt: float) -> FloatArray:
         """The joint vector at the end of a step of the approach and the tracking: the end-effector
-        ends ``X_T(t + dt)`` plus the relative position moved along the approach (:func:`_advance`)
+        ends ``X_T(t + dt)`` plus the relative position moved along the approach (`_advance`)
         at ``APPROACH_SPEEDS`` of ``v_max``, the first of them at which the step's instantaneous
         relative speed stays within ``v_max`` (the exact one-step IK solution; where none is within
         one step, the reachable point nearest eq. 20's box)."""
@@ -297,7 +297,7 @@ class Oracle:
         return q
 
     def _envelope_action(self, theta: FloatArray, t: float, dt: float) -> NDArray[np.float32]:
-        """Under a speed bound: full rate to ``theta_m`` by ``t_m``, then :meth:`_track_step`."""
+        """Under a speed bound: full rate to ``theta_m`` by ``t_m``, then `_track_step`."""
         assert self.landing is not None
         t_m, theta_m = self.landing
         scale = self.description.arm.joint_rate_limits * self.description.control_period
@@ -363,7 +363,7 @@ def _speed_bound(world: Any) -> float | None:
 
 def _approach_time(miss: FloatArray, eps: FloatArray, speed: float) -> float:
     """How long the approach from the relative position ``miss`` (X_E - X_T, m) takes to enter
-    eq. 20's box at ``speed`` (m/s) (:func:`_advance`'s straight line), s."""
+    eq. 20's box at ``speed`` (m/s) (`_advance`'s straight line), s."""
     if np.all(np.abs(miss) < eps):
         return 0.0
     inner = np.clip(miss, -APPROACH_DEPTH * eps, APPROACH_DEPTH * eps)

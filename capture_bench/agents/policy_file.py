@@ -24,8 +24,8 @@ So a capture-bench model directory stores a policy as
 Loading rebuilds the algorithm's SB3 policy class from the declared keyword arguments and spaces
 and loads the weights into it strictly (every tensor named and shaped as the declared network
 expects). The result acts exactly as the same model loaded by SB3 (tested on every algorithm).
-:func:`save_policy` writes this form from a trained SB3 model; ``train.py`` calls it, and
-``python -m capture_bench.agents.convert DIR --trust-model`` (:mod:`capture_bench.agents.convert`)
+`save_policy` writes this form from a trained SB3 model; ``train.py`` calls it, and
+``python -m capture_bench.agents.convert DIR --trust-model`` (`capture_bench.agents.convert`)
 converts an existing SB3 model directory (which unpickles it: only for files you trust).
 
 The writer and the validating reader of one file format live together: the validation rules are
@@ -51,14 +51,14 @@ METADATA_FILE = "metadata.json"
 # Model files (``policy.pt``, an SB3 ``.zip``, a checkpoint's ``parameters.pt``) are zip archives
 # whose members torch and SB3 read whole into memory, each member's buffer allocated at the size
 # the archive's central directory declares. So their sizes are checked before anything is read
-# (:func:`check_archive`): a few kilobytes of deflated zeros can declare gigabytes. The limits lie
+# (`check_archive`): a few kilobytes of deflated zeros can declare gigabytes. The limits lie
 # far above any model train.py writes (the largest shipped file: 13 MB, the pixel policy's .zip).
 #: The most bytes a model file may hold on disk.
 MAX_MODEL_FILE_BYTES = 512 * 2**20
 #: The most bytes a model file's archive may declare, all its members uncompressed together.
 MAX_UNCOMPRESSED_BYTES = 512 * 2**20
 #: The highest ratio of the bytes an archive declares to its size on disk, where it declares more
-#: than :data:`RATIO_FLOOR_BYTES`: torch.save and SB3 store their members uncompressed (ratio 1;
+#: than `RATIO_FLOOR_BYTES`: torch.save and SB3 store their members uncompressed (ratio 1;
 #: deflated weights would give ~1.1), while deflated zeros, a zip bomb, reach ~1000.
 MAX_COMPRESSION_RATIO = 100
 #: Below this many declared bytes the ratio is not checked (a small archive exhausts nothing).
@@ -181,7 +181,7 @@ class PolicyDeclaration:
     """The validated network declaration of a ``metadata.json`` (see module docstring).
 
     Attributes:
-        algorithm: SB3 algorithm name, a key of :data:`POLICY_CLASSES`.
+        algorithm: SB3 algorithm name, a key of `POLICY_CLASSES`.
         policy_kwargs: keyword arguments of the policy class, JSON values (activation by name).
         observation_space: a Box declaration (type, shape, dtype, low, high), or a Dict one
             (type, spaces: name -> Box declaration).
@@ -471,10 +471,10 @@ def check_archive(
     require_zip: bool = True,
 ) -> None:
     """Refuse a model file whose size would exhaust memory when read, before reading it: more
-    than :data:`MAX_MODEL_FILE_BYTES` on disk, not a zip archive (torch.save writes one; its
+    than `MAX_MODEL_FILE_BYTES` on disk, not a zip archive (torch.save writes one; its
     legacy format allocates what it declares before reading it), or a central directory
-    declaring more than :data:`MAX_UNCOMPRESSED_BYTES` in all or more than
-    :data:`MAX_COMPRESSION_RATIO` times the size on disk. ``capped`` False: only the ratio is
+    declaring more than `MAX_UNCOMPRESSED_BYTES` in all or more than
+    `MAX_COMPRESSION_RATIO` times the size on disk. ``capped`` False: only the ratio is
     checked (a checkpoint's replay buffer is as large as the run chose). ``require_zip`` False: a
     file that is no zip archive is left to its reader to refuse (SB3's loader names an SB3
     ``.zip`` that is not one).
@@ -519,7 +519,7 @@ def check_archive(
 
 def read_weights(path: Path) -> dict[str, Any]:
     """The tensors of a ``policy.pt``, read with ``weights_only=True`` (nothing else unpickled),
-    after :func:`check_archive` has checked its sizes.
+    after `check_archive` has checked its sizes.
 
     Raises:
         PolicyLoadError: missing file, too large a file or archive, a file torch's weights-only
@@ -690,7 +690,7 @@ def policy_files(
 
 
 def write_policy_files(directory: Path, weights: bytes, metadata: bytes) -> Path:
-    """Write :func:`policy_files`' contents into ``directory`` (created if missing).
+    """Write `policy_files`' contents into ``directory`` (created if missing).
 
     Each file is written to a temporary name and renamed, so an interrupted write leaves the
     previous files whole. The weights are written before the metadata that names them.
@@ -715,7 +715,7 @@ def save_policy(
     extra: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``policy.pt`` and ``metadata.json`` (``extra`` entries first) into ``directory``:
-    :func:`policy_files`, then :func:`write_policy_files` (atomic, weights first).
+    `policy_files`, then `write_policy_files` (atomic, weights first).
 
     Args:
         directory: the model directory (created if missing).

@@ -23,12 +23,12 @@ class Agent(Protocol):
     Batches (optional): an agent whose ``batched`` attribute is true also takes N observations,
     shape (N, 16), and returns actions of shape (N, 3), each row as it would be alone (no row's
     action depends on another row, nor on N), keeping any episode state per row; ``reset`` then
-    starts N episodes. The analytic controllers of :mod:`capture_bench.agents.baselines` and
-    :mod:`capture_bench.agents.incremental_ik` are batched. The evaluation builds a batched
+    starts N episodes. The analytic controllers of `capture_bench.agents.baselines` and
+    `capture_bench.agents.incremental_ik` are batched. The evaluation builds a batched
     agent once per batch of episodes and asks it with every episode's observation at each step
     (row i for episode i; an ended episode's action is ignored); any other agent once per
     episode, each asked with its own episode's observation
-    (:func:`capture_bench.evaluation.rollout.run_episodes`).
+    (`capture_bench.evaluation.rollout.run_episodes`).
     """
 
     def predict(

@@ -4,9 +4,9 @@
 
 the direction that asks whether learning can improve the paper's controller rather than replace
 it. ``train.py`` trains pi this way with ``residual: incremental_ik`` (and ``residual_scale``
-alpha; :class:`capture_bench.training.residual_vec_env.ResidualVecEnv` applies the sum inside the
+alpha; `capture_bench.training.residual_vec_env.ResidualVecEnv` applies the sum inside the
 training envs), the model's metadata declares ``residual: {base, scale}``, and evaluation rebuilds
-the same sum (:func:`residual_agent`). The leaderboard labels such a row a hybrid: it is not a
+the same sum (`residual_agent`). The leaderboard labels such a row a hybrid: it is not a
 learned controller on its own.
 """
 
@@ -36,7 +36,7 @@ RESIDUAL_BASES = (
 
 
 def make_base(name: str, description: TaskDescription) -> Any:
-    """The analytic controller ``name`` of :data:`RESIDUAL_BASES`, built from ``description``."""
+    """The analytic controller ``name`` of `RESIDUAL_BASES`, built from ``description``."""
     from capture_bench.agents import make_agent
 
     if name not in RESIDUAL_BASES:
@@ -52,12 +52,12 @@ def combine(base_action: NDArray, residual: NDArray, scale: float) -> NDArray[np
 
 class ResidualAgent:
     """``base`` plus ``scale`` times ``learned``'s action (module docstring), as an
-    :class:`capture_bench.agents.protocol.Agent`.
+    [`capture_bench.agents.protocol.Agent`][capture_bench.agents.protocol.Agent].
 
     Args:
         base: an analytic controller (``predict`` on one observation or a batch).
         learned: anything with SB3's ``predict`` (an SB3 model,
-            :class:`capture_bench.agents.sb3_policy.SB3Policy`); it sees the observation the base
+            `capture_bench.agents.sb3_policy.SB3Policy`); it sees the observation the base
             sees.
         scale: alpha.
         name: label for reports.

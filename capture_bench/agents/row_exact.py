@@ -8,17 +8,17 @@ another order. A policy evaluated on a batch of episodes would then act differen
 policy on each episode alone (its model card's replays, a single env). Every other operation of
 the shipped networks (activations, the features extractor's norm, division and logarithm,
 clipping) is elementwise or reduces within a row, and gives each row the same numbers whatever
-the batch (checked by :func:`capture_bench.agents.sb3_policy.SB3Policy.predict_rows`'s test over
+the batch (checked by `capture_bench.agents.sb3_policy.SB3Policy.predict_rows`'s test over
 real observations).
 
-So :func:`row_exact_layers` swaps, for the duration of a forward pass, each ``nn.Linear``'s
+So `row_exact_layers` swaps, for the duration of a forward pass, each ``nn.Linear``'s
 ``forward`` for one that computes N one-row products:
 
 * ``baddbmm`` of N (1 x k) by (k x m) products, where it gives the one-row result (on x86 CPUs,
   the hidden layers);
 * else one ``addmv`` per row (the matrix-vector product itself; the small output layers).
 
-Which one a layer takes is decided once per layer by a probe: :data:`PROBE_ROWS` random rows
+Which one a layer takes is decided once per layer by a probe: `PROBE_ROWS` random rows
 through both, compared with the layer applied row by row. A kernel that sums in another order
 gives other last bits on nearly every row, so a probe that matches on every row has found the
 same kernel. A layer neither matches is reported (None), and the caller acts row by row.
@@ -72,7 +72,7 @@ def _matrix_vector(layer: Any) -> Forward:
 
 def row_exact_forward(layer: Any) -> Forward | None:
     """The first of ``baddbmm`` products and per-row ``addmv`` whose rows equal ``layer``
-    applied to each row alone on :data:`PROBE_ROWS` random rows, or None."""
+    applied to each row alone on `PROBE_ROWS` random rows, or None."""
     import torch
 
     generator = torch.Generator().manual_seed(0)

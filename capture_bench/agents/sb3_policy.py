@@ -1,4 +1,4 @@
-"""Trained Stable-Baselines3 policies as agents (:mod:`capture_bench.agents.protocol`), loaded
+"""Trained Stable-Baselines3 policies as agents (`capture_bench.agents.protocol`), loaded
 safely.
 
 A trained model lives in a directory (a training run directory, or an entry ``models/<name>/``)
@@ -7,7 +7,7 @@ forms:
 
 * **safe** (what ``train.py`` writes and every shipped model uses): ``policy.pt`` (tensors only)
   and a metadata file declaring the network, its spaces and its normalisation statistics as plain
-  numbers (:mod:`capture_bench.agents.policy_file`). Loading it unpickles nothing, so it runs no
+  numbers (`capture_bench.agents.policy_file`). Loading it unpickles nothing, so it runs no
   code.
 * **SB3 ``.zip``** (``model.save``), with optional ``vecnormalize.pkl``: pickled Python objects,
   which can run any code when loaded. Loaded only with ``trust_model=True`` (``evaluate.py
@@ -24,7 +24,7 @@ The metadata of an SB3 ``.zip`` directory::
     observation_source: ekf   # what it was trained on (informational; evaluation uses the env's)
 
 Observations are normalised with the frozen statistics (as SB3's evaluation does) before the
-policy sees them. Every problem raises :class:`PolicyLoadError` (a ``ValueError``) with a one-line
+policy sees them. Every problem raises `PolicyLoadError` (a ``ValueError``) with a one-line
 message: no metadata, unknown algorithm, missing or corrupt file, a declaration that does not
 match the weights, an algorithm that does not match the ``.zip``, mismatched spaces. SB3 and torch
 are imported only when a model is loaded.
@@ -86,7 +86,7 @@ class ModelMetadata:
 
     Attributes:
         directory: the model directory.
-        algorithm: SB3 algorithm name, one of :data:`ALGORITHMS`.
+        algorithm: SB3 algorithm name, one of `ALGORITHMS`.
         metadata_file: the metadata file read.
         scenario: scenario it was trained on ('' if not given).
         observation_source: observation source used in training ('' if not given).
@@ -96,7 +96,7 @@ class ModelMetadata:
         vecnormalize_file: the ``.zip``'s VecNormalize statistics, or None.
         residual: ``(base, scale)`` where the policy is a residual on an analytic controller
             (key ``residual: {base: incremental_ik, scale: 0.5}``;
-            :mod:`capture_bench.agents.residual`), or None.
+            `capture_bench.agents.residual`), or None.
         actions: ``deterministic`` (the leaderboard's rule, the default) or ``sampled`` (key
             ``actions``: the model card declares that the policy acts with sampled actions,
             seeded per episode by evaluation).
@@ -147,8 +147,8 @@ class LoadedPolicy:
     sampled: bool = False
 
     def agent(self, name: str, description: Any) -> Any:
-        """The policy as an agent labelled ``name``: :class:`SB3Policy`, or, for a residual,
-        :class:`capture_bench.agents.residual.ResidualAgent` over the base built from
+        """The policy as an agent labelled ``name``: `SB3Policy`, or, for a residual,
+        `capture_bench.agents.residual.ResidualAgent` over the base built from
         ``description``."""
         learned = SB3Policy(self.policy, name, self.normalizer, sampled=self.sampled)
         if self.residual is None:
@@ -432,7 +432,7 @@ def _same_box(a: Any, b: Any) -> bool:
 
 
 def check_spaces(model: Any, observation_space: Any, action_space: Any, where: str) -> None:
-    """Raise :class:`PolicyLoadError` unless the model's spaces equal the environment's.
+    """Raise `PolicyLoadError` unless the model's spaces equal the environment's.
 
     Args:
         model: a loaded SB3 policy (or model).
@@ -460,10 +460,11 @@ def check_spaces(model: Any, observation_space: Any, action_space: Any, where: s
 
 
 class SB3Policy:
-    """A loaded SB3 policy behind the :class:`capture_bench.agents.protocol.Agent` protocol.
+    """A loaded SB3 policy behind the
+    [`capture_bench.agents.protocol.Agent`][capture_bench.agents.protocol.Agent] protocol.
 
     Args:
-        policy: the SB3 policy network (``model.policy`` or :func:`load_policy`'s); its
+        policy: the SB3 policy network (``model.policy`` or `load_policy`'s); its
             ``predict`` does the work, exactly as ``model.predict`` would.
         name: label for reports.
         normalizer: frozen observation statistics applied to observations first, or None.
@@ -524,7 +525,7 @@ class SB3Policy:
         return self._deterministic_actions(obs[None]).reshape(self.policy.action_space.shape)
 
     def _deterministic_actions(self, obs: np.ndarray) -> np.ndarray:
-        """:meth:`_deterministic_action` of each row of ``obs`` (already normalised), in one
+        """`_deterministic_action` of each row of ``obs`` (already normalised), in one
         forward pass of N rows."""
         import torch
         from stable_baselines3.common.policies import BasePolicy
@@ -548,7 +549,7 @@ class SB3Policy:
     def predict_rows(self, observations: np.ndarray) -> np.ndarray:
         """The deterministic action of each of N observations, shape (N, 16) -> (N, 3), each
         row bit for bit what ``predict`` gives that observation alone, in one batched forward
-        pass (:mod:`capture_bench.agents.row_exact`; row by row where a layer has no row-exact
+        pass (`capture_bench.agents.row_exact`; row by row where a layer has no row-exact
         batched form). For a model declaring sampled actions, ``predict`` of each row in turn
         (torch's one generator draws in row order)."""
         from capture_bench.agents.row_exact import row_exact_layers
@@ -574,8 +575,8 @@ class SB3Policy:
 def load_sb3_policy(
     directory: str | Path, env: Any, name: str | None = None, trust_model: bool = False
 ) -> Any:
-    """Load the model in ``directory`` (safely; see :func:`load_policy`) and check it fits
-    ``env``; an :class:`SB3Policy`, or a :class:`capture_bench.agents.residual.ResidualAgent`
+    """Load the model in ``directory`` (safely; see `load_policy`) and check it fits
+    ``env``; an `SB3Policy`, or a `capture_bench.agents.residual.ResidualAgent`
     for a residual.
 
     Args:

@@ -1,2 +1,4 @@
-"""The gymnasium environments: :class:`CaptureEnv` (one episode) and
-:class:`CaptureVectorEnv` (N episodes stepped together)."""
+"""The gymnasium environments: [`CaptureEnv`][capture_bench.envs.capture_env.CaptureEnv] (one
+episode) and
+[`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] (N episodes stepped
+together)."""

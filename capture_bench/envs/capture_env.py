@@ -1,12 +1,13 @@
 """``CaptureEnv``: the gymnasium environment, the N = 1 case of the task's step rule.
 
 The rules of a step (capture, eq. 20 along the arc; failures; rewards; ``info``; the observation,
-eq. 13) are :class:`capture_bench.task.step_rule.StepRule`'s, which this env applies to its one
-episode as :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` applies them to N: the same
+eq. 13) are `capture_bench.task.step_rule.StepRule`'s, which this env applies to its one
+episode as [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] applies them to N:
+the same
 code, called with one row. What both envs are made of (the scenario, the published description,
-the rule, the camera, the curriculum's levers) is :mod:`capture_bench.envs.core`'s. The target's
+the rule, the camera, the curriculum's levers) is `capture_bench.envs.core`'s. The target's
 side of an episode (trajectory, camera eq. 2, estimator eqs. 3-12) comes from one
-:class:`~capture_bench.task.target_side.TargetSide`, live or replayed. What this module adds: the
+`TargetSide`, live or replayed. What this module adds: the
 pybullet world (the arm's rate and joint limits, collisions, rendering) and the privileged
 interface the oracle uses.
 """
@@ -111,8 +112,9 @@ class CaptureEnv(TaskAccess, gym.Env):
     bad entry, and the step is not taken. Non-finite actions are refused rather than zeroed or
     clipped: a NaN from a policy means a diverged network, and a benchmark that quietly turned
     it into "hold still" would score the broken policy; Gymnasium's ``Box.contains`` refuses
-    them too. :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` applies the same rule
-    (:func:`check_actions`) to its (num_envs, 3) actions.
+    them too. [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] applies the same
+    rule
+    (`check_actions`) to its (num_envs, 3) actions.
 
     ## Observation Space
     ``Box(-10, 10, (16,), float32)``, each entry scaled to order one
@@ -134,7 +136,7 @@ class CaptureEnv(TaskAccess, gym.Env):
     ``Dict(image=Box(0, 255, (3, H, W), uint8), state=Box(-10, 10, (7,), float32))``:
     ``image`` is the camera's view of a crop around the workspace (the arm at its joints, the
     target at its true pose with its grey block and 10 mm markers), rendered at ``image_size``
-    (W, H) = (84, 84) by default (:mod:`capture_bench.sensing.workspace_image`: which crop, how
+    (W, H) = (84, 84) by default (`capture_bench.sensing.workspace_image`: which crop, how
     it is sampled); ``state`` is what the arm knows without vision:
 
     | index | quantity (global frame)     | unit | scale |
@@ -225,7 +227,7 @@ class CaptureEnv(TaskAccess, gym.Env):
     numbers >= 1, else ``ValueError``. ``reuse_target_side``: when True,
     ``reset(seed=s)`` records the target's side of the whole episode up to the time limit at once
     (trajectory, control periods, camera frames, estimates: a
-    :class:`~capture_bench.task.recording.RecordedEpisode`, none of which depends on the actions)
+    `RecordedEpisode`, none of which depends on the actions)
     and keeps it in ``episode_cache`` by (scenario, s); a later ``reset(seed=s)`` replays it instead
     of computing it again. Every observation, reward and ``info`` is identical to a run without it;
     an evaluation that runs many agents on the same seeds saves the camera and estimator work of all
@@ -233,9 +235,10 @@ class CaptureEnv(TaskAccess, gym.Env):
     ``np_random`` stands where the recording left it (the time limit), so the episodes that follow a
     seeded reset are the same whatever the actions, though after the first they are not the ones a
     plain env gives (it advances ``np_random`` by the steps actually taken);
-    :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` gives exactly these episodes. Default
+    [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] gives exactly these
+    episodes. Default
     False: each reset pays for the whole horizon. ``episode_cache``: the
-    :class:`~capture_bench.task.target_side.EpisodeCache` that keeps recorded target sides and
+    `EpisodeCache` that keeps recorded target sides and
     physical-limit bounds by (scenario, seed); default the process-wide
     ``capture_bench.task.target_side.DEFAULT_EPISODE_CACHE`` (``clear()`` empties it).
     ``render_view``: what ``render()`` shows: ``"scene"`` (pybullet's view of the world with the
@@ -246,7 +249,7 @@ class CaptureEnv(TaskAccess, gym.Env):
     ## Rendered camera
     With ``camera.mode: rendered`` the frames are pybullet images of the whole scene, the arm
     included, and the markers are found in their pixels
-    (:mod:`capture_bench.sensing.scene_camera`): the target's side depends on the actions, so it
+    (`capture_bench.sensing.scene_camera`): the target's side depends on the actions, so it
     is computed step by step (``reuse_target_side`` then keeps, by seed, what the camera saw of
     the target alone, and renders again only the frames the arm may reach).
 
@@ -319,7 +322,7 @@ class CaptureEnv(TaskAccess, gym.Env):
     # -- privileged API (oracle and tests only) ------------------------------------------------
     def physical_limit(self) -> PhysicalLimit:
         """The episode's lower bound on capture time (computed once per episode, lazily; kept in
-        :attr:`episode_cache` by (scenario, seed) after a seeded reset)."""
+        `episode_cache` by (scenario, seed) after a seeded reset)."""
         episode = self.recorded_episode
         if episode.bound is None:
             episode.bound = self.episode_cache.bound_of(self._key, episode.plan, self.description)
@@ -506,9 +509,9 @@ class CaptureEnv(TaskAccess, gym.Env):
 
     def _rendered_side(self) -> TargetSide:
         """A live side whose frames come from the rendered camera. With
-        :attr:`reuse_target_side` and a seed, the camera keeps what it saw of the target alone
-        in :attr:`episode_cache` by (scenario, seed) and renders again only a frame the arm may
-        reach (:class:`~capture_bench.sensing.scene_camera.RenderedSceneCamera`)."""
+        `reuse_target_side` and a seed, the camera keeps what it saw of the target alone
+        in `episode_cache` by (scenario, seed) and renders again only a frame the arm may
+        reach (`RenderedSceneCamera`)."""
         if self._scene_camera is None:
             self._scene_camera = RenderedSceneCamera.for_scenario(self.task.scenario)
         camera = self._scene_camera
@@ -520,7 +523,7 @@ class CaptureEnv(TaskAccess, gym.Env):
 
     def _recorded_side(self) -> TargetSide:
         """This seed's target side to the time limit, recorded now (as live steps would compute
-        it, in the same order of random draws) unless :attr:`episode_cache` has it; an unseeded
+        it, in the same order of random draws) unless `episode_cache` has it; an unseeded
         reset is recorded and not kept. ``np_random`` then stands where the recording left it."""
         found = None if self._key is None else self.episode_cache.recording(self._key)
         if found is None:

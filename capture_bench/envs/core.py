@@ -1,13 +1,13 @@
 """What ``CaptureEnv`` and ``CaptureVectorEnv`` are both made of, defined once.
 
-:class:`CaptureTask` is the task an env of a scenario plays, whatever the number of episodes it
-steps: the resolved scenario, what it publishes for agents (:func:`describe_task`), the step rule
-(:class:`~capture_bench.task.step_rule.StepRule`), the camera and the target's feature points,
+`CaptureTask` is the task an env of a scenario plays, whatever the number of episodes it
+steps: the resolved scenario, what it publishes for agents (`describe_task`), the step rule
+(`StepRule`), the camera and the target's feature points,
 and the spaces of one episode. Each env owns one (``env.task``, composition, as panda-gym's
-``RobotTaskEnv`` owns its task); :class:`TaskAccess` gives both envs the same public names for it
+``RobotTaskEnv`` owns its task); `TaskAccess` gives both envs the same public names for it
 (``scenario``, ``description``, ``rule``, ``reward_mode``) and the training curriculum's two
-levers, :meth:`TaskAccess.set_capture_hold` and :meth:`TaskAccess.set_capture_tolerance`.
-:func:`check_actions` is the one rule for an action's validity.
+levers, `TaskAccess.set_capture_hold` and `TaskAccess.set_capture_tolerance`.
+`check_actions` is the one rule for an action's validity.
 """
 
 from __future__ import annotations
@@ -100,24 +100,24 @@ class CaptureTask:
         observation_source: an estimator source, ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
             (default: the scenario's), whose estimate the agent observes; or ``"pixels"``: the
             agent observes the camera's image and the arm's state
-            (:func:`~capture_bench.task.observation.pixel_observation_space`) and the scenario's
+            (`pixel_observation_space`) and the scenario's
             estimator runs for ``info`` only.
-        reward: one of :data:`capture_bench.task.rewards.REWARD_MODES` (checked).
+        reward: one of `capture_bench.task.rewards.REWARD_MODES` (checked).
         image_size: with ``"pixels"``, the image's (width, height), pixels (checked:
-            :func:`~capture_bench.sensing.workspace_image.check_image_size`); None (default):
-            :data:`~capture_bench.sensing.workspace_image.IMAGE_SIZE`. Given with any other
+            `check_image_size`); None (default):
+            `IMAGE_SIZE`. Given with any other
             source, ``ConfigError``: it sizes nothing there.
 
     Attributes:
         scenario: the resolved ``Scenario``.
-        description: what agents may know (:class:`~capture_bench.task.observation.
+        description: what agents may know (`
             TaskDescription`).
-        rule: the step rule (:class:`~capture_bench.task.step_rule.StepRule`).
+        rule: the step rule (`StepRule`).
         reward_mode: ``reward``.
         camera, features: the scenario's camera and the target's feature points (target frame,
             m, (N, 3)).
         single_action_space: ``Box(-1, 1, (3,), float32)``; single_observation_space: the
-            observation of one episode (:func:`~capture_bench.task.observation.
+            observation of one episode (`
             observation_space`, or the pixel ``Dict``).
         pixels: whether the agent observes pixels; image_size: (width, height), pixels.
     """
@@ -193,7 +193,7 @@ class CaptureTask:
 
 
 class TaskAccess:
-    """The public names of an env's :class:`CaptureTask` (``self.task``), the same on both envs.
+    """The public names of an env's `CaptureTask` (``self.task``), the same on both envs.
 
     Attributes (read-only): ``scenario``, ``description``, ``rule``, ``reward_mode``: the
     task's.
@@ -224,13 +224,13 @@ class TaskAccess:
     def set_capture_hold(self, hold: float) -> None:
         """Ask a capture to hold ``hold`` s (0: the first entry captures) instead of the
         scenario's ``capture.hold`` from the next step on: a training curriculum's lever
-        (:class:`capture_bench.training.callbacks.HoldCurriculum`), never an evaluation's. The
+        (`capture_bench.training.callbacks.HoldCurriculum`), never an evaluation's. The
         recorded physical limit stays the scenario's."""
         self.task.rule.set_hold(hold)
 
     def set_capture_tolerance(self, tolerance: Any) -> None:
         """Count a capture at ``tolerance`` (m, a number or (3,)) instead of the scenario's
         epsilon from the next step on: a training curriculum's lever
-        (:class:`capture_bench.training.callbacks.ToleranceCurriculum`), never an evaluation's.
+        (`capture_bench.training.callbacks.ToleranceCurriculum`), never an evaluation's.
         The recorded physical limit stays the scenario's."""
         self.task.rule.set_tolerance(tolerance)

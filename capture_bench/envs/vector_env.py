@@ -9,18 +9,18 @@ batched one, and the single env computes X_E with ``math``).
 
 How it is fast: nothing on the target's side of a step depends on the actions, so each sub-env's
 next episodes are recorded ahead, many at once
-(:func:`capture_bench.task.recording.record_episodes`: camera vectorised over time, the first
+(`capture_bench.task.recording.record_episodes`: camera vectorised over time, the first
 frame's cold photogrammetry and the bound over episodes). The EKF is the one part that runs with
 the steps: one batched filter, a row per sub-env, takes each sub-env's episode from its first row
-(:data:`LIVE_ESTIMATES_FROM`) one row per step played, so no filter runs past its episode's end;
+(`LIVE_ESTIMATES_FROM`) one row per step played, so no filter runs past its episode's end;
 its numbers are those of the recording of every row, bit for bit (a filter's rows do not depend
 on the other rows of a call). A step then does the arm's side for all sub-envs together: the
 joint limits, forward kinematics and a pybullet collision query only for the sub-envs whose arm
 is near the floor or the base column
-(:func:`capture_bench.sim.collision_screen.clear_of_collisions`); then the task's rules
+(`capture_bench.sim.collision_screen.clear_of_collisions`); then the task's rules
 (capture along the arc, eq. 20; failures; reward; ``info``; observation) are
-:class:`capture_bench.task.step_rule.StepRule`'s, the same code ``CaptureEnv`` runs for its one
-episode; what both envs are made of is :class:`capture_bench.envs.core.CaptureTask`.
+`capture_bench.task.step_rule.StepRule`'s, the same code ``CaptureEnv`` runs for its one
+episode; what both envs are made of is `capture_bench.envs.core.CaptureTask`.
 
 Differences from N single envs, all in the format only:
 
@@ -33,7 +33,7 @@ Differences from N single envs, all in the format only:
   that autoresets reports its reset ``info`` (``time``, ``distance``) that step.
 * No rendering, and no privileged API (oracle agents use the single env).
 * With ``observation_source="pixels"`` one renderer, with one pybullet world, draws every
-  sub-env's image in turn (:class:`~capture_bench.sensing.workspace_image.WorkspaceImager`),
+  sub-env's image in turn (`WorkspaceImager`),
   stacked as ``image`` (N, 3, H, W) beside ``state`` (N, 7).
 """
 
@@ -90,7 +90,7 @@ LIVE_ESTIMATES_FROM: int | None = 1
 
 
 class EpisodeSeedSource(Protocol):
-    """A stream of episode seeds (e.g. :class:`capture_bench.training.seeds.TrainingSeedDraw`)."""
+    """A stream of episode seeds (e.g. `capture_bench.training.seeds.TrainingSeedDraw`)."""
 
     def next(self) -> int:
         """The seed of the next episode."""
@@ -101,7 +101,7 @@ AUTORESET_MODES = (AutoresetMode.NEXT_STEP, AutoresetMode.DISABLED)
 
 
 class CaptureVectorEnv(TaskAccess, VectorEnv):
-    """N :class:`~capture_bench.envs.capture_env.CaptureEnv` episodes of one scenario, stepped
+    """N [`CaptureEnv`][capture_bench.envs.capture_env.CaptureEnv] episodes of one scenario, stepped
     together.
 
     Args:
@@ -125,7 +125,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             instead of all episodes at once with the batched filter. The episodes are then the
             single env's bit for bit in everything the target side gives (estimates, errors,
             NEES; the batched filter's differ from filterpy's in the last bits); recording costs
-            more (~8 ms per episode) but is done once per seed (:attr:`episode_cache`), which
+            more (~8 ms per episode) but is done once per seed (`episode_cache`), which
             is what the leaderboard wants: every agent on the same seeds.
         episode_cache: with ``reference_target_side``, where recordings of seeded episodes are
             kept by (scenario, seed) and found again: the recordings are the single env's, so
@@ -148,12 +148,13 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
       episodes of different lengths, each played to its end once, as the evaluation plays
       them.
 
-    Recordings of seeded episodes are kept by seed (:attr:`episode_cache`), so resetting with
+    Recordings of seeded episodes are kept by seed (`episode_cache`), so resetting with
     seeds played before (the evaluation plays every agent on the same seeds) replays their
     target side instead of recording it again; the episodes are the same either way.
 
     Episodes come from each sub-env's own generator, as gymnasium seeds them, unless
-    :meth:`set_episode_seeds` gives each sub-env a stream of episode seeds (what SB3 training
+    [`set_episode_seeds`][capture_bench.envs.vector_env.CaptureVectorEnv.set_episode_seeds] gives
+    each sub-env a stream of episode seeds (what SB3 training
     wants: every episode explicitly seeded, yet recorded ahead in batches).
     """
 
@@ -289,7 +290,8 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         ``seed``: an int s seeds sub-env i with s + i, as ``SyncVectorEnv`` does; a list gives
         one seed (or None) per sub-env. An unseeded sub-env continues its own generator (what
         was recorded ahead from an old generator is discarded), or, after
-        :meth:`set_episode_seeds`, plays the next episode of its seed source; there an explicit
+        [`set_episode_seeds`][capture_bench.envs.vector_env.CaptureVectorEnv.set_episode_seeds],
+        plays the next episode of its seed source; there an explicit
         seed plays that seed's episode once, and the source's stream continues after it.
         """
         n = self.num_envs
@@ -336,7 +338,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
 
         Out-of-range values are clipped; a wrong shape, a non-numeric dtype or a NaN/infinite
         entry raises ``ValueError`` naming it
-        (:func:`capture_bench.envs.capture_env.check_actions`, the rule of :class:`CaptureEnv`),
+        (`capture_bench.envs.capture_env.check_actions`, the rule of `CaptureEnv`),
         and nothing is stepped. After ``close()``: ``RuntimeError``.
         """
         if self._world is None:
@@ -374,7 +376,9 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         plays them in the order drawn, so its episodes are those of single envs reset with
         those seeds one by one (``CaptureEnv.reset(seed=s)``). Everything recorded ahead is
         discarded (it came from the old streams): call this again after re-seeding a source.
-        Takes effect at each sub-env's next reset; :attr:`episode_seeds` tells the seed of
+        Takes effect at each sub-env's next reset;
+        [`episode_seeds`][capture_bench.envs.vector_env.CaptureVectorEnv.episode_seeds] tells the
+        seed of
         each sub-env's current episode.
         """
         if sources is not None:
@@ -457,10 +461,10 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
 
     def _start_rendered(self, envs: NDArray[np.intp], explicit: dict[int, int]) -> None:
-        """:meth:`_start` with the rendered camera: each sub-env's next episode as a live target
+        """`_start` with the rendered camera: each sub-env's next episode as a live target
         side (``CaptureEnv``'s, drawn from the same generator: the explicit seed, the seed
-        source's next, or the sub-env's own), rows filled as steps come (:meth:`_fill_rows`);
-        frames of the target alone kept by seed in :attr:`episode_cache`."""
+        source's next, or the sub-env's own), rows filled as steps come (`_fill_rows`);
+        frames of the target alone kept by seed in `episode_cache`."""
         assert self._sides is not None
         sc, features = self.scenario, self._features
         home = self.description.arm.home
@@ -507,9 +511,9 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
     def _record(
         self, jobs: list[tuple[int, int | None, np.random.Generator]]
     ) -> list[RecordedEpisode]:
-        """The next episode of each job's generator: from :attr:`episode_cache` where its seed
+        """The next episode of each job's generator: from `episode_cache` where its seed
         was recorded before (the generator then set to its state after that recording), else
-        recorded now, all together (:func:`~capture_bench.task.recording.record_episodes`;
+        recorded now, all together (`record_episodes`;
         one by one as the single env records them with ``reference_target_side``), and kept
         by seed."""
         found: list[RecordedEpisode | None] = []
@@ -549,9 +553,9 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
     def _record_as_single_env(self, rngs: Sequence[np.random.Generator]) -> list[RecordedEpisode]:
         """The next episode of each generator recorded as ``CaptureEnv(reuse_target_side=True)``
         records it (the same draws, the same code, bit for bit; the photogrammetry's cold
-        solves batched, :meth:`TargetSide.record_many`; the plans drawn together,
-        :func:`~capture_bench.task.episode.draw_plans`); their bounds come after, in
-        :meth:`_record`."""
+        solves batched, `TargetSide.record_many`; the plans drawn together,
+        `draw_plans`); their bounds come after, in
+        `_record`."""
         assert self._reference is not None
         sc, camera, features = self.scenario, self._camera, self._features
         plans = draw_plans(sc, camera.model, features, rngs)
@@ -569,7 +573,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         seed, generator) in each sub-env's playing order: one for every sub-env short of
         ``RECORD_AHEAD`` (its own generator advances through them; without autoreset only
         for ``envs`` that have none: the others' next episodes may never be asked for), or
-        with seed sources every queue topped up (see :data:`RECORD_BATCH`)."""
+        with seed sources every queue topped up (see `RECORD_BATCH`)."""
         jobs: list[tuple[int, int | None, np.random.Generator]] = []
         if self._sources is None:
             wanted = set(range(self.num_envs))
@@ -603,7 +607,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         truncated: NDArray[np.bool_],
     ) -> dict[str, Any]:
         """The arm's side of a step for the sub-envs ``idx`` (their actions), then the step rule
-        (:class:`~capture_bench.task.step_rule.StepRule`), in place; returns the vector info."""
+        (`StepRule`), in place; returns the vector info."""
         n, m = self.num_envs, idx.size
         tracks, arm = self._tracks, self.description.arm
         k = self._steps[idx] + 1
@@ -663,7 +667,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         after the last one its filter estimated): one update of the live EKF with those frames
         (what the recording's batched EKF gives the row: a filter's numbers do not depend on
         which others update with it), then the errors and NEES as
-        :func:`~capture_bench.task.recording.estimate_errors` derives them."""
+        `estimate_errors` derives them."""
         ekf, tracks = self._ekf, self._tracks
         assert ekf is not None
         images = np.full((self.num_envs, *self._images.shape[2:]), np.nan)
@@ -733,8 +737,9 @@ _TRACK_DTYPES: dict[str, Any] = {
 
 
 class SubEnvView:
-    """One sub-env of a :class:`CaptureVectorEnv` with the privileged API of
-    :class:`~capture_bench.envs.capture_env.CaptureEnv` that the oracle reads (``time``,
+    """One sub-env of a [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] with
+    the privileged API of
+    [`CaptureEnv`][capture_bench.envs.capture_env.CaptureEnv] that the oracle reads (``time``,
     ``next_control_period``, ``true_target_position``, ``physical_limit``, ``plan``,
     ``recorded_episode``) and the public ``description``, each read from the vector env at the
     moment it is asked: the same numbers as the single env playing that sub-env's episode.
@@ -817,7 +822,7 @@ def _scatter(n: int, idx: NDArray[np.intp], value: NDArray) -> NDArray:
 
 
 def _autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
-    """``mode`` as one of :data:`AUTORESET_MODES`, or ``ValueError`` naming them."""
+    """``mode`` as one of `AUTORESET_MODES`, or ``ValueError`` naming them."""
     try:
         value = AutoresetMode(mode)
     except ValueError:

@@ -2,15 +2,15 @@
 
 Modules, in the order data flows:
 
-* :mod:`~capture_bench.evaluation.suites`: leaderboard suites (``configs/suites/*.yaml``);
-* :mod:`~capture_bench.evaluation.agents_loading`: agent specs (built-in, trained model,
+* `suites`: leaderboard suites (``configs/suites/*.yaml``);
+* `agents_loading`: agent specs (built-in, trained model,
   ``module:Class``) -> agents;
-* :mod:`~capture_bench.evaluation.rollout`: one episode -> one :class:`EpisodeRecord`;
-* :mod:`~capture_bench.evaluation.backends`: many episodes, serially, in processes or on Ray;
-* :mod:`~capture_bench.evaluation.metrics`, :mod:`~capture_bench.evaluation.aggregate`: records ->
+* `rollout`: one episode -> one `EpisodeRecord`;
+* `backends`: many episodes, serially, in processes or on Ray;
+* `metrics`, `aggregate`: records ->
   estimates with 95% intervals, survival curves, paired comparisons, the ranking;
-* :mod:`~capture_bench.evaluation.report`, :mod:`~capture_bench.evaluation.plots`: the report;
-* :mod:`~capture_bench.evaluation.pipeline`: all of it behind ``evaluate.py``.
+* `report`, `plots`: the report;
+* `pipeline`: all of it behind ``evaluate.py``.
 """
 
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError, SuiteError

@@ -2,14 +2,16 @@
 
 A spec is one of:
 
-* a built-in name (a key of :data:`capture_bench.agents.AGENTS`, e.g. ``incremental_ik``);
+* a built-in name (a key of [`capture_bench.agents.AGENTS`][capture_bench.agents.AGENTS], e.g.
+``incremental_ik``);
 * a trained model: a directory (a training run, or ``models/<name>``; ``<name>`` alone also finds
   ``models/<name>``) holding ``metadata.json``/``metadata.yaml`` and the policy, loaded without
   unpickling anything (an SB3 ``.zip`` only with ``trust_model``; see
-  :mod:`capture_bench.agents.sb3_policy`); ``models/*`` expands to every model shipped;
+  `capture_bench.agents.sb3_policy`); ``models/*`` expands to every model shipped;
 * ``module:Class`` (or ``module:factory``): a user's agent following
-  :class:`capture_bench.agents.Agent`. It is called with the environment's public
-  :class:`TaskDescription` if it takes one argument, with no argument if it takes none.
+  [`capture_bench.agents.Agent`][capture_bench.agents.Agent]. It is called with the environment's
+  public
+  `TaskDescription` if it takes one argument, with no argument if it takes none.
 
 Specs are plain strings so they travel to worker processes and Ray tasks; each process resolves
 them again and caches loaded SB3 models. Agents are rebuilt for every episode (construction is
@@ -110,8 +112,8 @@ def _valid_specs() -> str:
 
 
 def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = False) -> AgentSpec:
-    """Resolve one spec (see module docstring); raises :class:`AgentSpecError` if it names
-    nothing. Models are not loaded here (see :func:`check_agent`); ``trust_model`` lets a model
+    """Resolve one spec (see module docstring); raises `AgentSpecError` if it names
+    nothing. Models are not loaded here (see `check_agent`); ``trust_model`` lets a model
     directory without a safe form be loaded from its SB3 ``.zip`` (unpickling it)."""
     from capture_bench.agents import PRIVILEGED_AGENTS
 
@@ -192,7 +194,7 @@ def _call_user_factory(spec: AgentSpec, description: Any) -> Any:
 
 
 def _model(spec: AgentSpec) -> Any:
-    """The loaded policy (:class:`capture_bench.agents.sb3_policy.LoadedPolicy`), cached per
+    """The loaded policy (`capture_bench.agents.sb3_policy.LoadedPolicy`), cached per
     process."""
     from capture_bench.agents.sb3_policy import load_policy, read_metadata
 

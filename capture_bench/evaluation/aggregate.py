@@ -1,24 +1,24 @@
 """Episode records -> one summary per agent x scenario, and the overall ranking.
 
-Pure functions of the records (see :mod:`capture_bench.evaluation.metrics` for the statistics).
+Pure functions of the records (see `capture_bench.evaluation.metrics` for the statistics).
 
-Ranking rule (:data:`RANKING_RULE`): agents are ranked by their capture rate averaged over the
+Ranking rule (`RANKING_RULE`): agents are ranked by their capture rate averaged over the
 suite's scenarios (each scenario weighs the same); ties (equal to 1e-9) are broken by the mean over
 scenarios of the median ratio to the physical limit (lower first; a scenario with no capture counts
 as +inf), then by name. Privileged agents (the ``oracle``, which reads the true trajectory) are
 listed as references and not ranked.
 
-A scenario whose file says ``ranked: false`` (:func:`unranked_scenarios`) counts in none of the
+A scenario whose file says ``ranked: false`` (`unranked_scenarios`) counts in none of the
 ranking's averages; the report shows it in its own table. Where every scenario evaluated is
-unranked, the ranking is over all of them (:func:`counted_scenarios`).
+unranked, the ranking is over all of them (`counted_scenarios`).
 
-Each ranked agent's rank has a 95% interval (:func:`with_rank_intervals`): the seeds of each
+Each ranked agent's rank has a 95% interval (`with_rank_intervals`): the seeds of each
 counted scenario are resampled with replacement, the same resample for every agent (paired), the
 ranking rule is applied to every resample (agents level on both of its numbers sharing the ranks
 they span: the name, its last key, says nothing of them), and the interval runs from the 2.5th
 percentile of the agent's rank over the resamples to the 97.5th. An agent whose interval overlaps
 the interval of the agent ranked just above it is tied with it; a chain of such agents is a tie
-group (:func:`tie_groups`).
+group (`tie_groups`).
 
 Beside the ranking (not part of it), each row shows the mean over scenarios of the median
 relative speed at capture, so that a controller that flies through the tolerance box instead of
@@ -96,7 +96,7 @@ class Summary:
         agent, scenario: the cell.
         episodes, captured: counts.
         capture_rate: share captured, Wilson 95% interval.
-        figures: column stem -> bootstrap estimate (see :data:`ESTIMATED_FIGURES`).
+        figures: column stem -> bootstrap estimate (see `ESTIMATED_FIGURES`).
         km_median: Kaplan-Meier median time to capture (failures censored), s; inf if the
             survival curve never reaches 1/2.
         survival: the Kaplan-Meier curve itself.
@@ -163,7 +163,7 @@ Cell = tuple[list[EpisodeRecord], list[EpisodeRecord] | None]
 def summary_cells(
     records: Sequence[EpisodeRecord], reference_agent: str = REFERENCE_AGENT
 ) -> list[Cell]:
-    """What :func:`summarise` takes for each agent x scenario, in the order the cells first
+    """What `summarise` takes for each agent x scenario, in the order the cells first
     appear in ``records``: the cell's episodes by seed, and the reference agent's on that
     scenario to pair them with (None for the reference itself, or where it did not play)."""
     cells: dict[tuple[str, str], list[EpisodeRecord]] = {}
@@ -178,7 +178,7 @@ def summary_cells(
 
 
 def summarise_cells(cells: Sequence[Cell]) -> list[Summary]:
-    """:func:`summarise` of each cell of :func:`summary_cells`, in order (each cell's bootstrap
+    """`summarise` of each cell of `summary_cells`, in order (each cell's bootstrap
     has its own fixed seed: a cell's summary is the same whichever process makes it)."""
     return [summarise(cell, paired_with) for cell, paired_with in cells]
 
@@ -238,13 +238,13 @@ class RankingRow:
 
     Attributes:
         agent, rank: the agent and its rank (1 the best).
-        mean_capture_rate, mean_ratio_median: the ranking's two numbers (:data:`RANKING_RULE`),
+        mean_capture_rate, mean_ratio_median: the ranking's two numbers (`RANKING_RULE`),
             over the scenarios counted (``scenarios`` of them).
         privileged: a reference, not ranked.
         mean_relative_speed_median: the mean over the counted scenarios with a capture of the
             median relative speed at capture, m/s (NaN if the agent captured nowhere); shown, not
             ranked.
-        rank_low, rank_high: the 95% rank interval (:func:`with_rank_intervals`); None for a
+        rank_low, rank_high: the 95% rank interval (`with_rank_intervals`); None for a
             privileged agent, or where it was not computed.
         tie_first, tie_last: the ranks of the first and the last agent of the agent's tie group
             (both its own rank when it is tied with no one); None where ``rank_low`` is.
@@ -336,15 +336,15 @@ def rank_agents(
     records: Sequence[EpisodeRecord] | None = None,
     unranked: Collection[str] | None = None,
 ) -> list[RankingRow]:
-    """The overall ranking (rule: :data:`RANKING_RULE`); privileged agents last, unranked.
+    """The overall ranking (rule: `RANKING_RULE`); privileged agents last, unranked.
 
     Args:
         summaries: one per agent x scenario.
         privileged: the agents listed as references, not ranked.
-        records: the episodes summarised, for the rank intervals (:func:`with_rank_intervals`);
+        records: the episodes summarised, for the rank intervals (`with_rank_intervals`);
             None to leave them out (the report computes them from its records).
         unranked: the scenarios that count in no average; None for
-            :func:`unranked_scenarios` of the summaries' scenarios.
+            `unranked_scenarios` of the summaries' scenarios.
     """
     privileged = set(privileged)
     names = list(dict.fromkeys(s.scenario for s in summaries))
@@ -395,14 +395,14 @@ def with_rank_intervals(
     resamples: int = RANK_RESAMPLES,
     seed: int = RANK_SEED,
 ) -> list[RankingRow]:
-    """``ranking`` (:func:`rank_agents`) with each ranked agent's 95% rank interval and tie group
+    """``ranking`` (`rank_agents`) with each ranked agent's 95% rank interval and tie group
     (module docstring), from the episodes it ranks.
 
     The scenarios counted are the ranking's (its rows' ``unranked`` left out), each scenario's
     seeds every seed a ranked agent played there, resampled with a numpy generator seeded with
     ``seed``, scenarios in name order. The interval's low end is the first percentile of
-    :data:`RANK_PERCENTILES` of the agent's best rank over the resamples, its high end the second
-    of its worst (:func:`ranks_under_weights`; numpy's ``inverted_cdf``: ranks that occurred),
+    `RANK_PERCENTILES` of the agent's best rank over the resamples, its high end the second
+    of its worst (`ranks_under_weights`; numpy's ``inverted_cdf``: ranks that occurred),
     widened where needed to hold the agent's rank in ``ranking``.
     """
     ranked = sorted((r for r in ranking if r.rank is not None), key=lambda r: r.rank or 0)
@@ -475,7 +475,7 @@ def seed_weights(
 def ranks_under_weights(
     records: Sequence[EpisodeRecord], agents: Sequence[str], weights: SeedWeights
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Each agent's best and worst rank (1 the best) by the ranking rule (:data:`RANKING_RULE`)
+    """Each agent's best and worst rank (1 the best) by the ranking rule (`RANKING_RULE`)
     in each resample, two arrays (resamples, agents). The two differ where agents are level (the
     same mean capture rate to 1e-9 and the same mean median ratio): the rule's last key, the
     name, says nothing of the agents, so level agents share the ranks they span.

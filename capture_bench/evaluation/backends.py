@@ -1,10 +1,10 @@
 """Where episodes run: in this process, in a local process pool, or on a Ray cluster.
 
-Work is a list of :class:`EpisodeTask` (agent spec, scenario, seed: plain, picklable values). It is
+Work is a list of `EpisodeTask` (agent spec, scenario, seed: plain, picklable values). It is
 cut into chunks of every agent on a few seeds of one scenario, each chunk runs in one worker, and
 the records come back in the order of the tasks, whatever the backend and whatever order chunks
 finish in. In a chunk, each agent's episodes are played together in one batched env
-(:class:`~capture_bench.envs.vector_env.CaptureVectorEnv`, autoreset off: :func:`run_batch`),
+([`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv], autoreset off: `run_batch`),
 sub-env i from ``reset(seed=s_i)``. Each worker builds its own environments (cached for its life;
 the batched env records each seed's target side, camera and estimator included, as the single
 env does, once, and replays it for the chunk's other agents), so every backend gives the same
@@ -16,8 +16,8 @@ included), and the forkserver and multiprocessing's resource tracker then end by
 
 Ray is imported only by the ``ray`` backend (``pip install capture-bench[ray]``), which starts
 a new local instance on the loopback (no ``--ray-address``) or joins the cluster given, as
-:mod:`capture_bench.ray_cluster` says (this checkout shipped to the workers;
-:func:`~capture_bench.ray_cluster.check_ray_cluster` refuses a cluster that does not answer, in
+`capture_bench.ray_cluster` says (this checkout shipped to the workers;
+`check_ray_cluster` refuses a cluster that does not answer, in
 seconds). Model specs travel as written: name them ``models/<name>``.
 """
 
@@ -59,13 +59,13 @@ BACKENDS = ("serial", "process", "ray")
 #: step has a fixed cost, so the larger the batch the less each episode pays (the default suite's
 #: grasp scenario, 100 seeds, every agent, one core: ~30% less CPU in one chunk than in four).
 SEEDS_PER_CHUNK = 100
-#: Fewest seeds per chunk where several workers share the work (see :func:`make_chunks`).
+#: Fewest seeds per chunk where several workers share the work (see `make_chunks`).
 MIN_SEEDS_PER_CHUNK = 25
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded: the
 #: episodes' (torch and Stable-Baselines3 for the trained models, ~1.5 s a worker otherwise, at
 #: its first chunk) and the report media's (not ``matplotlib.pyplot``: imported there before
-#: :mod:`capture_bench.evaluation.plots` selects its backend, it drew one figure in other bytes).
+#: `capture_bench.evaluation.plots` selects its backend, it drew one figure in other bytes).
 #: The server imports them while the main process plans.
 PRELOAD = (
     "capture_bench.evaluation.backends",
@@ -187,7 +187,7 @@ def run_task(
     """Run one task in this process in a single env (cached per scenario; agent built afresh).
 
     ``env``: run on this environment of the task's scenario instead of the cached one (a
-    rendering one, :mod:`capture_bench.evaluation.video`), by the same steps: the same episode.
+    rendering one, `capture_bench.evaluation.video`), by the same steps: the same episode.
     """
     spec = task_spec(task)
     env = _env(task.scenario, spec) if env is None else env
@@ -204,17 +204,17 @@ def run_task(
 
 def run_batch(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
     """Run one agent's tasks on one scenario together, in a batched env with autoreset off
-    (:func:`~capture_bench.evaluation.rollout.run_episodes`); their records, in order.
+    (`run_episodes`); their records, in order.
 
     A ``batched`` agent is built once and asked once per step for every episode. A trained
     model is built once and asked once per step through ``predict_rows``: one forward pass
     whose rows are, bit for bit, the model's action for each observation alone
-    (:mod:`capture_bench.agents.row_exact`; torch's plain batched product rounds a row by the
+    (`capture_bench.agents.row_exact`; torch's plain batched product rounds a row by the
     batch's height, and the leaderboard's actions must be those the model card replays and a
     single env gives). Any other agent, a user's class written for one observation, is built
     once per episode, and each instance is asked with its own episode's observation; so is a
     privileged agent (the oracle), each built on its episode's sub-env
-    (:meth:`~capture_bench.envs.vector_env.CaptureVectorEnv.sub_env`: the single env's ground
+    (`sub_env`: the single env's ground
     truth, read from the batched env). A model declaring sampled actions (torch's one
     generator, seeded per episode) plays its episodes one by one in the single env, and so does
     every agent on a scenario with the rendered camera. Every way gives the single env's
@@ -240,7 +240,7 @@ def run_batch(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
 def _rendered(scenario: str) -> bool:
     """Whether the scenario's camera is rendered: its frames show the arm, so each episode runs
     in the worker's single env, which renders each seed's target-only frames once for all the
-    chunk's agents (:mod:`capture_bench.sensing.scene_camera`)."""
+    chunk's agents (`capture_bench.sensing.scene_camera`)."""
     from capture_bench.task.scenarios import load_scenario
 
     return load_scenario(scenario).camera.mode == "rendered"
@@ -248,7 +248,7 @@ def _rendered(scenario: str) -> bool:
 
 def run_chunk(tasks: Sequence[EpisodeTask]) -> list[EpisodeRecord]:
     """Run a chunk in this process, the unit of work of every backend: each agent's episodes on
-    a scenario as one batch (:func:`run_batch`); the records in task order."""
+    a scenario as one batch (`run_batch`); the records in task order."""
     groups: dict[tuple[str, bool, str], list[int]] = {}
     for index, task in enumerate(tasks):
         groups.setdefault((task.agent, task.trust_model, task.scenario), []).append(index)
@@ -267,7 +267,7 @@ def make_chunks(
 
     With several ``workers`` the chunks shrink towards the end (guided scheduling): a chunk opened
     while R (scenario, seed) pairs are still to be placed holds up to ``ceil(R / (2 workers))``
-    seeds, at least :data:`MIN_SEEDS_PER_CHUNK` (and at most ``seeds``; a scenario's remainder
+    seeds, at least `MIN_SEEDS_PER_CHUNK` (and at most ``seeds``; a scenario's remainder
     below that joins the chunk before it), so the workers, taking chunks in order, finish close
     together: the last chunks are the small ones.
     """
@@ -316,12 +316,12 @@ def _run_process(
 
 
 def _process_context() -> Any:
-    """The workers' start method's context, the forkserver preloading :data:`PRELOAD`."""
+    """The workers' start method's context, the forkserver preloading `PRELOAD`."""
     return process_context(PRELOAD)
 
 
 def prestart_workers() -> None:
-    """Start the forkserver now, so that it imports :data:`PRELOAD` while this process plans
+    """Start the forkserver now, so that it imports `PRELOAD` while this process plans
     the evaluation (two cores: side by side); the first pool's workers then fork at once.
     Nothing where there is no forkserver. The server ends with this process."""
     if _process_context().get_start_method() == "forkserver":
@@ -338,7 +338,7 @@ def map_processes(
     done: Callable[[int], None] | None = None,
 ) -> list[Any]:
     """``[function(item) for item in items]`` in a pool of ``workers`` local processes (forked
-    from a server that has imported :data:`PRELOAD`, one numerical thread each); ``done(i)`` is
+    from a server that has imported `PRELOAD`, one numerical thread each); ``done(i)`` is
     called as item i's result arrives. ``function`` and the items must pickle (a module-level
     function). The workers end with this process however it ends, and on any error here
     (Ctrl-C, SIGTERM, a failed item) they are killed before the error propagates."""
@@ -378,7 +378,7 @@ def map_processes(
 def _start_worker(watched: Connection) -> None:
     """Worker initialiser. SIGINT (Ctrl-C reaches the whole process group) and SIGTERM are the
     main process's to handle: it kills the workers itself. And the worker ends with the main
-    process, however that ends (:func:`~capture_bench.worker_processes.end_with_parent`)."""
+    process, however that ends (`end_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     end_with_parent(watched, _exit_now)

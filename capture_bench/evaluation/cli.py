@@ -13,7 +13,7 @@ Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv
 ``reports/`` by default, git-ignored), replacing the previous report only once the new one is
 complete, and ends by comparing it with the published report of the same suite,
 ``reports/published/<suite>/``, value by value (printed, and written beside the report as
-``reproduction.md``/``.json``: :mod:`capture_bench.evaluation.reproduction`). Only ``--publish``
+``reproduction.md``/``.json``: `capture_bench.evaluation.reproduction`). Only ``--publish``
 writes the published report (a shipped suite as defined, on the published seeds), and no output
 option may point inside it otherwise; with the suite's ``videos`` (the
 default) its "Episodes to watch" show the reference and the best-ranked trained model on one seed
@@ -27,12 +27,12 @@ an empty option value) prints one line to stderr and exits with code 2, before a
 or any file is written. Ctrl-C (SIGINT) or SIGTERM stops every worker and exits with 130 or 143
 and one line saying what is on disk: no report written (the previous report as it was), or, once
 the new report is in place, the report written (a signal while it replaces the previous one lands
-just after; :func:`main`). The summary table printed at the end
+just after; `main`). The summary table printed at the end
 fits the terminal (80 columns in a pipe or a CI log: then without the per-scenario columns).
 Models load without unpickling anything (``--trust-model`` to allow an SB3 ``.zip``).
 ``--merge DIR DIR ...`` plays no episode: it merges finished reports into
 ``<out>/merged-<hash>/`` once they are checked to be mergeable
-(:mod:`capture_bench.evaluation.merge`), or refuses in one line.
+(`capture_bench.evaluation.merge`), or refuses in one line.
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ from capture_bench.task.scenarios import invalid_scenarios
 if TYPE_CHECKING:
     from rich.table import Table
 
-#: The script's name; the console script shows its own (:func:`capture_bench.argparsing.program`).
+#: The script's name; the console script shows its own (`capture_bench.argparsing.program`).
 PROG = "evaluate.py"
 
 
@@ -500,7 +500,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (0 done, 2 bad input, 130/143 interrupted). An
     interrupt's one line says what is on disk: no report written (a previous one as it was), or
     the report folder written before it came (an interrupt during the replacement lands once the
-    new report is in place: :func:`~capture_bench.evaluation.report.write_report`)."""
+    new report is in place: `write_report`)."""
     from capture_bench.evaluation.report import reports_written
 
     with sigterm_as_interrupt(), reports_written() as written:

@@ -1,14 +1,14 @@
 """Merge reports that ``evaluate.py`` wrote, for example one agent per machine, into one report.
 
-Each folder is read back by :func:`~capture_bench.evaluation.report_folder.read_report`.
-:func:`check_mergeable` refuses reports that did not play the same game: other scenarios or
+Each folder is read back by `read_report`.
+`check_mergeable` refuses reports that did not play the same game: other scenarios or
 scenario files, other seeds, another reference agent, another capture-bench version or git
 commit, or one agent label for another agent (kind, privilege, a model's files);
-:func:`merge_records` refuses an episode (agent, scenario, seed) that two reports hold with other
-values and keeps identical ones once. :func:`plan_merge` puts the episodes in the order one
+`merge_records` refuses an episode (agent, scenario, seed) that two reports hold with other
+values and keeps identical ones once. `plan_merge` puts the episodes in the order one
 evaluation of every agent writes them (agents in order of first appearance, then scenario, then
 seed) and aggregates them as the evaluation does, so the merged tables are those of one
-evaluation of every agent. Every refusal is an :class:`EvaluationError` of one line, raised
+evaluation of every agent. Every refusal is an `EvaluationError` of one line, raised
 before anything is written.
 """
 
@@ -45,7 +45,7 @@ SOURCE_KEYS = ("command", "git", "packages", "machine", "backend", "timing", "me
 
 
 def check_mergeable(reports: Sequence[SourceReport]) -> list[str]:
-    """Refuse (:class:`EvaluationError`, naming the report and the mismatch) reports that did
+    """Refuse (`EvaluationError`, naming the report and the mismatch) reports that did
     not play the same scenario files on the same seeds with the same reference agent and the same
     code (capture-bench version and git commit), or that name one agent differently (kind,
     privileged, a model's file hashes). Returns notes for the user: a source computed with
@@ -152,7 +152,7 @@ def merge_records(reports: Sequence[SourceReport]) -> list[EpisodeRecord]:
     """Every episode of ``reports`` once, in the order one evaluation of all their agents writes
     them: agents in order of first appearance across ``reports``, then scenarios, then seeds in
     the order played. An episode in two reports is kept once if its columns (timing aside) are
-    the same to the last digit; else :class:`EvaluationError` names the two reports, the episode
+    the same to the last digit; else `EvaluationError` names the two reports, the episode
     and a column that differs."""
     kept: dict[EpisodeKey, tuple[EpisodeRecord, SourceReport]] = {}
     for report in reports:
@@ -210,7 +210,7 @@ def merged_agents(reports: Sequence[SourceReport]) -> list[dict[str, Any]]:
 def carried_videos(
     reports: Sequence[SourceReport], data: ReportData, learned: set[str]
 ) -> tuple[list[EpisodeVideo], str]:
-    """The merged report's episodes to watch (:func:`choose_episodes` on the merged ranking),
+    """The merged report's episodes to watch (`choose_episodes` on the merged ranking),
     their GIFs taken from the source reports, and what the provenance says of them. If a source
     report lacks one (its suite had ``videos: false``, or it chose another seed), none is
     shown: the episodes are not played again here."""
@@ -292,12 +292,13 @@ def plan_merge(
     directories: Sequence[Path], out: Path, command: str
 ) -> tuple[ReportData, list[str]]:
     """Read and check the reports in ``directories`` and make their merged report, for
-    :func:`~capture_bench.evaluation.report.write_report` to write into ``out/<suite>/``
-    (``merged-<hash>``, :func:`merged_name`).
+    `write_report` to write into ``out/<suite>/``
+    (``merged-<hash>``, `merged_name`).
 
-    Raises :class:`EvaluationError` (fewer than two folders, one named twice, a folder that is
+    Raises `EvaluationError` (fewer than two folders, one named twice, a folder that is
     no report, a file that cannot be read, reports that cannot be merged) or
-    :class:`~capture_bench.validation.ConfigError` (``out`` cannot be written), before anything
+    [`ConfigError`][capture_bench.validation.ConfigError] (``out`` cannot be written), before
+    anything
     is written.
 
     Returns:

@@ -1,10 +1,10 @@
 """Two sets of episodes on the same seeds, compared seed by seed: the report's paired sections.
 
 A comparison has two sides, A (the baseline) and B, that share everything but one thing: the same
-agent on a scenario and on its rendered twin (:mod:`capture_bench.evaluation.vision`), or two
+agent on a scenario and on its rendered twin (`capture_bench.evaluation.vision`), or two
 agents, one fed by the estimator and one by the camera's pixels, on one scenario
-(:mod:`capture_bench.evaluation.pixel_comparison`). On the seeds evaluated on both sides
-(:func:`compare`; a seed evaluated on one side only is left out and named):
+(`capture_bench.evaluation.pixel_comparison`). On the seeds evaluated on both sides
+(`compare`; a seed evaluated on one side only is left out and named):
 
 * capture rate of each side, Wilson 95% interval;
 * their difference, B minus A: the mean over seeds of (captured by B) - (captured by A), each term
@@ -15,8 +15,8 @@ agents, one fed by the estimator and one by the camera's pixels, on one scenario
 * paired ratio difference: the median over seeds captured by both of (B's ratio - A's ratio),
   bootstrap interval over those seeds; positive is slower on side B.
 
-The intervals are :func:`~capture_bench.evaluation.metrics.bootstrap_estimate`'s and
-:func:`~capture_bench.evaluation.metrics.wilson_interval`'s, as in the rest of the report.
+The intervals are `bootstrap_estimate`'s and
+`wilson_interval`'s, as in the rest of the report.
 """
 
 from __future__ import annotations

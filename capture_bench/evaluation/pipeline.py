@@ -1,8 +1,8 @@
 """Plan an evaluation (validate every input at the edge), run it, write the report.
 
-:func:`plan_evaluation` resolves the suite, scenarios, seeds and agents and raises one of
-:data:`INPUT_ERRORS` on bad input before any episode runs or any file is written;
-:func:`run_evaluation` runs the episodes on the chosen backend and writes ``<out>/<suite>/``.
+`plan_evaluation` resolves the suite, scenarios, seeds and agents and raises one of
+`INPUT_ERRORS` on bad input before any episode runs or any file is written;
+`run_evaluation` runs the episodes on the chosen backend and writes ``<out>/<suite>/``.
 """
 
 from __future__ import annotations
@@ -95,13 +95,13 @@ class EvaluationConfig:
         out: reports are written to ``<out>/<suite>/``.
         episode_plots: if set, per-episode figures of the first seed of every agent x scenario.
         video: if set, animated GIFs of the first ``video_episodes`` seeds of every agent x
-            scenario are written there (:mod:`capture_bench.evaluation.video`).
+            scenario are written there (`capture_bench.evaluation.video`).
         video_episodes: how many seeds of each agent x scenario ``video`` records (>= 1, at most
             the episodes evaluated).
         trust_model: load a model directory that has no safe policy file from its SB3 ``.zip``
             (pickles, which can run code): only for models whose source you trust.
         publish: write the published report, ``reports/published/<suite>/``
-            (:func:`~capture_bench.evaluation.reproduction.published_dir`): only a shipped
+            (`published_dir`): only a shipped
             suite as defined, on the published evaluation seeds, with ``out`` that folder.
             Without it, no output (``out``, ``episode_plots``, ``video``) may lie there.
     """
@@ -216,7 +216,7 @@ def scenario_file(name: str) -> Path:
 
 
 def plan_evaluation(config: EvaluationConfig) -> Plan:
-    """Validate the whole request; raises one of :data:`INPUT_ERRORS` naming what is wrong.
+    """Validate the whole request; raises one of `INPUT_ERRORS` naming what is wrong.
 
     The output folders are checked writable last, so bad input of any kind costs no episode and
     leaves no file."""
@@ -303,7 +303,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
 
 def _check_published_folder(config: EvaluationConfig, suite: Suite, report_name: str) -> None:
     """Only ``--publish`` writes under the published folder, and it publishes only a shipped
-    suite as defined on the published seeds; raises :class:`EvaluationError` otherwise."""
+    suite as defined on the published seeds; raises `EvaluationError` otherwise."""
     published = reproduction.published_dir()
     if not config.publish:
         for option, path in (
@@ -402,7 +402,7 @@ def video_jobs(
     """The report's episodes to watch (if the suite has ``videos``) and ``--video``'s episodes
     (``records`` in ``plan.tasks`` order): their keys (agent, scenario, seed), and the jobs that
     record them, each episode once, by key: ``(task, its length in steps)`` for
-    :func:`record_video`."""
+    `record_video`."""
     played = {(r.agent, r.scenario, r.seed): (t, r) for t, r in zip(plan.tasks, records)}
     watched: list[VideoKey] = []
     if plan.suite.videos:
@@ -424,9 +424,9 @@ def make_report_media(
     data: ReportData, jobs: Sequence[tuple[EpisodeTask, int]], workers: int
 ) -> tuple[list[EpisodeVideo], dict[str, bytes] | None]:
     """The GIFs of ``jobs`` (in their order) and, with several ``workers``, the report's figures:
-    all in a pool of local processes (:func:`~capture_bench.evaluation.backends.map_processes`:
+    all in a pool of local processes (`map_processes`:
     the figures split in groups of about equal cost, then the GIFs, as one list of work), else
-    the GIFs in this process and the figures left for :func:`write_report`. Either way the same
+    the GIFs in this process and the figures left for `write_report`. Either way the same
     bytes: an episode renders, and a figure draws, the same wherever it runs."""
     if workers <= 1:
         return [_report_job(("video", job)) for job in jobs], None
@@ -442,7 +442,7 @@ def make_report_media(
 
 def _report_job(job: tuple[str, Any]) -> Any:
     """One piece of the report's media, a pool's unit of work: ``("video", (task, steps))`` ->
-    :class:`EpisodeVideo`, or ``("figures", (data, names))`` -> {name: PNG bytes}."""
+    `EpisodeVideo`, or ``("figures", (data, names))`` -> {name: PNG bytes}."""
     kind, payload = job
     if kind == "video":
         return record_video(*payload)
@@ -453,7 +453,7 @@ def _report_job(job: tuple[str, Any]) -> Any:
 def summarise_in_pool(
     records: Sequence[EpisodeRecord], reference: str, workers: int
 ) -> list[Summary]:
-    """:func:`~capture_bench.evaluation.aggregate.summarise_all`, with several ``workers`` in a
+    """`summarise_all`, with several ``workers`` in a
     pool of local processes (the cells dealt out in turn to ``2 * workers`` groups: their
     bootstraps are most of the cost), else in this process; the same summaries either way."""
     cells = summary_cells(records, reference)
@@ -478,7 +478,7 @@ def run_evaluation(
     """Run the plan's episodes, aggregate them and write the report.
 
     With the ``process`` backend the GIFs and the figures are made by worker processes
-    (:func:`make_report_media`).
+    (`make_report_media`).
 
     Returns:
         ``(report data, report directory)``.

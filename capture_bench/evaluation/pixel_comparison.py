@@ -3,7 +3,7 @@ estimator, on the same scenario and seeds.
 
 A trained model whose ``observation_source`` is ``pixels`` (the report's provenance says so) sees
 the eye-to-hand camera's image and the arm's state, no estimate. On each scenario it is compared
-seed by seed (:func:`~capture_bench.evaluation.paired.compare`: side A the estimate-fed agent,
+seed by seed (`compare`: side A the estimate-fed agent,
 side B the pixel-fed one) with the report's reference (the paper's incremental_ik) and with every
 trained model fed by the estimator, on the seeds both were evaluated on; a positive Δ capture
 rate is the pixel policy capturing more, a positive paired Δ ratio it being slower.

@@ -5,11 +5,11 @@
 * failures by reason: per scenario, each agent's episodes split into captured and each reason;
 * ratio to the physical limit: per scenario, the distribution of capture time / bound per agent;
 * one episode: distance, estimate error and actions vs time (``--episode-plots``);
-* the summary (:mod:`capture_bench.evaluation.summary`): the agent x scenario heatmap, the
+* the summary (`capture_bench.evaluation.summary`): the agent x scenario heatmap, the
   ranking with intervals, the probability-of-improvement matrix;
-* rliable's performance profiles (:mod:`capture_bench.evaluation.rliable_report`).
+* rliable's performance profiles (`capture_bench.evaluation.rliable_report`).
 
-Every agent has one colour in every figure (:func:`agent_colours`: the Okabe-Ito colour-blind-safe
+Every agent has one colour in every figure (`agent_colours`: the Okabe-Ito colour-blind-safe
 palette in the agents' order), and the reference agent (the paper's controller) is drawn black
 and thicker.
 """
@@ -267,7 +267,7 @@ def improvement_figure(matrix: np.ndarray, agents: Sequence[str]) -> bytes:
 def performance_profile_figure(
     profiles: dict[str, Any], colours: dict[str, str], reference: str | None = None
 ) -> bytes:
-    """rliable's performance profiles (:class:`capture_bench.rliable_stats.Profile` per agent):
+    """rliable's performance profiles (`capture_bench.rliable_stats.Profile` per agent):
     the share of an agent's episodes scoring above each threshold tau, with its 95% stratified
     bootstrap band; the reference emphasised, the legend outside the curves."""
     plt = _pyplot()

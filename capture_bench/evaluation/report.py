@@ -7,7 +7,7 @@ self-contained file, figures embedded as base64 PNG and the episodes to watch as
 GIFs. Everything is written into a temporary directory next to the target and renamed into place
 at the end, so a failed run never leaves a half-written report. The renaming is one step that
 Ctrl-C and SIGTERM do not cut: one that comes during it is raised once the new report is in place,
-and :func:`reports_written` says so to the command, whose message then names the report written.
+and `reports_written` says so to the command, whose message then names the report written.
 """
 
 from __future__ import annotations
@@ -65,9 +65,9 @@ class ReportData:
         records: every episode, in a deterministic order.
         summaries: one per agent x scenario.
         ranking: the overall ranking; a ranking without rank intervals gets them here, from
-            ``records`` (:func:`~capture_bench.evaluation.aggregate.with_rank_intervals`).
+            ``records`` (`with_rank_intervals`).
         provenance: JSON-ready provenance (git, hashes, versions, seeds, timing).
-        videos: the episodes to watch (:mod:`capture_bench.evaluation.watch`), in display order.
+        videos: the episodes to watch (`capture_bench.evaluation.watch`), in display order.
     """
 
     suite: str
@@ -216,7 +216,7 @@ NOT_RANKED_HEADER = ("agent", "scenario", "capture rate", "median ratio to limit
 
 
 def paired_cells(c: Paired, first: str, reference: str) -> list[str]:
-    """One row of a paired table (:mod:`capture_bench.evaluation.paired`), labelled by the
+    """One row of a paired table (`capture_bench.evaluation.paired`), labelled by the
     comparison's attribute ``first``."""
     label = getattr(c, first)
     return [
@@ -234,8 +234,8 @@ def paired_cells(c: Paired, first: str, reference: str) -> list[str]:
 
 def paired_sections(data: ReportData) -> list[PairedSection]:
     """The report's paired sections, where it holds what they compare: rendered against
-    analytic vision (:mod:`capture_bench.evaluation.vision`), pixels against the estimate
-    (:mod:`capture_bench.evaluation.pixel_comparison`)."""
+    analytic vision (`capture_bench.evaluation.vision`), pixels against the estimate
+    (`capture_bench.evaluation.pixel_comparison`)."""
     models = data.provenance.get("config_hashes", {}).get("models", {})
     found = (
         vision.section(data.records),
@@ -374,7 +374,7 @@ def _title(data: ReportData, quote: str) -> str:
 
 def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
     """The leaderboard in Markdown, headed by the command that regenerates it; ``rliable``: the
-    :func:`rliable_numbers` of ``data`` if already computed."""
+    `rliable_numbers` of ``data`` if already computed."""
     stats, why = rliable_numbers(data) if rliable is None else rliable
     lines = [
         f"# capture-bench leaderboard: {_title(data, '`')}",
@@ -459,7 +459,7 @@ def summary_text(data: ReportData) -> str:
 
 
 def rliable_numbers(data: ReportData) -> RliableNumbers:
-    """The section "Aggregate statistics (rliable)" (:mod:`capture_bench.evaluation.rliable_report`)
+    """The section "Aggregate statistics (rliable)" (`capture_bench.evaluation.rliable_report`)
     of ``data``: ``(its numbers, None)``, or ``(None, why the records make no score matrices)``."""
     agents = _agents(data)
     reason = rliable_report.unavailable(data.records, agents)
@@ -493,7 +493,7 @@ def figure_names(data: ReportData) -> list[str]:
 
 
 def figures(data: ReportData, names: Sequence[str] | None = None) -> dict[str, bytes]:
-    """Render the figures ``names`` (default every one, :func:`figure_names`): file name -> PNG
+    """Render the figures ``names`` (default every one, `figure_names`): file name -> PNG
     bytes; one colour per agent throughout. Each figure depends on ``data`` alone, so any split
     of the names draws the same bytes."""
     wanted = figure_names(data) if names is None else list(names)
@@ -533,7 +533,7 @@ def figures(data: ReportData, names: Sequence[str] | None = None) -> dict[str, b
 
 
 def figure_groups(data: ReportData, groups: int) -> list[list[str]]:
-    """:func:`figure_names` in ``groups`` lists of about equal drawing time, to draw in as many
+    """`figure_names` in ``groups`` lists of about equal drawing time, to draw in as many
     processes: the costliest figures (the ratio box plots, the performance profile with rliable's
     import and bootstrap, the probability of improvement and its bootstrap, the failure bars) each
     lead a group, the others dealt round."""
@@ -577,7 +577,7 @@ def html_page(
     data: ReportData, images: dict[str, bytes], rliable: RliableNumbers | None = None
 ) -> str:
     """The leaderboard as one self-contained HTML page (images inlined as base64); ``rliable``:
-    the :func:`rliable_numbers` of ``data`` if already computed."""
+    the `rliable_numbers` of ``data`` if already computed."""
     esc = html.escape
     stats, why = rliable_numbers(data) if rliable is None else rliable
     parts = [
@@ -636,8 +636,8 @@ def _write_csv(path: Path, columns: Sequence[str], rows: list[dict[str, Any]]) -
 
 
 def read_episodes(path: Path) -> list[EpisodeRecord]:
-    """The records of an ``episodes.csv`` that :func:`write_report` wrote, in the file's order,
-    every field as written (:meth:`EpisodeRecord.from_row`). Raises :class:`EvaluationError`
+    """The records of an ``episodes.csv`` that `write_report` wrote, in the file's order,
+    every field as written (`EpisodeRecord.from_row`). Raises `EvaluationError`
     naming the file, and the line and column, where it cannot be read."""
     try:
         with open(path, newline="") as handle:
@@ -697,13 +697,13 @@ def _sanitise(o: Any) -> Any:
     return json_value(o)
 
 
-#: The lists of the :func:`reports_written` blocks open, innermost last.
+#: The lists of the `reports_written` blocks open, innermost last.
 _WRITTEN: list[list[Path]] = []
 
 
 @contextlib.contextmanager
 def reports_written() -> Iterator[list[Path]]:
-    """Within the block, the list it yields gains each report directory :func:`write_report`
+    """Within the block, the list it yields gains each report directory `write_report`
     puts in place, as it is put there: what a command stopped by an interrupt has written."""
     written: list[Path] = []
     _WRITTEN.append(written)
@@ -716,13 +716,13 @@ def reports_written() -> Iterator[list[Path]]:
 def write_report(data: ReportData, out_dir: Path, images: dict[str, bytes] | None = None) -> Path:
     """Write the report into ``out_dir/<suite>/`` atomically; returns that directory.
 
-    ``images``: the :func:`figures` of ``data`` if already drawn (they are drawn here if not).
+    ``images``: the `figures` of ``data`` if already drawn (they are drawn here if not).
 
     The files are written into a temporary sibling directory that replaces the target only once
     complete; on any error the temporary directory is removed and the old report (if any) stays.
     The replacement (the old report moved aside, the new one renamed into place, the old one
     removed) is not cut by Ctrl-C or SIGTERM (in the main thread): one that comes during it is
-    raised as it ends, with the new report in place and in :func:`reports_written`'s lists.
+    raised as it ends, with the new report in place and in `reports_written`'s lists.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

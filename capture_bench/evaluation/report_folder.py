@@ -1,9 +1,9 @@
-"""A report folder that ``evaluate.py`` wrote, read back: :func:`read_report`.
+"""A report folder that ``evaluate.py`` wrote, read back: `read_report`.
 
-Its episodes come from ``episodes.csv`` (:func:`~capture_bench.evaluation.report.read_episodes`,
+Its episodes come from ``episodes.csv`` (`read_episodes`,
 every field exact), what they were played on from ``results.json``'s provenance; the fields a
-merge (:mod:`capture_bench.evaluation.merge`) reads are checked for their types, and the episodes
-against the agents and seeds the provenance names. Anything else is an :class:`EvaluationError`
+merge (`capture_bench.evaluation.merge`) reads are checked for their types, and the episodes
+against the agents and seeds the provenance names. Anything else is an `EvaluationError`
 of one line naming the file.
 """
 
@@ -76,7 +76,7 @@ class SourceReport:
 
 
 def read_report(directory: Path) -> SourceReport:
-    """The report in ``directory``; raises :class:`EvaluationError` if it is no report that
+    """The report in ``directory``; raises `EvaluationError` if it is no report that
     ``evaluate.py`` wrote or a file of it cannot be read."""
     directory = Path(directory)
     if not directory.is_dir():

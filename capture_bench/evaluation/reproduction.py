@@ -1,9 +1,9 @@
 """A run of a suite beside its published report: which published values it reproduces.
 
-The published leaderboard lives in ``reports/published/<suite>/`` (:func:`published_dir`) and is
+The published leaderboard lives in ``reports/published/<suite>/`` (`published_dir`) and is
 written only by ``python evaluate.py --publish``; a user's ``python evaluate.py`` writes its own
 report and ends with this comparison. For every agent x scenario both reports hold, each of
-:data:`METRICS` is checked: the published value is **reproduced** where it lies inside the run's
+`METRICS` is checked: the published value is **reproduced** where it lies inside the run's
 95% interval for it (the interval the report prints: Wilson's for the capture rate, the
 bootstrap's for the median ratio), and every other value is named with both numbers. Episodes
 are compared seed by seed too: on the kind of machine that made the published report every
@@ -11,8 +11,8 @@ episode agrees bit for bit; on another CPU the last bits of the floats differ an
 knife edge can end the other way (docs/evaluation.md, Reproducibility), which the intervals
 absorb.
 
-:func:`read_published` reads a report folder (``None`` where there is none, or it cannot be
-read); :func:`compare` needs no file, so the rule is tested on planted differences.
+`read_published` reads a report folder (``None`` where there is none, or it cannot be
+read); `compare` needs no file, so the rule is tested on planted differences.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def json_number(value: Any) -> float:
 
 
 def _key(provenance: Mapping[str, Any]) -> dict[str, Any]:
-    """A report's :func:`~capture_bench.provenance.reproduction_key`."""
+    """A report's `reproduction_key`."""
     return reproduction_key(provenance.get("machine") or {}, provenance.get("packages") or {})
 
 
@@ -154,7 +154,7 @@ class Comparison:
         published: the published folder, as messages name it.
         published_machine: the machine that made it, in words.
         same_machine_kind: this run was made on the same kind of machine, with the same
-            numerical packages (:func:`reproduction_key`): its episodes should agree bit for bit.
+            numerical packages (`reproduction_key`): its episodes should agree bit for bit.
         same_code: both were made at the same commit, from clean checkouts.
         checks: every compared value.
         only_published: agent x scenario cells the run did not play, ``agent on scenario``.

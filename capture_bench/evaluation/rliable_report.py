@@ -1,6 +1,6 @@
 """The report's section "Aggregate statistics (rliable)": each agent's per-episode scores as
 rliable score matrices, and their IQM, optimality gap, mean, performance profile and probability
-of improvement over the reference (:mod:`capture_bench.rliable_stats`, Agarwal et al. 2021).
+of improvement over the reference (`capture_bench.rliable_stats`, Agarwal et al. 2021).
 
 The unit of replication is the episode: the leaderboard evaluates one model per agent, so an
 agent's score matrix has one row per published seed and one column per scenario (episodes x
@@ -8,7 +8,7 @@ scenarios; row i holds the i-th seed, in increasing order, of each scenario), an
 resamples the seeds within each scenario (stratified by scenario). rliable's matrix is
 rectangular, so the section needs every agent to have played every scenario of the report on
 the same number of seeds in each; where that does not hold it says why instead of the table.
-An episode's score is :func:`capture_bench.task.score.episode_score`.
+An episode's score is `capture_bench.task.score.episode_score`.
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def compute(
     """The section's numbers (module docstring); ``reps`` resamples of numpy seed ``seed``.
 
     Raises:
-        ValueError: the records do not make rectangular matrices (:func:`unavailable`).
+        ValueError: the records do not make rectangular matrices (`unavailable`).
         rliable_stats.RliableMissing: rliable is not installed.
     """
     matrices, scenarios = score_matrices(records, agents)

@@ -1,13 +1,14 @@
-"""Episodes of one agent -> one :class:`EpisodeRecord` each.
+"""Episodes of one agent -> one `EpisodeRecord` each.
 
-:func:`run_episodes` plays N episodes of one agent together in a
-:class:`~capture_bench.envs.vector_env.CaptureVectorEnv` with autoreset off, one ``predict`` call
+`run_episodes` plays N episodes of one agent together in a
+[`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] with autoreset off, one
+``predict`` call
 per step for all of them (an agent that handles one observation at a time gets one instance per
-episode instead); :func:`run_episode` plays one in a single ``CaptureEnv`` (the privileged oracle,
+episode instead); `run_episode` plays one in a single ``CaptureEnv`` (the privileged oracle,
 sampled policies, rendered videos). Both follow Stable-Baselines3's ``evaluate_policy``:
 ``reset(seed)``, then ``predict`` / ``step`` until ``terminated or truncated``, and both make the
 record from the environment's ``info`` alone (see ``docs/architecture.md``), by
-:class:`_EpisodeLog`, so an episode's record is the same whichever way it ran (tested).
+`_EpisodeLog`, so an episode's record is the same whichever way it ran (tested).
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ class EpisodeRecord:
         relative_speed_max_over_hold: the largest instantaneous relative speed over the hold,
             from the captured stay's entry to the capture (with hold 0 it is
             ``relative_speed_at_capture``), m/s, sampled along each step as
-            :meth:`~capture_bench.task.step_rule.StepRule.capture_times` says; NaN if failed.
+            `capture_times` says; NaN if failed.
         position_rmse: RMS over steps of the estimated target position error, m.
         velocity_rmse: RMS over steps of the estimated target velocity error, m/s.
         mean_nees: mean over steps of the 6-dof position/velocity NEES (NaN steps skipped).
@@ -105,8 +106,8 @@ class EpisodeRecord:
 
     @classmethod
     def from_row(cls, row: Mapping[str, str | None]) -> EpisodeRecord:
-        """The record of one ``episodes.csv`` row as :class:`csv.DictReader` reads it: the inverse
-        of :meth:`as_row` written through ``report.csv_value`` (floats in repr, NaN as an empty
+        """The record of one ``episodes.csv`` row as `csv.DictReader` reads it: the inverse
+        of `as_row` written through ``report.csv_value`` (floats in repr, NaN as an empty
         cell), every field exact. Raises ValueError naming a missing or unreadable column."""
         values: dict[str, Any] = {}
         for name, kind in _FIELD_TYPES.items():
@@ -293,12 +294,13 @@ def run_episode(
 
     Args:
         env: a ``CaptureEnv`` (possibly wrapped, e.g. by ``TimeLimit``).
-        agent: anything following :class:`capture_bench.agents.protocol.Agent`.
+        agent: anything following
+        [`capture_bench.agents.protocol.Agent`][capture_bench.agents.protocol.Agent].
         agent_name: label stored in the record.
         scenario: scenario name stored in the record.
         seed: passed to ``env.reset(seed=seed)``, and to ``agent.seed`` if the agent has one.
         deterministic: passed to ``agent.predict``.
-        trace: also return the per-step :class:`EpisodeTrace`.
+        trace: also return the per-step `EpisodeTrace`.
 
     Returns:
         ``(record, trace or None)``.
@@ -334,7 +336,7 @@ def run_episode(
     return record, log.trace()
 
 
-#: ``info`` keys an episode's record gathers every step (:meth:`_EpisodeLog.add_estimates`).
+#: ``info`` keys an episode's record gathers every step (`_EpisodeLog.add_estimates`).
 _LOGGED = ("estimate_position_error", "estimate_velocity_error", "estimate_nees", "saturated")
 
 
@@ -350,7 +352,8 @@ def run_episodes(
     """Run N episodes of one agent together and summarise each.
 
     Args:
-        env: a :class:`~capture_bench.envs.vector_env.CaptureVectorEnv` of N = ``len(seeds)``
+        env: a [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] of N =
+        ``len(seeds)``
             sub-envs with autoreset off (an ended sub-env stays ended).
         agent: one agent whose ``batched`` is true, asked once per step with every episode's
             observation, (N, 16), row i for episode i (an ended episode's row holds its last
@@ -365,7 +368,7 @@ def run_episodes(
         deterministic: passed to ``predict``.
 
     Returns:
-        One record per seed, in order, each equal to :func:`run_episode`'s for that seed but for
+        One record per seed, in order, each equal to `run_episode`'s for that seed but for
         the timing columns: the batch's wall-clock and CPU time, shared between its episodes in
         proportion to their steps.
     """

@@ -1,4 +1,4 @@
-"""Leaderboard suites: YAML files under ``configs/suites/`` validated once into :class:`Suite`.
+"""Leaderboard suites: YAML files under ``configs/suites/`` validated once into `Suite`.
 
 A suite file::
 
@@ -11,7 +11,7 @@ A suite file::
 
 The suite's name is its file stem, and its report goes to ``<out>/<name>/``; a suite file given
 by path whose stem names a shipped suite but which is not that suite's file (``my/default.yaml``)
-is named ``custom-<hash>`` instead (:func:`shadowed_suite`), so that ``reports/default/`` only
+is named ``custom-<hash>`` instead (`shadowed_suite`), so that ``reports/default/`` only
 ever holds the shipped suite. Scenario and agent names are checked against what exists when
 the evaluation is planned; this module checks the file's shape and types.
 """
@@ -39,8 +39,8 @@ class Suite:
 
     Attributes:
         name: the file stem (``default``, ``quick``), or ``custom-<hash>`` for a narrowed
-            selection (:func:`narrow`) or a file named like a shipped suite that is not it
-            (:func:`shadowed_suite`); reports go to ``reports/<name>/``.
+            selection (`narrow`) or a file named like a shipped suite that is not it
+            (`shadowed_suite`); reports go to ``reports/<name>/``.
         description: one line for people.
         agents: agent specs, in report order.
         scenarios: scenario names, in report order; ``("all",)`` means every shipped scenario
@@ -51,7 +51,7 @@ class Suite:
         path: the file it came from.
         sha256: hash of the file's bytes (provenance).
         videos: the report shows, for each scenario, the reference and the best-ranked trained
-            model on one seed as animated GIFs (:mod:`capture_bench.evaluation.watch`); they are
+            model on one seed as animated GIFs (`capture_bench.evaluation.watch`); they are
             run again with rendering after the evaluation.
         reference_given: the file names its ``reference`` (then it must be one of the file's
             agents, checked where they are resolved); without it the reference is
@@ -107,7 +107,7 @@ def shadowed_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> s
 
 def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite:
     """Load and validate a shipped suite by name, or any suite YAML by path (named
-    ``custom-<hash of the file>`` where :func:`shadowed_suite` says it would pass for a shipped
+    ``custom-<hash of the file>`` where `shadowed_suite` says it would pass for a shipped
     suite)."""
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):

@@ -2,20 +2,20 @@
 plot and the probability-of-improvement matrix at the top of the HTML show, as numbers.
 
 * **heatmap**: agent x scenario, the capture rate and the median ratio to the physical limit of
-  each cell (the same :class:`~capture_bench.evaluation.aggregate.Summary` figures as the
+  each cell (the same `Summary` figures as the
   tables);
 * **ranking with intervals**: each agent's mean capture rate over the ranked scenarios (the
   ranking's number) with a 95% percentile-bootstrap interval, resampling the published seeds
   within each scenario, the same resample for every agent (paired), beside its 95% rank interval
-  and its tie group (:func:`capture_bench.evaluation.aggregate.with_rank_intervals`: an agent is
+  and its tie group (`capture_bench.evaluation.aggregate.with_rank_intervals`: an agent is
   tied with the agent ranked just above it when their rank intervals overlap);
 * **probability of improvement** P(X > Y), rliable's definition (Agarwal et al. 2021): per
   scenario, the Mann-Whitney U statistic of X's episode scores against Y's over n * m (ties count
-  1/2: :func:`mann_whitney_u`, ``scipy.stats.mannwhitneyu``'s statistic), averaged over
-  scenarios. An episode's score (:func:`capture_bench.task.score.episode_score`) is physical
+  1/2: `mann_whitney_u`, ``scipy.stats.mannwhitneyu``'s statistic), averaged over
+  scenarios. An episode's score (`capture_bench.task.score.episode_score`) is physical
   limit / capture time, in (0, 1], and 0 for a failure, so a capture beats a failure and a
   faster capture a slower one. rliable's own statistics of the same scores, with intervals, are
-  a section of the report (:mod:`capture_bench.evaluation.rliable_report`).
+  a section of the report (`capture_bench.evaluation.rliable_report`).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def _by_cell(records: Sequence[EpisodeRecord]) -> dict[tuple[str, str], dict[int
 
 
 def score(record: EpisodeRecord) -> float:
-    """The episode's score (:func:`capture_bench.task.score.episode_score`): physical limit /
+    """The episode's score (`capture_bench.task.score.episode_score`): physical limit /
     capture time for a capture with a finite positive bound (1 where the bound is not finite: a
     capture the bound says is impossible counts as fastest), 0 for a failure."""
     return episode_score(record.outcome == "captured", record.ratio)

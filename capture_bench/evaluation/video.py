@@ -1,17 +1,17 @@
 """Episodes on video: one evaluation episode, rendered by pybullet, as an animated GIF.
 
-An episode is recorded through the evaluation's own path: :func:`backends.run_task` (the agent
+An episode is recorded through the evaluation's own path: `backends.run_task` (the agent
 resolved and built as for the tables, seeded with the episode's seed, ``reset(seed=seed)``, then
-``predict``/``step`` by :func:`rollout.run_episode`) on an environment of the same scenario with
-``reuse_target_side``, which differs from a worker's only in rendering at :data:`FRAME_SIZE`. So a
+``predict``/``step`` by `rollout.run_episode`) on an environment of the same scenario with
+``reuse_target_side``, which differs from a worker's only in rendering at `FRAME_SIZE`. So a
 video shows the episode of ``episodes.csv`` with that seed, and its record equals the table's row
 (``tests/test_video.py``).
 
 Each frame is pybullet's image with the target's trace (red) and the end-effector's (blue) drawn
-over it (:meth:`CaptureEnv.render`), under a caption: agent, scenario, seed, the simulated time,
+over it (`CaptureEnv.render`), under a caption: agent, scenario, seed, the simulated time,
 and on the last frame the outcome. Pillow writes the GIF: one palette for every frame (no
-flicker, small files), played at :data:`SPEED` x real time, the last frame held :data:`HOLD_S` s.
-An episode of more than :data:`MAX_FRAMES` steps shows every k-th step (and the last).
+flicker, small files), played at `SPEED` x real time, the last frame held `HOLD_S` s.
+An episode of more than `MAX_FRAMES` steps shows every k-th step (and the last).
 """
 
 from __future__ import annotations
@@ -121,7 +121,7 @@ def record_video(
     Args:
         task: agent spec, scenario, seed (as evaluated).
         steps: the episode's length if known (its ``episodes.csv`` row), to thin the frames of a
-            long episode to :data:`MAX_FRAMES`; None renders every step.
+            long episode to `MAX_FRAMES`; None renders every step.
         size: frame (width, height), pixels.
     """
     env = make_env(
@@ -145,9 +145,9 @@ def record_video(
 
 
 def _durations_ms(times: Sequence[float], fps: float = 20.0) -> list[int]:
-    """Display time of each frame, ms: the simulated time to the next frame over :data:`SPEED`
+    """Display time of each frame, ms: the simulated time to the next frame over `SPEED`
     (1/fps where unknown), in the GIF's 10 ms units, at least 20 ms (browsers show shorter
-    delays as 100 ms); the last frame :data:`HOLD_S`."""
+    delays as 100 ms); the last frame `HOLD_S`."""
     out = []
     for now, after in zip(times[:-1], times[1:]):
         seconds = (after - now) if math.isfinite(after - now) and after > now else 1.0 / fps
@@ -192,7 +192,7 @@ def gif_bytes(images: Sequence[Any], durations_ms: Sequence[int]) -> bytes:
 
 
 def write_videos(videos: Sequence[EpisodeVideo], directory: Path) -> list[Path]:
-    """Write each video's GIF into ``directory`` (created) as its :attr:`EpisodeVideo.file_name`,
+    """Write each video's GIF into ``directory`` (created) as its `EpisodeVideo.file_name`,
     each file whole; returns the paths."""
     directory.mkdir(parents=True, exist_ok=True)
     paths = []

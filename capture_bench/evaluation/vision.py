@@ -7,7 +7,7 @@ hide them), and both have the same published evaluation seeds: seed s is then th
 both, and the two episodes of an agent on seed s differ only in the vision.
 
 Each agent evaluated on both scenarios of a pair is compared on the seeds it was evaluated on in
-both (:func:`~capture_bench.evaluation.paired.compare`: side A the analytic scenario, side B the
+both (`compare`: side A the analytic scenario, side B the
 rendered one, so a positive paired difference in ratio is slower with rendered vision).
 """
 
@@ -73,7 +73,7 @@ def vision_comparisons(
 
     Args:
         records: the report's episodes.
-        pairs: the (analytic, rendered) scenario pairs; None for :func:`rendered_twins` of the
+        pairs: the (analytic, rendered) scenario pairs; None for `rendered_twins` of the
             scenarios in ``records``.
     """
     if pairs is None:

@@ -5,7 +5,7 @@ learned agent ranked highest in the overall ranking (a trained model), on one se
 evaluated seed on which the reference captured, or the first seed if it captured on none. Without
 a trained model in the run only the reference is shown; without the reference, the best-ranked
 model on the first seed it captured. The videos themselves are made by
-:mod:`capture_bench.evaluation.video`; this module only chooses and lays them out.
+`capture_bench.evaluation.video`; this module only chooses and lays them out.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def choose_episodes(
     reference: str,
     learned: Collection[str],
 ) -> list[Watch]:
-    """One :class:`Watch` per scenario, in report order (none if no agent is watched).
+    """One `Watch` per scenario, in report order (none if no agent is watched).
 
     Args:
         records: every episode of the run (each agent's seeds in evaluation order).

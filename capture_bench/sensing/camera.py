@@ -8,7 +8,7 @@ Frames (see ``docs/architecture.md``):
 * Image-plane coordinates are metres ``(x_m, z_m)`` (divide by the pixel pitch for pixels); x_m
   runs along the camera x-axis (sensor width), z_m along the camera z-axis (sensor height).
 
-:class:`CameraModel` is the pure geometry; :class:`Camera` is the sensor that adds noise, drop-out
+`CameraModel` is the pure geometry; `Camera` is the sensor that adds noise, drop-out
 and latency, drawing every random number from the generator it is given.
 """
 
@@ -42,7 +42,7 @@ def project_points(points_cam: ArrayLike, focal_length: float) -> FloatArray:
 
     Returns:
         Image-plane coordinates ``[x_m, z_m]``, metres, shape (N, 2). Points at or behind the lens
-        give meaningless (possibly infinite) values; test them with :meth:`CameraModel.in_front`.
+        give meaningless (possibly infinite) values; test them with `CameraModel.in_front`.
     """
     p = np.asarray(points_cam, dtype=float)
     scale = -focal_length / (p[:, 1] - focal_length)  # eq. 2
@@ -137,7 +137,7 @@ class CameraModel:
 
     def visible(self, points_cam: ArrayLike, margin: float = 0.0) -> NDArray[np.bool_]:
         """(N,) True where a camera-frame point is in front of the lens and lands on the sensor
-        (within ``margin``, see :meth:`on_sensor`)."""
+        (within ``margin``, see `on_sensor`)."""
         p = np.asarray(points_cam, dtype=float)
         front = self.in_front(p)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -250,7 +250,7 @@ class Camera:
     def capture_sequence(
         self, points_global: FloatArray, rng: np.random.Generator
     ) -> tuple[FloatArray, NDArray[np.bool_]]:
-        """:meth:`capture` called once for each of T instants, from a camera just reset: the
+        """`capture` called once for each of T instants, from a camera just reset: the
         same random draws in the same order, the geometry vectorised over the instants.
 
         Args:
@@ -259,7 +259,7 @@ class Camera:
 
         Returns:
             ``images`` (T, N, 2): the frame delivered at each call, metres, NaN where
-            :meth:`capture` returns None; ``visible`` (T,): :attr:`last_visible` after each call.
+            `capture` returns None; ``visible`` (T,): `last_visible` after each call.
         """
         if self._count or self._pipeline:
             raise RuntimeError("capture_sequence needs a camera just reset (call reset() first)")

@@ -1,6 +1,6 @@
 """Find the four coloured markers in a rendered image: their pixel centroids, or why not.
 
-Per marker colour (:data:`capture_bench.sim.markers.MARKER_COLOURS`):
+Per marker colour (`capture_bench.sim.markers.MARKER_COLOURS`):
 
 1. **Threshold in HSV.** A pixel belongs to the marker when its hue is within
    ``HUE_TOLERANCE_DEG`` of the marker's, its saturation is at least ``MIN_SATURATION`` and its
@@ -8,10 +8,10 @@ Per marker colour (:data:`capture_bench.sim.markers.MARKER_COLOURS`):
    hue and saturation unchanged, so the threshold holds on the lit and the shaded side alike; the
    greys of the arm, floor, target block and background have saturation <= 0.08 and the arm's
    blue and orange are >= 32 deg of hue from every marker (the table in
-   :mod:`capture_bench.sim.markers`).
+   `capture_bench.sim.markers`).
 2. **Connected components** (8-connected) of that mask; the largest is the marker.
 3. **Centroid**: the mean of the component's pixel coordinates, i.e. its binary image moments
-   ``(m10 / m00, m01 / m00)``, in the pixel convention of :mod:`capture_bench.sensing.pixels`
+   ``(m10 / m00, m01 / m00)``, in the pixel convention of `capture_bench.sensing.pixels`
    (integers at pixel centres). Binary, not intensity-weighted: shading would pull a weighted
    centroid toward the lit side.
 
@@ -41,7 +41,7 @@ fragments left of mostly hidden markers (fill 0.1-0.45, centroids 10-15 px off) 
 markers whose centroid is off by more than ~1.3 px at the default distance; the fill is only good
 to a few per cent, so a sliver hidden off the edge of a marker (< ~8 % of it) can pass and bias its
 centroid by up to ~1.3 px. Geometry can tell when that may happen
-(:func:`capture_bench.sensing.occlusion.hidden_markers`).
+(`capture_bench.sensing.occlusion.hidden_markers`).
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ class Detections:
     """The detector's answer for one image.
 
     Attributes:
-        pixels: centroids ``[u, v]`` in full-frame pixels (:mod:`capture_bench.sensing.pixels`),
+        pixels: centroids ``[u, v]`` in full-frame pixels (`capture_bench.sensing.pixels`),
             shape (N, 2), NaN where a marker is missing.
         areas: area of each marker's largest blob, pixels, shape (N,) (0 when there is none;
             reported for missing markers too).
@@ -187,7 +187,7 @@ def detect_markers(
 
     Args:
         image: RGB, uint8, shape (H, W, 3): a full frame or a window of one
-            (:func:`capture_bench.sensing.render_camera.render_frame`).
+            (`capture_bench.sensing.render_camera.render_frame`).
         model: the camera that took it, for the fill test; None skips that test.
         origin: ``(u0, v0)``, the full-frame pixel of the image's top-left pixel (a window's);
             added to the centroids.
@@ -197,7 +197,7 @@ def detect_markers(
             fill test).
 
     Returns:
-        :class:`Detections` with N = len(bands).
+        `Detections` with N = len(bands).
     """
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3:

@@ -10,14 +10,14 @@ give ``R_ct = Rz Ry Rx``, radians. Constant-velocity model per coordinate (eqs. 
 white acceleration noise ``omega`` with covariance ``Q = diag(sigma_a^2 x3, sigma_alpha^2 x3)``;
 filterpy's process noise is ``B Q B^T``. Measurement (eq. 6): the image points of the four feature
 points by eq. 2, flattened as (x_m1, z_m1, ..., x_m4, z_m4), with noise ``R = sigma_m^2 I_8``;
-``H`` is the analytic Jacobian (:func:`capture_bench.sensing.photogrammetry.project_pose`, on the
+``H`` is the analytic Jacobian (`capture_bench.sensing.photogrammetry.project_pose`, on the
 feature points' projection table, computed once); h and H come from one evaluation per update and
 are written into arrays the filter owns. The filter equations (eq. 7) are those of filterpy's
 ``ExtendedKalmanFilter.predict`` and ``update``, run by
-:class:`~capture_bench.sensing.lean_ekf.LeanExtendedKalmanFilter`, a subclass that computes them
+`LeanExtendedKalmanFilter`, a subclass that computes them
 with fewer numpy calls (tests check it against filterpy's own methods step for step). That module,
 and so filterpy (whose import pulls in ``scipy.stats``: ~0.6 s), is imported when the first
-:class:`TargetEKF` is built: the batched estimator (:mod:`capture_bench.sensing.estimator_batch`),
+`TargetEKF` is built: the batched estimator (`capture_bench.sensing.estimator_batch`),
 which training runs on, uses this module's model and never needs it.
 """
 
@@ -155,7 +155,7 @@ class TargetEKF:
         Args:
             pose: (x, y, z, theta_x, theta_y, theta_z), metres and radians (e.g. photogrammetry).
             covariance: prior P0 (12, 12) in state order; default
-                :func:`default_initial_covariance` (large velocity variance).
+                `default_initial_covariance` (large velocity variance).
         """
         x = np.zeros(12)
         x[POSE_INDEX] = np.asarray(pose, dtype=float)
@@ -229,8 +229,8 @@ class TargetEKF:
         """H = dh/dX (2N, 12) at a state X (12,), the callback the filter's update calls first.
 
         Metres of image per metre / radian of state; the rate columns (odd) are zero. Returns the
-        EKF's own array (overwritten by the next call); also sets :attr:`prior_in_front` and
-        caches h(X) for :meth:`measure` at the same state object.
+        EKF's own array (overwritten by the next call); also sets `prior_in_front` and
+        caches h(X) for `measure` at the same state object.
         """
         h, jt, depth = project_pose(x.tolist()[0::2], self._table)
         self.prior_in_front = bool(depth.min() > 0.0)
@@ -242,8 +242,8 @@ class TargetEKF:
     def measure(self, x: FloatArray) -> FloatArray:
         """h(X) of eq. 6 at a state X (12,): image points (2N,) of the feature points, metres.
 
-        The filter's update calls it after :meth:`jacobian`; at that same state object it returns
-        the cached array (the EKF's own, overwritten by the next :meth:`jacobian`).
+        The filter's update calls it after `jacobian`; at that same state object it returns
+        the cached array (the EKF's own, overwritten by the next `jacobian`).
         """
         if x is self._hx_for:
             return self._hx
@@ -252,7 +252,7 @@ class TargetEKF:
     # -- read-out -----------------------------------------------------------------------------
     @property
     def x(self) -> FloatArray:
-        """X (12,), the filter's own array (read only; :meth:`initialise` or :meth:`set_state`
+        """X (12,), the filter's own array (read only; `initialise` or `set_state`
         sets it)."""
         return self._kf.x
 
@@ -263,14 +263,14 @@ class TargetEKF:
 
     @property
     def F(self) -> FloatArray:
-        """F (12, 12), the state transition A of eq. 3 for the dt of the last :meth:`predict`
+        """F (12, 12), the state transition A of eq. 3 for the dt of the last `predict`
         (identity before any), the filter's own array (read only)."""
         return self._kf.F
 
     @property
     def Q(self) -> FloatArray:
         """Q = B diag(sigma_a^2 (x3), sigma_alpha^2 (x3)) B' (12, 12) for the dt of the last
-        :meth:`predict` (identity before any), the filter's own array (read only)."""
+        `predict` (identity before any), the filter's own array (read only)."""
         return self._kf.Q
 
     @property

@@ -3,7 +3,7 @@
 Three sources, chosen by name:
 
 * ``"ekf"`` (the paper): the first frame whose photogrammetry solution is accepted initialises the
-  :class:`~capture_bench.sensing.ekf.TargetEKF` (that step reports the photogrammetry position, zero
+  `TargetEKF` (that step reports the photogrammetry position, zero
   velocity and the prior covariance); afterwards each step is ``predict(dt)`` then ``update`` with
   the frame (a missing frame is a predict-only step). A frame in which some feature points
   were not found (the rendered camera's; NaN rows) updates with the points seen, or is a
@@ -50,7 +50,7 @@ from capture_bench.sensing.sources import SOURCES
 FloatArray = NDArray[np.float64]
 
 STATUSES = ("ok", "predicting", "initialising", "diverged")
-#: What the EKF does with a frame missing some feature points (see :class:`TargetEstimator`).
+#: What the EKF does with a frame missing some feature points (see `TargetEstimator`).
 PARTIAL_FRAME_RULES = ("update", "predict")
 NIS_LIMIT = 100.0
 DIVERGENCE_FRAMES = 5
@@ -113,9 +113,9 @@ class TargetEstimator:
     """Turns camera frames into a global-frame estimate of the capture point, one episode's.
 
     The ``"ekf"`` source for many episodes at once is
-    :class:`~capture_bench.sensing.estimator_batch.BatchedTargetEstimator` (tested equal to this
+    `BatchedTargetEstimator` (tested equal to this
     one step for step); this one stays for a single episode, where it is ~4x faster than the
-    batched filter at n = 1 (figures in :mod:`capture_bench.sensing.estimator_batch`).
+    batched filter at n = 1 (figures in `capture_bench.sensing.estimator_batch`).
 
     Args:
         camera_model: the (fixed) camera's geometry.
@@ -192,7 +192,7 @@ class TargetEstimator:
             true_velocity: true capture point velocity, global, m/s, (3,); "truth" source only.
 
         Returns:
-            The :class:`TargetEstimate` in the global frame.
+            The `TargetEstimate` in the global frame.
         """
         if dt < 0:
             raise ValueError(f"dt must be >= 0, got {dt}")
@@ -233,7 +233,7 @@ class TargetEstimator:
                 the cold multi-start.
 
         Returns:
-            The accepted :class:`PoseSolution` (pose in the camera frame), or None.
+            The accepted `PoseSolution` (pose in the camera frame), or None.
         """
         f = self.camera_model.focal_length
         sol = solve_pose(image, self.feature_points, f, guess)
@@ -265,7 +265,7 @@ class TargetEstimator:
 
     def _update_ekf_partial(self, image: FloatArray, dt: float) -> TargetEstimate:
         """An EKF step with some feature points not seen (NaN rows): a running filter updates
-        with the seen ones (:meth:`TargetEKF.update`); photogrammetry, which needs every point,
+        with the seen ones (`TargetEKF.update`); photogrammetry, which needs every point,
         cannot (re)initialise from such a frame."""
         if not self.ekf.initialised or self.diverged:
             return self._try_initialise(None, "diverged" if self.diverged else "initialising")

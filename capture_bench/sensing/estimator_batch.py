@@ -1,12 +1,12 @@
 """n independent ``TargetEstimator(source="ekf")`` stepped together with stacked numpy arrays.
 
-The batched twin of :class:`capture_bench.sensing.estimator.TargetEstimator` with the ``"ekf"``
-source, for a vectorised environment: env i of :meth:`BatchedTargetEstimator.update` gets exactly
+The batched twin of `capture_bench.sensing.estimator.TargetEstimator` with the ``"ekf"``
+source, for a vectorised environment: env i of `BatchedTargetEstimator.update` gets exactly
 what env i would get from its own estimator fed the same frames and periods (tests check it step by
 step, to rounding): the same initialisation from an accepted cold photogrammetry solve, predict(dt)
 then update, predict-only without a frame, divergence rules, re-initialisation, Euler-angle
 wrapping, global-frame output (eqs. 11-12) and status. The rules and constants come from
-:mod:`capture_bench.sensing.estimator` and :mod:`capture_bench.sensing.ekf`; see their docstrings.
+`capture_bench.sensing.estimator` and `capture_bench.sensing.ekf`; see their docstrings.
 
 Why two filters: each is the faster where it runs. Per episode and update, this one costs 22 us
 at n = 16 and 6.3 us at n = 64 (recordings, ``CaptureVectorEnv``), but 272 us at n = 1, where
@@ -16,7 +16,7 @@ the single filter (one episode's, the single env's) costs 69 us
 
 The filter (eqs. 3-7) is the single filter's, with its state permuted into blocks,
 ``X = (q, q_dot)`` with ``q = (x, y, z, theta_x, theta_y, theta_z)`` the pose (the paper orders
-the same 12 numbers ``(x, x_dot, y, y_dot, ...)``; :attr:`BatchedTargetEstimator.state` gives that
+the same 12 numbers ``(x, x_dot, y, y_dot, ...)``; `BatchedTargetEstimator.state` gives that
 order). In blocks the model's structure is plain:
 
 * eq. 4: ``A = I + t_s [[0, I], [0, 0]]`` (a shift of the rates into the pose), so ``A P A'`` is
@@ -24,7 +24,7 @@ order). In blocks the model's structure is plain:
 * eq. 5: ``B Q B' = [[t_s^4/4, t_s^3/2], [t_s^3/2, t_s^2]] (x) diag(sigma_a^2 I_3,
   sigma_alpha^2 I_3)``;
 * eq. 6: ``H = [J, 0]`` with J (8, 6) the analytic Jacobian of the image points in the pose
-  (:func:`capture_bench.sensing.photogrammetry.project_poses`), so ``P H' = P[:, :6] J'``;
+  (`capture_bench.sensing.photogrammetry.project_poses`), so ``P H' = P[:, :6] J'``;
 * eq. 7: ``S = H P H' + R`` (Cholesky ``S = L L'``: the positive-definiteness test of the single
   filter), ``K = P H' S^-1`` with ``S^-1 = L^-T L^-1``, ``X += K (z - h(X))``, the NIS
   ``|L^-1 (z - h)|^2``, and the Joseph form ``P = (I - K H) P (I - K H)' + K R K'``.
@@ -74,7 +74,7 @@ _ANGLES = slice(3, 6)  # theta_x, theta_y, theta_z in the block state
 
 @dataclass
 class BatchedEstimates:
-    """One step of n estimators, global frame (the fields of n :class:`TargetEstimate`).
+    """One step of n estimators, global frame (the fields of n `TargetEstimate`).
 
     Attributes:
         position: capture point, m, (n, 3); NaN where not valid.
@@ -82,7 +82,7 @@ class BatchedEstimates:
         covariance: (n, 6, 6) covariance of (position, velocity); NaN where not valid (where
             ``TargetEstimate.covariance`` is None).
         valid: (n,) whether position and velocity hold an estimate.
-        status: (n,) int8 index into :data:`capture_bench.sensing.estimator.STATUSES`.
+        status: (n,) int8 index into `capture_bench.sensing.estimator.STATUSES`.
 
     Rows of envs that were not active in the step carry no estimate (NaN, not valid) and their
     previous status.
@@ -95,20 +95,20 @@ class BatchedEstimates:
     status: NDArray[np.int8]
 
     def status_names(self) -> list[str]:
-        """The statuses as the strings of :class:`TargetEstimate`."""
+        """The statuses as the strings of `TargetEstimate`."""
         return [STATUSES[s] for s in self.status]
 
 
 @dataclass
 class FilterRows:
-    """The complete state of m rows of a :class:`BatchedTargetEstimator`: what their next
-    :meth:`~BatchedTargetEstimator.update` reads, so that another estimator given it
-    (:meth:`~BatchedTargetEstimator.restore`) continues those filters bit for bit.
+    """The complete state of m rows of a `BatchedTargetEstimator`: what their next
+    `update` reads, so that another estimator given it
+    (`restore`) continues those filters bit for bit.
 
     Attributes:
         x: (m, 12) states, block order, camera frame; P: (m, 12, 12) their covariances.
         initialised, diverged: (m,) flags; high_nis, reinitialisations: (m,) counters;
-        status: (m,) int8 index into :data:`capture_bench.sensing.estimator.STATUSES`.
+        status: (m,) int8 index into `capture_bench.sensing.estimator.STATUSES`.
     """
 
     x: FloatArray
@@ -121,7 +121,7 @@ class FilterRows:
 
     @classmethod
     def stack(cls, parts: list[FilterRows]) -> FilterRows:
-        """The rows of ``parts``, in order, as one :class:`FilterRows`."""
+        """The rows of ``parts``, in order, as one `FilterRows`."""
         return cls(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)))
 
 
@@ -248,7 +248,7 @@ class BatchedTargetEstimator:
         self._status[rows] = INITIALISING
 
     def snapshot(self, rows: ArrayLike) -> FilterRows:
-        """The state of the filters ``rows`` (indices), a copy (:class:`FilterRows`)."""
+        """The state of the filters ``rows`` (indices), a copy (`FilterRows`)."""
         idx = np.asarray(rows, dtype=np.intp)
         return FilterRows(
             self.x[idx],
@@ -296,7 +296,7 @@ class BatchedTargetEstimator:
             active: (n,) bool, the envs to step (default all); the others keep their state.
 
         Returns:
-            The :class:`BatchedEstimates` of the step.
+            The `BatchedEstimates` of the step.
         """
         n, n_points = self.n, self.feature_points.shape[0]
         z = np.asarray(images, dtype=float)

@@ -1,7 +1,7 @@
 """filterpy's ``ExtendedKalmanFilter`` with ``predict`` and ``update`` written for speed: the filter
-that :class:`capture_bench.sensing.ekf.TargetEKF` runs (eq. 7 of the paper).
+that `capture_bench.sensing.ekf.TargetEKF` runs (eq. 7 of the paper).
 
-A module of its own so that importing the model (:mod:`capture_bench.sensing.ekf`) does not
+A module of its own so that importing the model (`capture_bench.sensing.ekf`) does not
 import filterpy, whose import pulls in ``scipy.stats`` (~0.6 s of a training process that never
 builds a single-episode filter).
 """

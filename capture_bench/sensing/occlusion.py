@@ -1,7 +1,7 @@
 """Which sphere markers something may hide from the camera, from geometry alone (no rendering).
 
 A marker is *clear* when nothing nearer the lens has an image that comes within ``margin_px`` of
-the marker's image (:func:`capture_bench.sensing.pixels.sphere_image`'s ellipse, taken as a disc
+the marker's image (`capture_bench.sensing.pixels.sphere_image`'s ellipse, taken as a disc
 of its semi-major axis). Two kinds of occluder are tested:
 
 * the other markers: marker j can hide marker i when j's centre is nearer the lens and the two
@@ -72,7 +72,7 @@ def obstacles_may_hide(
     margin_px: float = MARGIN_PX,
 ) -> NDArray[np.bool_]:
     """Markers that one of the ``obstacles`` may (partly) hide, whatever the markers do to each
-    other: :func:`hidden_markers`' obstacle test applied to every marker.
+    other: `hidden_markers`' obstacle test applied to every marker.
 
     Args:
         model: the camera.

@@ -153,7 +153,7 @@ def _table_products(
 
     BLAS rounds a matrix-vector product differently from a matrix-matrix one, and numpy takes
     the former for a single row; a row of a matrix-matrix product comes out the same whatever
-    the other rows (:func:`~capture_bench.sensing.row_products.row_stable_matmul`: always an
+    the other rows (`row_stable_matmul`: always an
     even number of them, a lone row twice). None: one product for all K rows, as numpy takes it.
     """
     k = features.shape[0]
@@ -180,7 +180,7 @@ def project_poses(
 
     Args:
         poses: (K, 6) poses (x_To, y_To, z_To, theta_x, theta_y, theta_z), metres and radians.
-        table: :func:`projection_table` of the feature points.
+        table: `projection_table` of the feature points.
         image: measured image points, ``[..., 0, :]`` the x_m and ``[..., 1, :]`` the z_m of each
             point, metres: (2, N) for every pose, or (K, 2, N) one per pose; 0 gives the image
             points themselves.
@@ -225,13 +225,13 @@ def project_pose(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Eqs. 1-2 and their analytic Jacobian for one pose, with scalar trigonometry.
 
-    The single-pose twin of :func:`project_poses` (same table, same products), for the EKF's
+    The single-pose twin of `project_poses` (same table, same products), for the EKF's
     per-step h and H where numpy's per-call cost dominates.
 
     Args:
         pose: (x_To, y_To, z_To, theta_x, theta_y, theta_z), metres and radians, 6 Python floats
             (``array.tolist()``: scalar arithmetic on numpy scalars is slower).
-        table: :func:`projection_table` of the feature points.
+        table: `projection_table` of the feature points.
 
     Returns:
         ``h`` (2, N): ``[0]`` the x_m and ``[1]`` the z_m of each point, metres;
@@ -274,7 +274,7 @@ def pose_projection(
 
 @dataclass
 class PoseSolution:
-    """Result of :func:`solve_pose`.
+    """Result of `solve_pose`.
 
     Attributes:
         pose: (x_To, y_To, z_To, theta_x, theta_y, theta_z) of the target frame in the camera
@@ -430,7 +430,7 @@ def _try_levels(
     accepted: every point beyond the lens and the cost not increased. Every operation is
     row-wise, so a step comes out the same whichever other rows are tried with it; ``alone``
     marks the starts whose trial must be evaluated as a matrix-vector product (see
-    :func:`project_poses`).
+    `project_poses`).
 
     Args:
         gram: (K, 7, 7) ``[[r.r, (J^T r)^T], [J^T r, J^T J]]`` of each start.
@@ -438,7 +438,7 @@ def _try_levels(
         damping: (K,) first lambda of each start; levels: (K,) lambdas it may try, >= 1.
         z: the measured image points, (2, N) or, with ``per_start``, (K, 2, N).
         alone: (K,) see above.
-        table: :func:`projection_table` of the feature points.
+        table: `projection_table` of the feature points.
 
     Returns:
         Per start: accepted, and of its first accepted lambda (else its last one) the trial
@@ -514,20 +514,20 @@ def levenberg_marquardt(
     Rejections come in runs (near a minimum, up to ~20 in a row while lambda climbs), and J and
     the residual do not change within a run. So after a rejection a start tries the next
     lambdas (up to ``MAX_SPECULATIVE_LEVELS``) in one round, in a few batches
-    (:func:`_try_levels`), and keeps the first accepted one: the outcome of trying them one by
+    (`_try_levels`), and keeps the first accepted one: the outcome of trying them one by
     one, in one round instead of many.
 
     Starts may belong to different solves (several images at once): every operation on a start
     is row-wise, so a start's result is bit for bit what it is in a call with only its own solve.
     One thing depends on the other starts of its solve: the products with the projection table
     of a round in which the solve tries one row in all are matrix-vector products (numpy's
-    choice for one row), the others matrix-matrix products (:func:`project_poses`); the rows a
+    choice for one row), the others matrix-matrix products (`project_poses`); the rows a
     solve would try in a round (its starts' lambdas) decide which, whichever rows are tried.
 
     Args:
         z: measured image points, ``[..., 0, :]`` the x_m and ``[..., 1, :]`` the z_m of each
             point: (2, N) for every start, or (K, 2, N) one per start.
-        table: :func:`projection_table` of the feature points.
+        table: `projection_table` of the feature points.
         poses0: (K, 6) starting poses.
         max_iterations: iterations per start.
         tol: convergence when the largest step component <= tol * (1 + max |pose|).
@@ -634,7 +634,7 @@ def solve_pose(
         tol: convergence when the largest step component <= tol * (1 + max |pose|).
 
     Returns:
-        The :class:`PoseSolution` (the best start, converged or not).
+        The `PoseSolution` (the best start, converged or not).
     """
     uv = np.asarray(image_points, dtype=float)
     pts = np.asarray(feature_points, dtype=float)
@@ -679,12 +679,12 @@ def cold_solves(
     max_iterations: int = 50,
     tol: float = 1e-10,
 ) -> list[PoseSolution]:
-    """The cold multi-start of :func:`solve_pose` (no initial guess) of each of M images
-    (M, N, 2), memoised: the images not kept yet are solved at once (:func:`solve_pose_batch`,
+    """The cold multi-start of `solve_pose` (no initial guess) of each of M images
+    (M, N, 2), memoised: the images not kept yet are solved at once (`solve_pose_batch`,
     each image's result bit for bit its result alone) and kept. A caller that knows the frames
     its estimators will start from (a recording of many episodes) solves them here first and
     pays ~1.9 ms an image instead of ~5.6 (``benchmarks/bench_photogrammetry_batch.py``); the
-    estimators' :func:`solve_pose` then finds them. The solutions returned are the kept ones:
+    estimators' `solve_pose` then finds them. The solutions returned are the kept ones:
     copy before changing them."""
     uv = np.asarray(images, dtype=float)
     pts = np.asarray(feature_points, dtype=float)
@@ -704,7 +704,7 @@ def cold_solves(
 
 
 def clear_solve_cache() -> None:
-    """Forget the memoised cold solves of :func:`solve_pose` (the multi-start without an initial
+    """Forget the memoised cold solves of `solve_pose` (the multi-start without an initial
     guess), so the next one is solved afresh (to time the solve itself, or to check that a
     memoised solution equals a fresh one). The projection tables stay memoised."""
     _COLD_SOLVES.clear()
@@ -762,7 +762,7 @@ def solve_pose_batch(
     max_iterations: int = 50,
     tol: float = 1e-10,
 ) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.int_], FloatArray]:
-    """Cold :func:`solve_pose` (no initial guess) of M images at once, bit for bit image by image.
+    """Cold `solve_pose` (no initial guess) of M images at once, bit for bit image by image.
 
     The 24 starts of every image run as one vectorised Levenberg-Marquardt, which spreads numpy's
     per-call cost over all the images: ``solve_pose_batch(images, ...)[0][m]`` equals
@@ -778,7 +778,7 @@ def solve_pose_batch(
     Returns:
         ``poses`` (M, 6) (x_To, y_To, z_To, theta_x, theta_y, theta_z), theta_y in
         [-pi/2, pi/2]; ``converged`` (M,) bool; ``iterations`` (M,) int; ``residual_rms`` (M,),
-        metres: the fields of each image's :class:`PoseSolution`.
+        metres: the fields of each image's `PoseSolution`.
     """
     uv = np.asarray(images, dtype=float)
     pts = np.asarray(feature_points, dtype=float)

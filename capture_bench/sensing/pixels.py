@@ -1,8 +1,8 @@
 """Pixels of the eye-to-hand camera: where eq. 2's image-plane point lands in the image, and the
 exact image of a sphere marker.
 
-Pixel convention (the rendered image, :func:`capture_bench.sensing.render_camera.render_frame`,
-and the detector, :mod:`capture_bench.sensing.detector`):
+Pixel convention (the rendered image, `capture_bench.sensing.render_camera.render_frame`,
+and the detector, `capture_bench.sensing.detector`):
 
 * An image is an array ``(height, width, 3)``: row ``v`` 0 at the top, column ``u`` 0 at the left,
   as numpy and OpenCV store it. Continuous pixel coordinates ``(u, v)`` are OpenCV's: integer
@@ -16,7 +16,7 @@ and the detector, :mod:`capture_bench.sensing.detector`):
       u = (width - 1) / 2 - x_m / pitch,      v = (height - 1) / 2 + z_m / pitch.
 
   The image-plane edges ``|x_m| = width pitch / 2`` are the sensor's outer pixel edges, so
-  :meth:`~capture_bench.sensing.camera.CameraModel.on_sensor` and this mapping agree.
+  `on_sensor` and this mapping agree.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def image_plane_to_pixel(image_points: ArrayLike, model: CameraModel) -> FloatAr
 
 def pixel_to_image_plane(pixels: ArrayLike, model: CameraModel) -> FloatArray:
     """Pixels ``[u, v]`` (N, 2) -> image-plane points ``[x_m, z_m]`` (metres, (N, 2)); the
-    inverse of :func:`image_plane_to_pixel`."""
+    inverse of `image_plane_to_pixel`."""
     p = np.asarray(pixels, dtype=float)
     centre = principal_point(model)
     return np.column_stack([centre[0] - p[:, 0], p[:, 1] - centre[1]]) * model.pixel_pitch
@@ -56,8 +56,8 @@ def pixel_to_image_plane(pixels: ArrayLike, model: CameraModel) -> FloatArray:
 
 def pixel_of(points_cam: ArrayLike, model: CameraModel) -> FloatArray:
     """Camera-frame points (metres, (N, 3)) -> pixels ``[u, v]`` (N, 2): eq. 2, then
-    :func:`image_plane_to_pixel`. Meaningless for points not beyond the lens
-    (:meth:`~capture_bench.sensing.camera.CameraModel.in_front`)."""
+    `image_plane_to_pixel`. Meaningless for points not beyond the lens
+    (`in_front`)."""
     return image_plane_to_pixel(project_points(points_cam, model.focal_length), model)
 
 
@@ -73,7 +73,7 @@ def pixel_to_global(pixels: ArrayLike, depth: ArrayLike, model: CameraModel) -> 
 
 
 class SphereImage(NamedTuple):
-    """The ellipses that spheres project to (:func:`sphere_image`); NaN for a sphere not wholly
+    """The ellipses that spheres project to (`sphere_image`); NaN for a sphere not wholly
     beyond the lens.
 
     Attributes:
@@ -103,7 +103,7 @@ def sphere_image(centres_cam: ArrayLike, radius: float, model: CameraModel) -> S
     ``(g . (a, b, 1))^2 - (|d|^2 - R^2)(a^2 + b^2 + 1) >= 0`` with ``g = (d_x, d_z, d_y)``; the
     conic's centre and area follow from its 3 x 3 matrix ``g g^T - (|d|^2 - R^2) I``, and pixels
     are ``u = u_0 + (f/pitch) a``, ``v = v_0 - (f/pitch) b`` (eq. 2 and
-    :func:`image_plane_to_pixel`).
+    `image_plane_to_pixel`).
 
     Args:
         centres_cam: sphere centres in the camera frame, metres, shape (N, 3).
@@ -111,7 +111,7 @@ def sphere_image(centres_cam: ArrayLike, radius: float, model: CameraModel) -> S
         model: the camera.
 
     Returns:
-        :class:`SphereImage` ``(centre, area, semi_major)``; NaN for a sphere not wholly beyond
+        `SphereImage` ``(centre, area, semi_major)``; NaN for a sphere not wholly beyond
         the lens (``y_C - f <= R``), whose image is unbounded.
     """
     c = np.asarray(centres_cam, dtype=float).reshape(-1, 3)

@@ -1,7 +1,7 @@
 """pybullet's view of the eye-to-hand camera: view and projection matrices from a
-:class:`~capture_bench.sensing.camera.CameraModel`, and rendering a frame or a window of one.
+`CameraModel`, and rendering a frame or a window of one.
 
-The rendered image is the upright image of :mod:`capture_bench.sensing.pixels` (its pixel
+The rendered image is the upright image of `capture_bench.sensing.pixels` (its pixel
 convention): a point whose eq. 2 projection falls at pixel ``(u, v)`` is drawn at column ``u``,
 row ``v``.
 
@@ -18,10 +18,10 @@ row ``v``.
   corner in OpenGL window coordinates (its integer raster coordinate), not at its centre. The
   frustum is shifted by ``TINY_RENDERER_SAMPLE_OFFSET`` = 0.5 pixel right and up so that pixel
   ``(u, v)`` shows the scene at the centre of pixel ``(u, v)`` of
-  :mod:`~capture_bench.sensing.pixels`. Without the shift the image is off by half a pixel in
+  `pixels`. Without the shift the image is off by half a pixel in
   ``u`` and in ``v``.
 * **Scaled windows**: a window of ``s w x s h`` sensor pixels (s a whole number) can be rendered
-  directly at ``w x h`` (:func:`render_frame`'s ``size``): the frustum is the window's, shifted by
+  directly at ``w x h`` (`render_frame`'s ``size``): the frustum is the window's, shifted by
   half an *image* pixel, so image pixel ``(i, j)`` (row, column) shows the scene at the centre of
   its ``s x s`` block of sensor pixels, which for odd s is the centre of the window's
   full-density pixel ``(s i + s // 2, s j + s // 2)``.
@@ -164,7 +164,7 @@ def projection_matrix(
 
 @dataclass(frozen=True)
 class Lighting:
-    """pybullet's single directional light for :func:`render_frame` (``getCameraImage``'s light
+    """pybullet's single directional light for `render_frame` (``getCameraImage``'s light
     arguments). The defaults light the scene flatly, without specular highlights (which would
     whiten the markers) or shadows.
 
@@ -215,12 +215,12 @@ def render_frame(
     Args:
         bullet: the client holding the scene.
         model: the camera (pose, f, pitch, resolution).
-        window: ``(u0, u1, v0, v1)``, pixels of the full sensor (:func:`projection_matrix`);
+        window: ``(u0, u1, v0, v1)``, pixels of the full sensor (`projection_matrix`);
             None for the full frame.
         lighting: the light; None for ``Lighting()``.
         near, far: clipping distances from the lens, metres.
         size: ``(width, height)`` to render the window at, pixels, the window being s times
-            that on both axes (:func:`window_scale`; module docstring, scaled windows); None:
+            that on both axes (`window_scale`; module docstring, scaled windows); None:
             full pixel density (s = 1).
 
     Returns:
@@ -243,7 +243,7 @@ def camera_image_request(
     far: float = FAR_PLANE,
     size: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
-    """The keyword arguments of ``getCameraImage`` with which :func:`render_frame` renders (its
+    """The keyword arguments of ``getCameraImage`` with which `render_frame` renders (its
     arguments, the same meaning): computed once where many frames of one view are rendered.
     ``width`` and ``height`` are the image's, pixels; the buffer comes back RGBA."""
     u0, u1, v0, v1 = check_window(window, model)

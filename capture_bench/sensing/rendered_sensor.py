@@ -1,17 +1,17 @@
 """The rendered camera as a sensor: pybullet draws what the eye-to-hand camera sees, the colour-blob
 detector finds the markers, and the frame carries their eq. 2 image-plane points.
 
-:class:`RenderedCamera` is a sibling of :class:`~capture_bench.sensing.camera.Camera`: the same
+`RenderedCamera` is a sibling of `Camera`: the same
 drop-out and latency, frames usable wherever a ``Frame`` is, but points measured in an image, so
 a marker hidden (by the arm, another marker, the block), too small or cut by the sensor's edge is
 a NaN row with the detector's reason, never a guess.
 
 **Windows (the fast path).** Each marker's window bounds its sphere's exact image (the disc of the
-ellipse's semi-major axis, :func:`~capture_bench.sensing.pixels.sphere_image`) at every sub-frame
+ellipse's semi-major axis, `sphere_image`) at every sub-frame
 instant, plus ``WINDOW_MARGIN_PX``, cut to the sensor; with motion blur one window bounds them
 all. A marker not wholly beyond the near plane at every instant, or whose window misses the
 sensor, is missing (``no_blob``) without rendering, in both paths. Before each window, the shapes
-whose bounding spheres cannot reach it are hidden (:func:`window_keeps`; alpha 0, which
+whose bounding spheres cannot reach it are hidden (`window_keeps`; alpha 0, which
 TinyRenderer skips): the pixels stay the same and a capture costs ~10 % less. Measured by
 ``bench_rendered_sensor.py`` (one core of a shared machine, default settings, target 0.9-1.4 m,
 arm in view): 2.4-2.6 ms a capture (385-420/s): rendering 1.6 ms (~0.4 ms of it the four
@@ -24,12 +24,12 @@ them is costly to shade); merging overlapping windows measured no gain.
 
 * every pixel of marker i's colour lies in marker i's window: the sphere mesh lies inside the
   sphere (every marker pixel's centre >= 0.04 px inside the semi-major disc, measured 0.3-4 m),
-  no other surface has a marker's hue and saturation (:mod:`capture_bench.sim.markers`), and a
+  no other surface has a marker's hue and saturation (`capture_bench.sim.markers`), and a
   blurred mean of colours can only fall in a band where some marker passed (a green marker over
   the blue arm makes cyan), which the one blur window covers;
 * the detector adds the window's origin to a crop-relative centroid before the crop's offset,
   which rounds like the full frame's single sum only when the origin is 0 or in the centroid's
-  binade ``[2^k, 2^(k+1))``; otherwise (:func:`exact_origin`, ~20 % of markers, 5 % of the time)
+  binade ``[2^k, 2^(k+1))``; otherwise (`exact_origin`, ~20 % of markers, 5 % of the time)
   the marker is detected again from the window cut at ``2^k`` or padded with black to 0.
 
 No window rule equalises TinyRenderer's float32 rasterisation through each window's own frustum:
@@ -44,9 +44,9 @@ missing markers' areas (one ``too_small`` there, ``no_blob`` here).
 
 **Image noise**: Gaussian, ``image_noise`` grey levels, on every RGB channel, then rounded and
 clipped to uint8; the value at channel c of pixel (u, v) of frame ``frame_index`` is a pure
-function of ``(key, frame_index, (v * width + u) * 3 + c)`` (:func:`pixel_noise`), so a window's
-noise is the full frame's. :meth:`RenderedCamera.reset` draws the episode's key;
-:meth:`~RenderedCamera.capture` draws only the drop-out uniform, whatever the geometry.
+function of ``(key, frame_index, (v * width + u) * 3 + c)`` (`pixel_noise`), so a window's
+noise is the full frame's. `RenderedCamera.reset` draws the episode's key;
+`capture` draws only the drop-out uniform, whatever the geometry.
 
 **Motion blur**: the mean of ``blur_subframes`` renders over ``[t - exposure_s, t]``, noise added
 after. The blob is where the marker stayed long enough to keep its saturation (>= 3 of 4
@@ -56,7 +56,7 @@ image radius fails the fill test (``partial``): at 1.2 m and 20 ms, found at 0.2
 partial at 0.3 m/s (10.7 px).
 
 **Light**: ``light_direction`` is where the light comes from (pybullet's ``lightDirection``,
-:class:`~capture_bench.sensing.render_camera.Lighting`'s source); ``light_intensity`` scales the
+`Lighting`'s source); ``light_intensity`` scales the
 diffuse coefficient (0.4), the ambient one stays 0.6. The detector thresholds hue and saturation,
 which shading keeps, and value, which ambient light alone keeps >= 0.6 x 0.8 x 255 = 122 grey
 levels on every marker. Measured: all markers of 200 unoccluded poses found, with the same error,
@@ -146,7 +146,7 @@ class RenderSettings:
                 raise ValueError(f"RenderSettings.{name} is out of range: {getattr(self, name)!r}")
 
     def lighting(self) -> Lighting:
-        """The :class:`~capture_bench.sensing.render_camera.Lighting` these settings mean."""
+        """The `Lighting` these settings mean."""
         source: tuple[float, float, float] | None = None
         if self.light_direction is not None:
             x, y, z = np.asarray(self.light_direction, dtype=float)
@@ -163,7 +163,7 @@ class RenderSettings:
 
 @dataclass
 class RenderedFrame(Frame):
-    """A delivered rendered image: a :class:`~capture_bench.sensing.camera.Frame` whose missing
+    """A delivered rendered image: a `Frame` whose missing
     markers are NaN rows of ``image_points``.
 
     Attributes:
@@ -281,9 +281,9 @@ def detect_exactly(
     members: Sequence[int],
     owns: Sequence[tuple[int, int]],
 ) -> Detections:
-    """:func:`~capture_bench.sensing.detector.detect_markers` on the image of a window starting at
+    """`detect_markers` on the image of a window starting at
     full-frame pixel ``start`` ``(u0, v0)``, for markers ``members`` (indices of
-    ``MARKER_BANDS``), each found centroid found again where :func:`exact_origin` asks (``owns``:
+    ``MARKER_BANDS``), each found centroid found again where `exact_origin` asks (``owns``:
     each member's ``own_start`` on both axes)."""
     part = detect_markers(image, model, start, [MARKER_BANDS[i] for i in members])
     for k, (i, own) in enumerate(zip(members, owns)):
@@ -385,9 +385,9 @@ class _Culling:
 
 class RenderedCamera:
     """The sensor: render the scene (windows around the markers, or the full frame), find the
-    markers, and deliver their image-plane points with :class:`Camera`'s drop-out and latency.
+    markers, and deliver their image-plane points with `Camera`'s drop-out and latency.
 
-    It owns a :class:`~capture_bench.sim.world.World` (arm, floor and marked target; with
+    It owns a `World` (arm, floor and marked target; with
     ``target_block=False`` the block is drawn with alpha 0, which TinyRenderer skips).
 
     Args:
@@ -399,7 +399,7 @@ class RenderedCamera:
 
     Attributes:
         last_visible: whether every marker centre was in front of the lens and on the sensor at
-            the latest capture (geometry, as :attr:`Camera.last_visible`).
+            the latest capture (geometry, as `Camera.last_visible`).
         last_dropped: whether the latest capture was lost to drop-out.
         last_detections: the detector's answer for the latest capture (None when dropped: no
             image is rendered then).
@@ -438,7 +438,7 @@ class RenderedCamera:
 
     @property
     def noise_key(self) -> int:
-        """The episode's image-noise key (:func:`pixel_noise`), set by :meth:`reset`."""
+        """The episode's image-noise key (`pixel_noise`), set by `reset`."""
         return self._noise_key
 
     def reset(self, rng: np.random.Generator | None = None) -> None:
@@ -470,7 +470,7 @@ class RenderedCamera:
             time: the instant the image is taken (its exposure ends), seconds.
             theta_at: ``theta_at(t)`` -> the arm's joint angles, rad, (3,); asked likewise.
             rng: the generator for drop-out.
-            frame_index: the image's index for the noise (:func:`pixel_noise`).
+            frame_index: the image's index for the noise (`pixel_noise`).
 
         Returns:
             The frame captured ``latency_frames`` calls ago (None while the pipeline fills), or
@@ -548,7 +548,7 @@ class RenderedCamera:
         frame_index: int,
         windows: Sequence[Window | None],
     ) -> list[NDArray[np.uint8]]:
-        """:meth:`image` of several windows of one image, the scene set once per sub-frame."""
+        """`image` of several windows of one image, the scene set once per sub-frame."""
         return self._images(self._scenes(pose_at, time, theta_at), windows, frame_index)
 
     def _scenes(self, pose_at: PoseAt, time: float, theta_at: ThetaAt) -> list[Scene]:

@@ -12,7 +12,7 @@ hold:
 * above M * K * N = 262,144 multiply-adds it splits the rows between threads, and the last row
   of an odd-height share takes that kernel again (with 2 threads, M = 513: rows 128 and 385).
 
-:func:`row_stable_matmul` hands BLAS chunks of an even number of rows, each small enough to run
+`row_stable_matmul` hands BLAS chunks of an even number of rows, each small enough to run
 on one thread, so every row comes out as it does in a small even-height product.
 """
 
@@ -30,7 +30,7 @@ SINGLE_THREAD_WORK = 131_072
 
 def row_stable_matmul(a: FloatArray, b: FloatArray) -> FloatArray:
     """``a @ b`` for a (M, K) and b (K, N), each row as in a small product with an even number
-    of rows: chunks of an even height of at most :data:`SINGLE_THREAD_WORK` / (K N) rows (at
+    of rows: chunks of an even height of at most `SINGLE_THREAD_WORK` / (K N) rows (at
     least 2), an odd last chunk getting its last row twice (the copy dropped): (M, N)."""
     m, k = a.shape
     rows = max(2, SINGLE_THREAD_WORK // max(1, k * b.shape[1]) // 2 * 2)

@@ -4,23 +4,23 @@ once per seed where the arm cannot reach it.
 A rendered frame shows the arm, so the target's side of an episode depends on the agent's
 actions: a frame in which the arm hides a marker differs from one in which it does not. What the
 arm can change is known without rendering: an arm link can only hide a marker whose image its own
-image comes near (:func:`~capture_bench.sensing.occlusion.obstacles_may_hide`, each link's
+image comes near (`obstacles_may_hide`, each link's
 bounding box from pybullet, a margin of ``MARGIN_PX``). Everything else the detector reads (the
 markers' pixels; the windows, which depend on the markers alone) is the same with the arm or
-without it. So :class:`RenderedSceneCamera` detects frame k of a seed
+without it. So `RenderedSceneCamera` detects frame k of a seed
 
 * **with the arm**, rendered now, where a link may hide a marker at any of the frame's sub-frame
   instants (or where no ``target_only`` store is given: the reference path, every frame rendered
   with the arm);
 * **without it** otherwise: the target-only detection of frame k, rendered once (the arm moved far
   out of view) and kept in ``target_only``, a store shared by every episode of that seed
-  (:meth:`capture_bench.task.target_side.EpisodeCache.scene_frames`): the leaderboard plays every
+  (`capture_bench.task.target_side.EpisodeCache.scene_frames`): the leaderboard plays every
   agent on the same seeds, and the first one renders what the others reuse.
 
 Both give the same detections for a frame the arm cannot reach (``tests/test_scene_camera.py``
 plays episodes both ways and compares them frame by frame). The random stream is the sensor's
-(:class:`~capture_bench.sensing.rendered_sensor.RenderedCamera`): one key per episode at
-:meth:`reset`, one drop-out uniform per frame, whatever is rendered.
+(`RenderedCamera`): one key per episode at
+`reset`, one drop-out uniform per frame, whatever is rendered.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)],
 
 
 class RenderedSceneCamera(RenderedCamera):
-    """A :class:`RenderedCamera` that takes an episode's frames (``capture_scene``, the live
+    """A `RenderedCamera` that takes an episode's frames (``capture_scene``, the live
     target side's call) and reuses target-only detections where the arm cannot reach.
 
     Attributes:
@@ -95,7 +95,7 @@ class RenderedSceneCamera(RenderedCamera):
         rng: np.random.Generator,
     ) -> Frame | None:
         """Frame k of the episode, taken at ``time`` (s) of the target on ``trajectory`` with
-        the arm at ``arm_at(t)``: :meth:`RenderedCamera.capture` (drop-out, latency)."""
+        the arm at ``arm_at(t)``: `RenderedCamera.capture` (drop-out, latency)."""
 
         def pose_at(t: float) -> tuple[FloatArray, FloatArray]:
             return trajectory.position(t), trajectory.rotation(t)
@@ -218,7 +218,7 @@ class RenderedSceneCamera(RenderedCamera):
 
     @contextlib.contextmanager
     def _arm_away(self) -> Iterator[None]:
-        """The arm moved out of view (:data:`AWAY`) for the duration."""
+        """The arm moved out of view (`AWAY`) for the duration."""
         client, arm = self._world.client, self._world.arm
         # pybullet places a base by its centre of mass: put back exactly the pose it reports
         home, orientation = client.getBasePositionAndOrientation(arm)
@@ -250,7 +250,7 @@ def _cross(image: NDArray[np.uint8], u: float, v: float, colour: tuple[int, int,
     cv2.line(image, (a - 4, b + 4), (a + 4, b - 4), colour, 1, cv2.LINE_8)
 
 
-#: A camera's per-episode state: what :meth:`RenderedCamera.reset` and ``capture`` change.
+#: A camera's per-episode state: what `RenderedCamera.reset` and ``capture`` change.
 _EPISODE_STATE = (
     "_pipeline",
     "_count",
@@ -263,11 +263,11 @@ _EPISODE_STATE = (
 
 
 class SceneCameraView:
-    """One episode's rendered camera over a :class:`RenderedSceneCamera` that many share (the
+    """One episode's rendered camera over a `RenderedSceneCamera` that many share (the
     batched env's sub-envs: one pybullet world, ~28 MB, renders for all): its own latency
     pipeline, frame count, noise key, last detections and target-only store, swapped into the
-    shared camera for each call. Used where a :class:`RenderedSceneCamera` is (the
-    :class:`~capture_bench.task.target_side.SceneCamera` calls)."""
+    shared camera for each call. Used where a `RenderedSceneCamera` is (the
+    `SceneCamera` calls)."""
 
     def __init__(self, camera: RenderedSceneCamera) -> None:
         self.camera = camera

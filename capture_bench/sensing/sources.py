@@ -2,8 +2,8 @@
 
 ``ekf`` (photogrammetry initialising the EKF, the paper's section 2), ``photogrammetry`` (the raw
 pose of every frame, an ablation) and ``truth`` (the true state, noise-free) are the estimator
-sources (:data:`SOURCES`). ``pixels`` (:data:`PIXELS`) is no estimator: the agent sees the camera's
-image and the arm's own state (:mod:`capture_bench.sensing.workspace_image`), while the scenario's
+sources (`SOURCES`). ``pixels`` (`PIXELS`) is no estimator: the agent sees the camera's
+image and the arm's own state (`capture_bench.sensing.workspace_image`), while the scenario's
 estimator still runs for ``info`` and the metrics. Defined here alone, with no heavy imports, so
 that scenario files, the estimators, the envs and the CLIs share one list.
 """

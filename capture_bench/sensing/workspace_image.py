@@ -6,7 +6,7 @@ crop around the workspace, rendered directly at the image's size.
 x ``s height`` sensor pixels with s the largest *odd* whole number for which the crop's longer side
 is at most ``CROP_SIDE`` times the sensor's shorter side, centred on the sensor pixel
 ``CROP_CENTRE`` (fractions of its width and height), moved inside the sensor where it would cross
-an edge (:func:`crop_window`). For the shipped camera and the default 84 x 84 image: s = 11, the
+an edge (`crop_window`). For the shipped camera and the default 84 x 84 image: s = 11, the
 924 x 924 sensor pixels ``u`` 255-1178, ``v`` 18-941; one image pixel spans ~6.2 mm at the
 camera's 1.2 m from the workspace. The centre sits right of the sensor's because the target's
 markers lie on the capture point's +x side. Measured on 1,000 training seeds of ``paper`` and of
@@ -14,9 +14,9 @@ markers lie on the capture point's +x side. Measured on 1,000 training seeds of 
 the crop in 98.9 % of episodes and stays there for the first 3 s (about a capture's time) in
 98.5 %; a centred crop (``u`` 178-1101) keeps 95.5 % and 94.3 %.
 
-**The scene.** The world of :class:`~capture_bench.sim.world.World` with ``marker_radius``: the
+**The scene.** The world of `World` with ``marker_radius``: the
 floor, the base column, the arm at its current joint angles, and the target at its true pose drawn
-as the rendered camera's target (:func:`capture_bench.sim.markers.create_marked_target`): its grey
+as the rendered camera's target (`capture_bench.sim.markers.create_marked_target`): its grey
 block and four sphere markers of ``IMAGE_MARKER_RADIUS`` = 10 mm (the scenario's 5 mm markers
 would be under a pixel; the markers are what makes the target's orientation visible). Lit as the
 scenario's camera keys say (``light_direction``, ``light_intensity``), no specular highlights, no
@@ -24,10 +24,10 @@ shadows. The image is the instant's: no sensor noise, no motion blur, no drop-ou
 (the estimator, which still runs for ``info``, keeps the scenario's).
 
 **Sampling.** The crop is rendered by TinyRenderer at the image's size through the crop's own
-frustum (:func:`~capture_bench.sensing.render_camera.render_frame` with ``size``): image pixel
+frustum (`render_frame` with ``size``): image pixel
 ``(i, j)`` (row, column) shows the scene at the centre of the crop's full-density pixel
 ``(s i + s // 2, s j + s // 2)``, so the image is the full-density render of the crop
-(:meth:`WorkspaceImager.full_density`) sampled at those pixels, but for pixels on a triangle's
+(`WorkspaceImager.full_density`) sampled at those pixels, but for pixels on a triangle's
 edge to float32 precision (TinyRenderer rasterises each frustum on its own). Measured over random
 arm and target poses: no pixel differed in 30 scenes at 84 x 84 (s = 11), nor in 8 at 64 x 64
 (s = 13) or 84 x 64; at 36 x 36 (s = 25) one pixel of 1,296 differed in 2 of 8 scenes.
@@ -66,8 +66,8 @@ def largest_crop_side(model: CameraModel) -> int:
 
 
 def check_image_size(size: Any, model: CameraModel) -> tuple[int, int]:
-    """``size`` as ``(width, height)`` (None: :data:`IMAGE_SIZE`), or ``ValueError`` saying what
-    is valid: two whole numbers from 1 to :func:`largest_crop_side` (924 for the shipped
+    """``size`` as ``(width, height)`` (None: `IMAGE_SIZE`), or ``ValueError`` saying what
+    is valid: two whole numbers from 1 to `largest_crop_side` (924 for the shipped
     camera)."""
     largest = largest_crop_side(model)
     if size is None:
@@ -116,7 +116,7 @@ class WorkspaceImager:
     Args:
         model: the eye-to-hand camera.
         features: the target's feature points (marker centres), target frame, m, (4, 3).
-        size: the image's ``(width, height)``, pixels (:func:`check_image_size`).
+        size: the image's ``(width, height)``, pixels (`check_image_size`).
         lighting: the light; None for ``Lighting()`` (from the lens).
         marker_radius: the target's marker radius, m.
 
@@ -164,7 +164,7 @@ class WorkspaceImager:
     def render_batch(
         self, theta: ArrayLike, position: ArrayLike, rotation: ArrayLike
     ) -> NDArray[np.uint8]:
-        """:meth:`render` of N scenes, one after the other in the one world: ``theta`` (N, 3),
+        """`render` of N scenes, one after the other in the one world: ``theta`` (N, 3),
         ``position`` (N, 3), ``rotation`` (N, 3, 3) -> (N, 3, height, width)."""
         thetas, positions = np.asarray(theta, float), np.asarray(position, float)
         rotations = np.asarray(rotation, float)
@@ -178,8 +178,8 @@ class WorkspaceImager:
         self, theta: ArrayLike, position: ArrayLike, rotation: ArrayLike
     ) -> NDArray[np.uint8]:
         """The reference: the crop rendered at full pixel density, RGB, ``(s height, s width,
-        3)`` (row, column, channel, as :func:`~capture_bench.sensing.render_camera.
-        render_frame` gives it); :meth:`render`'s pixel ``[:, i, j]`` is its pixel
+        3)`` (row, column, channel, as `
+        render_frame` gives it); `render`'s pixel ``[:, i, j]`` is its pixel
         ``[s i + s // 2, s j + s // 2]`` (module docstring). ~100 ms at 924 x 924."""
         world = self._open_world()
         world.set_joint_positions(np.asarray(theta, dtype=float).tolist())

@@ -1,6 +1,6 @@
 """A conservative geometric screen for the arm's collisions, so batched envs ask pybullet rarely.
 
-:func:`clear_of_collisions` bounds the collision shapes of :class:`~capture_bench.sim.world.World`
+`clear_of_collisions` bounds the collision shapes of `World`
 (floor, base column, self-contact) from the joint angles alone, with ``CLEARANCE`` to spare: True
 means "certainly no collision", False means "ask pybullet". Tested against pybullet on random
 poses (``tests/test_vector_env.py``).
@@ -27,7 +27,7 @@ CLEARANCE = 0.01  # m: what "clearly" means in clear_of_collisions
 
 def clear_of_collisions(theta: FloatArray) -> NDArray[np.bool_]:
     """For M joint vectors (M, 3), rad: True where the arm is certainly in no collision of
-    :meth:`World.collision`, by bounds on its collision shapes with ``CLEARANCE`` to spare.
+    `World.collision`, by bounds on its collision shapes with ``CLEARANCE`` to spare.
 
     False means "ask pybullet": a batched env queries its worlds only there.
     """

@@ -84,7 +84,7 @@ def forward_kinematics(theta: ArrayLike) -> FloatArray:
 
 
 def forward_kinematics_point(theta: ArrayLike) -> FloatArray:
-    """:func:`forward_kinematics` for one joint vector, with ``math`` (the per-step fast path).
+    """`forward_kinematics` for one joint vector, with ``math`` (the per-step fast path).
 
     Args:
         theta: joint angles, rad, shape (3,).
@@ -133,7 +133,7 @@ def jacobian(theta: ArrayLike) -> FloatArray:
 
 
 def _jacobian_point(t1: float, t2: float, t3: float) -> FloatArray:
-    """:func:`jacobian` for one joint vector with ``math`` (controllers call it every step)."""
+    """`jacobian` for one joint vector with ``math`` (controllers call it every step)."""
     c1, s1 = math.cos(t1), math.sin(t1)
     c23, s23 = math.cos(t2 + t3), math.sin(t2 + t3)
     r = L1 * math.cos(t2) + L2 * s23
@@ -157,7 +157,7 @@ def inverse_kinematics(position: ArrayLike) -> FloatArray:
 
     There are up to four: joint 1 facing the point (r > 0) or facing away (r < 0), each with two
     elbow solutions. Angles are wrapped to (-pi, pi]. No joint limits are applied; use
-    :func:`within_limits` to filter.
+    `within_limits` to filter.
 
     Args:
         position: target point in the global frame, metres, shape (3,).
@@ -210,7 +210,7 @@ def _wrap(angle: float) -> float:
 def inverse_kinematics_batch(positions: ArrayLike) -> FloatArray:
     """All four closed-form solutions for a batch of points, NaN where there is none.
 
-    The same maths as :func:`inverse_kinematics`, vectorised (used by the physical-limit bound).
+    The same maths as `inverse_kinematics`, vectorised (used by the physical-limit bound).
 
     Args:
         positions: points in the global frame, metres, shape (N, 3).
@@ -245,7 +245,7 @@ def reachable(
 ) -> bool:
     """Whether a point (global, m, shape (3,)) has an IK solution inside the joint limits.
 
-    Scalar ``math`` version of :func:`inverse_kinematics` (it runs every env step). Only the
+    Scalar ``math`` version of `inverse_kinematics` (it runs every env step). Only the
     solutions with joint 1 facing the point (r > 0) are tried: inside the default limits r > 0
     always (see module docstring); for other limits (``lower``/``upper`` given) the batch IK
     gives the full answer.
@@ -274,7 +274,7 @@ def reachable(
 def reachable_batch(
     positions: ArrayLike, lower: ArrayLike | None = None, upper: ArrayLike | None = None
 ) -> NDArray[np.bool_]:
-    """:func:`reachable` for a batch of points (N, 3), global, m -> (N,) bool; any joint limits
+    """`reachable` for a batch of points (N, 3), global, m -> (N,) bool; any joint limits
     (default: the published ones)."""
     lower = JOINT_LOWER if lower is None else lower
     upper = JOINT_UPPER if upper is None else upper
@@ -282,7 +282,7 @@ def reachable_batch(
 
 
 def reachable_points(positions: FloatArray) -> NDArray[np.bool_]:
-    """:func:`reachable` with the published joint limits for M points (M, 3) -> (M,), the same
+    """`reachable` with the published joint limits for M points (M, 3) -> (M,), the same
     formulas vectorised (joint 1 facing the point, both elbow solutions)."""
     lo, hi = JOINT_LOWER, JOINT_UPPER
     x, y, z = positions[:, 0], positions[:, 1], positions[:, 2]

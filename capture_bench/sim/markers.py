@@ -1,7 +1,7 @@
 """The target as the rendered camera sees it: four coloured sphere markers and a small grey block.
 
-The markers are what :mod:`capture_bench.sensing.detector` looks for, so their colours are chosen
-against everything else in the world (``assets/arm.urdf`` and :mod:`capture_bench.sim.world`):
+The markers are what `capture_bench.sensing.detector` looks for, so their colours are chosen
+against everything else in the world (``assets/arm.urdf`` and `capture_bench.sim.world`):
 
 ========================  ===================  ======  ==========
 surface                   RGB                  hue     saturation
@@ -19,7 +19,7 @@ marker 3 magenta          (0.80, 0.05, 0.80)   300 deg 0.94
 Every marker hue is at least 32 deg from every other saturated surface and 60 deg from the other
 markers. Lighting scales a surface's RGB (ambient and diffuse terms), which keeps its hue and
 saturation; only a specular highlight (white) changes them, so the rendered camera renders without
-one (:class:`capture_bench.sensing.render_camera.Lighting`).
+one (`capture_bench.sensing.render_camera.Lighting`).
 
 The target body has no collision shape and an empty collision group and mask, as the world's own
 target: it never collides; capture is a geometric test done elsewhere.
@@ -68,7 +68,7 @@ def block_extent(features: ArrayLike, radius: float) -> tuple[np.ndarray, np.nda
 
 
 def block_corners(features: ArrayLike, radius: float) -> np.ndarray:
-    """The 8 corners of :func:`block_extent`'s block, target frame, metres, shape (8, 3)."""
+    """The 8 corners of `block_extent`'s block, target frame, metres, shape (8, 3)."""
     centre, half = block_extent(features, radius)
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
     return centre + signs * half
@@ -89,12 +89,12 @@ def create_marked_target(
         features: the feature points in the target frame, metres, shape (N, 3), N = len(colours).
         radius: marker radius, metres, > 0.
         colours: RGBA in [0, 1] of each marker, in the order of the features.
-        block: add the grey block of :func:`block_extent` (the target's body); without it the
+        block: add the grey block of `block_extent` (the target's body); without it the
             target is its markers only.
 
     Returns:
         The body id. Place it with ``resetBasePositionAndOrientation`` (as
-        :meth:`capture_bench.sim.world.World.set_target_pose` does).
+        `capture_bench.sim.world.World.set_target_pose` does).
     """
     points = np.asarray(features, dtype=float)
     if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):

@@ -28,7 +28,7 @@ def euler_to_matrix(angles: ArrayLike) -> NDArray[np.float64]:
 
 
 def matrix_to_euler(rotation: ArrayLike) -> NDArray[np.float64]:
-    """Inverse of :func:`euler_to_matrix`: (theta_x, theta_y, theta_z), rad.
+    """Inverse of `euler_to_matrix`: (theta_x, theta_y, theta_z), rad.
 
     theta_y is in [-pi/2, pi/2].
     """

@@ -54,7 +54,7 @@ class LinearDrift:
         return self.start + self.velocity * t, self.velocity
 
     def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """:meth:`at` of each time (T,) -> (T, 3), (T, 3), bit for bit."""
+        """`at` of each time (T,) -> (T, 3), (T, 3), bit for bit."""
         return self.start + self.velocity * t[:, None], np.tile(self.velocity, (t.size, 1))
 
 
@@ -85,7 +85,7 @@ class CircularPath:
         return self.centre + self.radius * (c * self.u + s * self.v), w * (c * self.v - s * self.u)
 
     def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """:meth:`at` of each time (T,) -> (T, 3), (T, 3), bit for bit (``math``'s sine and
+        """`at` of each time (T,) -> (T, 3), (T, 3), bit for bit (``math``'s sine and
         cosine, which numpy's may differ from in the last bit)."""
         a = (self.phase + self.angular_speed * t).tolist()
         c = np.array([math.cos(x) for x in a])[:, None]
@@ -140,7 +140,7 @@ class Evasive:
         return p[k] + v[k] * h + (0.5 * h * h) * a, v[k] + a * h
 
     def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """:meth:`at` of each time (T,) -> (T, 3), (T, 3), bit for bit."""
+        """`at` of each time (T,) -> (T, 3), (T, 3), bit for bit."""
         k = np.maximum(np.searchsorted(self.switch_times, t, side="right") - 1, 0)
         h = (t - np.asarray(self._times)[k])[:, None]
         p, v = self._knots
@@ -173,7 +173,7 @@ class TargetTrajectory:
     _r0: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        # Constants of the per-step fast path (:meth:`state`): Rodrigues' K and K^2, R0 r.
+        # Constants of the per-step fast path (`state`): Rodrigues' K and K^2, R0 r.
         k = np.asarray(self.spin_axis, dtype=float)
         k = k / np.linalg.norm(k)
         kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
@@ -184,7 +184,7 @@ class TargetTrajectory:
     def state(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Everything the env needs at one time t (s): X_T (3,), Xdot_T (3,), R(t) (3, 3).
 
-        The same quantities as :meth:`position`, :meth:`velocity` and :meth:`rotation` (tests
+        The same quantities as `position`, `velocity` and `rotation` (tests
         check they agree), computed together for speed.
         """
         c, c_dot = self.translation.at(t)
@@ -203,14 +203,14 @@ class TargetTrajectory:
     def states(
         self, t: FloatArray, points_target: FloatArray | None = None
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray | None]:
-        """:meth:`state` at each time (T,), bit for bit: X_T (T, 3), Xdot_T (T, 3), R(t)
+        """`state` at each time (T,), bit for bit: X_T (T, 3), Xdot_T (T, 3), R(t)
         (T, 3, 3), and with ``points_target`` (N, 3) those points in the global frame at each
         time, ``X_T + points_target @ R(t).T`` (T, N, 3) (None without).
 
         Every time at once, by the same operations in the same order: ``math``'s sine and
         cosine (numpy's may differ in the last bit), the element-wise arithmetic over every time,
         and each small matrix product as a stack, which numpy computes one matrix at a time with
-        the very BLAS call :meth:`state` makes for that time (``tests/test_target_motion.py``).
+        the very BLAS call `state` makes for that time (``tests/test_target_motion.py``).
         """
         tt = np.asarray(t, dtype=float).reshape(-1)
         c, c_dot = self.translation.at_times(tt)
@@ -235,7 +235,7 @@ class TargetTrajectory:
         return position, velocity, rotation, points
 
     def rotations(self, t: FloatArray) -> FloatArray:
-        """R(t) for times (N,) -> (N, 3, 3): :meth:`state`'s rotation, vectorised over t."""
+        """R(t) for times (N,) -> (N, 3, 3): `state`'s rotation, vectorised over t."""
         tt = np.asarray(t, dtype=float)
         if self.spin_rate == 0.0:
             return np.broadcast_to(self.initial_rotation, (*tt.shape, 3, 3)).copy()

@@ -1,6 +1,6 @@
 """Drawing the target's and the end-effector's traces into a rendered image (a small rasteriser).
 
-:meth:`~capture_bench.sim.world.World.render` projects the traces (global frame, m) with the
+`render` projects the traces (global frame, m) with the
 camera's view-projection matrix and draws them over pybullet's image.
 """
 

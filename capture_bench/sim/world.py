@@ -3,8 +3,8 @@
 Frames and units (see ``docs/architecture.md``): global frame at the centre of joint 2, z up,
 metres and radians; the floor is the plane ``z = -L0``. The arm is loaded from
 ``assets/arm.urdf`` with a fixed base; its link frames agree with
-:func:`capture_bench.sim.kinematics.forward_kinematics` and
-:func:`capture_bench.sim.kinematics.elbow_position` to pybullet's single-precision geometry (~1e-7
+`capture_bench.sim.kinematics.forward_kinematics` and
+`capture_bench.sim.kinematics.elbow_position` to pybullet's single-precision geometry (~1e-7
 m; pybullet 3.2.7 stores link offsets and joint rotations as 32-bit floats, so 1e-9 m is not
 attainable).
 
@@ -17,7 +17,7 @@ elsewhere; the target is only drawn.
 
 The URDF's collision model, the joint limits and the renderer all act on the one
 ``BulletClient`` this class owns; the collision screen and the trace drawing live in their own
-modules (:mod:`capture_bench.sim.collision_screen`, :mod:`capture_bench.sim.traces`).
+modules (`capture_bench.sim.collision_screen`, `capture_bench.sim.traces`).
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ _CAMERA = {"target": (0.25, 0.0, 0.1), "distance": 1.9, "yaw": 50.0, "pitch": -2
 
 @dataclass(slots=True)  # not frozen: frozen __init__ costs ~1.5 us per step
 class JointStep:
-    """What one :meth:`World.apply_joint_increment` did.
+    """What one `World.apply_joint_increment` did.
 
     Attributes:
         theta_before: joint angles before the step, rad, shape (3,).
@@ -89,11 +89,11 @@ class World:
         arm: the arm's published constants; the rate and joint limits are enforced from it. The
             link lengths must be Table 1's (the URDF models that arm only). Default ``ArmSpec()``.
         marker_radius: None (default) for the target above; a radius in metres for the rendered
-            camera's target instead (:func:`capture_bench.sim.markers.create_marked_target`:
+            camera's target instead (`capture_bench.sim.markers.create_marked_target`:
             spheres of that radius in the detector's colours, red, green, cyan, magenta, and a
             grey block clear of them).
 
-    Collision model (:meth:`collision`): capsules for the upper arm (radius 0.025 m), the forearm
+    Collision model (`collision`): capsules for the upper arm (radius 0.025 m), the forearm
     (0.025 m, offset 0.06 m sideways along the joint axes) and the wrist bracket at the tip
     (0.02 m); a cylinder (radius 0.05 m) for the base column; the plane ``z = -L0`` for the floor.
     """
@@ -209,7 +209,7 @@ class World:
 
         Args:
             theta: joint angles, rad, shape (3,). Not clipped to the joint limits (tests use
-                poses outside them); :meth:`apply_joint_increment` never moves a joint further out.
+                poses outside them); `apply_joint_increment` never moves a joint further out.
             target_position: capture point in the global frame, metres, shape (3,).
             target_rotation: R_gt, target axes as columns in global coordinates, shape (3, 3).
         """
@@ -221,7 +221,7 @@ class World:
 
     def set_joint_positions(self, theta: Sequence[float]) -> None:
         """Set the three joints to angles computed elsewhere, rad, as they are: the caller has
-        applied the rate and joint limits (:func:`limit_joint_increments`)."""
+        applied the rate and joint limits (`limit_joint_increments`)."""
         self._set_joints((float(theta[0]), float(theta[1]), float(theta[2])))
 
     def set_target_pose(self, position: ArrayLike, rotation: ArrayLike) -> None:
@@ -245,14 +245,14 @@ class World:
         """Move the joints by ``delta_theta`` within the rate and joint limits (kinematic control).
 
         Each ``|delta_i|`` is clipped to ``theta_dot_max_i * dt``, then the result to the joint
-        limits (a joint already outside them, set by :meth:`reset`, may not move further out).
+        limits (a joint already outside them, set by `reset`, may not move further out).
 
         Args:
             delta_theta: requested joint increments, rad, shape (3,).
             dt: the real duration of this control step, s, > 0.
 
         Returns:
-            The :class:`JointStep` that happened.
+            The `JointStep` that happened.
         """
         d = (
             delta_theta.tolist()
@@ -410,7 +410,7 @@ def limit_joint_increments(
     dt: FloatArray,
     arm: ArmSpec,
 ) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
-    """:meth:`World.apply_joint_increment`'s limits for M arms at once, with the same arithmetic.
+    """`World.apply_joint_increment`'s limits for M arms at once, with the same arithmetic.
 
     Args:
         theta: joint angles before the step, rad, (M, 3).
@@ -419,7 +419,7 @@ def limit_joint_increments(
         arm: the rate and joint limits.
 
     Returns:
-        ``(theta_after (M, 3), clipped (M,), saturated (M,))`` as in :class:`JointStep`.
+        ``(theta_after (M, 3), clipped (M,), saturated (M,))`` as in `JointStep`.
     """
     step_max = arm.joint_rate_limits * dt[:, None]
     step = np.where(

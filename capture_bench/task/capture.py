@@ -5,29 +5,29 @@ of a step would let a fast pass through the tolerance box go unseen, so the test
 the whole step. Within a step the joints move linearly, ``theta(s) = theta0 + s dtheta`` for
 ``s in [0, 1]``, so the end-effector follows the arc ``f(theta(s))``. On a straight segment, the
 relative vector ``d(s) = d0 + s (d1 - d0)`` is inside the box on one open interval of s, found
-exactly (:func:`inside_intervals`). The arc sags from its chord by at most
+exactly (`inside_intervals`). The arc sags from its chord by at most
 ``(l1 + l2) (sum |dtheta_i|)^2 / 8`` (every second derivative of f is bounded by l1 + l2,
-:func:`arc_sag_bounds`); where that exceeds ``ARC_RESOLUTION``, the step is cut into enough
+`arc_sag_bounds`); where that exceeds ``ARC_RESOLUTION``, the step is cut into enough
 pieces that each piece's chord is within ``ARC_RESOLUTION`` of the arc
-(:func:`inside_intervals_along_arc`). Joint 1 turns up to 0.5 rad per step, so this matters.
+(`inside_intervals_along_arc`). Joint 1 turns up to 0.5 rad per step, so this matters.
 
 A hold (``capture.hold`` of a scenario, seconds): the capture requires eq. 20 to hold
 *continuously* for ``hold`` s. The stays of a whole step along the arc are the chords' intervals,
 joined where one chord's stay reaches its end and the next one's starts at its beginning
-(:func:`inside_intervals_along_arc`): the step's entries *and* exits, to ``ARC_RESOLUTION``.
-:func:`held_capture` walks them carrying when the stay in progress began from one step to the
+(`inside_intervals_along_arc`): the step's entries *and* exits, to ``ARC_RESOLUTION``.
+`held_capture` walks them carrying when the stay in progress began from one step to the
 next: the capture completes at entry + hold, and leaving the box before restarts the clock at the
 next entry. With ``hold = 0`` it is the first entry.
 
 The capture envelope adds a bound on speed (``capture.v_max`` of a scenario, m/s): a capture a
 gripper could make needs the *instantaneous* velocity of the end-effector relative to the capture
 point, ``v(s) = J(theta(s)) dtheta/dt - Xdot_T(t0 + s dt)``, to be at most ``v_max`` as well,
-for the whole hold (:func:`relative_velocities`). Within a step the joint rates are constant, but
-``J`` turns with the arm, so ``v`` is tested along the step: at :func:`speed_pieces` + 1 points,
+for the whole hold (`relative_velocities`). Within a step the joint rates are constant, but
+``J`` turns with the arm, so ``v`` is tested along the step: at `speed_pieces` + 1 points,
 enough that ``v`` is within ``VELOCITY_RESOLUTION`` of the straight line between two of them
-(:func:`slow_intervals_along_arc`), each piece's slow stretch solved exactly on that line
-(:func:`slow_intervals`), and intersected with the stays inside the box (:func:`intersect`).
-The speeds over a stretch of a step (:func:`speeds_between`: the largest relative speed over a
+(`slow_intervals_along_arc`), each piece's slow stretch solved exactly on that line
+(`slow_intervals`), and intersected with the stays inside the box (`intersect`).
+The speeds over a stretch of a step (`speeds_between`: the largest relative speed over a
 hold) are taken on the same grid and at the stretch's ends.
 
 Every test here takes M steps as rows, (M, 3) arrays; one step is the case M = 1. The arc walk and
@@ -88,8 +88,8 @@ def held_capture(
 
     Args:
         intervals: the step's stays inside the tolerance box, fractions ``(lo, hi)`` of the step
-            in increasing order (a row of :func:`inside_intervals`, or
-            :func:`inside_intervals_along_arc`).
+            in increasing order (a row of `inside_intervals`, or
+            `inside_intervals_along_arc`).
         since: when the stay in progress at the step's start began, s (NaN: outside then).
         t0, dt: the step's start and real period, s.
         hold: how long eq. 20 must hold without a break, s (0: the first entry captures).
@@ -129,7 +129,7 @@ def inside_intervals_along_arc(
     tolerance: ArrayLike,
 ) -> list[tuple[float, float]]:
     """The fractions of one step during which eq. 20 holds along the end-effector's true arc:
-    :func:`inside_intervals_along_arcs` for M = 1.
+    `inside_intervals_along_arcs` for M = 1.
 
     Args:
         theta0: joint angles at the start of the step, rad, (3,).
@@ -160,7 +160,7 @@ def inside_intervals_along_arcs(
     Returns:
         Per step, open intervals ``(lo, hi)`` of s in [0, 1], in order and disjoint, exact to
         ``ARC_RESOLUTION`` along the arc: the arc is cut into chords within ``ARC_RESOLUTION`` of
-        it (see the module docstring), each chord's stay is a row of :func:`inside_intervals`,
+        it (see the module docstring), each chord's stay is a row of `inside_intervals`,
         and a stay that reaches a chord's end joins the next chord's stay that starts there.
         Every step's chords are tested in one call, and each row's floats are those of the step
         alone (the arithmetic is element by element).
@@ -214,7 +214,7 @@ def first_entry_along_arc(
     tolerance: ArrayLike,
 ) -> float | None:
     """Earliest fraction s of the step at which eq. 20 holds along the end-effector's true arc:
-    the start of the first of :func:`inside_intervals_along_arc` (arguments as there).
+    the start of the first of `inside_intervals_along_arc` (arguments as there).
 
     Returns:
         s in [0, 1] or None, exact to ``ARC_RESOLUTION`` along the arc.
@@ -235,7 +235,7 @@ def closest_approaches(d0: FloatArray, d1: FloatArray) -> FloatArray:
 
 
 def approach_lower_bounds(d0: FloatArray, d1: FloatArray) -> FloatArray:
-    """A lower bound on :func:`closest_approaches`, m, (M,), in five numpy calls: along a
+    """A lower bound on `closest_approaches`, m, (M,), in five numpy calls: along a
     segment each component stays between its ends, so ``|d(s)|`` is at least the largest
     component's distance from 0 over its range (negative where every range straddles 0; NaN
     where an end is NaN). A screen: a step whose bound exceeds the tolerance's radius (plus the
@@ -358,7 +358,7 @@ def speeds_between(
 ) -> FloatArray:
     """The end-effector's instantaneous speed relative to the capture point, ``|v(s)|`` (m/s),
     over the stretch ``[lo, hi]`` of one step: at ``lo``, at the points of
-    :func:`slow_intervals_along_arc`'s grid strictly between, and at ``hi``, in that order (so
+    `slow_intervals_along_arc`'s grid strictly between, and at ``hi``, in that order (so
     the first entry is ``|v(lo)|`` and the last ``|v(hi)|``; ``lo == hi`` gives that one value
     twice).
 

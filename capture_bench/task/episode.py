@@ -1,12 +1,12 @@
 """What ``reset`` draws for an episode before any step, and the rules built on it alone.
 
 An episode's target trajectory and the real period of every control step are drawn at reset from
-the env's seeded generator, and kept only if the episode can be won (:func:`draw_plans`, the one
+the env's seeded generator, and kept only if the episode can be won (`draw_plans`, the one
 place every env, recording and evaluation draws from). The time limit, the end of the last
 possible step, how far the joints can have moved by a given time, and the physical-limit bound
-are functions of that :class:`EpisodePlan` alone, so
-:class:`~capture_bench.envs.capture_env.CaptureEnv` and the batched
-:class:`~capture_bench.envs.vector_env.CaptureVectorEnv` share them here.
+are functions of that `EpisodePlan` alone, so
+[`CaptureEnv`][capture_bench.envs.capture_env.CaptureEnv] and the batched
+[`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] share them here.
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def _stays_in_view(model: CameraModel, features: FloatArray, traj: TargetTraject
 
 
 def period_count(control: ControlConfig) -> int:
-    """How many control periods :func:`draw_periods` draws: enough for the longest episode
+    """How many control periods `draw_periods` draws: enough for the longest episode
     (every step as short as the jitter allows), and one more."""
     shortest = control.period * (1.0 - control.period_jitter)
     return math.ceil(control.episode_limit / shortest) + 1
@@ -99,7 +99,7 @@ def draw_periods(control: ControlConfig, rng: np.random.Generator) -> FloatArray
 class EpisodePlan:
     """An episode as reset draws it: the scenario, the target's true trajectory and the real
     control period of every step it can have (s); ``bound``, the physical limit
-    (:func:`episode_bounds` under :func:`bound_task`), as :func:`draw_plans` computed it to
+    (`episode_bounds` under `bound_task`), as `draw_plans` computed it to
     keep the plan (None for a plan built otherwise: computed when asked)."""
 
     scenario: Scenario
@@ -115,7 +115,7 @@ class EpisodePlan:
         features: FloatArray,
         rng: np.random.Generator,
     ) -> EpisodePlan:
-        """The next winnable episode of ``rng``: :func:`draw_plans` of one generator."""
+        """The next winnable episode of ``rng``: `draw_plans` of one generator."""
         (plan,) = draw_plans(scenario, camera_model, features, [rng])
         return plan
 
@@ -173,7 +173,7 @@ class EpisodePlan:
 
 def bound_task(scenario: Scenario) -> TaskDescription:
     """The task the physical limit of a drawn plan is computed for: the arm, t_s and epsilon an
-    env of ``scenario`` publishes (what :func:`capture_bench.envs.core.describe_task` gives)."""
+    env of ``scenario`` publishes (what `capture_bench.envs.core.describe_task` gives)."""
     return TaskDescription(
         arm=kinematics.ArmSpec(),
         control_period=scenario.control.period,
@@ -199,9 +199,9 @@ def draw_plans(
 ) -> list[EpisodePlan]:
     """The next winnable episode of each generator: every episode can be captured in time.
 
-    The rule: from its generator, an episode draws the trajectory (:func:`place_target`), then
-    the control periods (:func:`draw_periods`), and computes the plan's physical limit
-    (:func:`episode_bounds` under :func:`bound_task`). The plan is kept if that limit is finite:
+    The rule: from its generator, an episode draws the trajectory (`place_target`), then
+    the control periods (`draw_periods`), and computes the plan's physical limit
+    (`episode_bounds` under `bound_task`). The plan is kept if that limit is finite:
     some joint-rate-limited motion of the arm captures the target before the time limit (and
     before it has left the arm's reach for longer than ``lost_after``). Otherwise the same
     generator draws a whole plan again (trajectory, then periods), and so on; after
@@ -211,11 +211,11 @@ def draw_plans(
     env, recording and evaluation, and a seed whose first plan is winnable keeps it (the
     generator stands where it stood without the rule).
 
-    The kept plan carries its limit (:attr:`EpisodePlan.bound`), which :func:`episode_bounds`
+    The kept plan carries its limit (`EpisodePlan.bound`), which `episode_bounds`
     gives again without computing it, so an episode's limit is computed once. The generators'
     plans are drawn in turn and their limits computed together, a round per redraw: each
     generator's plan is what it alone would draw (the limits of many plans are each one's own,
-    :func:`~capture_bench.task.physical_limit.physical_limits`).
+    `physical_limits`).
     """
     task = bound_task(scenario)
     plans: list[EpisodePlan | None] = [None] * len(rngs)
@@ -248,11 +248,11 @@ def episode_bounds(
 ) -> list[PhysicalLimit]:
     """The physical-limit bound of each episode (DESIGN.md), computed together: the earliest
     entry into the capture envelope from which it can hold for the scenario's ``capture.hold``,
-    plus that hold (see :mod:`capture_bench.task.physical_limit`); ``inf`` when that is after
+    plus that hold (see `capture_bench.task.physical_limit`); ``inf`` when that is after
     the episode's last step ends, or when the target leaves the arm's reach for longer than
     ``lost_after`` before it.
-    A plan that carries its bound (:func:`draw_plans`) gives it without a computation where
-    ``description`` is :func:`bound_task`'s (the same arm and epsilon)."""
+    A plan that carries its bound (`draw_plans`) gives it without a computation where
+    ``description`` is `bound_task`'s (the same arm and epsilon)."""
     if not plans:
         return []
     carried = [
@@ -269,7 +269,7 @@ def episode_bounds(
 def _compute_bounds(
     plans: Sequence[EpisodePlan], description: TaskDescription
 ) -> list[PhysicalLimit]:
-    """:func:`episode_bounds` of plans that carry none, computed together."""
+    """`episode_bounds` of plans that carry none, computed together."""
     arm = description.arm
     control, capture = plans[0].scenario.control, plans[0].scenario.capture
     ends = [plan.end() for plan in plans]

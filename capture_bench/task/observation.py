@@ -18,9 +18,9 @@ index  quantity (global frame)                          unit      scale
 =====  ===============================================  ========  ===========
 
 The pixel observation (``observation_source="pixels"``) is a ``Dict`` instead
-(:func:`pixel_observation_space`): ``image``, the camera's uint8 image, channel-first
-(:mod:`capture_bench.sensing.workspace_image`), and ``state``, what the agent knows without
-vision (:func:`encode_state`, float32, shape (7,), scaled as above):
+(`pixel_observation_space`): ``image``, the camera's uint8 image, channel-first
+(`capture_bench.sensing.workspace_image`), and ``state``, what the agent knows without
+vision (`encode_state`, float32, shape (7,), scaled as above):
 
 =====  ===============================================  ========  ===========
 index  quantity (global frame)                          unit      scale
@@ -84,7 +84,8 @@ class TaskDescription:
         return np.asarray(action, dtype=float) * self.arm.joint_rate_limits * self.control_period
 
     def increment_to_action(self, increment: NDArray) -> NDArray[np.float32]:
-        """Action that requests a joint increment (inverse of :meth:`action_to_increment`),
+        """Action that requests a joint increment (inverse of
+        [`action_to_increment`][capture_bench.task.observation.TaskDescription.action_to_increment]),
         clipped to the action space [-1, 1]^3."""
         action = np.asarray(increment, dtype=float) / (
             self.arm.joint_rate_limits * self.control_period
@@ -176,7 +177,7 @@ def encode_observation(
 
 
 def decode_observation(obs: NDArray, control_period: float) -> Observation:
-    """Undo the scaling of :func:`encode_observation`: shape (16,) -> SI units, or a batch
+    """Undo the scaling of `encode_observation`: shape (16,) -> SI units, or a batch
     (N, 16) -> fields with leading axis N (``last_period`` then shape (N,))."""
     o = np.asarray(obs, dtype=np.float64)
     if o.ndim not in (1, 2) or o.shape[-1] != OBSERVATION_SIZE:

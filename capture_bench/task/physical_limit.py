@@ -10,8 +10,8 @@ How it is computed:
 
 1. On the grid ``t_k = k * period`` up to the horizon, every closed-form IK solution of X_T(t_k)
    is tested against the box (exact). Where none lies inside but one lies within
-   :func:`near_box` rad of it, the tolerance is used: from the solution clipped to the box,
-   :func:`nearest_in_box` (active-set projected Gauss-Newton) finds the box's joint vector whose
+   `near_box` rad of it, the tolerance is used: from the solution clipped to the box,
+   `nearest_in_box` (active-set projected Gauss-Newton) finds the box's joint vector whose
    end-effector is nearest X_T, and the point counts as feasible when that distance is below
    ``|epsilon|`` (the radius of the sphere around eq. 20's tolerance cube). Using the sphere, not
    the cube, keeps the bound a *lower* bound: anything eq. 20 accepts is inside the sphere. (Inside
@@ -24,11 +24,11 @@ How it is computed:
    bound is exact to well below the control period, assuming feasibility does not switch on and
    off again inside one period (the box grows monotonically; the target moves mm per period).
 
-Only each chunk's or pass's *first* feasible time matters, so the search (:func:`first_feasible`)
-skips the local search wherever :func:`distance_lower_bound` already puts the whole box farther
+Only each chunk's or pass's *first* feasible time matters, so the search (`first_feasible`)
+skips the local search wherever `distance_lower_bound` already puts the whole box farther
 than ``|epsilon|`` from X_T, and after the first feasible time; it gives exactly what evaluating
-every time with :func:`feasible_solutions` would. :func:`physical_limits` runs the search for
-many episodes at once (one evaluation per round for all of them); :func:`physical_limit` is its
+every time with `feasible_solutions` would. `physical_limits` runs the search for
+many episodes at once (one evaluation per round for all of them); `physical_limit` is its
 one-episode case.
 
 The capture envelope (``capture.hold`` = h s, ``capture.v_max`` m/s): a capture needs, from some
@@ -37,23 +37,23 @@ relative to the capture point within v_max. The joints have no acceleration limi
 arrives at full rate can take the rates that follow the target at once, so the speed bound adds
 nothing at the arrival as such. The envelope's bound is ``t_e + h`` for the earliest entry t_e
 from which the arm can be in the envelope at every instant of ``[t_e, t_e + h]``, which at an
-instant t needs (:func:`envelope_feasible`):
+instant t needs (`envelope_feasible`):
 
 * *eq. 20's box*: a joint vector in the reachable box at t whose end-effector is inside eq. 20's
-  box about X_T(t), decided exactly (:func:`cube_reachable`: joint 1 turns the arm's plane, in
+  box about X_T(t), decided exactly (`cube_reachable`: joint 1 turns the arm's plane, in
   which eq. 20's box is a rectangle and the reach of joints 2 and 3 a region bounded by four
   circular arcs); the box itself, not the sphere about it, so where the sphere reaches the
   target before the box's faces do, and where the target leaves the arm's reach during the
   hold, the entry is later;
 * *the tracking*, with v_max: joint rates within their limits that move the end-effector within
-  v_max of Xdot_T(t), at the IK solutions of X_T(t) (:func:`least_relative_speeds`, exact over
+  v_max of Xdot_T(t), at the IK solutions of X_T(t) (`least_relative_speeds`, exact over
   the rate box; the Jacobian is the capture point's own, where the arm within epsilon of it
   has one a little different). The joints outrun the shipped targets (cm/s) so far that this
   never binds there (1,500 drawn trajectories, 10 mm, 0.3 s: no bound changes with v_max = 50
   mm/s); a target faster than the joints can follow does. Without v_max no instant's velocity
   is bounded, and the box alone is tested.
 
-:func:`held_arrivals` tests both on a grid of ``HOLD_SAMPLES`` times per period over each
+`held_arrivals` tests both on a grid of ``HOLD_SAMPLES`` times per period over each
 candidate hold, from the arrival T of the search above (eq. 20's box lies inside the sphere, so
 t_e >= T), and refines the onset after a failing time to ``period / (HOLD_SAMPLES REFINE)``.
 Each condition is necessary, and a stretch shorter than the grid's step where one fails can only
@@ -64,7 +64,7 @@ oracle (``capture_bench/agents/oracle.py``) captures within a control period of 
 a hold nor a speed bound the bound is T, the search above alone.
 
 Why one file: the bound's search, its pruning bound and its brute-force reference
-(:func:`feasible_solutions`, the test's definition of the answer), and the envelope's tests on
+(`feasible_solutions`, the test's definition of the answer), and the envelope's tests on
 top of them, belong together.
 """
 
@@ -94,7 +94,7 @@ REFINE_PASSES = 2
 CHUNK = 32
 BOUND_MARGIN = 1e-9  # m: rounding allowance of distance_lower_bound
 HOLD_SAMPLES = 8  # per control period: the times of a hold at which the envelope is tested
-#: The faces of the joint-rate box (:func:`least_relative_speeds`): each joint free (0) or at
+#: The faces of the joint-rate box (`least_relative_speeds`): each joint free (0) or at
 #: its lower (-1) or upper (+1) rate limit, every combination, (27, 3).
 RATE_FACES = np.array(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij")).reshape(3, -1).T
 
@@ -192,16 +192,16 @@ def first_feasible(
     upper: FloatArray,
     tolerance: FloatArray,
 ) -> tuple[NDArray[np.intp], FloatArray]:
-    """For consecutive segments of rows, the first row :func:`feasible_solutions` calls feasible.
+    """For consecutive segments of rows, the first row `feasible_solutions` calls feasible.
 
     Exactly what ``feasible_solutions`` gives (the same row, the same theta), with a fraction of
     its work: only the rows before a segment's first feasible one matter, and a near solution
-    needs the local search only when :func:`distance_lower_bound` does not already put the box
+    needs the local search only when `distance_lower_bound` does not already put the box
     out of tolerance. The local searches then go in rounds, the earliest remaining candidate row
-    of every segment per round (:func:`nearest_in_box` gives a row the same result in any batch).
+    of every segment per round (`nearest_in_box` gives a row the same result in any batch).
 
     Args:
-        targets, times, theta0 ... tolerance: as :func:`feasible_solutions`.
+        targets, times, theta0 ... tolerance: as `feasible_solutions`.
         offsets: segment s is rows ``offsets[s]:offsets[s + 1]`` (S + 1,), none empty.
 
     Returns:
@@ -428,7 +428,7 @@ def physical_limit(
     """The earliest time the true capture point can be reached, and with ``hold`` or ``v_max``
     held in the capture envelope, plus the hold (see module docstring).
 
-    One episode of :func:`physical_limits` (the same implementation).
+    One episode of `physical_limits` (the same implementation).
 
     Args:
         target_position: X_T(t) for times of shape (N,), returning (N, 3), global, m.
@@ -446,7 +446,7 @@ def physical_limit(
         target_velocity: Xdot_T(t) for times (N,) -> (N, 3), global, m/s; needed with v_max.
 
     Returns:
-        The :class:`PhysicalLimit`: ``time`` the arrival plus ``hold``, ``hold`` as given.
+        The `PhysicalLimit`: ``time`` the arrival plus ``hold``, ``hold`` as given.
     """
     (limit,) = physical_limits(
         [target_position],
@@ -480,30 +480,30 @@ def physical_limits(
     v_max: float | None = None,
     target_velocities: Sequence[Callable[[FloatArray], FloatArray]] | None = None,
 ) -> list[PhysicalLimit]:
-    """:func:`physical_limit` for G episodes of one arm at once (a vectorised environment).
+    """`physical_limit` for G episodes of one arm at once (a vectorised environment).
 
     Every episode follows the search of the module docstring (grid chunks of ``CHUNK`` times,
     then ``REFINE_PASSES`` refine passes), but each round evaluates the next chunk or pass of
-    every unfinished episode in one :func:`first_feasible` call (the target positions and
+    every unfinished episode in one `first_feasible` call (the target positions and
     travel times are asked of each episode's callables). Its rows are independent of one another
-    (:func:`nearest_in_box` stops row by row), so episode g's result is exactly that of
+    (`nearest_in_box` stops row by row), so episode g's result is exactly that of
     ``physical_limit(target_positions[g], ..., horizons[g], period, travel_times[g])``, which is
     this function with G = 1.
 
     Args:
         target_positions: per episode, X_T(t) for times of shape (N,) -> (N, 3), global, m.
-        theta0, joint_rate_limits, lower, upper, tolerance: as :func:`physical_limit`, shared.
+        theta0, joint_rate_limits, lower, upper, tolerance: as `physical_limit`, shared.
         horizons: per episode, the episode limit, s.
         period: grid spacing (the nominal control period t_s), s, shared.
-        travel_times: per episode, as :func:`physical_limit`'s ``travel_time`` (None entries:
+        travel_times: per episode, as `physical_limit`'s ``travel_time`` (None entries:
             t itself); None: t itself for every episode.
-        hold, v_max: the capture envelope, as :func:`physical_limit`'s, shared.
+        hold, v_max: the capture envelope, as `physical_limit`'s, shared.
         target_velocities: per episode, Xdot_T(t) for times (N,) -> (N, 3), global, m/s;
             needed with ``v_max``.
 
     Returns:
-        One :class:`PhysicalLimit` per episode, in order: ``time`` the arrival (the search above,
-        then, with a hold or a speed bound, :func:`held_arrivals`) plus ``hold``.
+        One `PhysicalLimit` per episode, in order: ``time`` the arrival (the search above,
+        then, with a hold or a speed bound, `held_arrivals`) plus ``hold``.
     """
     count = len(target_positions)
     if len(horizons) != count:
@@ -623,7 +623,7 @@ def least_relative_speeds(
 
     Exact: 0 where the rates ``J^{-1} Xdot_T`` that match it lie in the box; else the least of
     the convex quadratic lies inside one face of the box (each joint free or at one of its rate
-    limits, :data:`RATE_FACES`), where it is the least squares over the free joints; the answer
+    limits, `RATE_FACES`), where it is the least squares over the free joints; the answer
     is the smallest residual of the faces' least squares that lie in their face.
 
     Args:
@@ -662,15 +662,15 @@ def envelope_feasible(
     """For each time, whether the arm can be in the capture envelope then, (N,).
 
     In the envelope: a joint vector in the reachable box puts the end-effector inside eq. 20's
-    box about X_T (:func:`cube_reachable`, exact), and, with ``v_max``, joint rates within
-    their limits can move it within ``v_max`` of Xdot_T (:func:`least_relative_speeds` at the
-    IK solutions of X_T within :func:`near_box` of the reachable box; where there is none, the
+    box about X_T (`cube_reachable`, exact), and, with ``v_max``, joint rates within
+    their limits can move it within ``v_max`` of Xdot_T (`least_relative_speeds` at the
+    IK solutions of X_T within `near_box` of the reachable box; where there is none, the
     speed is not what rules the time out).
 
     Args:
         targets: X_T(t), global, m, (N, 3).
         velocities: Xdot_T(t), global, m/s, (N, 3) (used with ``v_max`` only).
-        times ... tolerance: as :func:`feasible_solutions`.
+        times ... tolerance: as `feasible_solutions`.
         v_max: m/s, or None: eq. 20's box alone.
     """
     box_lo, box_hi, solutions, excess = _box_solutions(
@@ -709,7 +709,7 @@ def held_arrivals(
     """The earliest entry at or after each episode's arrival from which the arm can be in the
     capture envelope for ``hold`` (see the module docstring), and a joint vector at the entry.
 
-    The envelope (:func:`envelope_feasible`) is tested on a grid of ``HOLD_SAMPLES`` times per
+    The envelope (`envelope_feasible`) is tested on a grid of ``HOLD_SAMPLES`` times per
     control period. A *scan* from a time s tests the grid from s over ``hold`` and ``CHUNK``
     steps more: if it holds from s itself through ``s + hold``, s is the entry. Otherwise the
     next candidate is the first grid time after a failing one from which it holds through the
@@ -718,14 +718,14 @@ def held_arrivals(
     times (to ``period / (HOLD_SAMPLES REFINE)``), and a scan from there follows. A scan that
     passes nowhere after its last failure goes on from its end. No entry whose hold ends by
     the horizon: ``inf``. Each round scans or refines every unfinished episode in one
-    :func:`envelope_feasible` call, whose rows are independent, so an episode's result is the
+    `envelope_feasible` call, whose rows are independent, so an episode's result is the
     same in any batch.
 
     Args:
         arrivals: per episode, the arrival (the first feasible time), s (inf: none), (G,).
         thetas: the joint vectors there, (G, 3).
-        target_positions ... tolerance, horizons, period: as :func:`physical_limits`.
-        travel_times: per episode, as :func:`physical_limit`'s ``travel_time`` (None: t).
+        target_positions ... tolerance, horizons, period: as `physical_limits`.
+        travel_times: per episode, as `physical_limit`'s ``travel_time`` (None: t).
         hold, v_max: the envelope.
 
     Returns:
@@ -788,7 +788,7 @@ def _nearest_at(
     args: tuple,
 ) -> FloatArray:
     """Per episode, the joint vector of the reachable box at its time whose end-effector is
-    nearest X_T then (:func:`nearest_in_box` from ``starts`` and from each IK solution), (E, 3);
+    nearest X_T then (`nearest_in_box` from ``starts`` and from each IK solution), (E, 3);
     ``args``: theta0, joint_rate_limits, lower, upper."""
     t = times[:, None]
     targets = np.concatenate([target_positions[g](t[i]) for i, g in enumerate(episodes.tolist())])
@@ -820,7 +820,7 @@ def _envelope_rows(
     travel_times: Sequence[Callable[[FloatArray], FloatArray] | None],
     args: tuple,
 ) -> list[NDArray[np.bool_]]:
-    """:func:`envelope_feasible` of each episode's ``times``, in one call; per episode."""
+    """`envelope_feasible` of each episode's ``times``, in one call; per episode."""
     targets, velocities, moved = [], [], []
     for g, t in zip(episodes.tolist(), times, strict=True):
         targets.append(target_positions[g](t))
@@ -903,7 +903,7 @@ def _planar_meets(
 ) -> NDArray[np.bool_]:
     """Whether the rectangle ``[r_lo, r_hi] x [z_lo, z_hi]`` meets ``g([lo2, hi2] x [lo3, hi3])``
     (``lo``, ``hi`` the (theta2, theta3) bounds, (M, 2)), g one to one there (see
-    :func:`cube_reachable`), (M,)."""
+    `cube_reachable`), (M,)."""
     slack = 1e-12  # m, rad: touching counts
     lo2, hi2, lo3, hi3 = lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]
     # Q's corners in P: their (theta2, theta3) with cos theta3 > 0 in the box

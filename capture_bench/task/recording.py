@@ -1,10 +1,10 @@
-"""The target's side of an episode as one record type, :class:`RecordedEpisode`, and its batched
+"""The target's side of an episode as one record type, `RecordedEpisode`, and its batched
 recording, many episodes at once (for ``CaptureVectorEnv``).
 
-:class:`RecordedEpisode` is what both envs consume, live or replayed
-(:mod:`capture_bench.task.target_side` fills one step by step for ``CaptureEnv``): the true state
+`RecordedEpisode` is what both envs consume, live or replayed
+(`capture_bench.task.target_side` fills one step by step for ``CaptureEnv``): the true state
 (the trajectory, paper section 4), the camera's frames (eq. 2), the estimates in the global frame
-(EKF eqs. 3-7, 11-12), their errors and NEES (:func:`estimate_errors`), and reachability.
+(EKF eqs. 3-7, 11-12), their errors and NEES (`estimate_errors`), and reachability.
 
 Nothing on the target's side of a step depends on the agent's actions: the trajectory and control
 periods are drawn
@@ -12,9 +12,9 @@ at reset, the camera's noise and drop-outs come from the episode's generator in 
 the estimator sees only the frames. So an episode's target side can be computed for its whole
 horizon at reset, and the target sides of many episodes can be computed together: the true states
 and the camera vectorised over time
-(:meth:`~capture_bench.sensing.camera.Camera.capture_sequence`), the EKF over episodes
-(:class:`~capture_bench.sensing.estimator_batch.BatchedTargetEstimator`), the bound over episodes
-(:func:`~capture_bench.task.episode.episode_bounds`). Each episode draws from its own generator
+(`capture_sequence`), the EKF over episodes
+(`BatchedTargetEstimator`), the bound over episodes
+(`episode_bounds`). Each episode draws from its own generator
 exactly what ``CaptureEnv(reuse_target_side=True)`` draws, in the same order.
 """
 
@@ -67,15 +67,15 @@ class EpisodeTruth:
 class RecordedEpisode(EpisodeTruth):
     """One episode's target side, indexed by step (0 is reset, k the end of step k).
 
-    The fields of :class:`EpisodeTruth`, then what the estimator and the env derive from them:
+    The fields of `EpisodeTruth`, then what the estimator and the env derive from them:
     ``estimate_position``,
     ``estimate_velocity`` (T+1, 3), NaN where not ``estimate_valid``; ``estimator_status`` (T+1,)
-    index into :data:`capture_bench.sensing.estimator.STATUSES`; ``reachable`` (T+1,);
+    index into `capture_bench.sensing.estimator.STATUSES`; ``reachable`` (T+1,);
     ``position_error``, ``velocity_error``, ``nees`` (T+1,). ``bound`` is the episode's physical
     limit, None until asked for (the single env reads it from the plan, which carries it since
     it was drawn, at the end of an episode or when the oracle asks).
     ``continuation`` is None when every row holds the estimator's output; a recording whose EKF
-    was run for its first rows only (:func:`record_episodes` with ``estimated_steps``) says
+    was run for its first rows only (`record_episodes` with ``estimated_steps``) says
     there where its estimates stop and the filter to continue from.
     """
 
@@ -91,7 +91,7 @@ class RecordedEpisode(EpisodeTruth):
     continuation: EstimatorContinuation | None = None
 
     def rows(self, k: int, names: Sequence[str] | None = None) -> dict[str, NDArray]:
-        """Step k's row of the tracks ``names`` (default :data:`STEP_TRACKS`) as arrays of one
+        """Step k's row of the tracks ``names`` (default `STEP_TRACKS`) as arrays of one
         row, (1, ...) views: the target side of one episode's step, as the step rule takes it."""
         return {name: getattr(self, name)[k : k + 1] for name in names or STEP_TRACKS}
 
@@ -101,14 +101,14 @@ class EstimatorContinuation:
     """Where a recording's estimates stop short of its time limit, and how to go on: rows 0 ..
     ``step`` - 1 of the estimate tracks hold the EKF's output (later rows hold no estimate, and
     their errors are NaN), and ``filter`` is the EKF's state after row ``step`` - 1
-    (:meth:`BatchedTargetEstimator.restore` continues it bit for bit, with the frames
+    (`BatchedTargetEstimator.restore` continues it bit for bit, with the frames
     ``images[step:]`` and periods ``dt[step:]``)."""
 
     step: int
     filter: FilterRows
 
 
-#: The per-step quantities of a :class:`RecordedEpisode` that a step reads, (T+1, ...) each.
+#: The per-step quantities of a `RecordedEpisode` that a step reads, (T+1, ...) each.
 STEP_TRACKS = (
     "time",
     "dt",
@@ -149,7 +149,7 @@ def record_episodes(
             ``reuse_target_side`` advances it in ``reset``.
         estimated_steps: with the EKF source, run the EKF for the first ``estimated_steps``
             rows only (>= 1; the batched cold photogrammetry of the first frames is there) and
-            give each episode its :class:`EstimatorContinuation`, for a consumer that runs the
+            give each episode its `EstimatorContinuation`, for a consumer that runs the
             rest of the filter only as far as the episode is played (``CaptureVectorEnv``).
             None: every row. The other sources always estimate every row.
     """
@@ -187,8 +187,8 @@ def record_truth(
     """True states at every step time, and the frames (none with the truth source, whose env
     never calls the camera), over every step at once: bit for bit what the single env's
     step-by-step target side computes and draws (the trajectory's
-    :meth:`~capture_bench.sim.target_motion.TargetTrajectory.states`,
-    :meth:`Camera.capture_sequence`)."""
+    `states`,
+    `Camera.capture_sequence`)."""
     time, dt = plan.step_times()
     truth_source = plan.scenario.estimator.source == "truth"
     position, velocity, rotation, points = plan.trajectory.states(
@@ -348,7 +348,7 @@ def _nees(covariance: FloatArray, error: FloatArray) -> FloatArray:
 def estimate_errors_scalar(
     estimate: TargetEstimate, true_position: FloatArray, true_velocity: FloatArray
 ) -> tuple[float, float, float]:
-    """:func:`estimate_errors` of one estimate, in scalar ``math`` and LAPACK: the live single
+    """`estimate_errors` of one estimate, in scalar ``math`` and LAPACK: the live single
     env's, every step (``TargetSide``). ``tests/test_step_rule.py`` checks it equals the batched
     form to rounding.
 

@@ -12,9 +12,9 @@ on the true distance d before and d' after the step: a logarithmic potential, so
 the last millimetre (d from 2 mm to 1 mm: F ~ 0.41) is worth about as much as closing the first
 10 cm (0.3 m to 0.2 m: F ~ 0.46), where dense's linear progress gives 0.01 against 1.0. Shaping
 of this form leaves the optimal policy unchanged (for ``gamma`` equal to the training discount,
-:data:`SHAPING_GAMMA`); over an episode its discounted sum telescopes to
+`SHAPING_GAMMA`); over an episode its discounted sum telescopes to
 gamma**T * Phi(d_T) - Phi(d_0) (``tests/test_rewards.py``). Each term is also reported in
-``info`` under its name; :data:`REWARD_TERMS` names them per mode, in the order they are summed.
+``info`` under its name; `REWARD_TERMS` names them per mode, in the order they are summed.
 
 The speed term (dense and shaped) pays for a capture a gripper could make rather than a pass
 through the capture point at speed, a collision:
@@ -30,7 +30,7 @@ the target, wherever its end lands, the capturing step included. A scenario with
 bound (``capture.v_max: null``, the paper's eq. 20) captures at any speed, and the term is 0
 there: the reward trains for the scenario's rule. It is not shaping: it changes which policies
 are optimal, on purpose (arriving slow pays more than flying through). The weight is taken as 0
-(it is below 2.1e-9) where a step stays beyond :data:`SPEED_REACH`.
+(it is below 2.1e-9) where a step stays beyond `SPEED_REACH`.
 """
 
 from __future__ import annotations
@@ -82,11 +82,11 @@ def reward_terms(
     ``mode``.
 
     Args:
-        mode: one of :data:`REWARD_MODES`.
+        mode: one of `REWARD_MODES`.
         previous_distance: true ||X_E - X_T|| before the step, m.
         distance: the same after the step, m.
         captured: eq. 20 held during the step.
-        penalised: the step ended with a failure other than :data:`UNPENALISED_FAILURES`.
+        penalised: the step ended with a failure other than `UNPENALISED_FAILURES`.
         relative_speed: the end-effector's instantaneous speed relative to the capture point at
             the step's end, m/s.
         closest: the closest approach of X_E - X_T during the step, m (inf: far).

@@ -2,10 +2,11 @@
 
 Every quantity has a unit in its name or its docstring; degrees appear only here (YAML) and are
 converted to radians by the consumers' ``*_rad`` properties. A bad file raises
-:class:`ConfigError` naming the file, the key, the bad value and what would be valid.
+[`ConfigError`][capture_bench.task.scenarios.ConfigError] naming the file, the key, the bad value
+and what would be valid.
 
 Every number has a finite valid range, so that no value accepted here can make an episode
-allocate without bound, loop without end or fail after it starts; :func:`_checked` adds the rules
+allocate without bound, loop without end or fail after it starts; `_checked` adds the rules
 that tie keys together (the steps of an episode, the camera's view direction, the capture box
 against the target's start, the evasive target's manoeuvres).
 """
@@ -68,7 +69,7 @@ def _f(
 ) -> Any:
     """A dataclass field with its documentation and validation rule (``bounds``: (low, high, low
     inclusive) of a number or of each item of a list; ``identifier``: a string that must match
-    :data:`~capture_bench.validation.IDENTIFIER`)."""
+    `IDENTIFIER`)."""
     meta = {"doc": doc, "bounds": bounds, "choices": choices, "identifier": identifier}
     if isinstance(default, (list, tuple)):
         return field(default_factory=lambda: tuple(default), metadata=meta)
@@ -309,14 +310,14 @@ class Scenario:
 
 
 def scenario_files() -> list[Path]:
-    """Every ``*.yaml`` file under :data:`SCENARIO_DIR`, valid or not, sorted by name."""
+    """Every ``*.yaml`` file under `SCENARIO_DIR`, valid or not, sorted by name."""
     return sorted(SCENARIO_DIR.glob("*.yaml"))
 
 
 def list_scenarios(camera: str | None = None) -> list[str]:
     """Names of the shipped scenarios that load, sorted; with ``camera``, those whose
     ``camera.mode`` is that. An invalid file is left out here (it breaks only itself);
-    :func:`invalid_scenarios` says which and why."""
+    [`invalid_scenarios`][capture_bench.task.scenarios.invalid_scenarios] says which and why."""
     invalid = invalid_scenarios()
     names = [p.stem for p in scenario_files() if p.stem not in invalid]
     if camera is None:
@@ -327,7 +328,7 @@ def list_scenarios(camera: str | None = None) -> list[str]:
 def invalid_scenarios() -> dict[str, str]:
     """The shipped scenario files that do not load: ``{name: the ConfigError message}`` (the
     message names the file, the key and what is valid; a file whose name is not a valid scenario
-    name, :data:`~capture_bench.validation.IDENTIFIER`, is one of them);
+    name, `IDENTIFIER`, is one of them);
     ``load_scenario(name)`` raises it."""
     invalid = {}
     for path in scenario_files():
@@ -378,16 +379,16 @@ def _checked(scenario: Scenario, source: str) -> Scenario:
     broken:
 
     * the hold is not shorter than the episode limit (no capture could complete);
-    * the episode has more than :data:`MAX_EPISODE_STEPS` control steps of the shortest real
+    * the episode has more than `MAX_EPISODE_STEPS` control steps of the shortest real
       period (each is drawn at reset);
-    * ``camera.look_at`` is within :data:`MIN_LOOK_DISTANCE` of ``camera.position`` or straight
+    * ``camera.look_at`` is within `MIN_LOOK_DISTANCE` of ``camera.position`` or straight
       above or below it (no view direction, or no camera z-axis);
     * ``target.initial_offset``'s low end is not above sqrt(3) ``capture_tolerance``: the target
       starts ``d`` from the home end-effector in a uniformly drawn direction ``u``, inside the
       eq. 20 box when ``d max|u_i| < epsilon``, and ``max|u_i| >= 1/sqrt(3)`` (equal on the
       box's diagonals), so a low end above sqrt(3) epsilon keeps every start outside it;
     * an evasive target would change its acceleration more than
-      :data:`~capture_bench.sim.target_motion.MAX_JINKS` times in an episode;
+      `MAX_JINKS` times in an episode;
     * the training seeds overlap the evaluation or validation seeds (the evaluation and
       validation ranges are adjacent by construction).
     """
@@ -456,7 +457,7 @@ def _check_view(camera: CameraConfig, source: str) -> None:
 
 
 def _schema(cls: type) -> dict[str, Any]:
-    """The validation schema of a config dataclass: a :class:`~capture_bench.validation.Rule` per
+    """The validation schema of a config dataclass: a `Rule` per
     field (from its type and its ``bounds``/``choices`` metadata), a nested schema per section."""
     hints = typing.get_type_hints(cls)
     schema: dict[str, Any] = {}
@@ -484,8 +485,8 @@ def _schema(cls: type) -> dict[str, Any]:
 
 
 def _build(cls: type, data: dict[str, Any], source: str, prefix: str) -> Any:
-    """Validate a mapping against dataclass ``cls`` (:func:`capture_bench.validation.check_mapping`
-    on :func:`_schema`) and build it, sections recursively."""
+    """Validate a mapping against dataclass ``cls`` (`capture_bench.validation.check_mapping`
+    on `_schema`) and build it, sections recursively."""
     return _construct(cls, check_mapping(data, _schema(cls), source, prefix=prefix))
 
 

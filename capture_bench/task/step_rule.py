@@ -4,31 +4,31 @@
 The model is Gymnasium's functional CartPole (``gymnasium/envs/phys2d/cartpole.py``), whose one
 transition function serves both its single and its vector env. Here the envs do the simulation's
 half of a step (the world's rate and joint limits, forward kinematics, the collision query) and
-read the target's half from a :class:`~capture_bench.task.recording.RecordedEpisode`; then
-:meth:`StepRule.step` applies the rules:
+read the target's half from a `RecordedEpisode`; then
+`StepRule.step` applies the rules:
 
 * capture (eq. 20, ``|X_E - X_T| < epsilon`` component-wise) on the *true* target, tested along
-  the end-effector's arc over the whole step (:mod:`capture_bench.task.capture`); with a speed
+  the end-effector's arc over the whole step (`capture_bench.task.capture`); with a speed
   bound (``capture.v_max`` m/s: the capture envelope) the end-effector's instantaneous velocity
   relative to the capture point must be at most ``v_max`` too, along the arc; with a hold
   (``capture.hold`` s of the scenario) both must hold without a break for that long, and the
-  capture is when the hold completes (:func:`~capture_bench.task.capture.held_capture`; the
-  stay in progress is carried in :class:`ArmState`);
+  capture is when the hold completes (`held_capture`; the
+  stay in progress is carried in `ArmState`);
 * eq. 20 and its hold on the *estimated* target, the first time they complete
   (``capture_time_estimated``: what the paper's hardware could judge; without the speed bound);
 * the failure, in this order: ``collision``, ``unreachable``, ``target_lost`` (each only if the
   step did not capture), then ``timeout`` at the time limit (a truncation);
-* the reward terms (:mod:`capture_bench.task.rewards`);
-* the ``info`` entries (:data:`INFO_KEYS`, then the reward terms; :data:`END_INFO_KEYS` where an
+* the reward terms (`capture_bench.task.rewards`);
+* the ``info`` entries (`INFO_KEYS`, then the reward terms; `END_INFO_KEYS` where an
   episode ended, filled by the env, which owns the bound);
-* the observation (:mod:`capture_bench.task.observation`, eq. 13's predicted relative vector).
+* the observation (`capture_bench.task.observation`, eq. 13's predicted relative vector).
 
 Adding an ``info`` key, a reward term, an observation entry or a failure reason is an edit here
 (or in ``rewards.py`` / ``observation.py``); tests check both envs expose exactly these sets.
 
 At N = 1 numpy's per-call overhead, not the arithmetic, is a step's cost, so a step makes few
 numpy calls: the capture tests run in full only for the steps that a cheap bound
-(:func:`~capture_bench.task.capture.approach_lower_bounds`) does not already put out of reach
+(`approach_lower_bounds`) does not already put out of reach
 (a step far from the target, the common case, costs the bound alone), and each piece of state
 is read once and written once.
 """
@@ -92,8 +92,8 @@ _STATUS_NAMES = np.array(STATUSES, dtype=object)
 # below anything eq. 20 resolves
 _SCREEN_MARGIN = 1e-9
 
-#: The tracks of the target side :meth:`StepRule.step` reads at a step's start (``before``); at
-#: its end (``after``) it reads every one of :data:`capture_bench.task.recording.STEP_TRACKS`.
+#: The tracks of the target side `StepRule.step` reads at a step's start (``before``); at
+#: its end (``after``) it reads every one of `capture_bench.task.recording.STEP_TRACKS`.
 BEFORE_TRACKS = ("position", "velocity", "estimate_valid", "estimate_position")
 
 #: ``info`` of every step, in this order (the reward terms of the mode follow).
@@ -137,7 +137,7 @@ OPTIONAL_KEYS = (
 
 
 def info_keys(reward_mode: str) -> tuple[str, ...]:
-    """The ``info`` keys of every step under ``reward_mode``: :data:`INFO_KEYS`, then the
+    """The ``info`` keys of every step under ``reward_mode``: `INFO_KEYS`, then the
     mode's reward terms."""
     return INFO_KEYS + REWARD_TERMS[reward_mode]
 
@@ -159,7 +159,7 @@ class ArmState:
         estimate_inside_since: the same for the estimated target, (N,).
         stay_speed_max: the largest instantaneous relative speed over the stay of
             ``inside_since`` up to the last step's end, m/s, sampled as
-            :meth:`StepRule.capture_times` says; NaN where no stay is in progress, (N,).
+            `StepRule.capture_times` says; NaN where no stay is in progress, (N,).
     """
 
     theta: FloatArray
@@ -192,7 +192,7 @@ class ArmState:
 
 
 class Captures(NamedTuple):
-    """What :meth:`StepRule.capture_times` found for M steps on the true target, (M,) arrays,
+    """What `StepRule.capture_times` found for M steps on the true target, (M,) arrays,
     NaN where none.
 
     Attributes:
@@ -217,10 +217,10 @@ class Captures(NamedTuple):
 
 @dataclass
 class StepOutcome:
-    """What :meth:`StepRule.step` decided for the M episodes that stepped (arrays (M,)).
+    """What `StepRule.step` decided for the M episodes that stepped (arrays (M,)).
 
-    ``failure`` holds codes into :data:`FAILURE_NAMES`; ``info`` the (M,) values of
-    :func:`info_keys` (``failure`` and ``estimator_status`` as object arrays of names, the
+    ``failure`` holds codes into `FAILURE_NAMES`; ``info`` the (M,) values of
+    `info_keys` (``failure`` and ``estimator_status`` as object arrays of names, the
     optional times NaN where none).
     """
 
@@ -238,7 +238,7 @@ class StepRule:
         scenario: lost_after, the time limit, the control period, the capture's hold and the
             estimator's source.
         description: the task (arm, t_s, capture tolerance epsilon).
-        reward_mode: one of :data:`capture_bench.task.rewards.REWARD_MODES`.
+        reward_mode: one of `capture_bench.task.rewards.REWARD_MODES`.
     """
 
     def __init__(self, scenario: Scenario, description: TaskDescription, reward_mode: str):
@@ -259,7 +259,7 @@ class StepRule:
 
     def set_hold(self, hold: float) -> None:
         """Ask a capture to hold ``hold`` s (0: the first entry captures) from the next step on.
-        Only a training curriculum does this (:class:`capture_bench.training.callbacks.
+        Only a training curriculum does this (`capture_bench.training.callbacks.
         HoldCurriculum`); an env built from its scenario asks for the scenario's
         ``capture.hold``."""
         value = float(hold)
@@ -269,7 +269,7 @@ class StepRule:
 
     def set_tolerance(self, tolerance: Any) -> None:
         """Test eq. 20 with ``tolerance`` (m, a number or (3,)) from the next step on. Only a
-        training curriculum does this (:class:`capture_bench.training.callbacks.
+        training curriculum does this (`capture_bench.training.callbacks.
         ToleranceCurriculum`); an env built from its scenario tests the scenario's epsilon."""
         eps = np.broadcast_to(np.asarray(tolerance, dtype=float), (3,)).copy()
         if not (np.isfinite(eps).all() and (eps > 0).all()):
@@ -280,7 +280,7 @@ class StepRule:
 
     def start(self, state: ArmState, rows: Rows, target_position: FloatArray) -> dict[str, NDArray]:
         """Begin episodes ``rows`` at the home pose; ``target_position`` X_T at reset, (M, 3).
-        Returns their reset ``info`` values (:data:`RESET_INFO_KEYS`), (M,) each."""
+        Returns their reset ``info`` values (`RESET_INFO_KEYS`), (M,) each."""
         x_e = kinematics.forward_kinematics_point(self.home)
         state.theta[rows] = self.home
         state.x_e[rows] = x_e
@@ -311,9 +311,9 @@ class StepRule:
             state: the N episodes' state (rows ``rows`` step).
             rows: the stepping episodes (a slice or indices).
             before: the target side at the start of the step, (M, ...) arrays by
-                :data:`BEFORE_TRACKS` name (more are ignored).
+                `BEFORE_TRACKS` name (more are ignored).
             after: the target side at the end of the step, (M, ...) arrays by
-                :data:`capture_bench.task.recording.STEP_TRACKS` name.
+                `capture_bench.task.recording.STEP_TRACKS` name.
             theta, x_e: joint angles after the world's limits, rad, and X_E there, m, (M, 3).
             clipped, saturated: the world's flags, (M,).
             collides: given which of the M to ask (M,) bool, whether each is in collision (the
@@ -400,9 +400,9 @@ class StepRule:
 
     def _closest(self, d0: FloatArray, d1: FloatArray, reach: FloatArray) -> FloatArray:
         """The reward's closeness: the closest approach of X_E - X_T over each step, on the
-        straight segment between its ends, m (:func:`~capture_bench.task.capture.
+        straight segment between its ends, m (`
         closest_approaches`); inf where the step's lower bound ``reach`` puts it beyond
-        :data:`~capture_bench.task.rewards.SPEED_REACH` (the speed term's weight is below 2.1e-9
+        `SPEED_REACH` (the speed term's weight is below 2.1e-9
         there), and everywhere where the speed term is 0 anyway: under the sparse reward, and
         without a speed bound."""
         if self.reward_mode == "sparse" or self.v_max == math.inf:
@@ -434,20 +434,20 @@ class StepRule:
     ) -> Captures:
         """When each step's capture completed (NaN where it did not) and when the stay inside
         eq. 20's box in progress at its end began (NaN: outside), on the true target
-        (:mod:`capture_bench.task.capture`): the stays are tested on the chord where the arc sags
+        (`capture_bench.task.capture`): the stays are tested on the chord where the arc sags
         by at most ``ARC_RESOLUTION``, else along the arc where the chord passes within the
         tolerance's radius plus the sag; with ``v_max`` the stays are cut to where the
         end-effector's instantaneous velocity relative to the capture point is at most
-        ``v_max`` (the capture envelope); :func:`~capture_bench.task.capture.held_capture` then
-        applies the hold. The steps whose lower bound ``reach`` (:func:`~capture_bench.task.
-        capture.approach_lower_bounds`) puts farther than that cannot enter the box and are not
+        ``v_max`` (the capture envelope); `held_capture` then
+        applies the hold. The steps whose lower bound ``reach`` (`approach_lower_bounds`) puts
+        farther than that cannot enter the box and are not
         tested.
 
-        On each step with a stay (the one :func:`~capture_bench.task.capture.held_capture`
+        On each step with a stay (the one `held_capture`
         keeps: inside the box, and slow where ``v_max`` bounds the speed) it also takes the
         instantaneous relative speed ``|J(theta) dtheta/dt - Xdot_T|`` over the stay's part of
         the step, from its entry (or the step's start) to the capture (or the step's end),
-        sampled by :func:`~capture_bench.task.capture.speeds_between` (the part's ends and the
+        sampled by `speeds_between` (the part's ends and the
         points of the speed test's grid between them; the largest is within
         ``2 VELOCITY_RESOLUTION`` of the true largest), and joins its largest to
         ``speed_max`` where the stay goes on from the last step; on a capture, the distance and
@@ -464,11 +464,11 @@ class StepRule:
             t0, dt: the step's start and real period, s, (M,).
             trajectory: the j-th episode's true trajectory.
             since: when the stay in progress at the step's start began, s, NaN if none, (M,).
-            reach: :func:`~capture_bench.task.capture.approach_lower_bounds` of ``d0, d1``,
+            reach: `approach_lower_bounds` of ``d0, d1``,
                 m, (M,).
             positions, velocities: X_T and Xdot_T at the step's start and end, (M, 3) each.
             speed_max: the largest relative speed over the stay in progress at the step's start
-                (:attr:`ArmState.stay_speed_max`), m/s, (M,).
+                (`ArmState.stay_speed_max`), m/s, (M,).
         """
         out = Captures(*_nans(6 * d0.shape[0]).reshape(6, -1))  # six (M,) rows of one block
         sag = arc_sag_bounds(applied)
@@ -532,7 +532,7 @@ class StepRule:
         positions: tuple[FloatArray, FloatArray],
         velocities: tuple[FloatArray, FloatArray],
     ) -> None:
-        """Row ``i`` of ``out``'s speeds over a stay (see :meth:`capture_times`).
+        """Row ``i`` of ``out``'s speeds over a stay (see `capture_times`).
 
         Args:
             out: where to write.
@@ -575,7 +575,7 @@ class StepRule:
     ) -> list[tuple[float, float]]:
         """The fractions of step ``i`` during which the end-effector's instantaneous velocity
         relative to the true capture point is at most ``v_max``
-        (:func:`~capture_bench.task.capture.slow_intervals_along_arc`)."""
+        (`slow_intervals_along_arc`)."""
         traj, start, step = trajectory(i), float(t0[i]), float(dt[i])
         return slow_intervals_along_arc(
             theta0[i], applied[i], step, lambda f: traj.velocity(start + f * step), self.v_max
@@ -673,8 +673,8 @@ def _relative_velocities(
     theta: FloatArray, applied: FloatArray, dt: FloatArray, target_velocity: FloatArray
 ) -> FloatArray:
     """``J(theta) applied / dt - Xdot_T`` of M steps' ends, m/s, (M, 3): the numbers of
-    :func:`~capture_bench.task.capture.relative_velocities` at the joint rates ``applied / dt``
-    (to rounding), with :func:`capture_bench.sim.kinematics.jacobian`'s entries multiplied out,
+    `relative_velocities` at the joint rates ``applied / dt``
+    (to rounding), with `capture_bench.sim.kinematics.jacobian`'s entries multiplied out,
     in half its numpy calls. Element by element: a row's floats do not depend on the others."""
     t1, t2, t3 = theta[:, 0], theta[:, 1], theta[:, 2]
     rates = applied / dt[:, None]
@@ -702,7 +702,7 @@ def _nans(m: int) -> FloatArray:
 
 def scalar_info(values: Mapping[str, NDArray], j: int = 0) -> dict[str, Any]:
     """Episode j's ``info`` as the single env gives it: Python scalars, None for no failure and
-    for the :data:`OPTIONAL_KEYS` where NaN."""
+    for the `OPTIONAL_KEYS` where NaN."""
     out = {key: array.item(j) for key, array in values.items()}
     for key in OPTIONAL_KEYS:
         if key in out and math.isnan(out[key]):

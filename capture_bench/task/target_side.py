@@ -7,17 +7,17 @@ on the agent's actions: after ``reset(seed=s)`` it is a function of the scenario
 index (the control periods, the trajectory, the camera's noise and drop-outs all come from the
 seeded generator, in an order no action changes).
 
-:class:`TargetSide` holds it as one :class:`~capture_bench.task.recording.RecordedEpisode`:
+`TargetSide` holds it as one `RecordedEpisode`:
 
-* live (:meth:`TargetSide.live`), the single env's default: step k's row is computed when the
-  step asks for it (:meth:`TargetSide.through`), drawing the camera's noise from the env's
+* live (`TargetSide.live`), the single env's default: step k's row is computed when the
+  step asks for it (`TargetSide.through`), drawing the camera's noise from the env's
   generator then, step by step, as a plain gymnasium env would;
-* recorded (:meth:`TargetSide.record_all`): every row to the time limit at once, in the same order
+* recorded (`TargetSide.record_all`): every row to the time limit at once, in the same order
   of draws (``CaptureEnv(reuse_target_side=True)``);
-* replayed (:meth:`TargetSide.replay`): a recording kept in an :class:`EpisodeCache`.
+* replayed (`TargetSide.replay`): a recording kept in an `EpisodeCache`.
 
 ``CaptureVectorEnv`` records its episodes in batches
-(:func:`capture_bench.task.recording.record_episodes`), the same record type.
+(`capture_bench.task.recording.record_episodes`), the same record type.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ ArmAt = Callable[[float], FloatArray]  # t, s -> the arm's joint angles then, ra
 
 class SceneCamera(Protocol):
     """A camera whose frame depends on the whole scene, the arm included (the rendered camera,
-    :class:`capture_bench.sensing.scene_camera.RenderedSceneCamera`): what a live
-    :class:`TargetSide` asks instead of :meth:`Camera.capture` of the feature points."""
+    `capture_bench.sensing.scene_camera.RenderedSceneCamera`): what a live
+    `TargetSide` asks instead of `Camera.capture` of the feature points."""
 
     model: CameraModel
     last_visible: bool
@@ -66,7 +66,7 @@ class SceneCamera(Protocol):
         rng: np.random.Generator,
     ) -> Frame | None:
         """Frame k (taken at ``time``, s), the target on ``trajectory`` and the arm at
-        ``arm_at(t)``; the frame delivered now, as :meth:`Camera.capture` returns it."""
+        ``arm_at(t)``; the frame delivered now, as `Camera.capture` returns it."""
         ...
 
 
@@ -79,11 +79,11 @@ def scenario_camera(scenario: Scenario) -> tuple[Camera, FloatArray]:
 
 
 class TargetSide:
-    """One episode's target side as a :class:`RecordedEpisode`, its rows filled up to
-    :attr:`filled` (every row once complete).
+    """One episode's target side as a `RecordedEpisode`, its rows filled up to
+    `filled` (every row once complete).
 
-    Build it with :meth:`live` or :meth:`replay`; read row k of ``episode`` after
-    :meth:`through` (k).
+    Build it with `live` or `replay`; read row k of ``episode`` after
+    `through` (k).
     """
 
     def __init__(
@@ -97,7 +97,7 @@ class TargetSide:
         self.filled = filled  # rows 0 .. filled - 1 hold values
         self._sensors = sensors
         #: The arm's joint angles at a time of the current step (a scene camera's frame shows
-        #: the arm): set by the env before :meth:`through` asks for the step's row.
+        #: the arm): set by the env before `through` asks for the step's row.
         self.arm_at: ArmAt | None = None
 
     @classmethod
@@ -109,8 +109,8 @@ class TargetSide:
         features: FloatArray,
         rng: np.random.Generator,
     ) -> TargetSide:
-        """The next episode of ``rng``: its plan drawn (:meth:`EpisodePlan.draw`, a winnable
-        one), then :meth:`live` on it with the same generator."""
+        """The next episode of ``rng``: its plan drawn (`EpisodePlan.draw`, a winnable
+        one), then `live` on it with the same generator."""
         plan = EpisodePlan.draw(scenario, camera.model, features, rng)
         return cls.live(plan, camera, estimator, features, rng)
 
@@ -157,7 +157,7 @@ class TargetSide:
     @property
     def needs_arm(self) -> bool:
         """Whether the rows depend on the arm (a scene camera): the env then sets
-        :attr:`arm_at` before asking for each step's row, and the side cannot be recorded
+        `arm_at` before asking for each step's row, and the side cannot be recorded
         ahead of the steps."""
         return self._sensors is not None and not isinstance(self._sensors[0], Camera)
 
@@ -180,8 +180,8 @@ class TargetSide:
 
     def record_all(self) -> RecordedEpisode:
         """Every row to the time limit (a live side computes them now; its sensors are dropped):
-        :meth:`record_many` of this side. Not for a side whose rows depend on the arm
-        (:attr:`needs_arm`): ``RuntimeError``."""
+        `record_many` of this side. Not for a side whose rows depend on the arm
+        (`needs_arm`): ``RuntimeError``."""
         (episode,) = TargetSide.record_many([self])
         return episode
 
@@ -189,11 +189,11 @@ class TargetSide:
     def record_many(sides: Sequence[TargetSide]) -> list[RecordedEpisode]:
         """Every row of each side to the time limit (each side with its own generator; they may
         share a camera and an estimator; their sensors are dropped), bit for bit as
-        :meth:`_fill_next` fills them: the true states and frames of every side with none
+        `_fill_next` fills them: the true states and frames of every side with none
         filled yet, then the photogrammetry's cold solves of the frames their estimators start
-        from, all at once (:func:`~capture_bench.sensing.photogrammetry.cold_solves`), then
+        from, all at once (`cold_solves`), then
         each one's estimates; a side already part filled goes on step by step. Not for a side
-        whose rows depend on the arm (:attr:`needs_arm`): ``RuntimeError``."""
+        whose rows depend on the arm (`needs_arm`): ``RuntimeError``."""
         if any(side.needs_arm for side in sides):
             raise RuntimeError(
                 "a rendered camera's frames show the arm, so its target side cannot be recorded "
@@ -216,8 +216,8 @@ class TargetSide:
 
     def _record_truth(self) -> None:
         """The true states, frames and reachability of every row of a side with none filled,
-        as :meth:`_fill_next` computes and draws them one by one, bit for bit
-        (:func:`~capture_bench.task.recording.record_truth`)."""
+        as `_fill_next` computes and draws them one by one, bit for bit
+        (`record_truth`)."""
         assert self._sensors is not None
         camera, _, features, rng = self._sensors
         assert isinstance(camera, Camera)  # record_many refuses a scene camera's side
@@ -232,7 +232,7 @@ class TargetSide:
         ep.reachable[:] = kinematics.reachable_points(truth.position)
 
     def _first_frame(self) -> FloatArray | None:
-        """The first frame delivered (after :meth:`_record_truth`), which a photogrammetry or
+        """The first frame delivered (after `_record_truth`), which a photogrammetry or
         EKF estimator starts from, or None (no frame, or the truth source)."""
         if self.episode.plan.scenario.estimator.source == "truth":
             return None
@@ -240,7 +240,7 @@ class TargetSide:
         return self.episode.images[framed[0]] if framed.size else None
 
     def _record_estimates(self) -> None:
-        """Every row's estimate after :meth:`_record_truth`: the estimator (reset) row by row."""
+        """Every row's estimate after `_record_truth`: the estimator (reset) row by row."""
         assert self._sensors is not None
         estimator = self._sensors[1]
         estimator.reset()
@@ -306,7 +306,7 @@ class EpisodeCache:
     a time in one worker, so a few recordings suffice (``max_episodes``, least recently used
     dropped first; ~60 KB each at 200 steps); bounds are small (``max_limits``, all dropped when
     full).
-    Each env uses :data:`DEFAULT_EPISODE_CACHE` unless given another; :meth:`clear` empties it.
+    Each env uses `DEFAULT_EPISODE_CACHE` unless given another; `clear` empties it.
     """
 
     def __init__(self, max_episodes: int = 16, max_limits: int = 65_536) -> None:
@@ -338,7 +338,7 @@ class EpisodeCache:
 
     def scene_frames(self, key: EpisodeKey) -> dict[int, Any]:
         """The store of a rendered camera's target-only frames of ``key`` (frame index -> what
-        :class:`~capture_bench.sensing.scene_camera.RenderedSceneCamera` keeps), empty at
+        `RenderedSceneCamera` keeps), empty at
         first and filled by the camera; kept for the ``max_episodes`` latest keys."""
         found = self._scene_frames.get(key)
         if found is None:
@@ -365,7 +365,7 @@ class EpisodeCache:
         self, key: EpisodeKey | None, plan: EpisodePlan, description: TaskDescription
     ) -> PhysicalLimit:
         """The physical-limit bound of ``plan``: the one kept for ``key``, else
-        :func:`~capture_bench.task.episode.episode_bounds`' (the one the plan carries since it
+        `episode_bounds`' (the one the plan carries since it
         was drawn, or computed now) and kept for ``key`` (None: an unseeded episode, not
         kept)."""
         found = None if key is None else self.limit(key)

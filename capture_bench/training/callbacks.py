@@ -2,18 +2,18 @@
 episodes, progress lines and periodic validation (which keeps the best model).
 
 TensorBoard scalars written beside SB3's own (the statistics of
-:mod:`capture_bench.training.episode_stats`, NaN ones left out):
+`capture_bench.training.episode_stats`, NaN ones left out):
 
 * ``rollout/capture_rate``, ``rollout/median_capture_time`` (s), ``rollout/median_ratio_to_limit``,
   ``rollout/mean_score``, ``rollout/failure/<reason>`` (each of ``timeout``, ``collision``,
   ``target_lost``, ``unreachable``), ``rollout/estimate_position_error_m`` (m): over the
-  training episodes that ended since the logger last wrote (:class:`RolloutMetrics`; SB3 writes
+  training episodes that ended since the logger last wrote (`RolloutMetrics`; SB3 writes
   after every rollout for PPO and A2C, every ``log_interval`` episodes for SAC and TD3). SB3's
   ``rollout/success_rate`` is instead over the last 100 episodes.
 * ``eval/capture_rate``, ``eval/mean_reward``, ``eval/median_capture_time`` (s),
   ``eval/median_ratio_to_limit``, ``eval/mean_score``, ``eval/failure/<reason>``,
   ``eval/estimate_position_error_m`` (m): over the periodic validation's episodes
-  (:class:`Progress`).
+  (`Progress`).
 
 Imports Stable-Baselines3 at module level: import this module only where SB3 is needed.
 """
@@ -50,7 +50,7 @@ def curriculum_progress(step: int, steps: int, delay: int) -> float:
 
 class _Curriculum(BaseCallback):
     """A training-only curriculum: at the start of every rollout (so a resumed run continues
-    where it was) the training envs get :meth:`value` at the step reached, through their method
+    where it was) the training envs get `value` at the step reached, through their method
     ``ENV_METHOD``, and TensorBoard gets it as ``TAG``. The validation, and everything
     evaluated, keep the scenario's rule; the recorded physical limit stays the scenario's.
 
@@ -102,7 +102,7 @@ class _Curriculum(BaseCallback):
 class ToleranceCurriculum(_Curriculum):
     """The tolerance curriculum: the training envs count a capture at a tolerance that shrinks
     geometrically from ``start`` (m, each component) to the scenario's epsilon (``final``, m,
-    (3,)), eps(t) = start^(1-p) eps^p with p = :func:`curriculum_progress`."""
+    (3,)), eps(t) = start^(1-p) eps^p with p = `curriculum_progress`."""
 
     ENV_METHOD = "set_capture_tolerance"
     TAG = "train/capture_tolerance_m"
@@ -119,7 +119,7 @@ class HoldCurriculum(_Curriculum):
     """The hold curriculum: the training envs ask a capture to hold for a time that grows
     linearly from ``start`` (s; 0: the first entry captures, as a fly-through does on the other
     scenarios) to the scenario's ``capture.hold`` (``final``, s),
-    h(t) = start + (final - start) p with p = :func:`curriculum_progress`; ``delay`` gives the
+    h(t) = start + (final - start) p with p = `curriculum_progress`; ``delay`` gives the
     policy time to learn the fly-through first."""
 
     ENV_METHOD = "set_capture_hold"
@@ -148,7 +148,7 @@ class _Normalized:
 class Checkpointer(BaseCallback):
     """Save a checkpoint every ``every`` environment steps (0: only when asked).
 
-    A checkpoint at N steps is the directory ``step_N/`` of :mod:`capture_bench.training.checkpoint`
+    A checkpoint at N steps is the directory ``step_N/`` of `capture_bench.training.checkpoint`
     (written under a temporary name and renamed, so it is complete when it exists; read back
     without unpickling). Replay buffers older than the last two checkpoints are deleted (they
     are large); the rest of each checkpoint is kept.
@@ -189,7 +189,7 @@ class RolloutMetrics(BaseCallback):
     """Log the task's statistics of the training episodes (``rollout/...``, module docstring).
 
     Each step's ``infos`` and ``dones`` (SB3 passes them for every VecEnv kind) feed an
-    :class:`~capture_bench.training.episode_stats.EpisodeTracker`; at each step where episodes end,
+    `EpisodeTracker`; at each step where episodes end,
     the statistics over every episode ended since the logger last wrote are recorded (the
     recorded values stand until the logger writes them). That the logger has written is seen by
     its recorded values having been cleared, which works whenever SB3 writes: after the rollout
@@ -227,15 +227,15 @@ class Progress(BaseCallback):
     Validation plays ``eval_episodes`` deterministic episodes on the first of the scenario's
     validation seeds (``Scenario.validation_seeds``: never a published evaluation seed; the same
     seeds every time, for a comparable curve; nothing is learned from them), one per sub-env of a
-    batched :class:`~capture_bench.envs.vector_env.CaptureVectorEnv`
-    (:func:`~capture_bench.training.validation_run.run_validation`), and logs ``eval/...`` (module
+    batched [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv]
+    (`run_validation`), and logs ``eval/...`` (module
     docstring) to TensorBoard. A validation better than every earlier one of the run (higher
     capture rate, then lower median ratio to the physical limit:
-    :func:`~capture_bench.training.policy_export.is_better`) writes ``run_dir/best/``
-    (:class:`~capture_bench.training.policy_export.BestModel`).
+    `is_better`) writes ``run_dir/best/``
+    (`BestModel`).
 
     Args:
-        config: the run's :class:`~capture_bench.training.options.TrainConfig`.
+        config: the run's `TrainConfig`.
         hp: its validated hyper-parameters.
         target: total environment steps of the run.
         keep_best: write ``best/`` under ``config.run_dir`` (nothing where it is None).
@@ -294,7 +294,7 @@ class Progress(BaseCallback):
 
     def play(self, model: Any) -> tuple[dict[str, float], list[int], dict[str, dict[str, float]]]:
         """Play the validation episodes with ``model`` (nothing logged): the pooled statistics
-        (:func:`~capture_bench.training.episode_stats.summarize`; each scenario of a mixture
+        (`summarize`; each scenario of a mixture
         weighs the same), the seeds, and on a mixture each scenario's own statistics."""
         from capture_bench.envs.vector_env import CaptureVectorEnv
         from capture_bench.training.hyperparameters import image_size
@@ -336,7 +336,7 @@ class Progress(BaseCallback):
         """Run the validation episodes now; log and return their statistics.
 
         Returns:
-            :func:`~capture_bench.training.episode_stats.summarize`'s statistics of the episodes:
+            `summarize`'s statistics of the episodes:
             ``capture_rate``, ``mean_reward``, ``median_capture_time`` (s),
             ``median_ratio_to_limit`` (NaN if nothing captured), ``mean_score``,
             ``failure/<reason>``, ``estimate_position_error_m`` (m).

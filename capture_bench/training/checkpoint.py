@@ -14,7 +14,7 @@ to ``--resume`` must not be able to do that. A checkpoint at N environment steps
 
 The directory is written under a temporary name and renamed into place, so a ``step_<N>/`` that
 exists is complete. Resuming builds the model from the run's saved configuration, exactly as a
-fresh run does, and :func:`restore` fills it in.
+fresh run does, and `restore` fills it in.
 """
 
 from __future__ import annotations
@@ -210,7 +210,7 @@ def _check_archive(path: Path, what: str) -> None:
     """A checkpoint's archive (``parameters.pt``, ``replay_buffer.npz``) is a zip whose members
     are stored as they are, not compressed: refuse one that is not a zip, or that declares far
     more than it holds (a zip bomb), before torch or numpy allocates what it declares
-    (:func:`~capture_bench.agents.policy_file.check_archive`). Their size on disk is not capped:
+    (`check_archive`). Their size on disk is not capped:
     a replay buffer is as large as the run chose (train.py's memory check bounds that)."""
     from capture_bench.agents.policy_file import PolicyLoadError, check_archive
 

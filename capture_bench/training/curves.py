@@ -12,7 +12,7 @@ seeds, and writes one report page, ``learning_curves.md`` and a self-contained
   seed's validation capture rate first reached ``incremental_ik``'s (median over the seeds that
   did, and how many did);
 * aggregate statistics over the training seeds (rliable,
-  :mod:`capture_bench.training.seed_statistics`): per algorithm the IQM, optimality gap and mean
+  `capture_bench.training.seed_statistics`): per algorithm the IQM, optimality gap and mean
   of the runs' final mean per-episode score with stratified bootstrap intervals, and the
   probability of improvement between algorithms; the unit of replication is the training seed;
   and their performance profiles, ``performance_profile.png`` (the share of an algorithm's
@@ -32,7 +32,7 @@ level is then pooled the same way. ``--arms`` reads runs of any name instead of 
 training recipes trained by their own commands).
 
 Every number comes from the runs' ``validations.csv`` (written by train.py's periodic
-validation: :data:`capture_bench.training.policy_export.VALIDATIONS_FILE`) and, for a run that
+validation: `capture_bench.training.policy_export.VALIDATIONS_FILE`) and, for a run that
 imitated a controller first, its ``imitation.json`` (the policy validated after each DAgger
 round: the curve starts there, and the algorithm's steps follow the imitation's), so the page is
 regenerated without training again. Validation seeds only: nothing here reads a published
@@ -77,7 +77,7 @@ PROFILE_KEYS = ("taus", "share", "low", "high")
 
 @dataclass
 class Curve:
-    """One run's validations: steps, wall-clock s, and each metric and :data:`SCORE` (NaN where
+    """One run's validations: steps, wall-clock s, and each metric and `SCORE` (NaN where
     undefined or not recorded)."""
 
     algo: str

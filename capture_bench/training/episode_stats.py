@@ -2,7 +2,7 @@
 
 What ``train.py`` logs to TensorBoard beside SB3's own scalars, under ``rollout/`` (the training
 episodes that ended since the last time the logger wrote) and ``eval/`` (the periodic validation
-episodes): the keys of :func:`summarize`.
+episodes): the keys of `summarize`.
 
 ================================  ================================================================
 key                               statistic over the episodes
@@ -13,10 +13,10 @@ key                               statistic over the episodes
                                   captured episodes whose bound is finite and > 0 (the
                                   leaderboard's ratio to the physical limit)
 ``mean_score``                    mean of the per-episode score
-                                  (:func:`capture_bench.task.score.episode_score`: physical
+                                  (`capture_bench.task.score.episode_score`: physical
                                   limit / capture time for a capture, 0 for a failure)
 ``failure/<reason>``              share of episodes that ended with ``failure == reason``, for
-                                  each reason of :data:`~capture_bench.task.step_rule.FAILURES`
+                                  each reason of `FAILURES`
 ``estimate_position_error_m``     mean over episodes of each episode's mean
                                   ``estimate_position_error`` (m) over its steps where it is
                                   finite (steps without a valid estimate are left out; an episode
@@ -25,8 +25,8 @@ key                               statistic over the episodes
 ================================  ================================================================
 
 A statistic with no episode to compute it on (no capture, no estimate) is NaN in
-:func:`summarize`'s result; loggers leave NaN out (:func:`finite_items`). The per-episode rules
-(what "captured" and "the ratio" are) are those of :mod:`capture_bench.evaluation.rollout`.
+`summarize`'s result; loggers leave NaN out (`finite_items`). The per-episode rules
+(what "captured" and "the ratio" are) are those of `capture_bench.evaluation.rollout`.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """Per-algorithm hyper-parameters: ``configs/algos/<algo>.yaml`` (RL-Zoo-like keys), validated once.
 
-An unknown key or a bad value raises :class:`~capture_bench.task.scenarios.ConfigError` naming the
-file, the key, the value and what is valid; :func:`sb3_kwargs` turns a validated mapping into the
+An unknown key or a bad value raises [`ConfigError`][capture_bench.task.scenarios.ConfigError]
+naming the
+file, the key, the value and what is valid; `sb3_kwargs` turns a validated mapping into the
 SB3 algorithm's constructor arguments. No SB3 or torch import happens at module level.
 """
 
@@ -192,7 +193,7 @@ _ACTOR_CRITIC = {"net_arch": Rule("layers", choices=("pi", "vf")), **_NET}
 _HEADS = Rule("int", 1, MAX_HEADS)
 _Q = {"net_arch": Rule("layers", choices=("pi", "qf")), **_NET, "n_critics": _HEADS}
 #: ``policy_kwargs`` each algorithm's SB3 policy accepts (of those the safe policy format
-#: declares: :mod:`capture_bench.agents.policy_file`).
+#: declares: `capture_bench.agents.policy_file`).
 POLICY_KWARGS: dict[str, dict[str, Rule]] = {
     "ppo": {**_ACTOR_CRITIC, "log_std_init": Rule("float"), "ortho_init": Rule("bool")},
     "a2c": {**_ACTOR_CRITIC, "log_std_init": Rule("float"), "ortho_init": Rule("bool")},
@@ -208,9 +209,9 @@ def _schema(algo: str) -> Schema:
 
 
 def _check(data: Any, schema: Schema, source: str, **kwargs: Any) -> dict[str, Any]:
-    """:func:`~capture_bench.validation.check_mapping`, then the bounds of
-    ``policy_kwargs.net_arch`` (at most :data:`MAX_LAYERS` widths per list, each at most
-    :data:`MAX_LAYER_WIDTH`), which the ``layers`` rule leaves open."""
+    """`check_mapping`, then the bounds of
+    ``policy_kwargs.net_arch`` (at most `MAX_LAYERS` widths per list, each at most
+    `MAX_LAYER_WIDTH`), which the ``layers`` rule leaves open."""
     out = check_mapping(data, schema, source, **kwargs)
     arch = out.get("policy_kwargs", {}).get("net_arch")
     lists = list(arch.values()) if isinstance(arch, dict) else [arch] if arch is not None else []
@@ -298,14 +299,14 @@ def steps_per_update(algo: str, hp: dict[str, Any]) -> int:
 
 def planned_steps(algo: str, hp: dict[str, Any], done: int = 0) -> int:
     """The step count a run of ``hp["total_timesteps"]`` ends at, from ``done`` steps: SB3 trains
-    in whole :func:`steps_per_update`, so the steps left are rounded up to a multiple."""
+    in whole `steps_per_update`, so the steps left are rounded up to a multiple."""
     unit = steps_per_update(algo, hp)
     return done + -(-max(hp["total_timesteps"] - done, 0) // unit) * unit
 
 
 #: The action: velocity commands of the 3 joints (the envs' action space, Box(-1, 1, (3,))).
 ACTION_SIZE = 3
-#: What SB3 builds where ``hp`` leaves a key out (for :func:`memory_estimate`): the networks'
+#: What SB3 builds where ``hp`` leaves a key out (for `memory_estimate`): the networks'
 #: widths, the replay buffer, the batch sizes, the quantiles of TQC's critics.
 SB3_NET_ARCH = {"ppo": [64, 64], "a2c": [64, 64], "sac": [256, 256], "td3": [400, 300],
                 "ddpg": [400, 300], "tqc": [256, 256]}  # fmt: skip
@@ -313,7 +314,7 @@ SB3_BUFFER_SIZE = 1_000_000
 SB3_BATCH_SIZE = {"ppo": 64, "sac": 256, "td3": 256, "ddpg": 256, "tqc": 256}
 SB3_N_QUANTILES = 25
 #: Entries ``relative_log_distance`` appends to the observation
-#: (:data:`capture_bench.agents.features.EXTRA_SIZE`, which imports torch; a test checks that
+#: (`capture_bench.agents.features.EXTRA_SIZE`, which imports torch; a test checks that
 #: they agree).
 EXTRA_FEATURES = 4
 #: The features of ``combined`` on the pixel observation: SB3's NatureCNN output on the image,
@@ -359,7 +360,7 @@ def memory_estimate(
     The parts: the rollout buffer (PPO, A2C: ``n_steps x n_envs`` rows of the observation, the
     action and six numbers, and the flattened copy SB3 makes of it for the update), or the replay
     buffer (off-policy: ``buffer_size`` rows of two observations, the action and three numbers);
-    the networks (:data:`PARAMETER_COPIES` copies of each parameter: actor, critics and the
+    the networks (`PARAMETER_COPIES` copies of each parameter: actor, critics and the
     target copies, the CNN on pixels); an update's batch of activations; and the imitation's
     data set (``imitation_rounds x imitation_steps`` observations and labels, and the copies
     each round's fit makes).
@@ -427,7 +428,7 @@ def load_hyperparameters(algo: str, path: str | Path | None = None) -> tuple[dic
     """Read and validate one hyper-parameter file as written, complete on its own:
     ``configs/algos/<algo>.yaml`` (or ``path``), no scenario section applied, nothing layered
     under it; return it and its path. What ``train.py`` trains with is
-    :func:`resolve_hyperparameters`."""
+    `resolve_hyperparameters`."""
     if algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
     file = Path(path) if path is not None else ALGO_DIR / f"{algo}.yaml"
@@ -591,7 +592,7 @@ def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
 
     ``lin_<x>`` becomes a linear schedule from x to 0; ``activation_fn`` a torch module class;
     ``features_extractor`` SB3's ``features_extractor_class``;
-    ``action_noise_std`` (TD3, DDPG) a :class:`NormalActionNoise` on the 3 joints.
+    ``action_noise_std`` (TD3, DDPG) a `NormalActionNoise` on the 3 joints.
     """
     kwargs = {k: v for k, v in hp.items() if k in ALGO_KEYS[algo] and k != "action_noise_std"}
     for key in ("learning_rate", "clip_range"):

@@ -1,9 +1,9 @@
 """Imitation before reinforcement: DAgger (Ross, Gordon & Bagnell 2011) from an analytic
 controller, then the run's own algorithm goes on from the imitated policy.
 
-With ``imitate: <controller>`` (one of :data:`~capture_bench.agents.residual.RESIDUAL_BASES`:
+With ``imitate: <controller>`` (one of `RESIDUAL_BASES`:
 deterministic, acting from the observation alone; in a mixture, also a controller per scenario,
-``{default: <controller>, <scenario>: <controller>}``: :func:`teacher_names`), a new run first
+``{default: <controller>, <scenario>: <controller>}``: `teacher_names`), a new run first
 plays ``imitation_rounds`` rounds of ``imitation_steps`` environment steps on its own training
 envs (training seeds only). Every visited observation is labelled with the controller's action
 (the teacher's, built from each scenario's public description, so a mixture's sub-envs each get
@@ -12,11 +12,11 @@ their scenario's); round 0 follows the teacher, the later rounds follow the poli
 DAgger's point. After each round the policy's mean action is fitted to the labels of every round
 so far (mean squared error, Adam, ``imitation_epochs`` passes; with ``imitation_floor`` > 0 each
 label's error is taken relative to the teacher's action above that floor,
-:func:`label_weights`). The policy then acts alone: nothing of the controller is left in it,
-unlike a residual (:mod:`capture_bench.training.residual_vec_env`).
+`label_weights`). The policy then acts alone: nothing of the controller is left in it,
+unlike a residual (`capture_bench.training.residual_vec_env`).
 
 ``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
-(:class:`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
+(`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
 before its advantages move the actor.
 """
 
@@ -123,8 +123,8 @@ def fit(
     floor: float = 0.0,
 ) -> float:
     """Fit the policy's mean action to ``targets`` (squared error, weighted by
-    :func:`label_weights` of ``floor``; Adam on the actor's parameters, minibatches of
-    :data:`IMITATION_BATCH` in a seeded order); return the last epoch's mean loss."""
+    `label_weights` of ``floor``; Adam on the actor's parameters, minibatches of
+    `IMITATION_BATCH` in a seeded order); return the last epoch's mean loss."""
     import torch
 
     params = list(actor_parameters(policy))
@@ -181,7 +181,7 @@ def dagger(  # noqa: PLR0913
     floor: float = 0.0,
 ) -> dict[str, Any]:
     """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring
-    (``floor``: the fit's :func:`label_weights`).
+    (``floor``: the fit's `label_weights`).
     Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
     share of the round's actions on which policy and teacher agree within 0.05 in every joint
     (None for round 0, where the teacher acts), the wall clock, s, and with ``validate`` (the
@@ -238,7 +238,7 @@ def _finite(value: float) -> float | None:
 
 
 class FrozenActor(BaseCallback):
-    """Keep the actor's parameters (:func:`actor_parameters`) out of the algorithm's updates for
+    """Keep the actor's parameters (`actor_parameters`) out of the algorithm's updates for
     the first ``steps`` environment steps of the run: only the critic learns meanwhile."""
 
     def __init__(self, steps: int) -> None:

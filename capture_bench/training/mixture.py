@@ -2,10 +2,10 @@
 
 ``train.py --scenario all`` (every shipped scenario) or ``--scenario paper,tumbling,grasp`` trains
 one policy on all of them at once: the ``n_envs`` sub-envs are split between the scenarios
-(evenly, or by the ``mixture_weights`` hyper-parameter: :func:`mixture_shares`), each share a
+(evenly, or by the ``mixture_weights`` hyper-parameter: `mixture_shares`), each share a
 batched env of its scenario
-(:class:`~capture_bench.training.sb3_vec_env.CaptureSB3VecEnv`) on that scenario's training
-seeds, and :class:`MixtureVecEnv` puts them side by side as one SB3 ``VecEnv``. The periodic
+(`CaptureSB3VecEnv`) on that scenario's training
+seeds, and `MixtureVecEnv` puts them side by side as one SB3 ``VecEnv``. The periodic
 validation plays ``eval_episodes`` validation seeds of every scenario and pools them (each
 scenario weighs the same), and logs each scenario's capture rate too. The observation carries no
 scenario label: the policy must act from what it sees, as on the leaderboard, where it is

@@ -44,7 +44,7 @@ CARD_BATCH = 4
 #: How a card's validation replays on a CPU other than the reference's: the replayed capture
 #: count within this many standard deviations of the difference of two binomial draws (99%), and
 #: the median relative change of the capture time, over the episodes captured in both, within
-#: :data:`REPLAY_TIME_TOLERANCE`.
+#: `REPLAY_TIME_TOLERANCE`.
 REPLAY_Z = 2.576
 REPLAY_TIME_TOLERANCE = 0.05
 #: What a card's README says of its replay (tests/test_model_cards.py holds the card to it).
@@ -60,10 +60,10 @@ REPLAY_CHECK = (
 
 def replay_agrees(recorded: list[dict[str, Any]], replayed: list[dict[str, Any]]) -> list[str]:
     """Where a replay of a card's episodes disagrees with the card beyond what another CPU's
-    rounding explains (:data:`REPLAY_CHECK`); empty when it agrees.
+    rounding explains (`REPLAY_CHECK`); empty when it agrees.
 
     ``recorded`` and ``replayed``: the same seeds in the same order, each ``{"seed",
-    "captured", "capture_time"}`` as :func:`validate_policy` writes them. The capture counts
+    "captured", "capture_time"}`` as `validate_policy` writes them. The capture counts
     ``k1``, ``k2`` of ``n`` episodes may differ by ``1 + z * sqrt(2 n p (1 - p))`` with ``p``
     their pooled rate: two binomial draws of one policy whose knife-edge episodes fall either way.
     """
@@ -95,7 +95,7 @@ def replay_agrees(recorded: list[dict[str, Any]], replayed: list[dict[str, Any]]
 
 def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[str, Any]:
     """The policy in ``model_dir`` on ``seeds`` of ``scenario``, as train.py validates: one
-    deterministic episode per seed in the batched env, :data:`CARD_BATCH` seeds at a time;
+    deterministic episode per seed in the batched env, `CARD_BATCH` seeds at a time;
     per episode and summarised."""
     from capture_bench.agents.sb3_policy import load_policy, observation_options, read_metadata
     from capture_bench.envs.vector_env import CaptureVectorEnv
@@ -190,7 +190,7 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
     return target
 
 
-#: The README section that :func:`revalidate` writes (and rewrites).
+#: The README section that `revalidate` writes (and rewrites).
 ENVELOPE_SECTION = "## Under the capture envelope (v1 environments)"
 
 
@@ -228,7 +228,7 @@ def _ratio(value: float) -> str:
 
 
 def _envelope_section(before: dict[str, Any], after: dict[str, Any]) -> str:
-    """The README section of :func:`revalidate`: each scenario's validation under the capture
+    """The README section of `revalidate`: each scenario's validation under the capture
     envelope beside the rule it was trained under."""
     rows = [
         f"| {scenario} | {after[scenario]['capture_rate']:.2f} | "
@@ -254,8 +254,8 @@ def _envelope_section(before: dict[str, Any], after: dict[str, Any]) -> str:
 
 
 def _best_validation(directory: Path) -> dict[str, Any] | None:
-    """:data:`VALIDATION_FILE` of a run's ``best/`` directory (its step and seeds), as
-    :class:`~capture_bench.training.policy_export.BestModel` writes it; None for a run
+    """`VALIDATION_FILE` of a run's ``best/`` directory (its step and seeds), as
+    `BestModel` writes it; None for a run
     directory."""
     found = directory / VALIDATION_FILE
     if directory.name != BEST_DIR or not found.is_file():

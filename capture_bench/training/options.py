@@ -101,7 +101,7 @@ saved in the run as hyperparameters.yaml (a --config file).
 
 
 def build_parser(prog: str = "train.py") -> argparse.ArgumentParser:
-    """An argument parser generated from :class:`TrainConfig` (each field's doc is its help),
+    """An argument parser generated from `TrainConfig` (each field's doc is its help),
     with examples and the valid algorithms and scenarios after the options."""
     from capture_bench.agents import AGENTS
     from capture_bench.task.scenarios import list_scenarios
@@ -151,7 +151,7 @@ def command_line(config: TrainConfig) -> str:
 
 
 def parse_args(argv: list[str] | None) -> tuple[TrainConfig, set[str]]:
-    """The options as a :class:`TrainConfig` and the set of option names given explicitly."""
+    """The options as a `TrainConfig` and the set of option names given explicitly."""
     namespace = build_parser().parse_args(argv)
     given = {k for k, v in vars(namespace).items() if v is not None}
     config = TrainConfig(**{k: v for k, v in vars(namespace).items() if v is not None})

@@ -1,9 +1,9 @@
 """The trained policy as ``train.py`` writes it: the safe form (``policy.pt`` + ``metadata.json``,
-:mod:`capture_bench.agents.policy_file`) with the run's provenance, at the end of a run and as
+`capture_bench.agents.policy_file`) with the run's provenance, at the end of a run and as
 the run's best validated model so far, ``best/``.
 
-``best/`` is what :class:`BestModel` keeps: after a periodic validation whose result is better
-(:func:`is_better`: a higher validation capture rate, then a lower median ratio of capture time to
+``best/`` is what `BestModel` keeps: after a periodic validation whose result is better
+(`is_better`: a higher validation capture rate, then a lower median ratio of capture time to
 the physical limit, then a lower median capture time), the policy at that step is written as
 ``best/policy.pt`` + ``best/metadata.json`` (loadable by ``evaluate.py --agents RUN/best`` like the
 final policy), SB3's ``best/model.zip`` (+ ``vecnormalize.pkl``) as at the end of a run, and
@@ -29,7 +29,7 @@ from capture_bench.training.options import command_line
 BEST_DIR = "best"
 VALIDATION_FILE = "validation.json"
 WALL_TIME_FILE = "wall_time.json"
-#: How :func:`is_better` ranks validations, as written into ``validation.json``.
+#: How `is_better` ranks validations, as written into ``validation.json``.
 SELECTION_RULE = (
     "highest capture_rate, then lowest median_ratio_to_limit, then lowest median_capture_time "
     "(NaN ranks last)"
@@ -37,9 +37,9 @@ SELECTION_RULE = (
 
 
 #: Every validation of a run, one row each: ``step``, ``wall_time_s`` (training time of the run
-#: so far, validations included), then the statistics. Read by :mod:`capture_bench.training.curves`.
+#: so far, validations included), then the statistics. Read by `capture_bench.training.curves`.
 VALIDATIONS_FILE = "validations.csv"
-#: What a run's imitation did (:func:`capture_bench.training.imitation.dagger`), as JSON.
+#: What a run's imitation did (`capture_bench.training.imitation.dagger`), as JSON.
 IMITATION_FILE = "imitation.json"
 
 
@@ -87,11 +87,11 @@ def policy_metadata(
     model: Any, config: Any, hp: dict[str, Any], wall_time_s: float, sb3_files: bool
 ) -> dict[str, Any]:
     """The provenance entries of ``metadata.json`` (the network's declaration is added by
-    :func:`capture_bench.agents.policy_file.save_policy`).
+    `capture_bench.agents.policy_file.save_policy`).
 
     Args:
         model: the SB3 algorithm.
-        config: the run's :class:`~capture_bench.training.options.TrainConfig`.
+        config: the run's `TrainConfig`.
         hp: its validated hyper-parameters.
         wall_time_s: training time so far over all sessions of the run, s.
         sb3_files: the directory also holds SB3's ``model.zip`` (+ ``vecnormalize.pkl`` where
@@ -171,7 +171,7 @@ def _rank(stats: Mapping[str, float]) -> tuple[float, float, float]:
 
 
 def is_better(new: Mapping[str, float], old: Mapping[str, float] | None) -> bool:
-    """Whether validation ``new`` beats ``old`` (None: nothing yet) by :data:`SELECTION_RULE`;
+    """Whether validation ``new`` beats ``old`` (None: nothing yet) by `SELECTION_RULE`;
     a tie is not better (the earlier model stays)."""
     return old is None or _rank(new) < _rank(old)
 

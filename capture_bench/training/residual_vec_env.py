@@ -1,4 +1,4 @@
-"""Training a residual on an analytic controller (:mod:`capture_bench.agents.residual`): a
+"""Training a residual on an analytic controller (`capture_bench.agents.residual`): a
 ``VecEnvWrapper`` whose action is the residual pi(s), stepping the envs with
 clip(a_base(s) + alpha pi(s)).
 
@@ -24,7 +24,7 @@ class ResidualVecEnv(VecEnvWrapper):
 
     Args:
         venv: the training envs (raw observations).
-        base: a name of :data:`capture_bench.agents.residual.RESIDUAL_BASES`.
+        base: a name of `capture_bench.agents.residual.RESIDUAL_BASES`.
         scale: alpha.
         description: the task's public description (the base controller's only knowledge).
     """

@@ -3,15 +3,15 @@
 
 Hyper-parameters come from ``configs/algos/<algo>.yaml``, with ``--config`` (a file that may
 set a few keys), ``--set`` and the options layered over it, validated by
-:mod:`capture_bench.training.hyperparameters`. A run goes to ``--run-dir``, by default
+`capture_bench.training.hyperparameters`. A run goes to ``--run-dir``, by default
 ``runs/<scenario>-<algo>-<seed>`` or, where that is taken, the first free ``..._2``, ``..._3``;
 an existing run is never written into but by ``--resume``. A run directory holds
 ``config.json`` (everything needed to resume), ``tb/`` (TensorBoard), ``checkpoints/step_<N>/``
-(:mod:`capture_bench.training.checkpoint`: parameters, optimiser state, counters, replay buffer
+(`capture_bench.training.checkpoint`: parameters, optimiser state, counters, replay buffer
 and VecNormalize statistics, written under a temporary name and renamed, and read back without
 unpickling anything), ``best/`` (the policy of the best periodic validation so far, in the safe
-form: :mod:`capture_bench.training.policy_export`), and at the end the policy in the safe form
-``policy.pt`` + ``metadata.json`` (:mod:`capture_bench.agents.policy_file`), beside SB3's own
+form: `capture_bench.training.policy_export`), and at the end the policy in the safe form
+``policy.pt`` + ``metadata.json`` (`capture_bench.agents.policy_file`), beside SB3's own
 ``model.zip``.
 Ctrl-C (SIGINT) or SIGTERM saves a checkpoint and exits with status 130 or 143. A user's mistake
 is one line on stderr and exit 2, found before any environment is built. SB3 trains in whole
@@ -83,7 +83,7 @@ ENV_MEMORY_BYTES = 40 * 2**20
 BATCHED_ENV_MEMORY_BYTES = 2 * 2**20
 #: Share of the available memory a run may take: its environments (the count check), and its
 #: environments with its buffers, networks and update batch (the estimate,
-#: :func:`~capture_bench.training.hyperparameters.memory_estimate`).
+#: `memory_estimate`).
 MEMORY_SHARE = 0.8
 #: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
 #: number it read from there). One: the networks are small (a few 256-wide layers, batches of
@@ -95,8 +95,8 @@ TORCH_THREADS = 1
 def main(argv: list[str] | None = None) -> int:
     """Run ``train.py`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status.
 
-    The run directory is locked for the run's whole life (:class:`~capture_bench.training.
-    run_lock.RunLock`). A new run that fails before its first checkpoint (an interrupt while the
+    The run directory is locked for the run's whole life (`RunLock`). A new run that fails before
+    its first checkpoint (an interrupt while the
     envs start, an error) leaves its directory as it found it, so the same command can be run
     again."""
     with RunLock() as lock:
@@ -136,7 +136,7 @@ def _error(exc: object) -> int:
 
 def _discard_unstarted(lock: RunLock, run_dir: Path, new: bool) -> None:
     """Remove what a new run wrote into ``run_dir`` where it has no checkpoint to resume from
-    (:meth:`~capture_bench.training.run_lock.RunLock.discard`)."""
+    (`discard`)."""
     if new and not list_checkpoints(run_dir / "checkpoints"):
         lock.discard(run_dir)
 
@@ -191,7 +191,8 @@ def prepare(
     config: TrainConfig, given: set[str], lock: RunLock | None = None
 ) -> tuple[TrainConfig, dict, Path, Path | None]:
     """Resolve and check the options before any work: the run's config, hyper-parameters,
-    directory and resume checkpoint. Raises :class:`ConfigError` naming what is wrong.
+    directory and resume checkpoint. Raises [`ConfigError`][capture_bench.ConfigError] naming what
+    is wrong.
 
     The run directory is locked with ``lock``, which the caller releases when the run ends
     (without one, the lock is released on return); a directory another train.py holds is refused.
@@ -409,7 +410,7 @@ def check_observation(config: TrainConfig, hp: dict) -> None:
 
 def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
     """What a mixture of ``count`` scenarios needs: the batched env, sub-envs for every scenario
-    (:func:`~capture_bench.training.mixture.mixture_shares`), and no setting that depends on one
+    (`mixture_shares`), and no setting that depends on one
     scenario's task."""
     if config.vec_env != "batched":
         raise ConfigError(
@@ -441,7 +442,7 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
 
 def shares_of(config: TrainConfig, hp: dict) -> list[int]:
     """The sub-envs of each scenario of ``config``'s mixture, in its order
-    (:func:`~capture_bench.training.mixture.mixture_shares` of ``hp``'s ``mixture_weights``)."""
+    (`mixture_shares` of ``hp``'s ``mixture_weights``)."""
     names = [s.name for s in mixture_scenarios(config.scenario)]
     return mixture_shares(config.n_envs or hp["n_envs"], names, hp.get("mixture_weights"))
 
@@ -504,7 +505,7 @@ def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any)
     """DAgger from ``hp["imitate"]`` on the run's training envs (``venv`` inside ``VecMonitor``,
     so the imitation's episodes stay out of the algorithm's statistics), the policy validated
     after each round where the run validates (``eval_freq``; ``progress``'s validation, nothing
-    logged): :func:`capture_bench.training.imitation.dagger`."""
+    logged): `capture_bench.training.imitation.dagger`."""
     from capture_bench.envs.core import describe_task, resolve_scenario
     from capture_bench.training.imitation import dagger, make_teacher, teacher_names
 
@@ -608,7 +609,7 @@ def _size(count: float) -> str:
 
 def _check_option_bounds(hp: dict) -> None:
     """``--n-envs`` and ``--total-timesteps`` within the limits the hyper-parameter files have
-    (:data:`~capture_bench.training.hyperparameters.TRAINING_KEYS`)."""
+    (`TRAINING_KEYS`)."""
     for key in ("n_envs", "total_timesteps"):
         high = int(TRAINING_KEYS[key].high)
         if hp[key] > high:
@@ -617,8 +618,8 @@ def _check_option_bounds(hp: dict) -> None:
 
 def _check_memory(config: TrainConfig, hp: dict, resume: bool = False) -> None:
     """Refuse a run whose envs, buffers, networks and update batch
-    (:func:`~capture_bench.training.hyperparameters.memory_estimate`) need more than
-    :data:`MEMORY_SHARE` of the memory available, naming the keys of the largest part."""
+    (`memory_estimate`) need more than
+    `MEMORY_SHARE` of the memory available, naming the keys of the largest part."""
     available = _memory_available()
     if available is None:
         return
@@ -653,8 +654,8 @@ def _check_env_count(n_envs: int, vec_env: str) -> None:
 
 
 def note_rounding(algo: str, hp: dict, done: int = 0) -> None:
-    """Print a note where SB3 will run more steps than asked (:func:`~capture_bench.training.
-    hyperparameters.planned_steps`: whole rollouts, or whole steps of all envs) or learn
+    """Print a note where SB3 will run more steps than asked (`planned_steps`: whole rollouts, or
+    whole steps of all envs) or learn
     nothing (an off-policy budget within ``learning_starts``)."""
     total, unit = hp["total_timesteps"], steps_per_update(algo, hp)
     if algo in OFF_POLICY:
@@ -695,7 +696,7 @@ def make_env(config: TrainConfig, hp: dict, rank: int, subprocess: bool) -> Any:
 
 def build_venv(config: TrainConfig, hp: dict) -> Any:
     """The training envs of ``config.vec_env`` in a ``VecMonitor`` (and ``VecNormalize`` where
-    ``hp["normalize"]``): ``batched`` (:class:`~capture_bench.training.sb3_vec_env.
+    ``hp["normalize"]``): ``batched`` (`
     CaptureSB3VecEnv`, one process), or SB3's ``dummy`` / ``subproc`` vector envs of single
     ``CaptureEnv``s; all draw the same training-seed episodes."""
     from stable_baselines3.common.vec_env import (
@@ -743,7 +744,7 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
 
 
 def set_torch_threads() -> int:
-    """Give torch :data:`TORCH_THREADS` intra-op threads, unless the user chose a number with
+    """Give torch `TORCH_THREADS` intra-op threads, unless the user chose a number with
     ``OMP_NUM_THREADS``; return the number torch uses."""
     import torch
 
@@ -754,7 +755,7 @@ def set_torch_threads() -> int:
 
 def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str | None) -> Any:
     """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``hp`` (torch
-    threads: :func:`set_torch_threads`)."""
+    threads: `set_torch_threads`)."""
     set_torch_threads()
     algorithm = algorithm_class(config.algo)
     return algorithm(
@@ -765,7 +766,7 @@ def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str |
 
 def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
     """The curricula ``hp`` asks for on ``scenario`` (training only), by the name of their
-    callback in :mod:`capture_bench.training.callbacks`, with its keyword arguments:
+    callback in `capture_bench.training.callbacks`, with its keyword arguments:
     ``{"ToleranceCurriculum": {"start": m, "final": eps (m, 3 numbers), "steps": ..., "delay":
     ...}, "HoldCurriculum": {"start": s, "final": capture.hold (s), ...}}``; empty where it asks
     for none. ``hp`` holds ``curriculum_steps`` (``prepare`` fills it in)."""
@@ -786,11 +787,11 @@ def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
 def mixture_curricula(
     hp: dict, scenarios: Sequence[Any], shares: Sequence[int]
 ) -> list[tuple[str, dict[str, Any]]]:
-    """A mixture's curricula, scenario by scenario: each of :func:`curricula` on a scenario
+    """A mixture's curricula, scenario by scenario: each of `curricula` on a scenario
     where it moves (a hold curriculum where ``curriculum_hold`` is below the scenario's
     ``capture.hold``, a tolerance one where ``curriculum_tolerance`` is above its epsilon; the
     others keep their rule), bound to that scenario's sub-envs of the
-    :class:`~capture_bench.training.mixture.MixtureVecEnv` (``indices``: its ``shares[k]``,
+    `MixtureVecEnv` (``indices``: its ``shares[k]``,
     after the earlier scenarios') and labelled by it."""
     out = []
     offsets = [0, *itertools.accumulate(shares)]
@@ -807,8 +808,8 @@ def mixture_curricula(
 
 def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
     """The curricula ``hp`` asks for (training only: validation keeps the scenario's rule), as
-    SB3 callbacks (:func:`curricula`; on a mixture, one per scenario it moves on,
-    :func:`mixture_curricula`); none where it asks for none (a mixture's spec, which names no
+    SB3 callbacks (`curricula`; on a mixture, one per scenario it moves on,
+    `mixture_curricula`); none where it asks for none (a mixture's spec, which names no
     one scenario, is then never loaded)."""
     if not any(key in hp for key in CURRICULA):
         return []
@@ -931,7 +932,7 @@ def save_final(
     total_wall: float,
 ) -> None:
     """Write the policy in the safe form (``policy.pt`` + declared ``metadata.json``, loaded
-    without unpickling: :mod:`capture_bench.agents.policy_file`), and SB3's own ``model.zip`` (+
+    without unpickling: `capture_bench.agents.policy_file`), and SB3's own ``model.zip`` (+
     ``vecnormalize.pkl``) for SB3 users who trust the run."""
     from capture_bench.training.policy_export import (
         export_policy,

@@ -26,9 +26,9 @@ except ImportError:  # Windows: no flock
 
 class RunLock:
     """The lock this process holds on a run directory, if any (a context manager that releases
-    it on exit). :meth:`acquire` takes it. For a new run, the caller records what the directory
-    held when locked (:attr:`found`) and whether it created it (:attr:`created`), so that
-    :meth:`discard` can leave the directory as it was; both stay unset for a resume."""
+    it on exit). `acquire` takes it. For a new run, the caller records what the directory
+    held when locked (`found`) and whether it created it (`created`), so that
+    `discard` can leave the directory as it was; both stay unset for a resume."""
 
     def __init__(self) -> None:
         self.fd: int | None = None
@@ -74,7 +74,7 @@ class RunLock:
 
     def discard(self, run_dir: Path) -> None:
         """Remove what this process wrote into ``run_dir`` (a new run that failed before its
-        first checkpoint): every entry the directory did not hold when locked (:attr:`found`),
+        first checkpoint): every entry the directory did not hold when locked (`found`),
         and the directory itself where this process created it. Nothing for a resume."""
         import shutil
 

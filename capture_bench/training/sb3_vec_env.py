@@ -1,5 +1,5 @@
 """``CaptureSB3VecEnv``: Stable-Baselines3's ``VecEnv`` contract over the batched
-:class:`~capture_bench.envs.vector_env.CaptureVectorEnv`.
+[`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv].
 
 SB3 cannot take a gymnasium ``VectorEnv``; this adapter gives it the batched env with SB3's
 semantics, those of ``DummyVecEnv`` over ``TrainingSeeds(CaptureEnv(..., reuse_target_side=True))``
@@ -12,14 +12,14 @@ single envs (``tests/test_sb3_vec_env.py`` checks every transition equal):
 * ``infos`` is a list of per-env dicts with the single env's keys and Python values (None where
   ``CaptureEnv`` gives None), the new episode's reset ``info`` in ``reset_infos[i]``;
 * every episode's seed is drawn from the scenario's training seeds by a
-  :class:`~capture_bench.training.seeds.TrainingSeedDraw` per sub-env, seeded
-  ``seed * 1000 + i`` as ``train.py``'s ``make_env`` seeds rank i; :meth:`seed` (SB3 calls it
-  with the model's seed) re-seeds draw i with ``seed + i`` at the next :meth:`reset`, exactly as
+  `TrainingSeedDraw` per sub-env, seeded
+  ``seed * 1000 + i`` as ``train.py``'s ``make_env`` seeds rank i; `seed` (SB3 calls it
+  with the model's seed) re-seeds draw i with ``seed + i`` at the next `reset`, exactly as
   ``DummyVecEnv`` passes ``seed + i`` to ``TrainingSeeds.reset``. No evaluation or validation
   seed is ever used.
 
 How it stays fast with every episode seeded: the draws are the batched env's seed sources
-(:meth:`CaptureVectorEnv.set_episode_seeds`), so the batched env draws each sub-env's next seeds
+(`CaptureVectorEnv.set_episode_seeds`), so the batched env draws each sub-env's next seeds
 as it records their episodes ahead, many at once; a re-seed hands it the re-seeded draws again,
 which discards what was recorded from the old ones.
 """
@@ -125,7 +125,7 @@ class CaptureSB3VecEnv(VecEnv):
         return _copy(obs), rewards.astype(np.float32), dones, infos
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
-        """Re-seed draw i with ``seed + i`` at the next :meth:`reset` (SB3's rule; a random
+        """Re-seed draw i with ``seed + i`` at the next `reset` (SB3's rule; a random
         ``seed`` when None)."""
         return super().seed(seed)
 
@@ -169,7 +169,7 @@ class CaptureSB3VecEnv(VecEnv):
 
     @property
     def episode_seeds(self) -> list[int | None]:
-        """The training seed of each sub-env's current episode (None before :meth:`reset`)."""
+        """The training seed of each sub-env's current episode (None before `reset`)."""
         return self.venv.episode_seeds
 
 

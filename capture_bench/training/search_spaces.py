@@ -1,9 +1,9 @@
-"""What ``tune.py`` samples for each algorithm: one table, :data:`SAMPLERS`, after the RL Zoo's
+"""What ``tune.py`` samples for each algorithm: one table, `SAMPLERS`, after the RL Zoo's
 ``rl_zoo3/hyperparams_opt.py`` (the same names, mostly the same ranges).
 
-Each entry maps an Optuna parameter name to a :class:`Param`: its distribution and the
+Each entry maps an Optuna parameter name to a `Param`: its distribution and the
 hyper-parameter key (of ``configs/algos/<algo>.yaml``) it sets. A sample is merged over the base
-YAML and validated by :func:`~capture_bench.training.hyperparameters.validate_hyperparameters`,
+YAML and validated by `validate_hyperparameters`,
 so a sample can never be an invalid config (``tests/test_tune.py`` checks every space). Adding an
 algorithm is adding an entry here. No Optuna import happens here: the table is plain data.
 
@@ -101,7 +101,7 @@ _OFF_POLICY: dict[str, Param] = {
     ),
 }
 
-#: algorithm -> Optuna parameter name -> :class:`Param`.
+#: algorithm -> Optuna parameter name -> `Param`.
 SAMPLERS: dict[str, dict[str, Param]] = {
     "ppo": {
         "batch_size": Param(Choice((32, 64, 128, 256, 512)), "batch_size"),
@@ -155,7 +155,7 @@ def sample(trial: Any, algo: str, budget: int, keep: tuple[str, ...] = ()) -> di
 
     Args:
         trial: an Optuna trial (anything with ``suggest_categorical`` and ``suggest_float``).
-        algo: a key of :data:`SAMPLERS`.
+        algo: a key of `SAMPLERS`.
         budget: the per-trial budget, environment steps (``learning_starts`` is a share of it).
         keep: parameter names not sampled (their keys keep the base YAML's value).
     """

@@ -1,11 +1,11 @@
 """The learning-curves page's aggregate statistics over training seeds (rliable).
 
 The unit of replication is the training seed: a run's score is the mean per-episode score
-(:func:`capture_bench.task.score.episode_score`) of its last validation, the ``mean_score``
+(`capture_bench.task.score.episode_score`) of its last validation, the ``mean_score``
 column of its ``validations.csv``, so an algorithm's rliable score matrix is (training seeds x 1
 scenario). Per algorithm: IQM, optimality gap and mean over its seeds with 95% stratified
 bootstrap intervals; between algorithms: rliable's probability of improvement P(X > Y), the chance
-that a run of X ends with a higher score than a run of Y (:mod:`capture_bench.rliable_stats`,
+that a run of X ends with a higher score than a run of Y (`capture_bench.rliable_stats`,
 Agarwal et al. 2021). An algorithm needs two runs with a final ``mean_score`` to have an interval
 over seeds; one with fewer is named with the reason instead.
 """

@@ -12,7 +12,8 @@ from capture_bench.task.scenarios import ConfigError, Scenario
 
 
 def check_training_seed(seed: int, scenario: Scenario) -> None:
-    """Raise :class:`ConfigError` unless ``seed`` is a training seed (never an evaluation or a
+    """Raise [`ConfigError`][capture_bench.ConfigError] unless ``seed`` is a training seed (never an
+    evaluation or a
     validation seed)."""
     train, evaluation = scenario.training_seeds, scenario.evaluation_seeds
     validation = scenario.validation_seeds
@@ -37,8 +38,8 @@ def check_training_seed(seed: int, scenario: Scenario) -> None:
 
 class TrainingSeedDraw:
     """A stream of episode seeds drawn uniformly from ``scenario.training_seeds``, skipping any
-    evaluation or validation seed; one per sub-env, shared by :class:`TrainingSeeds` and
-    :class:`capture_bench.training.sb3_vec_env.CaptureSB3VecEnv` so that both draw the same
+    evaluation or validation seed; one per sub-env, shared by `TrainingSeeds` and
+    `capture_bench.training.sb3_vec_env.CaptureSB3VecEnv` so that both draw the same
     episodes.
 
     Args:
@@ -66,7 +67,7 @@ class TrainingSeedDraw:
 class TrainingSeeds(gym.Wrapper):
     """Give every episode an explicit seed drawn from the scenario's training seeds.
 
-    The seed passed to :meth:`reset` (SB3 passes one on the first reset) only re-seeds the draw;
+    The seed passed to `reset` (SB3 passes one on the first reset) only re-seeds the draw;
     episodes themselves never use a seed outside ``scenario.training_seeds`` and never an
     evaluation seed, so training cannot see an evaluation episode.
 
@@ -75,7 +76,7 @@ class TrainingSeeds(gym.Wrapper):
         scenario: its scenario (for the seed ranges); None: the env's own
             (``env.unwrapped.scenario``), so that the wrapper can be built from the env alone, as
             the RL Zoo's ``env_wrapper`` does (``configs/zoo/``).
-        seed: seeds the draw until :meth:`reset` is given another.
+        seed: seeds the draw until `reset` is given another.
     """
 
     def __init__(self, env: gym.Env, scenario: Scenario | None = None, seed: int = 0) -> None:

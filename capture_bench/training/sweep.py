@@ -1,12 +1,12 @@
 """Training sweeps on Ray: ``python -m capture_bench sweep``.
 
 Trains every combination of ``--algos``, ``--scenarios`` and ``--seeds``, each run one Ray task
-(:func:`capture_bench.training.sweep_task.train_run`, asking Ray for ``--cpus-per-run`` CPUs and
+(`capture_bench.training.sweep_task.train_run`, asking Ray for ``--cpus-per-run`` CPUs and
 ``--gpus-per-run`` GPUs) on a new local Ray instance (on the loopback; no other cluster is
-joined) or on the running cluster ``--ray-address`` names (:mod:`capture_bench.ray_cluster`
+joined) or on the running cluster ``--ray-address`` names (`capture_bench.ray_cluster`
 starts or joins it and ships this checkout to the nodes). Each run is what
 ``train.py`` writes, at ``<runs>/<scenario>-<arm>-<seed>`` (the naming of ``curves --train``:
-:mod:`capture_bench.training.run_plan`). The task trains in a temporary directory of its node and
+`capture_bench.training.run_plan`). The task trains in a temporary directory of its node and
 sends the directory back as a tar archive; this process unpacks it beside its place under
 ``--runs`` and renames it in (``config.json``'s ``run_dir`` set to that place), so the nodes
 share no filesystem and no run directory is ever half-written.
@@ -57,7 +57,7 @@ PROG = "python -m capture_bench sweep"
 NAME = "sweep"  # in error lines: "sweep: error: ..."
 #: The summary of the last sweep, under ``--runs``.
 SUMMARY_FILE = "sweep.json"
-#: Not shipped to the nodes beside :data:`capture_bench.ray_cluster.RAY_EXCLUDES`: training
+#: Not shipped to the nodes beside `capture_bench.ray_cluster.RAY_EXCLUDES`: training
 #: reads no shipped model.
 EXCLUDES = ["/models"]
 
@@ -323,7 +323,7 @@ def resolve(argv: list[str]) -> tuple[Sweep, list[str]]:
 
 
 def _excludes(runs: Path) -> list[str]:
-    """:data:`EXCLUDES`, and ``--runs`` where it lies inside the checkout shipped to the nodes."""
+    """`EXCLUDES`, and ``--runs`` where it lies inside the checkout shipped to the nodes."""
     try:
         inside = runs.resolve().relative_to(CHECKOUT_DIR)
     except ValueError:

@@ -1,6 +1,6 @@
 """The driver's side of a sweep on Ray: the runs sent as tasks, their results installed under
 ``--runs`` as they come back, the cancellation on Ctrl-C, and what the summary says of the
-nodes (:mod:`capture_bench.training.sweep` is the command)."""
+nodes (`capture_bench.training.sweep` is the command)."""
 
 from __future__ import annotations
 
@@ -81,7 +81,8 @@ def capacity(cpus: float, gpus: float) -> int:
 
 
 def check_resources(cpus: float, gpus: float) -> None:
-    """Raise :class:`ConfigError` unless a node of the cluster has ``cpus`` CPUs and ``gpus``
+    """Raise [`ConfigError`][capture_bench.ConfigError] unless a node of the cluster has ``cpus``
+    CPUs and ``gpus``
     GPUs (Ray would wait for one forever)."""
     if capacity(cpus, gpus):
         return

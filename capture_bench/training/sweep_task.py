@@ -4,7 +4,7 @@ and the run directory sent back whole as a tar archive.
 Nothing here assumes the driver's filesystem: the task gets everything it reads as bytes (the
 run directory to resume, the ``--config`` file) and returns everything it wrote, so the run can
 happen on any node of the cluster and land under the driver's ``--runs``
-(:mod:`capture_bench.training.sweep`). Ray's cancellation (``ray.cancel``, not forced) raises
+(`capture_bench.training.sweep`). Ray's cancellation (``ray.cancel``, not forced) raises
 KeyboardInterrupt in the task: train.py then saves a checkpoint, as on Ctrl-C, and the run
 directory still comes back, resumable.
 """
@@ -32,7 +32,7 @@ class RunSpec:
 
     Attributes:
         name: the run directory's name, ``<scenario>-<arm>-<seed>``.
-        scenario, arm, seed: what it trains (:mod:`capture_bench.training.run_plan`).
+        scenario, arm, seed: what it trains (`capture_bench.training.run_plan`).
         options: train.py options of a new run (``--set``, ``--total-timesteps``), without
             ``--config`` and ``--device``.
         device: train.py's ``--device``, new or resumed.
@@ -58,7 +58,7 @@ class RunResult:
         name: the run's name.
         status: train.py's exit status (1 where it raised; 130 where it was interrupted).
         error: one line saying what went wrong, or None.
-        output: the end of train.py's output (stdout and stderr), :data:`OUTPUT_TAIL` characters.
+        output: the end of train.py's output (stdout and stderr), `OUTPUT_TAIL` characters.
         node_id: the Ray node it ran on ("" outside Ray).
         node_ip: that node's IP address ("" outside Ray).
         archive: the run directory as the run left it (a tar archive), or None where it left
@@ -84,7 +84,7 @@ def pack(directory: Path) -> bytes:
 
 
 def unpack(archive: bytes, directory: Path) -> None:
-    """Extract a :func:`pack` archive into ``directory`` (created); only plain files and folders
+    """Extract a `pack` archive into ``directory`` (created); only plain files and folders
     inside it (tarfile's ``data`` filter)."""
     Path(directory).mkdir(parents=True, exist_ok=True)
     safe = {"filter": "data"} if hasattr(tarfile, "data_filter") else {}  # Python >= 3.10.12

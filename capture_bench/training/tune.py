@@ -7,19 +7,19 @@ validations inside each trial), for the validation capture rate.
     python tune.py --algo sac --scenario paper --trials 40 --workers 4   # 4 trials at a time
 
 Each trial trains ``--n-timesteps`` steps on training seeds only, with the hyper-parameters it
-samples (:mod:`capture_bench.training.search_spaces`) merged over those ``train.py`` would train
+samples (`capture_bench.training.search_spaces`) merged over those ``train.py`` would train
 the scenario with (``configs/algos/<algo>.yaml`` and its scenario section, ``--config`` layered
 over them) and validated like any config file, and is validated ``--n-evaluations`` times on
 the first ``--eval-episodes`` validation seeds (never a published evaluation seed). The score of
-a validation (:func:`~capture_bench.training.tune_trial.objective_value`) ranks the capture rate
+a validation (`objective_value`) ranks the capture rate
 first and, among equal capture rates, the median ratio of capture time to the physical limit
-(lower is better). The options are :class:`~capture_bench.training.tune_options.TuneConfig`.
+(lower is better). The options are `TuneConfig`.
 Trials are stored in ``--storage`` (default ``sqlite:///<output>/study.db``); a study with the
 same name is resumed with the settings it was created with
-(:mod:`capture_bench.training.tune_study`: an option left out takes the study's value, another
+(`capture_bench.training.tune_study`: an option left out takes the study's value, another
 value is refused). ``--workers N`` runs N trials at once in worker processes, ``--ray-address``
 as Ray tasks on a cluster, and a second ``tune.py`` on the same study adds its trials to it
-(:mod:`capture_bench.training.tune_workers`). At the end (also after Ctrl-C) ``--output`` gets
+(`capture_bench.training.tune_workers`). At the end (also after Ctrl-C) ``--output`` gets
 ``best.yaml`` (for ``train.py --config``), ``trials.csv``, ``optimization_history.png`` and
 ``param_importances.png`` from every trial of the study, each written atomically. A user's
 mistake is one line on stderr and exit 2, found before anything is written.
@@ -56,7 +56,7 @@ INSTALL_HINT = "pip install 'capture-bench[tune]' (or: pip install 'optuna>=3.4'
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
-    """An argument parser generated from :class:`TuneConfig` (each field's doc is its help)."""
+    """An argument parser generated from `TuneConfig` (each field's doc is its help)."""
     parser = OneLineParser(
         prog=prog, description="Tune an algorithm's hyper-parameters with Optuna."
     )
@@ -75,7 +75,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
 
 
 def parse_args(argv: list[str] | None) -> tuple[TuneConfig, set[str]]:
-    """The options as a :class:`TuneConfig` and the set of option names given explicitly
+    """The options as a `TuneConfig` and the set of option names given explicitly
     (argparse exits 2 on a bad option, in one line)."""
     namespace = build_parser().parse_args(argv)
     given = {k for k, v in vars(namespace).items() if v is not None}
@@ -90,7 +90,7 @@ def _positive(value: int | None, option: str, low: int = 1) -> None:
 def prepare(config: TuneConfig, given: set[str] | None = None) -> Setup:
     """Check and resolve every option before any work; writes nothing. ``given``: the options
     given on the command line (default: none; the others may take a continued study's value,
-    :func:`open_study`). Raises :class:`ConfigError` naming what is wrong."""
+    `open_study`). Raises [`ConfigError`][capture_bench.ConfigError] naming what is wrong."""
     from capture_bench.training.run import check_curricula, check_shaping
 
     config.algo = config.algo.lower()
@@ -181,7 +181,7 @@ def _check_shared(storage: str) -> None:
 
 def study_command(setup: Setup) -> str:
     """The ``tune.py`` command of the study's trials: every setting that defines a trial
-    (:data:`~capture_bench.training.tune_study.SETTINGS`) spelled out, and where the study is."""
+    (`SETTINGS`) spelled out, and where the study is."""
     config = setup.config
     words = ["python", "tune.py", "--algo", config.algo, "--scenario", config.scenario]
     if config.config:
@@ -220,8 +220,8 @@ def _note_rollouts(setup: Setup) -> None:
 def open_study(setup: Setup) -> Any:
     """Create the study in ``setup.storage``, or load the one of that name: then its algorithm and
     scenario must match, and ``setup`` takes the settings its trials ran with, or a differing
-    option is refused (:func:`~capture_bench.training.tune_study.keep_settings`). The study
-    samples and prunes as :mod:`~capture_bench.training.tune_sampler` says (trial n's random
+    option is refused (`keep_settings`). The study
+    samples and prunes as `tune_sampler` says (trial n's random
     numbers seeded with ``(--seed, n)``)."""
     import optuna
 

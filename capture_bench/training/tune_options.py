@@ -1,5 +1,5 @@
 """The options of ``tune.py``: one typed dataclass whose field docs are the ``--help``
-(:class:`TuneConfig`), and what they resolve to before any trial runs (:class:`Setup`), which
+(`TuneConfig`), and what they resolve to before any trial runs (`Setup`), which
 the study, every trial and the outputs read."""
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ class TuneConfig:
 
 @dataclass
 class Setup:
-    """A checked :class:`TuneConfig`, resolved (:func:`capture_bench.training.tune.prepare`):
+    """A checked `TuneConfig`, resolved (`capture_bench.training.tune.prepare`):
     what every trial uses."""
 
     config: TuneConfig

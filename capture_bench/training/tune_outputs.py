@@ -3,7 +3,7 @@ trial's hyper-parameters, for ``train.py --config``), ``trials.csv`` and Optuna'
 history and parameter-importance plots (PNG), from every trial in the study's storage.
 
 Several ``tune.py`` on one study may finish close together: each writes the outputs while it holds
-a lock on the output folder (:func:`~capture_bench.files.directory_lock`) and reads the trials
+a lock on the output folder (`directory_lock`) and reads the trials
 only then, so the files written last are those of the study as it stands when the last one ends.
 """
 

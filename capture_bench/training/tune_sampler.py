@@ -2,7 +2,7 @@
 
 Sampler: multivariate TPE, as the RL Zoo's, with the constant liar (a running trial counts as a
 bad result, so that concurrent trials do not sample next to one another). Its random numbers for
-trial ``n`` come from a generator seeded with ``(--seed, n)`` (:class:`TrialSeededSampler`): the
+trial ``n`` come from a generator seeded with ``(--seed, n)`` (`TrialSeededSampler`): the
 storage gives each trial of a study its own number, whichever process or machine runs it, so no
 two trials share random numbers, concurrent workers and a resumed study included, and a trial
 drawn at random (the first ``--n-startup-trials``) draws the same parameters in any process.
@@ -35,10 +35,10 @@ def trial_seed(seed: int, number: int) -> int:
 
 
 class TrialSeededSampler(BaseSampler):
-    """A sampler made afresh for each trial, seeded with :func:`trial_seed` of the trial's number.
+    """A sampler made afresh for each trial, seeded with `trial_seed` of the trial's number.
 
     Args:
-        make: builds the sampler from a seed (e.g. a seeded :class:`~optuna.samplers.TPESampler`).
+        make: builds the sampler from a seed (e.g. a seeded `TPESampler`).
         seed: the study's seed (``--seed``).
     """
 

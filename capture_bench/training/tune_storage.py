@@ -4,7 +4,7 @@ Several processes (``--workers``, a second ``tune.py``, Ray tasks) open the same
 own connection. Optuna recommends a database server for that, or a journal file on one machine;
 a SQLite file works on one machine with two precautions, both taken here:
 
-- a writer waits for another's lock up to :data:`SQLITE_TIMEOUT_S` seconds, where SQLite's
+- a writer waits for another's lock up to `SQLITE_TIMEOUT_S` seconds, where SQLite's
   default gives up after 5 s with "database is locked" (the remedy of Optuna's FAQ; a trial writes
   a few rows per validation, so the waits are short);
 - processes opening a new file at once race to create its tables (one of them fails with "table
@@ -28,7 +28,7 @@ OPEN_ATTEMPTS = 5
 
 
 def open_storage(url: str) -> Any:
-    """An :class:`optuna.storages.RDBStorage` on ``url``, shared safely with other processes.
+    """An `optuna.storages.RDBStorage` on ``url``, shared safely with other processes.
 
     Raises:
         Exception: whatever SQLAlchemy or Optuna raise for a bad or unreachable URL.

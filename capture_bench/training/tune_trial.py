@@ -1,5 +1,5 @@
 """One Optuna trial of ``tune.py``: sample, train on training seeds, validate periodically on
-validation seeds, score each validation (:func:`objective_value`), report it and stop where the
+validation seeds, score each validation (`objective_value`), report it and stop where the
 pruner says.
 
 Imports Stable-Baselines3 at module level: import this module only where training happens.
@@ -65,7 +65,7 @@ class TrialValidation(BaseCallback):
 
     Args:
         trial: the Optuna trial.
-        progress: the run's :class:`~capture_bench.training.callbacks.Progress` (its own periodic
+        progress: the run's `Progress` (its own periodic
             evaluation off); its ``evaluate()`` runs the validation episodes.
         every: environment steps (all envs together) between validations.
         n_evaluations: validations at most.

@@ -1,9 +1,9 @@
 """Where ``tune.py``'s trials run: in this process, in ``--workers`` local processes, or as Ray
 tasks on a cluster (``--ray-address``), every one a client of the same study storage.
 
-A worker opens its own connection to the storage (:func:`~capture_bench.training.tune_storage.
-open_storage`), takes the study's sampler and pruner (:mod:`~capture_bench.training.tune_sampler`)
-and runs its share of ``--trials`` (:func:`shares`) with ``study.optimize``; the storage numbers
+A worker opens its own connection to the storage (`
+open_storage`), takes the study's sampler and pruner (`tune_sampler`)
+and runs its share of ``--trials`` (`shares`) with ``study.optimize``; the storage numbers
 the trials, so workers never collide, and each trial records the worker that ran it (user
 attribute ``worker``, ``host:pid``). Trials write no files (no run directory, a logger that writes
 nothing), so workers share nothing but the storage. Processes rather than Optuna's ``n_jobs``
@@ -12,12 +12,12 @@ threads: training is CPU-bound Python, which threads would run one at a time.
 Stopping. Ctrl-C or SIGTERM ends a trial the same way wherever it runs: the running trial is
 recorded as failed (user attribute ``interrupted``) and no other starts; one that comes while
 Optuna creates or records a trial, or while the trial writes to the storage, waits until that is
-done (:func:`run_trials`, :class:`HeldTrial`). Local workers
+done (`run_trials`, `HeldTrial`). Local workers
 ignore SIGINT (Ctrl-C reaches the whole process group): ``tune.py`` sends each SIGTERM, which a
-worker takes as Ctrl-C, waits up to :data:`STOP_GRACE_S` for them (a second Ctrl-C: not at
+worker takes as Ctrl-C, waits up to `STOP_GRACE_S` for them (a second Ctrl-C: not at
 all), kills the rest and records the trials they left running as failed. A worker whose
 ``tune.py`` ended without that (``kill -9``) stops the same way by itself and exits within
-:data:`STOP_GRACE_S` (:func:`~capture_bench.worker_processes.end_with_parent`). Ray tasks are
+`STOP_GRACE_S` (`end_with_parent`). Ray tasks are
 cancelled, which raises KeyboardInterrupt in them.
 """
 
@@ -104,8 +104,8 @@ def run_trials(
 
     ``signals`` (handled in this, the main, thread) interrupt a trial's training; one that comes
     while Optuna creates or records a trial, or inside one of the trial's methods
-    (:class:`HeldTrial`), is held until that is done
-    (:func:`~capture_bench.interrupts.held_interrupts`), so no trial is left marked running, and
+    (`HeldTrial`), is held until that is done
+    (`held_interrupts`), so no trial is left marked running, and
     then no other trial starts. In a Ray task (``signals`` empty) Ray's cancellation raises
     KeyboardInterrupt wherever the task is.
     """
@@ -140,8 +140,8 @@ def run_trials(
 
 
 class HeldTrial:
-    """An Optuna trial whose methods run with the interrupts held (:meth:`~capture_bench.
-    interrupts.HeldInterrupts.holding`). Each method reads or writes the study's storage; an
+    """An Optuna trial whose methods run with the interrupts held (`holding`). Each method reads or
+    writes the study's storage; an
     interrupt raised inside a SQLite transaction would leave it open, its lock held, and every
     later write to the study, this worker's recording of the interrupted trial as failed and the
     other workers', waiting on that lock."""
@@ -228,7 +228,7 @@ def _stop_self() -> None:
 
 
 def _stop(processes: list[Any]) -> None:
-    """SIGTERM to each running worker; wait up to :data:`STOP_GRACE_S` for all (a second Ctrl-C:
+    """SIGTERM to each running worker; wait up to `STOP_GRACE_S` for all (a second Ctrl-C:
     no longer). The caller kills those left."""
     for process in processes:
         if process.is_alive():

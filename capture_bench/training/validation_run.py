@@ -1,5 +1,6 @@
 """The periodic validation of ``train.py``: one deterministic episode per validation seed, all
-stepped together in the batched :class:`~capture_bench.envs.vector_env.CaptureVectorEnv`.
+stepped together in the batched
+[`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv].
 
 Sub-env i is reset on seed i of the list and its first episode is the one counted; the vector
 env autoresets a sub-env the step after its episode ends (next-step autoreset), and whatever it

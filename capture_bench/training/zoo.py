@@ -3,7 +3,7 @@ made from ours.
 
 ``configs/zoo/<algo>.yml`` holds one entry per registered env ID (the key the Zoo looks an env
 up by), each made from ``configs/algos/<algo>.yaml`` with that scenario's section applied,
-exactly as ``train.py`` resolves it (:func:`~capture_bench.training.hyperparameters.
+exactly as ``train.py`` resolves it (`
 resolve_hyperparameters`), so that::
 
     python -m rl_zoo3.train --algo ppo --env CaptureBench/Paper-v1 \\
@@ -24,10 +24,10 @@ algorithm's keys
                            features extractor as its class, imported in the string
 ``action_noise_std``       ``noise_type: normal``, ``noise_std``
 ``reward``                 ``env_kwargs: {reward: ...}``
-training seeds only        ``env_wrapper``: :class:`~capture_bench.training.seeds.TrainingSeeds`
+training seeds only        ``env_wrapper``: `TrainingSeeds`
 the curricula              ``callback``: our curriculum callbacks, with the scenario's final
                            tolerance or hold written in
-the rollout statistics     ``callback``: :class:`~capture_bench.training.callbacks.
+the rollout statistics     ``callback``: `
                            RolloutMetrics`; ``monitor_kwargs`` puts ``is_success`` in the
                            Zoo's ``monitor.csv``
 ``checkpoint_freq``,       not file keys in the Zoo: its options ``--save-freq``,
@@ -100,7 +100,7 @@ def class_expression(cls: type) -> str:
 
 def policy_kwargs_expression(policy_kwargs: dict[str, Any]) -> str:
     """Our validated ``policy_kwargs`` as the string the Zoo evaluates into SB3's (what
-    :func:`~capture_bench.training.hyperparameters.sb3_kwargs` makes): ``activation_fn`` as
+    `sb3_kwargs` makes): ``activation_fn`` as
     ``nn.<Name>`` (the Zoo's ``nn`` is ``torch.nn``), ``features_extractor`` as SB3's
     ``features_extractor_class``."""
     from capture_bench.agents.features import FEATURE_EXTRACTORS
