@@ -23,11 +23,15 @@ import numpy as np
 
 from capture_bench.agents.protocol import Agent
 from capture_bench.envs.vector_env import sub_env_infos
+from capture_bench.task.accounting import (
+    EstimateLog,
+    Outcome,
+    episode_outcome,
+    info_number,
+)
 
 CAPTURED = "captured"
 FAILED = "failed"
-#: Reason recorded when a failed episode's info names none (should not happen; kept visible).
-UNSPECIFIED_FAILURE = "unspecified"
 #: Safety net against an environment that never ends an episode.
 MAX_STEPS = 1_000_000
 
@@ -157,15 +161,10 @@ class EpisodeTrace:
     saturated: np.ndarray
 
 
-def _float(info: dict[str, Any], key: str) -> float:
-    value = info.get(key)
-    return math.nan if value is None else float(value)
-
-
-def _at_capture(info: dict[str, Any], key: str, captured: bool) -> float:
+def _at_capture(outcome: Outcome, info: dict[str, Any], key: str) -> float:
     """The capturing step's ``info[key]`` (the values at the capture instant), NaN if the
     episode did not capture."""
-    return _float(info, key) if captured else math.nan
+    return info_number(info, key) if outcome.captured else math.nan
 
 
 def _seed_agent(agent: Agent, env: Any, seed: int) -> None:
@@ -182,43 +181,25 @@ def _physical_limit_time(env: Any, info: dict[str, Any]) -> float:
     return float(env.unwrapped.physical_limit().time)
 
 
-class _EpisodeLog:
-    """What an episode's record is made of, gathered step by step from ``info``."""
+class _EpisodeLog(EstimateLog):
+    """What an episode's record is made of, gathered step by step from ``info``
+    (`capture_bench.task.accounting`), and the per-step series where asked."""
 
     def __init__(self, trace: bool = False) -> None:
-        self.pos_sq: list[float] = []
-        self.vel_sq: list[float] = []
-        self.nees: list[float] = []
-        self.saturated = 0
-        self.steps = 0
+        super().__init__()
         self.series: dict[str, list[Any]] | None = (
             {k: [] for k in ("time", "distance", "err", "action", "sat")} if trace else None
         )
 
-    def add(self, info: dict[str, Any], action: Any) -> None:
+    def add_step(self, info: dict[str, Any], action: Any) -> None:
         """One step's ``info`` (the single env's form) and the action taken."""
-        self.add_estimates(
-            _float(info, "estimate_position_error"),
-            _float(info, "estimate_velocity_error"),
-            _float(info, "estimate_nees"),
-            bool(info.get("saturated", False)),
-        )
+        self.add_info(info)
         if self.series is not None:
-            self.series["time"].append(_float(info, "time"))
-            self.series["distance"].append(_float(info, "distance"))
-            self.series["err"].append(_float(info, "estimate_position_error"))
+            self.series["time"].append(info_number(info, "time"))
+            self.series["distance"].append(info_number(info, "distance"))
+            self.series["err"].append(info_number(info, "estimate_position_error"))
             self.series["action"].append(np.asarray(action, dtype=float).reshape(-1))
             self.series["sat"].append(bool(info.get("saturated", False)))
-
-    def add_estimates(
-        self, position_error: float, velocity_error: float, nees: float, saturated: bool
-    ) -> None:
-        """One step's estimate errors, NEES and saturation (``info``'s values)."""
-        self.steps += 1
-        self.pos_sq.append(position_error**2)
-        self.vel_sq.append(velocity_error**2)
-        self.nees.append(nees)
-        self.saturated += saturated
 
     def record(
         self,
@@ -233,35 +214,26 @@ class _EpisodeLog:
         cpu_s: float,
     ) -> EpisodeRecord:
         """The record, from the last step's ``info`` and the episode's physical limit, s."""
-        captured = bool(info.get("is_success", False))
-        failure = "" if captured else (info.get("failure") or ("timeout" if truncated else None))
-        if not captured and not failure:
-            failure = UNSPECIFIED_FAILURE
-        capture_time = _float(info, "capture_time") if captured else math.nan
-        finite = math.isfinite(limit) and limit > 0
-        ratio = capture_time / limit if captured and finite else math.nan
-        finite_nees = [v for v in self.nees if math.isfinite(v)]
+        outcome = episode_outcome(info, truncated, limit)
         return EpisodeRecord(
             agent=agent_name,
             scenario=scenario,
             seed=int(seed),
-            outcome=CAPTURED if captured else FAILED,
-            failure=str(failure),
-            capture_time=capture_time,
-            end_time=_float(info, "time"),
-            physical_limit_time=limit,
-            ratio=ratio,
-            capture_time_estimated=_float(info, "capture_time_estimated"),
-            distance_at_capture=_at_capture(info, "distance_at_capture", captured),
-            relative_speed_at_capture=_at_capture(info, "relative_speed_at_capture", captured),
-            relative_speed_max_over_hold=_at_capture(
-                info, "relative_speed_max_over_hold", captured
-            ),
-            position_rmse=_root_mean(self.pos_sq),
-            velocity_rmse=_root_mean(self.vel_sq),
-            mean_nees=float(np.mean(finite_nees)) if finite_nees else math.nan,
-            path_length=_float(info, "path_length"),
-            saturated_share=self.saturated / self.steps if self.steps else math.nan,
+            outcome=CAPTURED if outcome.captured else FAILED,
+            failure=outcome.failure,
+            capture_time=outcome.capture_time,
+            end_time=info_number(info, "time"),
+            physical_limit_time=outcome.physical_limit_time,
+            ratio=outcome.ratio,
+            capture_time_estimated=info_number(info, "capture_time_estimated"),
+            distance_at_capture=_at_capture(outcome, info, "distance_at_capture"),
+            relative_speed_at_capture=_at_capture(outcome, info, "relative_speed_at_capture"),
+            relative_speed_max_over_hold=_at_capture(outcome, info, "relative_speed_max_over_hold"),
+            position_rmse=self.position_rmse,
+            velocity_rmse=self.velocity_rmse,
+            mean_nees=self.mean_nees,
+            path_length=info_number(info, "path_length"),
+            saturated_share=self.saturated_share,
             steps=self.steps,
             wall_clock_s=wall_clock_s,
             cpu_s=cpu_s,
@@ -320,7 +292,7 @@ def run_episode(
         )
         episode_start = np.zeros((1,), dtype=bool)
         obs, _reward, terminated, truncated, info = env.step(action)
-        log.add(info, action)
+        log.add_step(info, action)
         if log.steps >= MAX_STEPS:
             raise RuntimeError(f"episode of {agent_name} on {scenario} seed {seed} never ended")
     record = log.record(
@@ -336,7 +308,7 @@ def run_episode(
     return record, log.trace()
 
 
-#: ``info`` keys an episode's record gathers every step (`_EpisodeLog.add_estimates`).
+#: ``info`` keys an episode's record gathers every step (`EstimateLog.add`).
 _LOGGED = ("estimate_position_error", "estimate_velocity_error", "estimate_nees", "saturated")
 
 
@@ -426,7 +398,7 @@ def run_episodes(
         ended = terminated | truncated
         infos = sub_env_infos(info, n) if ended.any() else []  # the last step's, in full
         for i in rows:  # the episodes that ran this step
-            logs[i].add_estimates(position_error[i], velocity_error[i], nees[i], saturated[i])
+            logs[i].add(position_error[i], velocity_error[i], nees[i], saturated[i])
             if ended[i]:
                 ends[i] = (infos[i], bool(truncated[i]))
                 running[i] = False
@@ -463,12 +435,3 @@ def _rows(obs: Any, index: Any) -> Any:
     if isinstance(obs, dict):
         return {key: value[index] for key, value in obs.items()}
     return obs[index]
-
-
-def _root_mean(squares: list[float]) -> float:
-    """sqrt of the mean of the ``squares`` that are not NaN (numpy's ``nanmean``), NaN where all
-    are (an episode whose estimator never had an estimate), without numpy's warning."""
-    values = np.asarray(squares, dtype=float)
-    if np.isnan(values).all():  # an empty list too
-        return math.nan
-    return float(np.sqrt(np.nanmean(values)))

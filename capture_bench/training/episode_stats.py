@@ -25,8 +25,9 @@ key                               statistic over the episodes
 ================================  ================================================================
 
 A statistic with no episode to compute it on (no capture, no estimate) is NaN in
-`summarize`'s result; loggers leave NaN out (`finite_items`). The per-episode rules
-(what "captured" and "the ratio" are) are those of `capture_bench.evaluation.rollout`.
+`summarize`'s result; loggers leave NaN out (`finite_items`). An episode is read by
+`capture_bench.task.accounting`, as the evaluation's records are: "captured", the failure reason
+and the ratio mean the same here and on the leaderboard.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from capture_bench.task.accounting import EstimateLog, episode_outcome, info_number
 from capture_bench.task.score import episode_score
 from capture_bench.task.step_rule import FAILURES
 
@@ -69,40 +71,26 @@ class EpisodeStats:
     reward: float = NAN
 
 
-def _number(value: Any) -> float:
-    """A float from an ``info`` value (None -> NaN)."""
-    return NAN if value is None else float(value)
-
-
-def ratio_to_limit(capture_time: float, physical_limit_time: float) -> float:
-    """``capture_time / physical_limit_time``; NaN for a NaN time or a bound not finite and > 0."""
-    if math.isnan(capture_time) or not (
-        math.isfinite(physical_limit_time) and physical_limit_time > 0
-    ):
-        return NAN
-    return capture_time / physical_limit_time
-
-
 def episode_stats(
     final_info: Mapping[str, Any],
     position_errors: Iterable[float],
     reward: float = NAN,
 ) -> EpisodeStats:
     """The statistics of an episode from the ``info`` of its last step and the
-    ``estimate_position_error`` of each of its steps (m; NaN entries are left out)."""
-    captured = bool(final_info.get("is_success"))
-    capture_time = _number(final_info.get("capture_time")) if captured else NAN
-    limit = _number(final_info.get("physical_limit_time"))
-    errors = np.asarray(list(position_errors), dtype=float)
-    errors = errors[np.isfinite(errors)]
-    failure = final_info.get("failure")
+    ``estimate_position_error`` of each of its steps (m; NaN entries are left out). A time limit
+    outside the environment (SB3's ``TimeLimit.truncated``) makes an unnamed failure a
+    ``timeout``, as in the evaluation."""
+    outcome = episode_outcome(final_info, bool(final_info.get("TimeLimit.truncated", False)))
+    log = EstimateLog()
+    for error in position_errors:
+        log.add(error, NAN, NAN, False)
     return EpisodeStats(
-        captured=captured,
-        failure=None if failure is None else str(failure),
-        capture_time=capture_time,
-        physical_limit_time=limit,
-        ratio_to_limit=ratio_to_limit(capture_time, limit),
-        estimate_position_error_m=float(errors.mean()) if errors.size else NAN,
+        captured=outcome.captured,
+        failure=outcome.failure or None,
+        capture_time=outcome.capture_time,
+        physical_limit_time=outcome.physical_limit_time,
+        ratio_to_limit=outcome.ratio,
+        estimate_position_error_m=log.position_error_mean,
         reward=float(reward),
     )
 
@@ -129,7 +117,7 @@ class EpisodeTracker:
             self._rewards += np.asarray(rewards, dtype=float)
         ended = []
         for i, info in enumerate(infos):
-            self._errors[i].append(_number(info.get("estimate_position_error")))
+            self._errors[i].append(info_number(info, "estimate_position_error"))
             if dones[i]:
                 reward = float(self._rewards[i]) if rewards is not None else NAN
                 ended.append((i, episode_stats(info, self._errors[i], reward)))
