@@ -1,25 +1,9 @@
 """Agents for capture-bench: the paper's controller, classic baselines and the privileged oracle.
 
 Every agent follows [`capture_bench.agents.protocol.Agent`][capture_bench.agents.protocol.Agent]
-(SB3-style ``predict`` plus
-``reset``) and acts in the shared action space ``Box(-1, 1, (3,))``. Build one by name with
-[`make_agent`][capture_bench.agents.make_agent]:
-
-==============================  ======================================================  ============
-name                            what                                                    sees
-==============================  ======================================================  ============
-``incremental_ik``              Dong & Zhu (2016) eqs. 13-19, lambda_max, step cap      public
-``incremental_ik_uncapped``     the same, paper-exact (``cap=False``)                   public
-``incremental_ik_through``      capped step aims 2 mm past X_T' (``follow_through``)    public
-``pure_pursuit``                straight at X^_T, no look-ahead                         public
-``intercept``                   straight at the predicted interception point            public
-``joint_intercept``             each joint to the earliest pose meeting the prediction  public
-``joint_intercept_uncapped``    the same at full rate, sweeping through that pose       public
-``dls``                         damped least squares resolved rate, feed-forward + P    public
-``random``                      uniform random actions (seeded)                         public
-``hold``                        zero action                                             public
-``oracle``                      "oracle (privileged)": to the physical-limit pose       ground truth
-==============================  ======================================================  ============
+(SB3-style ``predict`` plus ``reset``) and acts in the shared action space ``Box(-1, 1, (3,))``.
+Build one by name with [`make_agent`][capture_bench.agents.make_agent]; the names, what each
+agent does and what it sees are [`AGENTS`][capture_bench.agents.AGENTS]'s table.
 
 Analytic agents are built from ``env.unwrapped.description`` (a
 [`capture_bench.task.observation.TaskDescription`][capture_bench.task.observation.TaskDescription])
@@ -76,6 +60,30 @@ AGENTS: dict[str, AgentFactory] = {
     "hold": _public(Hold),
     "oracle": _oracle,
 }
+"""The built-in agents by name, as [`make_agent`][capture_bench.agents.make_agent] takes them;
+each value is a factory, ``AGENTS[name](env, **kwargs)``, that builds the agent for ``env``. All but
+the oracle see only the environment's public description and the observations; the oracle sees the
+environment itself (privileged, ranked apart).
+
+- `incremental_ik`: [`IncrementalIK`][capture_bench.agents.incremental_ik.IncrementalIK], Dong &
+  Zhu (2016) eqs. 13-19, λ_max, with the step cap.
+- `incremental_ik_uncapped`: the same, paper-exact (``cap=False``).
+- `incremental_ik_through`: the same, its capped step aiming 2 mm past X_T' (``follow_through``).
+- `pure_pursuit`: [`PurePursuit`][capture_bench.agents.baselines.PurePursuit], straight at the
+  estimate X^_T, no look-ahead.
+- `intercept`: [`Intercept`][capture_bench.agents.baselines.Intercept], straight at the predicted
+  interception point.
+- `joint_intercept`: [`JointIntercept`][capture_bench.agents.baselines.JointIntercept], each joint
+  to the earliest pose that meets the prediction.
+- `joint_intercept_uncapped`: the same at full rate, sweeping through that pose (``cap=False``).
+- `dls`: [`DampedLeastSquares`][capture_bench.agents.baselines.DampedLeastSquares], damped least
+  squares resolved rate, feed-forward + P.
+- `random`: [`RandomAgent`][capture_bench.agents.baselines.RandomAgent], uniform random actions
+  (seeded).
+- `hold`: [`Hold`][capture_bench.agents.baselines.Hold], zero action.
+- `oracle`: [`Oracle`][capture_bench.agents.oracle.Oracle], "oracle (privileged)" in reports: to
+  the physical-limit pose, knowing the true target.
+"""
 
 PRIVILEGED_AGENTS = frozenset({"oracle"})
 
