@@ -449,49 +449,61 @@ def _json(value: Any) -> Any:
     return float(value) if isinstance(value, np.floating) else int(value)
 
 
-def _html(markdown: str, images: dict[str, bytes]) -> str:
-    """The page as one self-contained HTML file (the figures embedded, by file name)."""
+def _inline(text: str) -> str:
+    """One line of the page's Markdown as HTML: escaped, each `` `code` `` span a ``<code>``."""
     import html
+    import re
+
+    return re.sub(r"`([^`]+)`", r"<code>\1</code>", html.escape(text))
+
+
+def _html(markdown: str, images: dict[str, bytes]) -> str:
+    """The page as one self-contained HTML file (the figures embedded, by file name): the
+    Markdown's headings, paragraphs, lists, tables (each in a box that scrolls sideways on a
+    narrow screen) and images, code spans as ``<code>``."""
+    import html
+    import re
 
     body = []
-    in_table = False
+    block = ""  # the open table or list: "table", "ul" or ""
     for line in markdown.splitlines():
-        if line.startswith("|"):
-            cells = [html.escape(c.strip()) for c in line.strip("|").split("|")]
+        kind = "table" if line.startswith("|") else "ul" if line.startswith("- ") else ""
+        if block and kind != block:
+            body.append("</table></div>" if block == "table" else "</ul>")
+            block = ""
+        if kind == "table":
+            cells = [_inline(c.strip()) for c in line.strip("|").split("|")]
             if set("".join(cells)) <= set("-"):
                 continue
-            tag = "th" if not in_table else "td"
-            body.append(
-                ("<table>" if not in_table else "")
-                + "<tr>"
-                + "".join(f"<{tag}>{c}</{tag}>" for c in cells)
-                + "</tr>"
-            )
-            in_table = True
+            tag = "th" if not block else "td"
+            opened = '<div class="scroll"><table>' if not block else ""
+            body.append(opened + "<tr>" + "".join(f"<{tag}>{c}</{tag}>" for c in cells) + "</tr>")
+            block = "table"
             continue
-        if in_table:
-            body.append("</table>")
-            in_table = False
+        if kind == "ul":
+            body.append(("<ul>" if not block else "") + f"<li>{_inline(line[2:])}</li>")
+            block = "ul"
+            continue
+        heading = re.match(r"(#{1,6}) (.*)", line)
         if line.startswith("!["):
             alt, name = line[2:-1].split("](")
             data = base64.b64encode(images[name]).decode()
             body.append(f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">')
-        elif line.startswith("## "):
-            body.append(f"<h2>{html.escape(line[3:])}</h2>")
-        elif line.startswith("# "):
-            body.append(f"<h1>{html.escape(line[2:])}</h1>")
-        elif line.startswith("- "):
-            body.append(f"<li>{html.escape(line[2:])}</li>")
+        elif heading:
+            level = len(heading.group(1))
+            body.append(f"<h{level}>{_inline(heading.group(2))}</h{level}>")
         elif line:
-            body.append(f"<p>{html.escape(line)}</p>")
-    if in_table:
-        body.append("</table>")
+            body.append(f"<p>{_inline(line)}</p>")
+    if block:
+        body.append("</table></div>" if block == "table" else "</ul>")
     style = (
-        "body{font-family:sans-serif;max-width:1100px;margin:2em auto}"
-        "td,th{border:1px solid #ccc;padding:4px 8px}table{border-collapse:collapse}"
-        "img{max-width:100%}"
+        "body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;"
+        "overflow-wrap:break-word}td,th{border:1px solid #ccc;padding:4px 8px}"
+        "table{border-collapse:collapse}.scroll{overflow-x:auto}img{max-width:100%;height:auto}"
+        "code{background:#f6f6f6;padding:0 0.2em}"
     )
-    head = f"<meta charset='utf-8'><title>learning curves</title><style>{style}</style>"
+    viewport = '<meta name="viewport" content="width=device-width, initial-scale=1">'
+    head = f"<meta charset='utf-8'>{viewport}<title>learning curves</title><style>{style}</style>"
     return f"<!DOCTYPE html><html><head>{head}</head><body>{''.join(body)}</body></html>\n"
 
 
