@@ -224,14 +224,19 @@ def draw_profiles(
     colours: Mapping[str, Any],
     emphasis: str | None = None,
     unit: str = "episodes",
+    styles: Mapping[str, str] | None = None,
 ) -> None:
     """Draw performance profiles on the matplotlib axes ``ax``: each one's share of scores above
-    tau with its 95% band, ``emphasis`` (a name, or None) drawn thicker and on top; a legend
-    outside the curves. ``unit`` names what a score belongs to, for the y label."""
+    tau with its 95% band, in ``colours[name]`` and line style ``styles[name]`` (solid where
+    ``styles`` names none), ``emphasis`` (a name, or None) drawn thicker and on top; a legend
+    outside the curves, in the order of ``profiles``. ``unit`` names what a score belongs to,
+    for the y label."""
+    styles = styles or {}
     for name, profile in profiles.items():
         thick = name == emphasis
         ax.plot(profile.taus, profile.share, color=colours[name], label=name,
-                lw=2.6 if thick else 1.5, zorder=3 if thick else 2)  # fmt: skip
+                ls=styles.get(name, "-"), lw=2.6 if thick else 1.5,
+                zorder=3 if thick else 2)  # fmt: skip
         ax.fill_between(profile.taus, profile.low, profile.high, color=colours[name], alpha=0.12)
     ax.set_xlabel("score threshold τ (score = physical limit / capture time; 0 for a failure)")
     ax.set_ylabel(f"share of {unit} with score > τ")

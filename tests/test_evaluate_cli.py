@@ -113,7 +113,7 @@ def test_quick_suite_writes_every_file_with_consistent_aggregates(quick_report):
     assert {"git", "packages", "config_hashes", "seeds", "command"} <= set(provenance)
     assert set(provenance["config_hashes"]["scenarios"]) == {"paper", "tumbling"}
     md = (quick_report / "leaderboard.md").read_text()
-    assert "python evaluate.py --suite quick --workers 1 --out" in "\n".join(md.splitlines()[:8])
+    assert "python evaluate.py --suite quick --workers 1 --out" in "\n".join(md.splitlines()[:12])
 
     class Images(HTMLParser):
         def __init__(self) -> None:

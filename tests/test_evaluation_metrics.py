@@ -245,7 +245,7 @@ def test_report_files_from_records(tmp_path):
     } <= names
     assert [p.name for p in tmp_path.iterdir()] == ["synthetic"]  # no staging directory left
     md = (target / "leaderboard.md").read_text()
-    assert "python evaluate.py --suite synthetic" in md.splitlines()[:8]
+    assert "python evaluate.py --suite synthetic" in md.splitlines()[:12]
     rows = list(csv.DictReader(open(target / "results.csv")))
     assert len(rows) == 6 and len(list(csv.DictReader(open(target / "episodes.csv")))) == 54
     payload = json.loads((target / "results.json").read_text())  # strict JSON: no NaN

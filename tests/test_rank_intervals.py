@@ -5,6 +5,7 @@ capture rule. Synthetic records: the ranking is a pure function of them."""
 from __future__ import annotations
 
 import dataclasses
+import html
 import json
 import math
 import random
@@ -27,6 +28,7 @@ from capture_bench.evaluation.aggregate import (
 from capture_bench.evaluation.metrics import Estimate
 from capture_bench.evaluation.report import (
     RANKING_HEADER,
+    READING,
     ReportData,
     _sanitise,
     capture_rule,
@@ -306,10 +308,16 @@ def test_the_capture_rule_is_the_reports_first_line(plain):
     sentence = report_capture_rule(data)
     assert sentence == f"A capture: {capture_rule(load_scenario('paper'))}."
     md = markdown(data, (None, "not needed")).splitlines()
-    assert md[0].startswith("# ") and md[2] == sentence and md[4] == "Regenerate with:"
+    assert md[0].startswith("# ") and md[2] == sentence and md[4] == READING
+    assert md[6] == "Regenerate with:"
     page = html_page(data, _images(data), (None, "not needed"))
     h1 = page.index("</h1>")
     assert page.index(sentence) - h1 < 30 and page.index(sentence) < page.index("<figure")
+    assert (
+        page.index(sentence)
+        < page.index(html.escape(READING))
+        < page.index("<h2>Overall ranking</h2>")
+    )
 
 
 def _data(records: list[EpisodeRecord], ranking: list[RankingRow]) -> ReportData:

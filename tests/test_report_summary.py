@@ -71,19 +71,21 @@ def test_probability_of_improvement_is_rliables_definition_by_brute_force(report
             assert matrix[i, j] + matrix[j, i] == pytest.approx(1.0, abs=1e-12)
 
 
-def test_every_summary_plot_is_written_and_embedded_first(report):
+def test_every_summary_plot_is_written_and_embedded_before_the_scenarios(report):
     data, folder = report
     html = (folder / "leaderboard.html").read_text()
     md = (folder / "leaderboard.md").read_text()
-    positions = []
+    positions = {}
     for name in SUMMARY_FIGURES:
         png = (folder / name).read_bytes()
         assert png.startswith(b"\x89PNG")
         encoded = base64.b64encode(png).decode("ascii")
         assert encoded in html
-        positions.append(html.index(encoded))
-        assert f"![{name}]({name})" in md
-    assert max(positions) < html.index("<h2>Overall ranking</h2>")  # the summary comes first
+        positions[name] = html.index(encoded)
+        assert f"]({name})" in md  # ![what it shows](file)
+    # the ranking's figure under its table, the others next; all before the per-scenario tables
+    assert html.index("<h2>Overall ranking</h2>") < positions["summary_ranking.png"]
+    assert max(positions.values()) < html.index('<section id="scenarios">')
     assert summary_text(data) in html and 'src="http' not in html
 
 

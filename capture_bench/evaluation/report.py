@@ -18,6 +18,7 @@ import html
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 import threading
@@ -372,69 +373,31 @@ def _title(data: ReportData, quote: str) -> str:
     return title
 
 
-def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
-    """The leaderboard in Markdown, headed by the command that regenerates it; ``rliable``: the
-    `rliable_numbers` of ``data`` if already computed."""
-    stats, why = rliable_numbers(data) if rliable is None else rliable
-    lines = [
-        f"# capture-bench leaderboard: {_title(data, '`')}",
-        "",
-        report_capture_rule(data),
-        "",
-        "Regenerate with:",
-        "",
-        "```",
-        data.command,
-        "```",
-        "",
-        data.description,
-        "",
-        "## Summary",
-        "",
-        *(f"![{name}]({name})" for name in SUMMARY_FIGURES),
-        "",
-        summary_text(data),
-        "",
-        "## Overall ranking",
-        "",
-        RANKING_RULE,
-        "",
-        *_md_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
-        "",
-    ]
-    unranked = not_ranked(data)
-    if unranked:
-        lines += [f"### Not ranked: {', '.join(unranked)}", "", NOT_RANKED_TEXT, ""]
-        lines += [*_md_table(NOT_RANKED_HEADER, not_ranked_rows(data)), ""]
-    lines += [NOTES, "", f"## {rliable_report.TITLE}", ""]
-    if stats is None:
-        lines.append(f"Left out: {why}.")
-    else:
-        rows = rliable_rows(data, stats)
-        lines += [rliable_report.text(stats), "", *_md_table(rliable_report.HEADER, rows)]
-        lines += ["", f"![{rliable_report.FIGURE}]({rliable_report.FIGURE})"]
-    for scenario in _scenarios(data):
-        cells = [s for s in data.summaries if s.scenario == scenario]
-        lines += ["", f"## {scenario}", ""]
-        lines += _md_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells])
-        lines += ["", *_md_table(DETAIL_HEADER, [detail_cells(s) for s in cells])]
-    for section in paired_sections(data):
-        left_out = ["", section.left_out] if section.left_out else []
-        lines += ["", f"## {section.title}", "", section.text, *left_out]
-        for title, rows in _section_tables(section, data.reference):
-            lines += ["", f"### {title}", "", *_md_table(section.header, rows)]
-    lines += ["", *watch.markdown_lines(data.videos)]
-    lines += [f"Figures: {', '.join(figure_names(data))} (in this directory).", ""]
-    lines += ["## Provenance", "", provenance_text(data.provenance), "", REPRODUCIBILITY, ""]
-    return "\n".join(lines)
-
-
 SUMMARY_FIGURES = ("summary_heatmap.png", "summary_ranking.png", "summary_improvement.png")
+#: What the report's numbers mean: said under the capture rule at the top of both pages.
+READING = (
+    "The physical limit of an episode is the earliest time at which any motion of the arm within "
+    "its joint-velocity limits could satisfy the capture rule above, computed from the target's "
+    "true motion (privileged: no agent knows it, and none can capture sooner). The ratio to the "
+    "limit is capture time / physical limit: 1.00x is as fast as physically possible, 1.13x is "
+    "13% slower. Agents are ranked by capture rate, then by that ratio."
+)
+OUTCOME_FIGURES = ("failures_by_reason.png", "ratio_to_limit.png")
+OUTCOMES_TITLE = "Outcomes and ratio to the physical limit"
+SCENARIOS_TITLE = "Per scenario"
 
 
 def _agents(data: ReportData) -> list[str]:
     """Every agent in ranking order (privileged last)."""
     return [r.agent for r in data.ranking]
+
+
+def scenario_summaries(data: ReportData, scenario: str) -> list[Summary]:
+    """The summaries of ``scenario`` in the ranking's order (an agent the ranking lacks after
+    those it holds, in the order of ``data.summaries``)."""
+    order = {agent: k for k, agent in enumerate(_agents(data))}
+    cells = [s for s in data.summaries if s.scenario == scenario]
+    return sorted(cells, key=lambda s: order.get(s.agent, len(order)))
 
 
 def summary_text(data: ReportData) -> str:
@@ -494,16 +457,19 @@ def figure_names(data: ReportData) -> list[str]:
 
 def figures(data: ReportData, names: Sequence[str] | None = None) -> dict[str, bytes]:
     """Render the figures ``names`` (default every one, `figure_names`): file name -> PNG
-    bytes; one colour per agent throughout. Each figure depends on ``data`` alone, so any split
-    of the names draws the same bytes."""
+    bytes; one colour (and, in the curves, one line style) per agent throughout, agents in the
+    ranking's order. Each figure depends on ``data`` alone, so any split of the names draws the
+    same bytes."""
     wanted = figure_names(data) if names is None else list(names)
     agents = _agents(data)
     colours = plots.agent_colours(agents, data.reference)
+    styles = plots.agent_line_styles(agents, data.reference)
     scenarios = _scenarios(data)
+    top = plots.improvement_agents(agents)
 
     def survival(scenario: str) -> bytes:
-        cells = [s for s in data.summaries if s.scenario == scenario]
-        return plots.survival_figure(scenario, cells, colours, data.reference)
+        cells = scenario_summaries(data, scenario)
+        return plots.survival_figure(scenario, cells, colours, data.reference, styles)
 
     def heatmap() -> bytes:
         rate, ratio = summary.heatmap_cells(data.summaries, agents, scenarios)
@@ -515,16 +481,18 @@ def figures(data: ReportData, names: Sequence[str] | None = None) -> dict[str, b
             summary.ranking_intervals(data.records, data.ranking), colours
         ),
         "summary_improvement.png": lambda: plots.improvement_figure(
-            summary.probability_of_improvement(data.records, agents), agents
+            summary.probability_of_improvement(data.records, top), top
         ),
         rliable_report.FIGURE: lambda: plots.performance_profile_figure(
-            rliable_report.profiles(data.records, agents), colours, data.reference
+            rliable_report.profiles(data.records, agents), colours, data.reference, styles
         ),
         **{f"survival_{sc}.png": (lambda sc=sc: survival(sc)) for sc in scenarios},
         "failures_by_reason.png": lambda: plots.failures_figure(
-            data.summaries, failure_reasons(data.summaries)
+            data.summaries, failure_reasons(data.summaries), agents
         ),
-        "ratio_to_limit.png": lambda: plots.ratio_figure(data.records, colours, data.reference),
+        "ratio_to_limit.png": lambda: plots.ratio_figure(
+            data.records, colours, data.reference, agents
+        ),
     }
     unknown = [name for name in wanted if name not in draw]
     if unknown:
@@ -551,48 +519,299 @@ def figure_groups(data: ReportData, groups: int) -> list[list[str]]:
     return out
 
 
+@dataclass(frozen=True)
+class FigureText:
+    """What the report says of one figure: ``alt``, what it shows (the image's alternative
+    text); ``caption``, that and how to read it."""
+
+    alt: str
+    caption: str
+
+
+def _n(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
+def _ranking_reading(data: ReportData) -> str:
+    panels, floor = plots.ranking_layout(summary.ranking_intervals(data.records, data.ranking))
+    text = (
+        "Dot: the mean capture rate; bar: its 95% paired-bootstrap interval over the seeds; "
+        'label: rank, agent and 95% rank interval. A shaded band (and "=") groups agents whose '
+        "rank intervals overlap: the seeds cannot order them."
+    )
+    limits = [plots.panel_limits(p) for p in panels]
+    if len(panels) == 2:
+        (a, b), (c, d) = limits
+        text += (
+            f" The rates fall far between ranks {panels[0][-1].row.rank} and "
+            f"{panels[1][0].row.rank}, so the agents are drawn in two panels, each on its own x "
+            f"axis (capture rate {a:.2f} to {b:.2f} above, {c:.2f} to {d:.2f} below): the top "
+            "agents, a few episodes apart, are resolved, and so are the weak ones; compare "
+            "positions within a panel only."
+        )
+    elif limits:
+        low, high = limits[0]
+        text += f" The x axis spans the agents drawn: capture rate {low:.2f} to {high:.2f}."
+    note = plots.not_drawn_note(floor)
+    return f"{text} {note}" if note else text
+
+
+def figure_text(data: ReportData, name: str) -> FigureText:
+    """The alternative text and the caption of the figure ``name`` of ``data``'s report."""
+    agents, scenarios, ref = _agents(data), _scenarios(data), data.reference
+    n_agents, n_scenarios = _n(len(agents), "agent"), _n(len(scenarios), "scenario")
+    emphasis = (
+        f"The reference, {ref}, is black and thicker; every agent has the same colour (and line "
+        "style) in every figure."
+    )
+    if name == "summary_heatmap.png":
+        alt = (
+            f"Heatmap of the capture rate and the median ratio to the physical limit of each of "
+            f"the {n_agents} (rows, in ranking order) on each of the {n_scenarios} (columns)."
+        )
+        read = (
+            "Colour: the capture rate, in classes that spend the colours near the top "
+            f"({', '.join(plots.rate_classes())}), so that 86% and 100% differ at a glance. Text: "
+            "the capture rate and the median ratio of capture time to the physical limit over "
+            "the captured episodes (1.00x = as fast as physically possible); a cell without a "
+            "ratio captured nothing."
+        )
+    elif name == "summary_ranking.png":
+        ranked = sum(r.rank is not None for r in data.ranking)
+        alt = (
+            f"Chart of the overall ranking of the {_n(ranked, 'ranked agent')}: each one's mean "
+            "capture rate over the ranked scenarios with its 95% interval, best at the top."
+        )
+        read = _ranking_reading(data)
+    elif name == "summary_improvement.png":
+        top = plots.improvement_agents(agents)
+        of = (
+            f" (of {len(agents)}; the rliable section compares every agent)"
+            if len(top) < len(agents)
+            else ""
+        )
+        alt = (
+            f"Matrix of the probability of improvement between the top {len(top)} agents by "
+            f"rank{of}."
+        )
+        read = (
+            "Each cell: the probability that an episode of the row's agent scores higher than an "
+            "episode of the column's agent (columns numbered as the rows; score = physical limit "
+            "/ capture time, 0 for a failure; ties count half), averaged over the scenarios. "
+            "Above 0.5 (blue) the row's agent is the better, below 0.5 (red) the worse; 0.5 is a "
+            "coin toss."
+        )
+    elif name == rliable_report.FIGURE:
+        alt = (
+            f"Line chart of the performance profiles of the {n_agents}: the share of each agent's "
+            "episodes, over every scenario, scoring above each threshold."
+        )
+        read = (
+            "x: the score threshold τ (score = physical limit / capture time, 0 for a failure); "
+            "y: the share of the agent's episodes scoring above τ, with its 95% stratified "
+            "bootstrap band. Higher is better: a curve's height near τ = 0 is the capture rate, "
+            f"and a curve that stays high toward τ = 1 captures close to the physical limit. "
+            f"{emphasis}"
+        )
+    elif name.startswith("survival_") and name[len("survival_") : -len(".png")] in scenarios:
+        scenario = name[len("survival_") : -len(".png")]
+        alt = (
+            f"Survival curves on {scenario}: for each of the {n_agents}, the share of episodes "
+            "not yet captured against the time since the episode started."
+        )
+        read = (
+            "Kaplan-Meier estimates with 95% bands; a failed episode counts until it ended "
+            "(censored). A curve that falls sooner captures faster; the level where it ends is "
+            f"the share never captured. {emphasis}"
+        )
+    elif name == "failures_by_reason.png":
+        alt = (
+            f"Bar chart of the outcomes of each agent's episodes on each of the {n_scenarios}: "
+            "the share captured and the share failed for each reason."
+        )
+        read = (
+            "One panel per scenario, one bar per agent (in ranking order): the share of its "
+            "episodes captured (green), then the share that failed for each reason (legend "
+            "below): timeout, collision, target lost, unreachable."
+        )
+    elif name == "ratio_to_limit.png":
+        alt = (
+            "Box plots of the ratio of capture time to the physical limit of each agent's "
+            f"captured episodes on each of the {n_scenarios}."
+        )
+        read = (
+            "One panel per scenario, one row per agent (in ranking order), one logarithmic x "
+            "axis for every panel: the box spans the middle half of the captured episodes, the "
+            "line in it is the median, whiskers reach 1.5 box lengths, circles are outliers; the "
+            'dashed line at 1 is the physical limit. "no capture": none to show.'
+        )
+    else:
+        raise ValueError(f"no figure named {name!r}; the report's: {', '.join(figure_names(data))}")
+    return FigureText(alt, f"{alt} {read}")
+
+
 def _html_table(header: Sequence[str], rows: list[list[str]]) -> str:
+    """A table in a box of its own that scrolls sideways where the page is narrower."""
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join(
         "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows
     )
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    return (
+        f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody>'
+        "</table></div>"
+    )
 
 
+#: The page's style: one column that fits a phone (tables and code scroll inside their boxes,
+#: images shrink to the column), figures at their natural size on a desktop.
 STYLE = (
-    "body{font-family:system-ui,sans-serif;margin:2em;max-width:80em}"
-    "table{border-collapse:collapse;margin:1em 0;font-size:0.9em}"
-    "th,td{border:1px solid #ccc;padding:0.3em 0.6em;text-align:left}"
-    "th{background:#f3f3f3}img{max-width:100%}code,pre{background:#f6f6f6;padding:0.2em}"
-    + watch.STYLE
+    "html{-webkit-text-size-adjust:100%}"
+    "body{font-family:system-ui,sans-serif;line-height:1.45;max-width:76em;margin:0 auto;"
+    "padding:0.5em 1em 2em;overflow-wrap:break-word}"
+    "@media (min-width:48em){body{padding:1em 2em 3em}}"
+    "h1{font-size:1.6em;line-height:1.25}"
+    ".scroll{overflow-x:auto;max-width:100%;margin:1em 0}"
+    "table{border-collapse:collapse;font-size:0.9em}"
+    "th,td{border:1px solid #ccc;padding:0.3em 0.6em;text-align:left;vertical-align:top}"
+    "th{background:#f3f3f3}img{max-width:100%;height:auto}"
+    "figure{margin:1.5em 0}figcaption{font-size:0.9em;color:#333;max-width:62em}"
+    "code,pre{background:#f6f6f6}code{padding:0 0.2em}"
+    "pre{padding:0.5em;overflow-x:auto;white-space:pre-wrap;overflow-wrap:anywhere}"
+    "nav.toc{background:#f7f7f7;border:1px solid #ddd;border-radius:4px;padding:0.4em 0.8em;"
+    "margin:1em 0}nav.toc ul{margin:0;padding:0;list-style:none;display:flex;flex-wrap:wrap;"
+    "gap:0.2em 1.2em}nav.toc li ul{display:inline-flex;gap:0.2em 0.7em}"
+    ".run{font-size:0.9em;color:#333}" + watch.STYLE
 )
+VIEWPORT = '<meta name="viewport" content="width=device-width, initial-scale=1">'
 
 
-def _img(name: str, png: bytes) -> str:
-    """A figure embedded as base64 (the page stays one file)."""
-    return watch.embedded_figure(png, "image/png", name)
+def _figure(data: ReportData, name: str, images: dict[str, bytes]) -> str:
+    """A figure embedded as base64 (the page stays one file) with its caption."""
+    text = figure_text(data, name)
+    return watch.embedded_figure(images[name], "image/png", text.caption, alt=text.alt)
+
+
+def _anchor(prefix: str, name: str, taken: set[str]) -> str:
+    """An id for ``name``, of letters, digits, ``_`` and ``-``, not in ``taken`` (then in it)."""
+    base = prefix + re.sub(r"[^A-Za-z0-9_-]+", "-", name)
+    anchor, k = base, 1
+    while anchor in taken:
+        k += 1
+        anchor = f"{base}-{k}"
+    taken.add(anchor)
+    return anchor
+
+
+@dataclass(frozen=True)
+class _Section:
+    anchor: str
+    title: str
+    body: list[str]
+    children: tuple[tuple[str, str], ...] = ()  # (anchor, title) of its parts in the contents
+
+
+def _toc(sections: Sequence[_Section]) -> str:
+    esc = html.escape
+    items = []
+    for s in sections:
+        link = f'<a href="#{s.anchor}">{esc(s.title)}</a>'
+        if s.children:
+            inner = "".join(f'<li><a href="#{a}">{esc(t)}</a></li>' for a, t in s.children)
+            link += f": <ul>{inner}</ul>"
+        items.append(f"<li>{link}</li>")
+    return f'<nav class="toc" aria-label="Contents"><ul>{"".join(items)}</ul></nav>'
 
 
 def html_page(
     data: ReportData, images: dict[str, bytes], rliable: RliableNumbers | None = None
 ) -> str:
     """The leaderboard as one self-contained HTML page (images inlined as base64); ``rliable``:
-    the `rliable_numbers` of ``data`` if already computed."""
+    the `rliable_numbers` of ``data`` if already computed.
+
+    Its first screen: the title, the capture rule (`report_capture_rule`), what the physical
+    limit and the ratio to it are (`READING`), the run, the contents (a link to every section),
+    then the overall ranking. Every image is a ``<figure>`` with its caption (`figure_text`);
+    the page fits a phone's width (`STYLE`, `VIEWPORT`)."""
     esc = html.escape
     stats, why = rliable_numbers(data) if rliable is None else rliable
+    sections = [
+        _Section("ranking", "Overall ranking", _ranking_html(data, images)),
+        _Section(
+            "summary",
+            "Summary",
+            [
+                "<h2>Summary</h2>",
+                *(_figure(data, n, images) for n in SUMMARY_FIGURES if n != "summary_ranking.png"),
+            ],
+        ),
+    ]
+    if data.videos:
+        sections.append(_Section("watch", watch.TITLE, [watch.html_section(data.videos)]))
+    rliable_body = [f"<h2>{esc(rliable_report.TITLE)}</h2>"]
+    if stats is None:
+        rliable_body.append(f"<p>Left out: {esc(str(why))}.</p>")
+    else:
+        rliable_body.append(f"<p>{esc(rliable_report.text(stats))}</p>")
+        rliable_body.append(_html_table(rliable_report.HEADER, rliable_rows(data, stats)))
+        rliable_body.append(_figure(data, rliable_report.FIGURE, images))
+    sections.append(_Section("rliable", rliable_report.TITLE, rliable_body))
+    taken = {"ranking", "summary", "watch", "rliable", "scenarios", "outcomes", "provenance"}
+    scenario_links = []
+    scenario_body = [f"<h2>{SCENARIOS_TITLE}</h2>", f"<p>{esc(NOTES)}</p>"]
+    for scenario in _scenarios(data):
+        anchor = _anchor("scenario-", scenario, taken)
+        scenario_links.append((anchor, scenario))
+        cells = scenario_summaries(data, scenario)
+        scenario_body += [
+            f'<section id="{anchor}"><h2>{esc(scenario)}</h2>',
+            _html_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells]),
+            _html_table(DETAIL_HEADER, [detail_cells(s) for s in cells]),
+            _figure(data, f"survival_{scenario}.png", images),
+            "</section>",
+        ]
+    sections.append(_Section("scenarios", SCENARIOS_TITLE, scenario_body, tuple(scenario_links)))
+    outcomes = [_figure(data, name, images) for name in OUTCOME_FIGURES]
+    sections.append(_Section("outcomes", OUTCOMES_TITLE, [f"<h2>{OUTCOMES_TITLE}</h2>", *outcomes]))
+    for section in paired_sections(data):
+        body = [f"<h2>{esc(section.title)}</h2><p>{esc(section.text)}</p>"]
+        body += [f"<p>{esc(section.left_out)}</p>"] if section.left_out else []
+        for title, rows in _section_tables(section, data.reference):
+            body.append(f"<h3>{esc(title)}</h3>" + _html_table(section.header, rows))
+        sections.append(_Section(_anchor("paired-", section.key, taken), section.title, body))
+    provenance = [
+        f"<h2>Provenance</h2><p>{esc(provenance_text(data.provenance))}</p>",
+        f"<p>{esc(REPRODUCIBILITY)}</p>",
+    ]
+    sections.append(_Section("provenance", "Provenance", provenance))
     parts = [
         "<!DOCTYPE html>",
-        f'<html lang="en"><head><meta charset="utf-8"><title>capture-bench: {esc(data.suite)}'
-        f"</title><style>{STYLE}</style></head><body>",
+        f'<html lang="en"><head><meta charset="utf-8">{VIEWPORT}<title>capture-bench: '
+        f"{esc(data.suite)}</title><style>{STYLE}</style></head><body>",
         f"<h1>capture-bench leaderboard: {esc(_title(data, ''))}</h1>",
         f"<p><strong>{esc(report_capture_rule(data))}</strong></p>",
-        f"<p>Regenerate with:</p><pre><code>{esc(data.command)}</code></pre>",
-        f"<p>{esc(data.description)}</p>",
-        "<h2>Summary</h2>",
-        *(_img(name, images[name]) for name in SUMMARY_FIGURES),
-        f"<p>{esc(summary_text(data))}</p>",
-        f"<h2>Overall ranking</h2><p>{esc(RANKING_RULE)}</p>",
+        f"<p>{esc(READING)}</p>",
+        f'<p class="run">{_run_text(data)}Regenerate it with <code>{esc(data.command)}</code></p>',
+        _toc(sections),
+    ]
+    for s in sections:
+        parts += [f'<section id="{s.anchor}">', *s.body, "</section>"]
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def _run_text(data: ReportData) -> str:
+    described = data.description.strip().rstrip(".")
+    return f"This run: {html.escape(described)}. " if described else ""
+
+
+def _ranking_html(data: ReportData, images: dict[str, bytes]) -> list[str]:
+    esc = html.escape
+    parts = [
+        "<h2>Overall ranking</h2>",
         _html_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
+        _figure(data, "summary_ranking.png", images),
+        f"<p>{esc(summary_text(data))}</p>",
+        f"<p>{esc(RANKING_RULE)}</p>",
     ]
     unranked = not_ranked(data)
     if unranked:
@@ -600,31 +819,78 @@ def html_page(
             f"<h3>Not ranked: {esc(', '.join(unranked))}</h3><p>{esc(NOT_RANKED_TEXT)}</p>"
         )
         parts.append(_html_table(NOT_RANKED_HEADER, not_ranked_rows(data)))
-    parts += [f"<p>{esc(NOTES)}</p>", f"<h2>{esc(rliable_report.TITLE)}</h2>"]
+    return parts
+
+
+def _md_figure(data: ReportData, name: str) -> list[str]:
+    text = figure_text(data, name)
+    return [f"![{text.alt}]({name})", "", text.caption, ""]
+
+
+def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
+    """The leaderboard in Markdown: the capture rule, what the physical limit and the ratio are
+    (`READING`) and the command that regenerates it, then the sections of `html_page` in the
+    same order, each figure with its caption; ``rliable``: the `rliable_numbers` of ``data``
+    if already computed."""
+    stats, why = rliable_numbers(data) if rliable is None else rliable
+    lines = [
+        f"# capture-bench leaderboard: {_title(data, '`')}",
+        "",
+        report_capture_rule(data),
+        "",
+        READING,
+        "",
+        "Regenerate with:",
+        "",
+        "```",
+        data.command,
+        "```",
+        "",
+        data.description,
+        "",
+        "## Overall ranking",
+        "",
+        *_md_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
+        "",
+        *_md_figure(data, "summary_ranking.png"),
+        summary_text(data),
+        "",
+        RANKING_RULE,
+        "",
+    ]
+    unranked = not_ranked(data)
+    if unranked:
+        lines += [f"### Not ranked: {', '.join(unranked)}", "", NOT_RANKED_TEXT, ""]
+        lines += [*_md_table(NOT_RANKED_HEADER, not_ranked_rows(data)), ""]
+    lines += ["## Summary", ""]
+    for name in SUMMARY_FIGURES:
+        lines += _md_figure(data, name) if name != "summary_ranking.png" else []
+    lines += watch.markdown_lines(data.videos)
+    lines += [f"## {rliable_report.TITLE}", ""]
     if stats is None:
-        parts.append(f"<p>Left out: {esc(str(why))}.</p>")
+        lines += [f"Left out: {why}.", ""]
     else:
-        parts.append(f"<p>{esc(rliable_report.text(stats))}</p>")
-        parts.append(_html_table(rliable_report.HEADER, rliable_rows(data, stats)))
-        parts.append(_img(rliable_report.FIGURE, images[rliable_report.FIGURE]))
+        rows = rliable_rows(data, stats)
+        lines += [rliable_report.text(stats), "", *_md_table(rliable_report.HEADER, rows), ""]
+        lines += _md_figure(data, rliable_report.FIGURE)
+    lines += [f"## {SCENARIOS_TITLE}", "", NOTES]
     for scenario in _scenarios(data):
-        cells = [s for s in data.summaries if s.scenario == scenario]
-        parts.append(f"<h2>{esc(scenario)}</h2>")
-        parts.append(_html_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells]))
-        parts.append(_html_table(DETAIL_HEADER, [detail_cells(s) for s in cells]))
+        cells = scenario_summaries(data, scenario)
+        lines += ["", f"## {scenario}", ""]
+        lines += _md_table(MAIN_HEADER, [main_cells(s, data.reference) for s in cells])
+        lines += ["", *_md_table(DETAIL_HEADER, [detail_cells(s) for s in cells]), ""]
+        lines += _md_figure(data, f"survival_{scenario}.png")[:-1]
+    lines += ["", f"## {OUTCOMES_TITLE}", ""]
+    for name in OUTCOME_FIGURES:
+        lines += _md_figure(data, name)
     for section in paired_sections(data):
-        parts.append(f"<h2>{esc(section.title)}</h2><p>{esc(section.text)}</p>")
-        parts += [f"<p>{esc(section.left_out)}</p>"] if section.left_out else []
+        left_out = ["", section.left_out] if section.left_out else []
+        lines += [f"## {section.title}", "", section.text, *left_out]
         for title, rows in _section_tables(section, data.reference):
-            parts.append(f"<h3>{esc(title)}</h3>" + _html_table(section.header, rows))
-    parts.append(watch.html_section(data.videos))
-    parts.append("<h2>Figures</h2>")
-    shown = {*SUMMARY_FIGURES, rliable_report.FIGURE}
-    parts += [_img(name, images[name]) for name in figure_names(data) if name not in shown]
-    parts.append(f"<h2>Provenance</h2><p>{esc(provenance_text(data.provenance))}</p>")
-    parts.append(f"<p>{esc(REPRODUCIBILITY)}</p>")
-    parts.append("</body></html>")
-    return "\n".join(parts)
+            lines += ["", f"### {title}", "", *_md_table(section.header, rows)]
+        lines.append("")
+    lines += ["## Provenance", "", provenance_text(data.provenance), "", REPRODUCIBILITY, ""]
+    return "\n".join(lines)
 
 
 def _write_csv(path: Path, columns: Sequence[str], rows: list[dict[str, Any]]) -> None:

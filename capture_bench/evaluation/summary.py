@@ -1,5 +1,6 @@
-"""The report's summary, taken in at a glance: what the heatmap, the ranking
-plot and the probability-of-improvement matrix at the top of the HTML show, as numbers.
+"""The report's summary, taken in at a glance: what the ranking plot (under the ranking's
+table), the heatmap and the probability-of-improvement matrix (of the best-ranked agents:
+`capture_bench.evaluation.plots.improvement_agents`) near the top of the HTML show, as numbers.
 
 * **heatmap**: agent x scenario, the capture rate and the median ratio to the physical limit of
   each cell (the same `Summary` figures as the

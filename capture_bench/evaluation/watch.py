@@ -81,21 +81,28 @@ def choose_episodes(
 
 
 def embedded_figure(
-    data: bytes, mime: str, caption: str, size: tuple[int, int] | None = None
+    data: bytes,
+    mime: str,
+    caption: str,
+    size: tuple[int, int] | None = None,
+    alt: str | None = None,
 ) -> str:
     """An image inlined as base64 in a ``<figure>`` with its caption (the page stays one file);
-    ``size``: (width, height) attributes. The report's plots use it too."""
+    ``size``: (width, height) attributes; ``alt``: what the image shows, for a reader who cannot
+    see it (default the caption). The report's plots use it too."""
     encoded = base64.b64encode(data).decode("ascii")
-    alt = html.escape(caption)
     dims = "" if size is None else f'width="{size[0]}" height="{size[1]}" '
+    described = html.escape(caption if alt is None else alt, quote=True)
     return (
-        f'<figure><img alt="{alt}" {dims}src="data:{mime};base64,{encoded}">'
-        f"<figcaption>{alt}</figcaption></figure>"
+        f'<figure><img alt="{described}" {dims}src="data:{mime};base64,{encoded}">'
+        f"<figcaption>{html.escape(caption)}</figcaption></figure>"
     )
 
 
 def _gif(video: EpisodeVideo) -> str:
-    return embedded_figure(video.gif, "image/gif", video.caption(), (320, 240))
+    caption = video.caption()
+    alt = f"Animation of one episode, rendered by pybullet: {caption}"
+    return embedded_figure(video.gif, "image/gif", caption, (320, 240), alt)
 
 
 def _by_scenario(videos: Sequence[EpisodeVideo]) -> dict[str, list[EpisodeVideo]]:
