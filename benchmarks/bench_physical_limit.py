@@ -5,11 +5,12 @@ Usage::
     python benchmarks/bench_physical_limit.py [--episodes 192] [--groups 16 64] [--repeats 3]
         [--clock cpu|wall]
 
-Episodes come from every shipped scenario in turn (``CaptureEnv(name).reset(seed=s)``), with the
-arguments ``CaptureEnv.physical_limit`` passes. Prints milliseconds per episode (best of
+Episodes come from every shipped scenario, an equal share each (``CaptureEnv(name).reset(seed=s)``),
+with the arguments ``CaptureEnv.physical_limit`` passes (the scenario's tolerance and capture
+envelope: hold, v_max, the target's velocity). Prints milliseconds per episode (best of
 ``--repeats``; CPU time of this process by default) for `physical_limit` called episode
-by episode and for `physical_limits` on consecutive groups of G episodes, and checks that
-both give the same times.
+by episode and for `physical_limits` on groups of up to G episodes of one scenario (the
+envelope is a scenario's), and checks that both give the same times.
 """
 
 from __future__ import annotations
@@ -27,16 +28,25 @@ CLOCKS = {"cpu": time.process_time, "wall": time.perf_counter}
 
 
 def episodes(count: int) -> list[dict[str, Any]]:
-    """``count`` episodes' arguments, cycling through the shipped scenarios (seed = index)."""
+    """``count`` episodes' arguments, an equal share from each shipped scenario (seed = index),
+    scenario by scenario."""
     names = list_scenarios()
     out = []
     for i in range(count):
-        env = CaptureEnv(names[i % len(names)])
+        name = names[i * len(names) // count]
+        env = CaptureEnv(name)
         env.reset(seed=i)
-        arm, control, plan = env.description.arm, env.scenario.control, env.plan
+        arm, control, capture, plan = (
+            env.description.arm,
+            env.scenario.control,
+            env.scenario.capture,
+            env.plan,
+        )
         out.append(
             {
-                "target_position": env.true_target_position,
+                "scenario": name,
+                "target_position": plan.trajectory.position,
+                "target_velocity": plan.trajectory.velocity,
                 "horizon": plan.end(),
                 "travel_time": plan.travel_time if control.period_jitter else None,
                 "shared": (
@@ -47,9 +57,9 @@ def episodes(count: int) -> list[dict[str, Any]]:
                     env.description.capture_tolerance,
                 ),
                 "period": control.period,
+                "envelope": {"hold": capture.hold, "v_max": capture.v_max},
             }
         )
-    assert len({(e["period"], *map(bytes, e["shared"])) for e in out}) == 1  # one arm, one t_s
     return out
 
 
@@ -61,21 +71,31 @@ def single(eps: list[dict[str, Any]]) -> list[PhysicalLimit]:
             horizon=e["horizon"],
             period=e["period"],
             travel_time=e["travel_time"],
+            target_velocity=e["target_velocity"],
+            **e["envelope"],
         )
         for e in eps
     ]
 
 
 def batched(eps: list[dict[str, Any]], group: int) -> list[PhysicalLimit]:
+    """`physical_limits` on groups of up to ``group`` consecutive episodes of one scenario."""
+    chunks: list[list[dict[str, Any]]] = []
+    for e in eps:
+        if chunks and chunks[-1][0]["scenario"] == e["scenario"] and len(chunks[-1]) < group:
+            chunks[-1].append(e)
+        else:
+            chunks.append([e])
     out: list[PhysicalLimit] = []
-    for i in range(0, len(eps), group):
-        chunk = eps[i : i + group]
+    for chunk in chunks:
         out += physical_limits(
             [e["target_position"] for e in chunk],
             *chunk[0]["shared"],
             horizons=[e["horizon"] for e in chunk],
             period=chunk[0]["period"],
             travel_times=[e["travel_time"] for e in chunk],
+            target_velocities=[e["target_velocity"] for e in chunk],
+            **chunk[0]["envelope"],
         )
     return out
 

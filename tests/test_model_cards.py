@@ -145,7 +145,12 @@ def test_shipping_a_directory_without_a_run_config_is_one_line(tmp_path, capsys)
 
 
 def test_revalidating_a_card_keeps_what_it_shipped_with_and_writes_one_section(tmp_path):
-    from capture_bench.training.model_card import ENVELOPE_SECTION, revalidate
+    from capture_bench.training.model_card import (
+        ENVELOPE_SECTION,
+        VALIDATION_HEADING,
+        VALIDATION_V0_HEADING,
+        revalidate,
+    )
 
     run_dir = tmp_path / "run"
     sets = ["n_envs=2", "n_steps=32", "batch_size=32", "n_epochs=1", "total_timesteps=64",
@@ -159,5 +164,8 @@ def test_revalidating_a_card_keeps_what_it_shipped_with_and_writes_one_section(t
     same = lambda a, b: json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)  # noqa: E731
     assert same(card["validation_v0"], shipped) and same(card["validation"], after)
     readme = (target / "README.md").read_text()
-    assert readme.count(ENVELOPE_SECTION) == 1 and "## Validation" in readme
+    assert readme.count(ENVELOPE_SECTION) == 1
+    # the table as shipped stays, named for the rule it was made under, and points at v0's field
+    assert VALIDATION_V0_HEADING in readme and VALIDATION_HEADING not in readme
+    assert "(`model_card.validation_v0`)" in readme and "(`model_card.validation`)" not in readme
     _check_replay(target, card, count=2)

@@ -117,10 +117,10 @@ class ToleranceCurriculum(_Curriculum):
 
 class HoldCurriculum(_Curriculum):
     """The hold curriculum: the training envs ask a capture to hold for a time that grows
-    linearly from ``start`` (s; 0: the first entry captures, as a fly-through does on the other
-    scenarios) to the scenario's ``capture.hold`` (``final``, s),
-    h(t) = start + (final - start) p with p = `curriculum_progress`; ``delay`` gives the
-    policy time to learn the fly-through first."""
+    linearly from ``start`` (s; 0: the first entry into the tolerance captures) to the
+    scenario's ``capture.hold`` (``final``, s), h(t) = start + (final - start) p with
+    p = `curriculum_progress`; ``delay`` gives the policy time to learn to reach the target
+    before it must stay."""
 
     ENV_METHOD = "set_capture_hold"
     TAG = "train/capture_hold_s"

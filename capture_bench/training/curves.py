@@ -420,7 +420,7 @@ def report(  # noqa: PLR0913
         f"- command: `{command}`",
         f"- runs: `{runs}` ({', '.join(f'{a}: {len(cs)} seeds' for a, cs in curves.items())})",
         f"- machine: {host}",
-        f"- git: {git_state()}",
+        f"- git: `{git_state()}`",
         "",
     ]
     markdown = "\n".join(lines)

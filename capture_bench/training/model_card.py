@@ -192,6 +192,14 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
 
 #: The README section that `revalidate` writes (and rewrites).
 ENVELOPE_SECTION = "## Under the capture envelope (v1 environments)"
+#: The README section of a card's validation, as shipped; `revalidate` renames it
+#: (`VALIDATION_V0_HEADING`) when the card's ``validation`` becomes the current rule's.
+VALIDATION_HEADING = (
+    "## Validation (deterministic actions, validation seeds, never a published one)"
+)
+VALIDATION_V0_HEADING = (
+    "## Validation when shipped, under the v0 rule (deterministic actions, validation seeds)"
+)
 
 
 def revalidate(model_dir: Path) -> dict[str, Any]:
@@ -216,6 +224,9 @@ def revalidate(model_dir: Path) -> dict[str, Any]:
         tail = rest[rest.find("\n## ") + 1 :] if "\n## " in rest else ""
         text = head + tail
     section = _envelope_section(before, after)
+    text = text.replace(VALIDATION_HEADING, VALIDATION_V0_HEADING).replace(
+        "(`model_card.validation`)", "(`model_card.validation_v0`)"
+    )
     marker = "\n## Validation"
     at = text.find(marker)
     text = text + "\n" + section if at < 0 else text[: at + 1] + section + text[at + 1 :]
@@ -326,7 +337,7 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
         f"- hyper-parameters: reward {hp.get('reward')}, n_envs {hp.get('n_envs')}, "
         f"policy_kwargs {hp.get('policy_kwargs')}",
         "",
-        "## Validation (deterministic actions, validation seeds, never a published one)",
+        VALIDATION_HEADING,
         "",
         "| scenario | capture rate | median ratio to the physical limit | seeds |",
         "|---|---|---|---|",
