@@ -1,6 +1,8 @@
-"""Shared fixtures: environments that are always closed; an evaluation's report and its data."""
+"""Shared fixtures: environments that are always closed; an evaluation's report and its data;
+headless Chromium for the pages."""
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -55,3 +57,29 @@ def evaluated():
         return seen["data"], folder
 
     return run
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Chromium (Debian's ``chromium`` and ``chromium-driver``, which ``.ci/run``
+    installs where missing, driven by selenium), its console logged; skipped, with the reason,
+    only where it cannot be had. No host name resolves: the pages are read as a machine without
+    a network reads them (the documentation site's request for Material's web font fails at once
+    and the system font stands in)."""
+    try:
+        from selenium import webdriver
+    except ImportError:
+        pytest.skip("selenium is not installed (pip install selenium; it is in the dev extra)")
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver_path = shutil.which("chromedriver")
+    if chromium is None or driver_path is None:
+        pytest.skip("headless Chromium is not installed: apt-get install chromium chromium-driver")
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                     "--host-resolver-rules=MAP * ~NOTFOUND"):  # fmt: skip
+        options.add_argument(argument)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(driver_path))
+    yield driver
+    driver.quit()

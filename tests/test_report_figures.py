@@ -7,7 +7,6 @@ per-scenario tables follow the ranking."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import re
 import struct
@@ -32,28 +31,11 @@ from capture_bench.evaluation.report import (
     report_capture_rule,
     scenario_summaries,
 )
-from capture_bench.evaluation.rollout import EpisodeRecord
+from tests.records import record
 
 SEEDS = range(8)
 SCENARIOS = ("s1", "s2", "s3")
 LONG = "-with-a-name-as-long-as-a-model"  # agent names as long as the shipped models'
-
-
-def _record(agent: str, scenario: str, seed: int, ratio: float | None) -> EpisodeRecord:
-    """An episode captured at ``ratio`` x a 1 s physical limit, or timed out (None)."""
-    values: dict = {
-        f.name: math.nan
-        for f in dataclasses.fields(EpisodeRecord)
-        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
-    }
-    captured = ratio is not None
-    values.update(
-        agent=agent, scenario=scenario, seed=seed, outcome="captured" if captured else "failed",
-        failure="" if captured else "timeout", capture_time=ratio if captured else math.nan,
-        end_time=ratio if captured else 10.0, physical_limit_time=1.0,
-        ratio=ratio if captured else math.nan, steps=10, wall_clock_s=0.0,
-    )  # fmt: skip
-    return EpisodeRecord(**values)
 
 
 def _report(n: int) -> ReportData:
@@ -66,7 +48,7 @@ def _report(n: int) -> ReportData:
         for scenario in SCENARIOS:
             for seed in SEEDS:
                 caught = k < n - 2 and (seed + k) % (k + 1) < 8 - k % 8
-                records.append(_record(names[k], scenario, seed, 1.05 + 0.1 * k + 0.02 * seed
+                records.append(record(names[k], scenario, seed, 1.05 + 0.1 * k + 0.02 * seed
                                        if caught else None))  # fmt: skip
     summaries = summarise_all(records, reference_agent=names[0])
     ranking = rank_agents(summaries, (), records=records)
