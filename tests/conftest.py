@@ -1,6 +1,7 @@
 """Shared fixtures: environments that are always closed; an evaluation's report and its data;
 headless Chromium for the pages."""
 
+import importlib.util
 import os
 import shutil
 import tempfile
@@ -83,3 +84,14 @@ def browser():
     driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(driver_path))
     yield driver
     driver.quit()
+
+
+@pytest.fixture(scope="session")
+def readme_table():
+    """``scripts/readme_table.py`` as a module: the generator of README's and the pages' tables
+    and figures."""
+    path = Path(__file__).resolve().parents[1] / "scripts" / "readme_table.py"
+    spec = importlib.util.spec_from_file_location("readme_table", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -33,16 +33,6 @@ def _missing_toolchain() -> list[str]:
     return missing
 
 
-@pytest.fixture(scope="module")
-def readme_table():
-    spec = importlib.util.spec_from_file_location(
-        "readme_table", ROOT / "scripts" / "readme_table.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_the_site_builds_in_strict_mode(tmp_path):
     missing = _missing_toolchain()
     if missing:

@@ -5,7 +5,6 @@ project's lab log (commit hashes, notes of a past machine or run) outside code."
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 from pathlib import Path
@@ -49,16 +48,6 @@ LAB_LOG = tuple(
 )
 FENCE = re.compile(r"^(```|~~~).*?^\1", re.S | re.M)
 CODE_SPAN = re.compile(r"(`+)(.+?)\1", re.S)
-
-
-@pytest.fixture(scope="module")
-def readme_table():
-    spec = importlib.util.spec_from_file_location(
-        "readme_table_numbers", ROOT / "scripts" / "readme_table.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")
