@@ -24,7 +24,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402 (after the thread settings)
 
-from capture_bench.envs.core import CaptureTask  # noqa: E402
+from capture_bench.engine.task import CaptureTask  # noqa: E402
 from capture_bench.envs.vector_env import CaptureVectorEnv  # noqa: E402
 
 

@@ -19,11 +19,12 @@ import time
 import numpy as np
 from gymnasium.utils import seeding
 
+from capture_bench.engine.task import scenario_camera
 from capture_bench.sensing import photogrammetry
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.task.recording import STEP_TRACKS
 from capture_bench.task.scenarios import list_scenarios, load_scenario
-from capture_bench.task.target_side import TargetSide, scenario_camera
+from capture_bench.task.target_side import TargetSide
 
 FIELDS = (*STEP_TRACKS, "rotation", "images")  # every recorded track
 

@@ -25,10 +25,10 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from capture_bench.agents import make_agent  # noqa: E402
+from capture_bench.engine.cache import EpisodeCache  # noqa: E402
 from capture_bench.envs.capture_env import CaptureEnv  # noqa: E402
 from capture_bench.sensing.scene_camera import RenderedSceneCamera  # noqa: E402
 from capture_bench.task.scenarios import load_scenario  # noqa: E402
-from capture_bench.task.target_side import EpisodeCache  # noqa: E402
 
 
 def steps_per_second(env: CaptureEnv, seeds: list[int]) -> tuple[float, int, dict[str, int]]:

@@ -30,10 +30,10 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import capture_bench  # noqa: E402
+from capture_bench.engine.cache import EpisodeCache  # noqa: E402
 from capture_bench.envs.capture_env import CaptureEnv  # noqa: E402
 from capture_bench.envs.vector_env import CaptureVectorEnv  # noqa: E402
 from capture_bench.task.scenarios import list_scenarios  # noqa: E402
-from capture_bench.task.target_side import EpisodeCache  # noqa: E402
 
 MODES = ("single", "recorded", "vector")
 

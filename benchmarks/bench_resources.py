@@ -55,6 +55,7 @@ import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
 import capture_bench  # noqa: E402
+from capture_bench.engine.cache import DEFAULT_EPISODE_CACHE  # noqa: E402
 from capture_bench.evaluation.pipeline import (  # noqa: E402
     EvaluationConfig,
     plan_evaluation,
@@ -65,7 +66,6 @@ from capture_bench.interrupts import exit_status, sigterm_as_interrupt  # noqa: 
 from capture_bench.sensing import photogrammetry  # noqa: E402
 from capture_bench.sim.world import pybullet  # noqa: E402 (imported quietly there)
 from capture_bench.task.scenarios import SCENARIO_DIR  # noqa: E402
-from capture_bench.task.target_side import DEFAULT_EPISODE_CACHE  # noqa: E402
 
 ENV_ID = "CaptureBench/Paper-v1"
 STEPS = 5  # random steps per environment before close()

@@ -197,10 +197,10 @@ def play(case: Case, seeds: tuple[int, ...] | None = None, live: bool = False) -
     from gymnasium.vector import AutoresetMode
 
     from capture_bench.agents import make_agent
+    from capture_bench.engine.cache import EpisodeCache
     from capture_bench.envs.capture_env import CaptureEnv
     from capture_bench.envs.vector_env import CaptureVectorEnv
     from capture_bench.evaluation.rollout import run_episode, run_episodes
-    from capture_bench.task.target_side import EpisodeCache
 
     seeds = case.seeds if seeds is None else seeds
     if case.kind == "single":

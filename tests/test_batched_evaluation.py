@@ -274,7 +274,7 @@ def test_a_recording_the_single_env_made_is_replayed_by_the_batched_env():
     """Shared recordings go both ways: a seed the single env recorded (without its bound, which
     it computes lazily) is replayed by the batched env, which adds the bound; an env that does
     not record as the single env does refuses to share."""
-    from capture_bench.task.target_side import EpisodeCache
+    from capture_bench.engine.cache import EpisodeCache
 
     cache = EpisodeCache()
     single = CaptureEnv("paper", reuse_target_side=True, episode_cache=cache)

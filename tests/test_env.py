@@ -8,10 +8,10 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 
 import capture_bench
+from capture_bench.engine.cache import DEFAULT_EPISODE_CACHE
 from capture_bench.envs.capture_env import FAILURES, CaptureEnv
 from capture_bench.sim import kinematics as k
 from capture_bench.task.scenarios import ConfigError
-from capture_bench.task.target_side import DEFAULT_EPISODE_CACHE
 
 ALWAYS = {
     "is_success",

@@ -3,7 +3,7 @@
 Actions of every shape, dtype and value (NaN, infinities, huge numbers, lists, scalars, objects)
 go to ``CaptureEnv.step`` and to the batched vector env: a real-number array of the right shape
 with finite entries steps (out-of-range values are clipped), anything else raises the documented
-``ValueError`` of `capture_bench.envs.capture_env.check_actions`, nothing else. Generated command lines
+``ValueError`` of `capture_bench.engine.task.check_actions`, nothing else. Generated command lines
 (real options with good and bad values, unknown options, junk, huge and negative numbers) go to
 ``evaluate.main`` and ``train.main`` with the stage that does the work replaced by a stand-in: the
 exit status is 0 or 2, stderr holds at most one ``prog: error: ...`` line and never a traceback,

@@ -12,7 +12,7 @@ import pytest
 
 import train
 from capture_bench.agents.residual import make_base
-from capture_bench.envs.core import describe_task
+from capture_bench.task.episode import describe_task
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.training.imitation import (
     FrozenActor,

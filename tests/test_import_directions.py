@@ -9,11 +9,11 @@ submodule. Importing a submodule also runs its package's ``__init__.py``, but th
 doing, not the importing module's, so it is no arrow here.
 
 Stages, lowest first (`STAGES`): the helpers any stage may use (top-level modules such as
-``paths.py``), ``sim``, ``sensing``, ``task``, ``envs``, the package's ``__init__.py`` (importing
-``capture_bench`` registers the environments' IDs), ``agents``, then ``training`` and
-``evaluation``, siblings that do not import each other, and ``__main__.py`` above all. A module may
-import its own stage and the stages below it. Anything that has to break this is listed in
-`EXCEPTIONS` with its reason.
+``paths.py``), ``sim``, ``sensing``, ``task``, ``engine``, ``envs``, the package's
+``__init__.py`` (importing ``capture_bench`` registers the environments' IDs), ``agents``, then
+``training`` and ``evaluation``, siblings that do not import each other, and ``__main__.py`` above
+all. A module may import its own stage and the stages below it. Anything that has to break this
+is listed in `EXCEPTIONS` with its reason.
 """
 
 from __future__ import annotations
@@ -52,12 +52,13 @@ STAGES: dict[str, tuple[str, int]] = {
     "sim": ("sim", 1),
     "sensing": ("sensing", 2),
     "task": ("task", 3),
-    "envs": ("envs", 4),
-    "__init__": ("registration", 5),  # `import capture_bench` registers the envs' IDs
-    "agents": ("agents", 6),
-    "training": ("training", 7),
-    "evaluation": ("evaluation", 7),
-    "__main__": ("command", 8),  # python -m capture_bench evaluate | train | tune | list
+    "engine": ("engine", 4),
+    "envs": ("envs", 5),
+    "__init__": ("registration", 6),  # `import capture_bench` registers the envs' IDs
+    "agents": ("agents", 7),
+    "training": ("training", 8),
+    "evaluation": ("evaluation", 8),
+    "__main__": ("command", 9),  # python -m capture_bench evaluate | train | tune | list
 }
 
 #: (importing module, imported module) -> why this arrow must stay although it breaks the rule.

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
+from capture_bench.engine.task import CaptureTask
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.envs.core import CaptureTask
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.sensing.workspace_image import WorkspaceImager, crop_scale, crop_window
 from capture_bench.sim import kinematics

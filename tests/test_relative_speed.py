@@ -16,8 +16,8 @@ from gymnasium.vector import AutoresetMode
 from test_step_rule import _side as step_rule_side
 
 from capture_bench.agents import make_agent
+from capture_bench.engine.task import CaptureTask
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.envs.core import CaptureTask
 from capture_bench.envs.vector_env import CaptureVectorEnv, sub_env_infos
 from capture_bench.evaluation.rollout import run_episode
 from capture_bench.sim.kinematics import HOME, forward_kinematics, jacobian

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from capture_bench.agents import make_agent
+from capture_bench.engine.cache import EpisodeCache
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.sensing.scene_camera import RenderedSceneCamera
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.task.target_side import EpisodeCache
 
 
 def _play(env: CaptureEnv, agent_name: str, seed: int) -> list[tuple]:

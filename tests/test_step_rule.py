@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 import capture_bench  # noqa: F401  (registers the envs)
+from capture_bench.engine.cache import EpisodeCache
+from capture_bench.engine.task import CaptureTask
 from capture_bench.envs import capture_env
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.envs.core import CaptureTask
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.evaluation.aggregate import KNOWN_FAILURES
 from capture_bench.sensing.estimator import STATUSES, TargetEstimate
@@ -33,7 +34,6 @@ from capture_bench.task.step_rule import (
     info_keys,
     scalar_info,
 )
-from capture_bench.task.target_side import EpisodeCache
 
 
 def _drive(env, seed, steps, rng):

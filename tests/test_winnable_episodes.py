@@ -17,20 +17,20 @@ import numpy as np
 import pytest
 from gymnasium.utils import seeding
 
+from capture_bench.engine.cache import EpisodeCache
+from capture_bench.engine.task import CaptureTask, scenario_camera
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.envs.core import describe_task
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.task import episode as episode_module
 from capture_bench.task.episode import (
     EpisodePlan,
-    bound_task,
+    describe_task,
     draw_periods,
     draw_plans,
     episode_bounds,
     place_target,
 )
 from capture_bench.task.scenarios import Scenario, list_scenarios, load_scenario
-from capture_bench.task.target_side import EpisodeCache, scenario_camera
 
 #: The shipped scenarios with the analytic camera: the ranked ones, and any other among them.
 ANALYTIC = list_scenarios(camera="analytic")
@@ -216,14 +216,15 @@ def test_the_vector_env_plays_the_single_envs_redrawn_episode_every_time(
 
 def test_the_drawn_bound_is_the_envs_own():
     """The bound a plan carries is computed for the task its env publishes (so the env reuses
-    it); a plan asked for another task's bound gets that task's, computed."""
+    it, not computed again); a plan asked for another task's bound gets that task's, computed."""
     for name in ANALYTIC:
         scenario = load_scenario(name)
-        env_task, drawn_task = describe_task(scenario), bound_task(scenario)
-        assert episode_module._same_task(env_task, drawn_task), name
+        env_task = CaptureTask(scenario).description
+        assert episode_module._same_task(env_task, describe_task(scenario)), name
     scenario = load_scenario("paper")
     camera, features = scenario_camera(scenario)
     (plan,) = draw_plans(scenario, camera.model, features, [seeding.np_random(0)[0]])
+    assert episode_bounds([plan], CaptureTask(scenario).description)[0] is plan.bound
     wider = dataclasses.replace(describe_task(scenario), capture_tolerance=np.full(3, 0.05))
     (bound,) = episode_bounds([plan], wider)
     (recomputed,) = episode_bounds([dataclasses.replace(plan, bound=None)], wider)

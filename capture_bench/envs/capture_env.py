@@ -5,7 +5,8 @@ eq. 13) are `capture_bench.task.step_rule.StepRule`'s, which this env applies to
 episode as [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] applies them to N:
 the same
 code, called with one row. What both envs are made of (the scenario, the published description,
-the rule, the camera, the curriculum's levers) is `capture_bench.envs.core`'s. The target's
+the rule, the camera) is `capture_bench.engine.task.CaptureTask`, and the curriculum's levers
+`capture_bench.envs.core.TaskAccess`'s. The target's
 side of an episode (trajectory, camera eq. 2, estimator eqs. 3-12) comes from one
 `TargetSide`, live or replayed. What this module adds: the
 pybullet world (the arm's rate and joint limits, collisions, rendering) and the privileged
@@ -23,14 +24,9 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench.envs.core import (
-    CaptureTask,
-    Observation,
-    TaskAccess,
-    check_actions,
-    describe_task,
-    resolve_scenario,
-)
+from capture_bench.engine.cache import DEFAULT_EPISODE_CACHE, EpisodeCache, EpisodeKey
+from capture_bench.engine.task import CaptureTask, check_actions
+from capture_bench.envs.core import Observation, TaskAccess
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
 from capture_bench.sensing.workspace_image import WorkspaceImager
@@ -47,14 +43,9 @@ from capture_bench.task.step_rule import (
     ArmState,
     scalar_info,
 )
-from capture_bench.task.target_side import (
-    DEFAULT_EPISODE_CACHE,
-    EpisodeCache,
-    EpisodeKey,
-    TargetSide,
-)
+from capture_bench.task.target_side import TargetSide
 
-__all__ = ["FAILURES", "CaptureEnv", "check_actions", "describe_task", "resolve_scenario"]
+__all__ = ["FAILURES", "CaptureEnv"]
 _ALL = slice(None)  # the single env's one episode, as rows of the step rule
 
 
@@ -114,7 +105,7 @@ class CaptureEnv(TaskAccess, gym.Env):
     it into "hold still" would score the broken policy; Gymnasium's ``Box.contains`` refuses
     them too. [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] applies the same
     rule
-    (`check_actions`) to its (num_envs, 3) actions.
+    (`capture_bench.engine.task.check_actions`) to its (num_envs, 3) actions.
 
     ## Observation Space
     ``Box(-10, 10, (16,), float32)``, each entry scaled to order one
@@ -240,7 +231,7 @@ class CaptureEnv(TaskAccess, gym.Env):
     False: each reset pays for the whole horizon. ``episode_cache``: the
     `EpisodeCache` that keeps recorded target sides and
     physical-limit bounds by (scenario, seed); default the process-wide
-    ``capture_bench.task.target_side.DEFAULT_EPISODE_CACHE`` (``clear()`` empties it).
+    ``capture_bench.engine.cache.DEFAULT_EPISODE_CACHE`` (``clear()`` empties it).
     ``render_view``: what ``render()`` shows: ``"scene"`` (pybullet's view of the world with the
     target's and end-effector's traces) or ``"camera"`` (the rendered camera's own image scaled to
     ``render_size``, with the markers found, the missing ones and the estimated capture point

@@ -20,7 +20,7 @@ is near the floor or the base column
 (`capture_bench.sim.collision_screen.clear_of_collisions`); then the task's rules
 (capture along the arc, eq. 20; failures; reward; ``info``; observation) are
 `capture_bench.task.step_rule.StepRule`'s, the same code ``CaptureEnv`` runs for its one
-episode; what both envs are made of is `capture_bench.envs.core.CaptureTask`.
+episode; what both envs are made of is `capture_bench.engine.task.CaptureTask`.
 
 Differences from N single envs, all in the format only:
 
@@ -51,7 +51,9 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
-from capture_bench.envs.core import CaptureTask, Observation, TaskAccess, check_actions
+from capture_bench.engine.cache import EpisodeCache
+from capture_bench.engine.task import CaptureTask, check_actions
+from capture_bench.envs.core import Observation, TaskAccess
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, SceneCameraView, joint_path
@@ -71,7 +73,7 @@ from capture_bench.task.recording import (
 )
 from capture_bench.task.scenarios import Scenario
 from capture_bench.task.step_rule import BEFORE_TRACKS, OPTIONAL_KEYS, ArmState
-from capture_bench.task.target_side import EpisodeCache, TargetSide
+from capture_bench.task.target_side import TargetSide
 
 FloatArray = NDArray[np.float64]
 RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs episodes)
@@ -338,7 +340,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
 
         Out-of-range values are clipped; a wrong shape, a non-numeric dtype or a NaN/infinite
         entry raises ``ValueError`` naming it
-        (`capture_bench.envs.capture_env.check_actions`, the rule of `CaptureEnv`),
+        (`capture_bench.engine.task.check_actions`, the rule of `CaptureEnv`),
         and nothing is stepped. After ``close()``: ``RuntimeError``.
         """
         if self._world is None:

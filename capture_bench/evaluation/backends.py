@@ -32,6 +32,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from capture_bench.engine.cache import EpisodeCache
 from capture_bench.evaluation.agents_loading import (
     AgentSpec,
     build_agent,
@@ -47,7 +48,6 @@ from capture_bench.evaluation.rollout import (
 )
 from capture_bench.interrupts import interrupts_deferred
 from capture_bench.ray_cluster import import_ray, start_ray
-from capture_bench.task.target_side import EpisodeCache
 from capture_bench.worker_processes import (
     end_with_parent,
     process_context,

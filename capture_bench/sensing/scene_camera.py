@@ -14,7 +14,7 @@ without it. So `RenderedSceneCamera` detects frame k of a seed
   with the arm);
 * **without it** otherwise: the target-only detection of frame k, rendered once (the arm moved far
   out of view) and kept in ``target_only``, a store shared by every episode of that seed
-  (`capture_bench.task.target_side.EpisodeCache.scene_frames`): the leaderboard plays every
+  (`capture_bench.engine.cache.EpisodeCache.scene_frames`): the leaderboard plays every
   agent on the same seeds, and the first one renders what the others reuse.
 
 Both give the same detections for a frame the arm cannot reach (``tests/test_scene_camera.py``

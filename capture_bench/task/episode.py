@@ -99,7 +99,7 @@ def draw_periods(control: ControlConfig, rng: np.random.Generator) -> FloatArray
 class EpisodePlan:
     """An episode as reset draws it: the scenario, the target's true trajectory and the real
     control period of every step it can have (s); ``bound``, the physical limit
-    (`episode_bounds` under `bound_task`), as `draw_plans` computed it to
+    (`episode_bounds` under `describe_task`), as `draw_plans` computed it to
     keep the plan (None for a plan built otherwise: computed when asked)."""
 
     scenario: Scenario
@@ -171,9 +171,9 @@ class EpisodePlan:
         return False
 
 
-def bound_task(scenario: Scenario) -> TaskDescription:
-    """The task the physical limit of a drawn plan is computed for: the arm, t_s and epsilon an
-    env of ``scenario`` publishes (what `capture_bench.envs.core.describe_task` gives)."""
+def describe_task(scenario: Scenario) -> TaskDescription:
+    """What an env of ``scenario`` publishes for agents: the arm, t_s and epsilon (3,); also the
+    task the physical limit of a drawn plan is computed for."""
     return TaskDescription(
         arm=kinematics.ArmSpec(),
         control_period=scenario.control.period,
@@ -201,7 +201,7 @@ def draw_plans(
 
     The rule: from its generator, an episode draws the trajectory (`place_target`), then
     the control periods (`draw_periods`), and computes the plan's physical limit
-    (`episode_bounds` under `bound_task`). The plan is kept if that limit is finite:
+    (`episode_bounds` under `describe_task`). The plan is kept if that limit is finite:
     some joint-rate-limited motion of the arm captures the target before the time limit (and
     before it has left the arm's reach for longer than ``lost_after``). Otherwise the same
     generator draws a whole plan again (trajectory, then periods), and so on; after
@@ -217,7 +217,7 @@ def draw_plans(
     generator's plan is what it alone would draw (the limits of many plans are each one's own,
     `physical_limits`).
     """
-    task = bound_task(scenario)
+    task = describe_task(scenario)
     plans: list[EpisodePlan | None] = [None] * len(rngs)
     pending = list(range(len(rngs)))
     for _ in range(MAX_PLAN_DRAWS):
@@ -252,12 +252,12 @@ def episode_bounds(
     the episode's last step ends, or when the target leaves the arm's reach for longer than
     ``lost_after`` before it.
     A plan that carries its bound (`draw_plans`) gives it without a computation where
-    ``description`` is `bound_task`'s (the same arm and epsilon)."""
+    ``description`` is `describe_task`'s (the same arm and epsilon)."""
     if not plans:
         return []
     carried = [
         plan.bound
-        if plan.bound is not None and _same_task(description, bound_task(plan.scenario))
+        if plan.bound is not None and _same_task(description, describe_task(plan.scenario))
         else None
         for plan in plans
     ]

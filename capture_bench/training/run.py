@@ -506,7 +506,8 @@ def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any)
     so the imitation's episodes stay out of the algorithm's statistics), the policy validated
     after each round where the run validates (``eval_freq``; ``progress``'s validation, nothing
     logged): `capture_bench.training.imitation.dagger`."""
-    from capture_bench.envs.core import describe_task, resolve_scenario
+    from capture_bench.engine.task import resolve_scenario
+    from capture_bench.task.episode import describe_task
     from capture_bench.training.imitation import dagger, make_teacher, teacher_names
 
     if is_mixture(config.scenario):
@@ -733,7 +734,8 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
         venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
     venv = VecMonitor(venv)
     if hp["residual"] != "none":  # a hybrid: the policy's action is a residual on the base
-        from capture_bench.envs.capture_env import describe_task, resolve_scenario
+        from capture_bench.engine.task import resolve_scenario
+        from capture_bench.task.episode import describe_task
         from capture_bench.training.residual_vec_env import ResidualVecEnv
 
         description = describe_task(resolve_scenario(config.scenario, config.observation_source))
@@ -772,7 +774,7 @@ def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
     for none. ``hp`` holds ``curriculum_steps`` (``prepare`` fills it in)."""
     if not any(key in hp for key in CURRICULA):
         return {}
-    from capture_bench.envs.capture_env import describe_task
+    from capture_bench.task.episode import describe_task
 
     schedule = {"steps": hp["curriculum_steps"], "delay": hp["curriculum_delay"]}
     found: dict[str, dict[str, Any]] = {}

@@ -1,0 +1,185 @@
+"""The task an env of a scenario plays, whatever the number of episodes it steps.
+
+`CaptureTask`: the resolved scenario (`resolve_scenario`), what it publishes for agents
+(`capture_bench.task.episode.describe_task`), the step rule (`StepRule`), the camera and the
+target's feature points (`scenario_camera`), and the spaces of one episode. Each env owns one
+(``env.task``, composition, as panda-gym's ``RobotTaskEnv`` owns its task;
+`capture_bench.envs.core.TaskAccess` gives both envs the same public names for it).
+`check_actions` is the one rule for an action's validity.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+
+from capture_bench.sensing.camera import Camera
+from capture_bench.sensing.rendered_sensor import RenderSettings
+from capture_bench.sensing.sources import ENV_OBSERVATIONS, PIXELS
+from capture_bench.sensing.workspace_image import WorkspaceImager, check_image_size
+from capture_bench.sim.target_motion import FEATURE_POINTS
+from capture_bench.task.episode import describe_task
+from capture_bench.task.observation import (
+    encode_state,
+    observation_space,
+    pixel_observation_space,
+)
+from capture_bench.task.scenarios import Scenario, load_scenario
+from capture_bench.task.step_rule import ArmState, StepRule
+from capture_bench.validation import ConfigError
+
+FloatArray = NDArray[np.float64]
+
+
+def resolve_scenario(
+    scenario: str | Path | Scenario, observation_source: str | None = None
+) -> Scenario:
+    """A shipped name, a YAML path or a ``Scenario``, with its estimator source replaced if
+    ``observation_source`` is an estimator source (checked; ``"pixels"`` keeps the scenario's
+    estimator, which then runs for ``info`` only)."""
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    if observation_source is not None and observation_source != PIXELS:
+        sc = sc.replace(estimator={"source": observation_source})
+    return sc
+
+
+def scenario_camera(scenario: Scenario) -> tuple[Camera, FloatArray]:
+    """The scenario's camera (model, noise, drop-out, latency) and the target's feature points
+    (target frame, m, (N, 3))."""
+    cam = scenario.camera
+    camera = Camera(cam.model(), cam.noise_px, cam.dropout, cam.latency_frames)
+    return camera, FEATURE_POINTS[scenario.target.feature_points]
+
+
+def check_actions(actions: Any, shape: tuple[int, ...], name: str) -> FloatArray:
+    """``actions`` as a float64 array of ``shape``, or ``ValueError`` naming what is wrong.
+
+    Accepts any array-like of real numbers (bool, int or float dtype; lists and tuples too);
+    refuses other types (strings, complex, objects), another shape, and NaN or infinite entries
+    (the message gives the index of the first). Values outside [-1, 1] pass: the envs clip them.
+    """
+    try:
+        raw = np.asarray(actions)
+    except (TypeError, ValueError) as exc:  # ragged nested lists
+        raise ValueError(f"{name} must be an array of shape {shape} of numbers; {exc}") from None
+    if raw.dtype.kind not in "biuf":
+        raise ValueError(
+            f"{name} must be an array of shape {shape} of real numbers; got dtype {raw.dtype} "
+            f"({actions!r})"
+        )
+    if raw.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}; got shape {raw.shape} ({actions!r})")
+    a = raw.astype(np.float64)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        index = tuple(int(i) for i in np.argwhere(bad)[0])
+        entry = f"{name}[{', '.join(map(str, index))}]"
+        raise ValueError(
+            f"{entry} is {a[index]}; every entry must be a finite number "
+            "(values outside [-1, 1] are clipped)"
+        )
+    return a
+
+
+class CaptureTask:
+    """The task of ``scenario`` as an env plays it, for any number of episodes.
+
+    Args:
+        scenario: a shipped name, a YAML path or a ``Scenario``.
+        observation_source: an estimator source, ``"ekf"``, ``"photogrammetry"`` or ``"truth"``
+            (default: the scenario's), whose estimate the agent observes; or ``"pixels"``: the
+            agent observes the camera's image and the arm's state
+            (`pixel_observation_space`) and the scenario's
+            estimator runs for ``info`` only.
+        reward: one of `capture_bench.task.rewards.REWARD_MODES` (checked).
+        image_size: with ``"pixels"``, the image's (width, height), pixels (checked:
+            `check_image_size`); None (default):
+            `IMAGE_SIZE`. Given with any other
+            source, ``ConfigError``: it sizes nothing there.
+
+    Attributes:
+        scenario: the resolved ``Scenario``.
+        description: what agents may know (`
+            TaskDescription`).
+        rule: the step rule (`StepRule`).
+        reward_mode: ``reward``.
+        camera, features: the scenario's camera and the target's feature points (target frame,
+            m, (N, 3)).
+        single_action_space: ``Box(-1, 1, (3,), float32)``; single_observation_space: the
+            observation of one episode (`
+            observation_space`, or the pixel ``Dict``).
+        pixels: whether the agent observes pixels; image_size: (width, height), pixels.
+    """
+
+    def __init__(
+        self,
+        scenario: str | Path | Scenario,
+        *,
+        observation_source: str | None = None,
+        reward: str = "dense",
+        image_size: tuple[int, int] | None = None,
+    ) -> None:
+        if observation_source is not None and observation_source not in ENV_OBSERVATIONS:
+            raise ConfigError(
+                f"observation_source {observation_source!r} is not valid; expected one of "
+                f"{', '.join(ENV_OBSERVATIONS)} (or None: the scenario's estimator)"
+            )
+        self.scenario = resolve_scenario(scenario, observation_source)
+        self.description = describe_task(self.scenario)
+        self.rule = StepRule(self.scenario, self.description, reward)  # checks ``reward``
+        self.reward_mode = reward
+        self.camera: Camera
+        self.camera, self.features = scenario_camera(self.scenario)
+        self.pixels = observation_source == PIXELS
+        if image_size is not None and not self.pixels:
+            raise ConfigError(
+                f'image_size={image_size!r} applies only with observation_source="pixels" (it '
+                f"sizes the pixel observation; given observation_source={observation_source!r}); "
+                'drop image_size or pass observation_source="pixels"'
+            )
+        self.image_size = check_image_size(image_size, self.camera.model)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+        self.single_observation_space: spaces.Space = (
+            pixel_observation_space(self.image_size) if self.pixels else observation_space()
+        )
+
+    def imager(self) -> WorkspaceImager:
+        """A renderer of this task's pixel observation (it opens a pybullet world: the caller
+        closes it), lit as the scenario's camera keys say."""
+        cam = self.scenario.camera
+        x, y, z = (float(v) for v in cam.light_direction)
+        settings = RenderSettings(
+            light_direction=(x, y, z) if any((x, y, z)) else None,
+            light_intensity=cam.light_intensity,
+        )
+        model = self.camera.model
+        return WorkspaceImager(model, self.features, self.image_size, settings.lighting())
+
+    def pixel_observation(
+        self,
+        imager: WorkspaceImager,
+        state: ArmState,
+        rows: Any,
+        position: FloatArray,
+        rotation: FloatArray,
+        dt: FloatArray,
+    ) -> dict[str, NDArray]:
+        """The pixel observation of episodes ``rows`` of ``state`` (M of them): the image of
+        their arm and of the target at ``position`` (M, 3) and ``rotation`` (M, 3, 3), and their
+        state with the last real periods ``dt`` (M,), s: ``image`` (M, 3, H, W), ``state``
+        (M, 7)."""
+        theta = state.theta[rows]
+        return {
+            "image": imager.render_batch(theta, position, rotation),
+            "state": encode_state(theta, state.x_e[rows], dt, self.description.control_period),
+        }
+
+    def increments(self, actions: FloatArray) -> FloatArray:
+        """The joint increments M actions (M, 3) request, rad: each entry clipped to [-1, 1],
+        then ``a_i * theta_dot_max_i * t_s``."""
+        clipped = np.minimum(np.maximum(actions, -1.0), 1.0)
+        return self.description.action_to_increment(clipped)
