@@ -42,7 +42,8 @@ def make_frames(steps: int, seed: int) -> tuple[CameraModel, list, np.ndarray]:
     pos = np.array([0.45, 0.0, 0.4]) + 0.05 * np.column_stack(
         [np.cos(phase), np.zeros(steps), np.sin(phase)]
     )
-    frames = [sensor.capture(p + FEATURES @ r_gt.T, rng) for p in pos]
+    state = sensor.reset()
+    frames = [sensor.capture(state, p + FEATURES @ r_gt.T, rng) for p in pos]
     return cam, frames, pos
 
 
@@ -90,9 +91,9 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
 
     def camera_captures() -> int:
         sensor = Camera(cam, noise_px=1.0, dropout=0.05)
-        rng = np.random.default_rng(seed)
+        state, rng = sensor.reset(), np.random.default_rng(seed)
         for p in markers:
-            sensor.capture(p, rng)
+            sensor.capture(state, p, rng)
         return steps
 
     def update_floor(filter_class: type) -> Callable[[], int]:

@@ -35,7 +35,7 @@ def play(scenario: str, rule: str, seeds: list[int]) -> dict[str, float]:
             while not done:
                 obs, _, terminated, truncated, info = env.step(agent.predict(obs)[0])
                 done = terminated or truncated
-                found = env._scene_camera.last_detections
+                found = env._side.camera_episode.last_detections
                 steps += 1
                 partial += found is not None and 0 < found.found.sum() < found.found.size
                 if math.isfinite(info["estimate_position_error"]):

@@ -122,16 +122,16 @@ def speed(model: CameraModel, args: argparse.Namespace) -> None:
 
     print(f"speed: one core, {args.clock} time, best of {args.repeats}")
     with RenderedCamera(model, FEATURES, RenderSettings(windowed=False)) as full:
-        full.reset(np.random.default_rng(0))
+        full_episode = full.reset(np.random.default_rng(0))
         some = pose_ats[: max(3, len(poses) // 10)]
 
         def full_frames() -> None:
             for k, pose_at in enumerate(some):
-                full.capture(pose_at, 0.0, theta_at, rng, k)
+                full.capture(full_episode, pose_at, 0.0, theta_at, rng, k)
 
         full_ms = 1e3 / best_rate(full_frames, 1, args.repeats, timer) / len(some)
     with RenderedCamera(model, FEATURES) as camera:
-        camera.reset(np.random.default_rng(0))
+        episode = camera.reset(np.random.default_rng(0))
         jobs = []  # per capture: pose_at, its windows, their markers and images
         for pose, pose_at in zip(poses, pose_ats):
             centres = model.to_camera(pose[0] + FEATURES @ pose[1].T)[None]
@@ -144,7 +144,7 @@ def speed(model: CameraModel, args: argparse.Namespace) -> None:
 
         def captures() -> None:
             for k, pose_at in enumerate(pose_ats):
-                camera.capture(pose_at, 0.0, theta_at, rng, k)
+                camera.capture(episode, pose_at, 0.0, theta_at, rng, k)
 
         def render() -> None:
             for pose_at, windows, _, _ in jobs:
@@ -189,11 +189,11 @@ def errors(
     the share found."""
     found_errors, found = [], 0
     with RenderedCamera(model, FEATURES, settings) as camera:
-        camera.reset(np.random.default_rng(1))
+        episode = camera.reset(np.random.default_rng(1))
         for k, pose in enumerate(poses):
             position, rotation, _ = pose
             pose_at = moving_pose(pose, settings.exposure_s > 0.0)
-            result = camera.detect(pose_at, 0.0, lambda t: ARM_AWAY, k)
+            result = camera.detect(pose_at, 0.0, lambda t: ARM_AWAY, k, episode)
             truth = pixel_of(model.to_camera(position + FEATURES @ rotation.T), model)
             found += int(result.found.sum())
             found_errors.append((result.pixels - truth)[result.found])

@@ -86,25 +86,29 @@ def test_in_front_and_on_sensor():
 def test_unseen_point_gives_no_frame(offset):
     cam = CameraModel.looking_at((0.0, -1.2, 0.0), (0.0, 0.0, 0.0))
     sensor = Camera(cam, noise_px=1.0)
+    state = sensor.reset()
     pts = FEATURES.copy()
     pts[2] += offset  # one point leaves the view
-    assert sensor.capture(pts, np.random.default_rng(0)) is None
-    assert sensor.last_visible is False
-    assert sensor.last_dropped is False
-    assert sensor.capture(FEATURES, np.random.default_rng(0)) is not None
-    assert sensor.last_visible is True
+    assert sensor.capture(state, pts, np.random.default_rng(0)) is None
+    assert state.last_visible is False
+    assert state.last_dropped is False
+    assert sensor.capture(state, FEATURES, np.random.default_rng(0)) is not None
+    assert state.last_visible is True
 
 
 def test_noise_statistics_and_determinism():
     cam = CameraModel.looking_at((0.0, -1.2, 0.0), (0.0, 0.0, 0.0))
     exact = cam.project(cam.to_camera(FEATURES))
     sensor = Camera(cam, noise_px=1.0)
-    rng = np.random.default_rng(7)
-    errs = np.array([sensor.capture(FEATURES, rng).image_points - exact for _ in range(2000)])
+    state, rng = sensor.reset(), np.random.default_rng(7)
+    errs = np.array(
+        [sensor.capture(state, FEATURES, rng).image_points - exact for _ in range(2000)]
+    )
     assert np.std(errs) / cam.pixel_pitch == pytest.approx(1.0, rel=0.05)
     assert abs(np.mean(errs)) / cam.pixel_pitch < 0.05
-    a = Camera(cam, noise_px=1.0, dropout=0.3).capture(FEATURES, np.random.default_rng(11))
-    b = Camera(cam, noise_px=1.0, dropout=0.3).capture(FEATURES, np.random.default_rng(11))
+    noisy = Camera(cam, noise_px=1.0, dropout=0.3)
+    a = noisy.capture(noisy.reset(), FEATURES, np.random.default_rng(11))
+    b = noisy.capture(noisy.reset(), FEATURES, np.random.default_rng(11))
     assert (a is None) == (b is None)
     if a is not None:
         np.testing.assert_array_equal(a.image_points, b.image_points)
@@ -113,29 +117,63 @@ def test_noise_statistics_and_determinism():
 def test_dropout_rate_and_flag():
     cam = CameraModel.looking_at((0.0, -1.2, 0.0), (0.0, 0.0, 0.0))
     sensor = Camera(cam, dropout=0.4)
-    rng = np.random.default_rng(1)
-    frames = [sensor.capture(FEATURES, rng) for _ in range(1000)]
+    state, rng = sensor.reset(), np.random.default_rng(1)
+    frames = [sensor.capture(state, FEATURES, rng) for _ in range(1000)]
     lost = sum(f is None for f in frames)
     assert 340 < lost < 460
-    sensor.reset()
-    while sensor.capture(FEATURES, rng) is not None:
+    state = sensor.reset()
+    while sensor.capture(state, FEATURES, rng) is not None:
         pass
-    assert sensor.last_dropped and sensor.last_visible
+    assert state.last_dropped and state.last_visible
 
 
 def test_latency_delivers_frames_late():
     cam = CameraModel.looking_at((0.0, -1.2, 0.0), (0.0, 0.0, 0.0))
     sensor = Camera(cam, noise_px=0.0, latency_frames=2)
-    rng = np.random.default_rng(0)
+    state, rng = sensor.reset(), np.random.default_rng(0)
     shifts = [np.array([0.01 * k, 0.0, 0.0]) for k in range(5)]
-    out = [sensor.capture(FEATURES + s, rng) for s in shifts]
+    out = [sensor.capture(state, FEATURES + s, rng) for s in shifts]
     assert out[0] is None and out[1] is None
     for k in range(2, 5):
         expected = cam.project(cam.to_camera(FEATURES + shifts[k - 2]))
         np.testing.assert_allclose(out[k].image_points, expected, atol=1e-15)
         assert out[k].capture_index == k - 2
-    sensor.reset()
-    assert sensor.capture(FEATURES, rng) is None
+    assert sensor.capture(sensor.reset(), FEATURES, rng) is None  # a new episode's pipeline
+
+
+def test_episodes_interleaved_on_one_camera_see_what_each_sees_alone():
+    """An episode's pipeline, count and flags are its `CameraEpisode`: two episodes captured in
+    turn on one camera get, call by call, the frames and flags each gets alone, and
+    capture_sequence is a new episode's captures."""
+    cam = CameraModel.looking_at((0.0, -1.2, 0.0), (0.0, 0.0, 0.0))
+    sensor = Camera(cam, noise_px=1.0, dropout=0.3, latency_frames=2)
+    paths = [
+        [FEATURES + np.array([0.02 * k * sign, 0.0, 0.0]) for k in range(30)] for sign in (1, -1)
+    ]
+
+    def seen(state, frame):
+        points = None if frame is None else (frame.image_points.tolist(), frame.capture_index)
+        return points, state.last_visible, state.last_dropped
+
+    alone = []
+    for j, path in enumerate(paths):
+        state, rng = sensor.reset(), np.random.default_rng(j)
+        alone.append([seen(state, sensor.capture(state, p, rng)) for p in path])
+        images, visible = Camera(cam, 1.0, 0.3, 2).capture_sequence(
+            np.stack(path), np.random.default_rng(j)
+        )
+        delivered = [None if np.isnan(i).all() else i.tolist() for i in images]
+        assert delivered == [s[0] and s[0][0] for s in alone[j]]
+        assert visible.tolist() == [s[1] for s in alone[j]]
+    states = [sensor.reset(), sensor.reset()]
+    rngs = [np.random.default_rng(0), np.random.default_rng(1)]
+    together = [[], []]
+    for k in range(30):
+        for j in (1, 0):
+            frame = sensor.capture(states[j], paths[j][k], rngs[j])
+            together[j].append(seen(states[j], frame))
+    assert together == alone
+    assert any(s[0] is None for s in alone[0][2:]) and any(s[0] for s in alone[0])
 
 
 def test_bad_arguments_raise():

@@ -226,13 +226,14 @@ def test_estimator_tracks_circular_target_in_global_frame():
     for seed in range(3):
         rng = np.random.default_rng(100 + seed)
         sensor = Camera(cam, noise_px=1.0)
+        state = sensor.reset()
         est = TargetEstimator(cam, FEATURES, source="ekf", noise_px=1.0)
         errs = []
         for k in range(300):
             t = k * DT
             pos = centre + radius * np.array([np.cos(omega * t), 0.0, np.sin(omega * t)])
             vel = radius * omega * np.array([-np.sin(omega * t), 0.0, np.cos(omega * t)])
-            out = est.update(sensor.capture(markers(pos), rng), DT, pos, vel)
+            out = est.update(sensor.capture(state, markers(pos), rng), DT, pos, vel)
             assert out.valid and out.status == "ok"
             err = out.position - pos
             errs.append(np.linalg.norm(err))
@@ -265,13 +266,14 @@ def _noiseless_run(source: str, latency: int = 0, lose: tuple[int, ...] = ()):
     """A target drifting at (0.02, 0.01, -0.01) m/s seen by a noise-free camera."""
     cam = camera_model()
     sensor = Camera(cam, noise_px=0.0, latency_frames=latency)
+    state = sensor.reset()
     est = TargetEstimator(cam, FEATURES, source=source, noise_px=0.0)
     rng = np.random.default_rng(0)
     p0, v = np.array([0.45, 0.0, 0.4]), np.array([0.02, 0.01, -0.01])
     outs, truth = [], []
     for k in range(12):
         pos = p0 + v * k * DT
-        frame = sensor.capture(markers(pos), rng)
+        frame = sensor.capture(state, markers(pos), rng)
         outs.append(est.update(None if k in lose else frame, DT, pos, v))
         truth.append(pos)
     return outs, np.array(truth), v
@@ -312,16 +314,19 @@ def test_photogrammetry_velocity_by_finite_difference():
 def test_divergence_reinitialises_from_photogrammetry():
     cam = camera_model()
     sensor = Camera(cam, noise_px=1.0)
+    state = sensor.reset()
     est = TargetEstimator(cam, FEATURES, source="ekf", noise_px=1.0)
     rng = np.random.default_rng(4)
     pos, jump = np.array([0.45, 0.0, 0.4]), np.array([0.0, -0.3, 0.05])
     for _ in range(20):
-        est.update(sensor.capture(markers(pos), rng), DT, pos, np.zeros(3))
+        est.update(sensor.capture(state, markers(pos), rng), DT, pos, np.zeros(3))
     # The target jumps 30 cm: the filter, confident in a still target, rejects the frames until
     # the NIS rule trips, then photogrammetry restarts it near the new position.
-    outs = [est.update(sensor.capture(markers(pos + jump), rng), DT, pos, np.zeros(3))]
+    outs = [est.update(sensor.capture(state, markers(pos + jump), rng), DT, pos, np.zeros(3))]
     for _ in range(DIVERGENCE_FRAMES + 1):
-        outs.append(est.update(sensor.capture(markers(pos + jump), rng), DT, pos, np.zeros(3)))
+        outs.append(
+            est.update(sensor.capture(state, markers(pos + jump), rng), DT, pos, np.zeros(3))
+        )
     assert est.reinitialisations == 1
     assert est.ekf.nis < 100.0
     assert np.linalg.norm(outs[-1].position - (pos + jump)) < 0.01

@@ -59,12 +59,13 @@ class Sequences:
                 ):
                     break
             sensor = Camera(self.model, cam.noise_px, cam.dropout, cam.latency_frames)
+            state = sensor.reset()
             t = 0.0
             for k in range(steps):
                 if jitter:
                     self.dts[k, i] = period * (1.0 + jitter * rng.uniform(-1.0, 1.0))
                 t += self.dts[k, i]
-                frame = sensor.capture(traj.feature_points(t, self.features), rng)
+                frame = sensor.capture(state, traj.feature_points(t, self.features), rng)
                 if frame is not None:
                     self.images[k, i] = frame.image_points
 

@@ -219,13 +219,14 @@ def test_window_keeps_only_the_spheres_that_can_show_in_it():
 
 def test_found_markers_agree_with_eq2(cameras):
     windowed, _ = cameras
-    windowed.reset()
+    state = windowed.reset()
     rng = np.random.default_rng(0)
     analytic = Camera(MODEL, noise_px=0.0)
     for pose_at, _ in random_scenes(4, seed=1, depths=(0.8, 1.1), clear=True):
-        frame = windowed.capture(pose_at, 0.0, at(ARM_AWAY), rng, 0)
+        frame = windowed.capture(state, pose_at, 0.0, at(ARM_AWAY), rng, 0)
         assert isinstance(frame, RenderedFrame) and isinstance(frame, Frame)
-        expected = analytic.capture(markers(pose_at), np.random.default_rng(0)).image_points
+        truth = analytic.capture(analytic.reset(), markers(pose_at), np.random.default_rng(0))
+        expected = truth.image_points
         assert frame.found.all() and (frame.status == det.FOUND).all()
         error_px = np.abs(frame.image_points - expected) / MODEL.pixel_pitch
         assert error_px.max() < 0.3
@@ -282,18 +283,18 @@ def test_the_arm_hides_a_marker_it_stands_in_front_of(cameras):
 
 def test_unseen_markers_are_missing_and_a_frame_needs_one_found(cameras):
     windowed, _ = cameras
-    windowed.reset()
+    state = windowed.reset()
     rng = np.random.default_rng(0)
     half_off = placed((WIDTH - 60.0, 480.0), 1.2)  # marker 1 off the sensor
-    frame = windowed.capture(half_off, 0.0, at(HOME), rng, 0)
-    assert frame is not None and not windowed.last_visible
+    frame = windowed.capture(state, half_off, 0.0, at(HOME), rng, 0)
+    assert frame is not None and not state.last_visible
     assert frame.found[0] and not frame.found[1] and frame.status[1] == det.NO_BLOB
     assert np.isnan(frame.image_points[1]).all()
     camera_back = MODEL.position - 0.3 * MODEL.rotation[:, 1]  # behind the lens
     gone = lambda t: (camera_back, np.eye(3))  # noqa: E731
-    assert windowed.capture(gone, 0.0, at(HOME), rng, 1) is None
-    assert (windowed.last_detections.status == det.NO_BLOB).all()
-    assert not windowed.last_visible and not windowed.last_dropped
+    assert windowed.capture(state, gone, 0.0, at(HOME), rng, 1) is None
+    assert (state.last_detections.status == det.NO_BLOB).all()
+    assert not state.last_visible and not state.last_dropped
 
 
 def test_dropout_and_latency_follow_the_analytic_camera():
@@ -302,20 +303,20 @@ def test_dropout_and_latency_follow_the_analytic_camera():
     points = markers(pose_at)
     analytic = Camera(MODEL, noise_px=0.0, dropout=0.4, latency_frames=2)
     with RenderedCamera(MODEL, FEATURES, dropout=0.4, latency_frames=2) as rendered:
-        rendered.reset()
+        state, expected = rendered.reset(), analytic.reset()
         delivered = dropped = 0
         for k in range(10):
-            a = analytic.capture(points, np.random.default_rng(100 + k))
-            b = rendered.capture(pose_at, 0.0, theta_at, np.random.default_rng(100 + k), k)
+            a = analytic.capture(expected, points, np.random.default_rng(100 + k))
+            b = rendered.capture(state, pose_at, 0.0, theta_at, np.random.default_rng(100 + k), k)
             assert (a is None) == (b is None), k
-            assert rendered.last_dropped == analytic.last_dropped
-            assert rendered.last_visible == analytic.last_visible
+            assert state.last_dropped == expected.last_dropped
+            assert state.last_visible == expected.last_visible
             if a is not None:
                 delivered += 1
                 assert b.capture_index == a.capture_index
                 error = np.abs(b.image_points - a.image_points) / MODEL.pixel_pitch
                 assert b.found.all() and error.max() < 0.3
-            dropped += analytic.last_dropped
+            dropped += expected.last_dropped
         assert delivered >= 2 and dropped >= 2
 
 
@@ -328,18 +329,19 @@ def test_capture_draws_one_uniform_whatever_the_scene():
     reference = np.random.default_rng(9)
     reference.random()
     with RenderedCamera(MODEL, FEATURES, RenderSettings(image_noise=4.0), dropout=0.5) as camera:
-        camera.reset(np.random.default_rng(1))
+        state = camera.reset(np.random.default_rng(1))
         for pose_at in scenes:
             for seed in (9, 10, 11):  # some of these captures are dropped
                 rng = np.random.default_rng(seed)
-                camera.capture(pose_at, 0.0, at(HOME), rng, 0)
+                camera.capture(state, pose_at, 0.0, at(HOME), rng, 0)
                 check = np.random.default_rng(seed)
                 check.random()
                 assert rng.bit_generator.state == check.bit_generator.state
         reset_rng = np.random.default_rng(5)
-        camera.reset(reset_rng)  # the noise key: one draw
-        key = np.random.default_rng(5).integers(0, 2**64, dtype=np.uint64)
-        assert camera.noise_key == int(key)
+        state = camera.reset(reset_rng)  # the noise key: one draw
+        check = np.random.default_rng(5)
+        assert state.noise_key == int(check.integers(0, 2**64, dtype=np.uint64))
+        assert reset_rng.bit_generator.state == check.bit_generator.state
 
 
 def test_image_noise_is_the_same_in_a_window_and_the_full_frame():
@@ -350,18 +352,19 @@ def test_image_noise_is_the_same_in_a_window_and_the_full_frame():
         RenderedCamera(MODEL, FEATURES, RenderSettings(windowed=False, image_noise=6.0)) as full,
         RenderedCamera(MODEL, FEATURES) as clean,
     ):
-        noisy.reset(np.random.default_rng(2))
-        full.reset(np.random.default_rng(2))
+        episode = noisy.reset(np.random.default_rng(2))
+        assert full.reset(np.random.default_rng(2)) == episode
+        key = episode.noise_key
         u, v = (int(round(c)) for c in true_pixels(pose_at)[0])
         window = (u - 30, u + 30, v - 30, v + 30)
         crop = np.s_[v - 30 : v + 30, u - 30 : u + 30]
-        part = noisy.image(pose_at, 0.0, theta_at, 3, window)
+        part = noisy.image(pose_at, 0.0, theta_at, 3, window, key)
         plain = clean.image(pose_at, 0.0, theta_at, 3, window)
-        whole = full.image(pose_at, 0.0, theta_at, 3)
+        whole = full.image(pose_at, 0.0, theta_at, 3, noise_key=key)
         plain_whole = clean.image(pose_at, 0.0, theta_at, 3)
 
         def noised(image, window):  # the documented rule: add sigma * pixel_noise, round, clip
-            z = 6.0 * pixel_noise(noisy.noise_key, 3, window, WIDTH)
+            z = 6.0 * pixel_noise(key, 3, window, WIDTH)
             return np.clip(np.rint(image + z), 0, 255).astype(np.uint8)
 
         np.testing.assert_array_equal(part, noised(plain, window))
@@ -369,11 +372,14 @@ def test_image_noise_is_the_same_in_a_window_and_the_full_frame():
         drawn_alike = plain == plain_whole[crop]  # TinyRenderer may differ on an edge pixel
         assert drawn_alike.mean() > 0.99
         np.testing.assert_array_equal(part[drawn_alike], whole[crop][drawn_alike])
-        assert not np.array_equal(part, noisy.image(pose_at, 0.0, theta_at, 4, window))
+        assert not np.array_equal(part, noisy.image(pose_at, 0.0, theta_at, 4, window, key))
         residual = part.astype(float) - plain
         unclipped = (plain > 30) & (plain < 225)
         assert 5.0 < residual[unclipped].std() < 7.0
-        assert_same(noisy.detect(pose_at, 0.0, theta_at, 3), full.detect(pose_at, 0.0, theta_at, 3))
+        assert_same(
+            noisy.detect(pose_at, 0.0, theta_at, 3, episode),
+            full.detect(pose_at, 0.0, theta_at, 3, episode),
+        )
 
 
 def test_motion_blur_puts_the_centroid_between_the_sub_frame_positions():

@@ -34,7 +34,7 @@ def _play(env: CaptureEnv, agent_name: str, seed: int) -> list[tuple]:
                 info["estimator_status"],
                 info["target_visible"],
                 info["capture_time"],
-                env._scene_camera.last_detections.found.tolist(),
+                env._side.camera_episode.last_detections.found.tolist(),
             )
         )
     return steps
@@ -99,6 +99,65 @@ def sc_home():
     from capture_bench.sim.kinematics import HOME
 
     return HOME
+
+
+def test_episodes_interleaved_on_one_camera_see_what_each_sees_alone():
+    """An episode's state (noise key, latency pipeline, count, flags, detections, target-only
+    store) is its `SceneEpisode`: two episodes whose frames are taken in turn on one camera get,
+    frame by frame, what each gets alone on it, image noise, drop-out and latency included."""
+    from capture_bench.sensing.rendered_sensor import RenderSettings
+    from capture_bench.sensing.scene_camera import joint_path
+    from capture_bench.sim.target_motion import FEATURE_POINTS
+    from capture_bench.task.episode import EpisodePlan
+
+    sc = load_scenario("paper_rendered")
+    features = FEATURE_POINTS[sc.target.feature_points]
+    settings = RenderSettings(marker_radius=sc.camera.marker_radius, image_noise=4.0)
+    camera = RenderedSceneCamera(sc.camera.model(), features, settings, 0.2, 1)
+    home = np.array(sc_home())
+    plans = [
+        EpisodePlan.draw(sc, camera.model, features, np.random.default_rng(seed)) for seed in (3, 4)
+    ]
+    frames = 12
+
+    def arm_at(j, k):  # the arm swings toward the target and back, differently per episode
+        reach = home + (0.3 + 0.2 * j) * np.sin(0.5 * k) * np.array([1.0, -0.6, 0.8])
+        return joint_path(home, reach, 0.0, 1.0)
+
+    def seen(state, frame):
+        got = None
+        if frame is not None:
+            got = (frame.image_points.tobytes(), frame.capture_index, frame.found.tolist())
+        found = state.last_detections
+        detected = None if found is None else (found.pixels.tobytes(), found.status.tolist())
+        return got, state.last_visible, state.last_dropped, detected
+
+    def start(j):
+        rng = np.random.default_rng(10 + j)
+        return camera.reset(rng, target_only={}), rng
+
+    def take(j, k, state, rng):
+        time = float(plans[j].step_times()[0][k])
+        trajectory = plans[j].trajectory
+        frame = camera.capture_scene(state, k, time, trajectory, arm_at(j, k), rng)
+        return seen(state, frame)
+
+    try:
+        alone = []
+        for j in (0, 1):
+            state, rng = start(j)
+            alone.append([take(j, k, state, rng) for k in range(frames)])
+        started = [start(0), start(1)]
+        together = [[], []]
+        for k in range(frames):
+            for j in (1, 0):
+                together[j].append(take(j, k, *started[j]))
+        assert together == alone
+        assert started[0][0].target_only and started[0][0].noise_key != started[1][0].noise_key
+        assert any(s[2] for s in alone[0] + alone[1])  # some frames dropped
+        assert sum(s[0] is not None for s in alone[0]) > frames // 2
+    finally:
+        camera.close()
 
 
 def test_the_batched_env_plays_the_single_envs_rendered_episodes():

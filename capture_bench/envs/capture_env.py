@@ -28,6 +28,7 @@ from capture_bench.engine.cache import DEFAULT_EPISODE_CACHE, EpisodeCache, Epis
 from capture_bench.engine.task import CaptureTask, check_actions
 from capture_bench.envs.core import Observation, TaskAccess
 from capture_bench.sensing.estimator import TargetEstimator
+from capture_bench.sensing.rendered_sensor import SceneEpisode
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
 from capture_bench.sensing.workspace_image import WorkspaceImager
 from capture_bench.sim import kinematics
@@ -448,12 +449,14 @@ class CaptureEnv(TaskAccess, gym.Env):
         if self._scene_camera is None or self._side is None:
             raise RuntimeError("call reset() before render()")
         episode, k = self._side.episode, self._steps
+        state = self._side.camera_episode
+        assert isinstance(state, SceneEpisode)  # a rendered side is live
         return self._scene_camera.view(
             self.joint_angles,
             episode.position[k],
             episode.rotation[k],
             self.render_size,
-            self._scene_camera.last_detections,
+            state.last_detections,
             episode.estimate_position[k],
         )
 
@@ -505,12 +508,14 @@ class CaptureEnv(TaskAccess, gym.Env):
         reach (`RenderedSceneCamera`)."""
         if self._scene_camera is None:
             self._scene_camera = RenderedSceneCamera.for_scenario(self.task.scenario)
-        camera = self._scene_camera
-        shared = self.reuse_target_side and self._key is not None
-        camera.target_only = self.episode_cache.scene_frames(self._key) if shared else None
+        store = None
+        if self.reuse_target_side and self._key is not None:
+            store = self.episode_cache.scene_frames(self._key)
         task = self.task
         rng = self.np_random
-        return TargetSide.draw(task.scenario, camera, self._estimator, task.features, rng)
+        return TargetSide.draw(
+            task.scenario, self._scene_camera, self._estimator, task.features, rng, store
+        )
 
     def _recorded_side(self) -> TargetSide:
         """This seed's target side to the time limit, recorded now (as live steps would compute

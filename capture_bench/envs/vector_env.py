@@ -56,7 +56,7 @@ from capture_bench.engine.task import CaptureTask, check_actions
 from capture_bench.envs.core import Observation, TaskAccess
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
-from capture_bench.sensing.scene_camera import RenderedSceneCamera, SceneCameraView, joint_path
+from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
 from capture_bench.sensing.workspace_image import WorkspaceImager
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
@@ -240,12 +240,12 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self._ekf: BatchedTargetEstimator | None = None
         self._reference: TargetEstimator | None = None
         # camera.mode "rendered": each sub-env's target side is live (its frames show the arm):
-        # a view of one shared rendered camera and the single env's estimator per sub-env
+        # one rendered camera for all, each side holding its episode's camera state, and the
+        # single env's estimator per sub-env
         self._sides: list[TargetSide | None] | None = None
         self._scene: RenderedSceneCamera | None = None
         if rendered:
             self._scene = RenderedSceneCamera.for_scenario(sc)
-            self._views = [SceneCameraView(self._scene) for _ in range(n)]
             self._estimators = [
                 TargetEstimator(
                     self._camera.model,
@@ -467,8 +467,8 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         side (``CaptureEnv``'s, drawn from the same generator: the explicit seed, the seed
         source's next, or the sub-env's own), rows filled as steps come (`_fill_rows`);
         frames of the target alone kept by seed in `episode_cache`."""
-        assert self._sides is not None
-        sc, features = self.scenario, self._features
+        assert self._sides is not None and self._scene is not None
+        sc, features, camera = self.scenario, self._features, self._scene
         home = self.description.arm.home
         for i in envs.tolist():
             if i in explicit or self._sources is not None:
@@ -479,9 +479,8 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
                 self._generator_seeds[i] = None  # its later episodes continue the generator
             assert rng is not None
             key = None if seed is None else (sc, seed)
-            view = self._views[i]
-            view.target_only = None if key is None else self.episode_cache.scene_frames(key)
-            side = TargetSide.draw(sc, view, self._estimators[i], features, rng)
+            store = None if key is None else self.episode_cache.scene_frames(key)
+            side = TargetSide.draw(sc, camera, self._estimators[i], features, rng, store)
             side.arm_at = lambda _t: home
             episode = side.through(0)
             episode.bound = bound = self.episode_cache.bound_of(key, episode.plan, self.description)

@@ -9,7 +9,9 @@ Frames (see ``docs/architecture.md``):
   runs along the camera x-axis (sensor width), z_m along the camera z-axis (sensor height).
 
 `CameraModel` is the pure geometry; `Camera` is the sensor that adds noise, drop-out
-and latency, drawing every random number from the generator it is given.
+and latency, drawing every random number from the generator it is given. An episode's state (the
+latency pipeline, the capture count, the latest capture's flags) is a `CameraEpisode` the caller
+holds and passes to each capture, so one camera serves any number of episodes.
 """
 
 from __future__ import annotations
@@ -162,20 +164,37 @@ class Frame:
     capture_index: int = 0
 
 
+@dataclass(slots=True)
+class CameraEpisode:
+    """One episode's state of a `Camera`: what its captures change. `Camera.reset` makes one;
+    each `Camera.capture` takes it and updates it.
+
+    Attributes:
+        pipeline: the frames taken and not yet delivered (latency), oldest first.
+        count: captures taken in the episode.
+        last_visible: whether every point was in front of the lens and on the sensor at the latest
+            capture (the current one, not the delayed frame delivered). Lets the caller tell
+            "not visible" from "dropped".
+        last_dropped: whether the latest capture was lost to drop-out.
+    """
+
+    pipeline: deque[Frame | None] = field(default_factory=deque)
+    count: int = 0
+    last_visible: bool = True
+    last_dropped: bool = False
+
+
 class Camera:
     """The sensor: eq. 2 projection plus Gaussian pixel noise, random drop-out and latency.
+
+    The camera holds its settings only; an episode's state is the `CameraEpisode` passed to
+    `capture`.
 
     Args:
         model: the camera geometry.
         noise_px: standard deviation of the image noise, pixels (0 for a perfect camera).
         dropout: probability in [0, 1) that a frame is lost.
         latency_frames: a frame taken at capture k is delivered by capture k + latency_frames.
-
-    Attributes:
-        last_visible: whether every point was in front of the lens and on the sensor at the latest
-            capture (the current one, not the delayed frame delivered). Lets the caller tell
-            "not visible" from "dropped".
-        last_dropped: whether the latest capture was lost to drop-out.
     """
 
     def __init__(
@@ -195,31 +214,29 @@ class Camera:
         self.noise_px = float(noise_px)
         self.dropout = float(dropout)
         self.latency_frames = int(latency_frames)
-        self._pipeline: deque[Frame | None] = deque()
-        self._count = 0
-        self.last_visible = True
-        self.last_dropped = False
 
     @property
     def noise_std(self) -> float:
         """Standard deviation of the image noise on the image plane, metres."""
         return self.noise_px * self.model.pixel_pitch
 
-    def reset(self) -> None:
-        """Empty the latency pipeline and forget the last capture."""
-        self._pipeline.clear()
-        self._count = 0
-        self.last_visible = True
-        self.last_dropped = False
+    def reset(self) -> CameraEpisode:
+        """A new episode's state: an empty latency pipeline, no capture yet (no random draw)."""
+        return CameraEpisode()
 
-    def capture(self, points_global: ArrayLike, rng: np.random.Generator) -> Frame | None:
-        """Take one image of the feature points and return the frame due now, if any.
+    def capture(
+        self, state: CameraEpisode, points_global: ArrayLike, rng: np.random.Generator
+    ) -> Frame | None:
+        """Take one image of the feature points in the episode ``state`` and return the frame due
+        now, if any.
 
         Random numbers are drawn in a fixed order on every call, whatever happens to the frame:
         one uniform (drop-out), then N x 2 standard normals (noise). A seeded generator therefore
         gives identical results, and visibility never shifts the random stream.
 
         Args:
+            state: the episode's state (`reset`), updated: the frame joins its pipeline, the
+                count and the latest capture's flags are this capture's.
             points_global: feature points in the global frame, metres, shape (N, 3).
             rng: the generator for drop-out and noise.
 
@@ -238,20 +255,21 @@ class Camera:
             image = model.project(p_cam)
             visible = bool((np.abs(image) <= model._half_extent).all())  # on_sensor
             if visible and not lost:
-                frame = Frame(image + noise, True, self._count)
-        self.last_visible = visible
-        self.last_dropped = bool(lost)
-        self._count += 1
-        self._pipeline.append(frame)
-        if len(self._pipeline) > self.latency_frames:
-            return self._pipeline.popleft()
+                frame = Frame(image + noise, True, state.count)
+        state.last_visible = visible
+        state.last_dropped = bool(lost)
+        state.count += 1
+        pipeline = state.pipeline
+        pipeline.append(frame)
+        if len(pipeline) > self.latency_frames:
+            return pipeline.popleft()
         return None
 
     def capture_sequence(
         self, points_global: FloatArray, rng: np.random.Generator
     ) -> tuple[FloatArray, NDArray[np.bool_]]:
-        """`capture` called once for each of T instants, from a camera just reset: the
-        same random draws in the same order, the geometry vectorised over the instants.
+        """`capture` called once for each of T instants of a new episode (`reset`): the same
+        random draws in the same order, the geometry vectorised over the instants.
 
         Args:
             points_global: feature points at each instant, global, metres, shape (T, N, 3).
@@ -259,10 +277,9 @@ class Camera:
 
         Returns:
             ``images`` (T, N, 2): the frame delivered at each call, metres, NaN where
-            `capture` returns None; ``visible`` (T,): `last_visible` after each call.
+            `capture` returns None; ``visible`` (T,): `CameraEpisode.last_visible` after each
+            call.
         """
-        if self._count or self._pipeline:
-            raise RuntimeError("capture_sequence needs a camera just reset (call reset() first)")
         model = self.model
         p = np.asarray(points_global, dtype=float)
         n_t, n_points = p.shape[0], p.shape[1]
@@ -284,7 +301,4 @@ class Camera:
         if latency:  # the frame taken at call k is delivered by call k + latency
             images = np.concatenate([np.full((min(latency, n_t), n_points, 2), np.nan), images])
             images = images[:n_t]
-        self._count = n_t
-        self.last_visible = bool(visible[-1]) if n_t else True
-        self.last_dropped = bool(lost[-1]) if n_t else False
         return images, visible

@@ -45,8 +45,8 @@ missing markers' areas (one ``too_small`` there, ``no_blob`` here).
 **Image noise**: Gaussian, ``image_noise`` grey levels, on every RGB channel, then rounded and
 clipped to uint8; the value at channel c of pixel (u, v) of frame ``frame_index`` is a pure
 function of ``(key, frame_index, (v * width + u) * 3 + c)`` (`pixel_noise`), so a window's
-noise is the full frame's. `RenderedCamera.reset` draws the episode's key;
-`capture` draws only the drop-out uniform, whatever the geometry.
+noise is the full frame's. `RenderedCamera.reset` draws the episode's key (kept in its
+`SceneEpisode`); `capture` draws only the drop-out uniform, whatever the geometry.
 
 **Motion blur**: the mean of ``blur_subframes`` renders over ``[t - exposure_s, t]``, noise added
 after. The blob is where the marker stayed long enough to keep its saturation (>= 3 of 4
@@ -173,6 +173,35 @@ class RenderedFrame(Frame):
 
     found: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
     status: NDArray[np.int8] = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+
+
+@dataclass(slots=True)
+class SceneEpisode:
+    """One episode's state of a rendered camera: what its captures change and what they read.
+    `RenderedCamera.reset` makes one; each capture takes it, so one camera (one pybullet world)
+    renders for any number of episodes.
+
+    Attributes:
+        noise_key: the episode's image-noise key (`pixel_noise`).
+        pipeline: the frames taken and not yet delivered (latency), oldest first.
+        count: captures taken in the episode.
+        last_visible: whether every marker centre was in front of the lens and on the sensor at
+            the latest capture (geometry, as `CameraEpisode.last_visible`).
+        last_dropped: whether the latest capture was lost to drop-out.
+        last_detections: the detector's answer for the latest capture (None when dropped: no
+            image is rendered then).
+        target_only: frame index -> the detections of the target alone, for the seed being
+            played (`capture_bench.sensing.scene_camera.RenderedSceneCamera` fills and reuses
+            it); None: every frame rendered with the arm.
+    """
+
+    noise_key: int = 0
+    pipeline: deque[RenderedFrame | None] = field(default_factory=deque)
+    count: int = 0
+    last_visible: bool = True
+    last_dropped: bool = False
+    last_detections: Detections | None = None
+    target_only: dict[int, Detections] | None = None
 
 
 def _mix64(z: NDArray[np.uint64]) -> NDArray[np.uint64]:
@@ -388,7 +417,8 @@ class RenderedCamera:
     markers, and deliver their image-plane points with `Camera`'s drop-out and latency.
 
     It owns a `World` (arm, floor and marked target; with
-    ``target_block=False`` the block is drawn with alpha 0, which TinyRenderer skips).
+    ``target_block=False`` the block is drawn with alpha 0, which TinyRenderer skips) and the
+    settings; an episode's state is the `SceneEpisode` passed to `capture`.
 
     Args:
         model: the camera geometry.
@@ -396,13 +426,6 @@ class RenderedCamera:
         settings: how to render and detect.
         dropout: probability in [0, 1) that a frame is lost.
         latency_frames: a frame taken at capture k is delivered by capture k + latency_frames.
-
-    Attributes:
-        last_visible: whether every marker centre was in front of the lens and on the sensor at
-            the latest capture (geometry, as `Camera.last_visible`).
-        last_dropped: whether the latest capture was lost to drop-out.
-        last_detections: the detector's answer for the latest capture (None when dropped: no
-            image is rendered then).
     """
 
     def __init__(
@@ -429,42 +452,31 @@ class RenderedCamera:
         self._culling = _Culling(
             self._world, self.features, self.settings.marker_radius, self.settings.target_block
         )
-        self._pipeline: deque[RenderedFrame | None] = deque()
-        self._count = 0
-        self._noise_key = 0
-        self.last_visible = True
-        self.last_dropped = False
-        self.last_detections: Detections | None = None
 
-    @property
-    def noise_key(self) -> int:
-        """The episode's image-noise key (`pixel_noise`), set by `reset`."""
-        return self._noise_key
-
-    def reset(self, rng: np.random.Generator | None = None) -> None:
-        """Empty the latency pipeline, forget the last capture and, given ``rng``, draw the
-        episode's noise key: one ``rng.integers(0, 2**64, dtype=np.uint64)`` (without: key 0)."""
-        self._pipeline.clear()
-        self._count = 0
-        self._noise_key = 0 if rng is None else int(rng.integers(0, 2**64, dtype=np.uint64))
-        self.last_visible = True
-        self.last_dropped = False
-        self.last_detections = None
+    def reset(self, rng: np.random.Generator | None = None) -> SceneEpisode:
+        """A new episode's state: an empty latency pipeline, no capture yet and, given ``rng``,
+        the episode's noise key drawn: one ``rng.integers(0, 2**64, dtype=np.uint64)`` (without:
+        key 0)."""
+        key = 0 if rng is None else int(rng.integers(0, 2**64, dtype=np.uint64))
+        return SceneEpisode(noise_key=key)
 
     def capture(
         self,
+        state: SceneEpisode,
         pose_at: PoseAt,
         time: float,
         theta_at: ThetaAt,
         rng: np.random.Generator,
         frame_index: int,
     ) -> RenderedFrame | None:
-        """Take one image and return the frame due now, if any.
+        """Take one image in the episode ``state`` and return the frame due now, if any.
 
         Draws exactly one uniform from ``rng`` (drop-out), first, whatever happens; a dropped
         image is not rendered.
 
         Args:
+            state: the episode's state (`reset`), updated: the frame joins its pipeline, the
+                count, the latest capture's flags and detections are this capture's.
             pose_at: ``pose_at(t)`` -> (capture point, global, metres, (3,); R_gt, (3, 3)); asked
                 at the sub-frame instants (only at ``time`` without blur).
             time: the instant the image is taken (its exposure ends), seconds.
@@ -479,25 +491,34 @@ class RenderedCamera:
         lost = bool(rng.random() < self.dropout)
         position, rotation = pose_at(time)
         points = np.asarray(position) + self.features @ np.asarray(rotation).T
-        self.last_visible = bool(self.model.visible(self.model.to_camera(points)).all())
-        self.last_dropped = lost
-        self.last_detections = frame = None
+        state.last_visible = bool(self.model.visible(self.model.to_camera(points)).all())
+        state.last_dropped = lost
+        state.last_detections = frame = None
         if not lost:
-            found = self.last_detections = self.detect(pose_at, time, theta_at, frame_index)
+            found = self.detect(pose_at, time, theta_at, frame_index, state)
+            state.last_detections = found
             if found.found.any():
                 points = pixel_to_image_plane(found.pixels, self.model)
-                frame = RenderedFrame(points, True, self._count, found.found, found.status)
-        self._count += 1
-        self._pipeline.append(frame)
-        if len(self._pipeline) > self.latency_frames:
-            return self._pipeline.popleft()
+                frame = RenderedFrame(points, True, state.count, found.found, found.status)
+        state.count += 1
+        pipeline = state.pipeline
+        pipeline.append(frame)
+        if len(pipeline) > self.latency_frames:
+            return pipeline.popleft()
         return None
 
     def detect(
-        self, pose_at: PoseAt, time: float, theta_at: ThetaAt, frame_index: int
+        self,
+        pose_at: PoseAt,
+        time: float,
+        theta_at: ThetaAt,
+        frame_index: int,
+        episode: SceneEpisode | None = None,
     ) -> Detections:
         """Render the image taken at ``time`` and find the markers in it (no drop-out, no
-        latency): windows or the full frame, as ``settings.windowed`` says (module docstring)."""
+        latency): windows or the full frame, as ``settings.windowed`` says (module docstring);
+        the image noise of ``episode``'s key (key 0 without one)."""
+        key = 0 if episode is None else episode.noise_key
         scenes = self._scenes(pose_at, time, theta_at)
         centres = np.stack([self.model.to_camera(scene[0]) for scene in scenes])
         windows = marker_windows(self.model, centres, self.settings.marker_radius)
@@ -507,7 +528,7 @@ class RenderedCamera:
         )
         looked = [i for i, w in enumerate(windows) if w is not None]
         if not self.settings.windowed:
-            whole = detect_markers(self._images(scenes, [None], frame_index)[0], self.model)
+            whole = detect_markers(self._images(scenes, [None], frame_index, key)[0], self.model)
             results = [(looked, whole.pixels[looked], whole.areas[looked], whole.status[looked])]
         else:
             own = {i: (w[0], w[2]) for i, w in enumerate(windows) if w is not None}
@@ -516,7 +537,7 @@ class RenderedCamera:
                 u0, u1, v0, v1 = zip(*(w for w, _ in jobs))
                 box = (min(u0), max(u1), min(v0), max(v1))
                 jobs, own = [(box, looked)], dict.fromkeys(looked, (box[0], box[2]))
-            images = self._images(scenes, [w for w, _ in jobs], frame_index)
+            images = self._images(scenes, [w for w, _ in jobs], frame_index, key)
             results = []
             for (w, members), image in zip(jobs, images):
                 owns = [own[i] for i in members]
@@ -533,12 +554,13 @@ class RenderedCamera:
         theta_at: ThetaAt,
         frame_index: int,
         window: Window | None = None,
+        noise_key: int = 0,
     ) -> NDArray[np.uint8]:
         """What the sensor records at ``time``: RGB, uint8, ``(v1 - v0, u1 - u0, 3)`` for
         ``window`` ``(u0, u1, v0, v1)``, the full frame for None; blurred and noisy as the
-        settings say. A window's pixels are the full frame's (but for TinyRenderer's float32 edge
-        pixels, module docstring)."""
-        return self.images(pose_at, time, theta_at, frame_index, [window])[0]
+        settings say (the noise of ``noise_key``, `SceneEpisode.noise_key`). A window's pixels
+        are the full frame's (but for TinyRenderer's float32 edge pixels, module docstring)."""
+        return self.images(pose_at, time, theta_at, frame_index, [window], noise_key)[0]
 
     def images(
         self,
@@ -547,9 +569,11 @@ class RenderedCamera:
         theta_at: ThetaAt,
         frame_index: int,
         windows: Sequence[Window | None],
+        noise_key: int = 0,
     ) -> list[NDArray[np.uint8]]:
         """`image` of several windows of one image, the scene set once per sub-frame."""
-        return self._images(self._scenes(pose_at, time, theta_at), windows, frame_index)
+        scenes = self._scenes(pose_at, time, theta_at)
+        return self._images(scenes, windows, frame_index, noise_key)
 
     def _scenes(self, pose_at: PoseAt, time: float, theta_at: ThetaAt) -> list[Scene]:
         """``(marker centres, global, (N, 3); theta; capture point; R_gt)`` per sub-frame."""
@@ -561,9 +585,14 @@ class RenderedCamera:
         return scenes
 
     def _images(
-        self, scenes: Sequence[Scene], windows: Sequence[Window | None], frame_index: int
+        self,
+        scenes: Sequence[Scene],
+        windows: Sequence[Window | None],
+        frame_index: int,
+        noise_key: int,
     ) -> list[NDArray[np.uint8]]:
-        """Render each window at each sub-frame, average, add the noise, round to uint8."""
+        """Render each window at each sub-frame, average, add the noise of ``noise_key``, round
+        to uint8."""
         full = [check_window(w, self.model) for w in windows]
         if not full:
             return []
@@ -593,7 +622,7 @@ class RenderedCamera:
             value = np.asarray(total, dtype=float) / len(scenes)
             if noise > 0.0:
                 width = self.model.resolution[0]
-                value = value + noise * pixel_noise(self._noise_key, frame_index, window, width)
+                value = value + noise * pixel_noise(noise_key, frame_index, window, width)
             out.append(np.clip(np.rint(value), 0, 255).astype(np.uint8))
         return out
 

@@ -10,17 +10,21 @@ markers' pixels; the windows, which depend on the markers alone) is the same wit
 without it. So `RenderedSceneCamera` detects frame k of a seed
 
 * **with the arm**, rendered now, where a link may hide a marker at any of the frame's sub-frame
-  instants (or where no ``target_only`` store is given: the reference path, every frame rendered
-  with the arm);
+  instants (or where the episode has no ``target_only`` store: the reference path, every frame
+  rendered with the arm);
 * **without it** otherwise: the target-only detection of frame k, rendered once (the arm moved far
-  out of view) and kept in ``target_only``, a store shared by every episode of that seed
-  (`capture_bench.engine.cache.EpisodeCache.scene_frames`): the leaderboard plays every
+  out of view) and kept in the episode's ``target_only``, a store shared by every episode of that
+  seed (`capture_bench.engine.cache.EpisodeCache.scene_frames`): the leaderboard plays every
   agent on the same seeds, and the first one renders what the others reuse.
 
 Both give the same detections for a frame the arm cannot reach (``tests/test_scene_camera.py``
 plays episodes both ways and compares them frame by frame). The random stream is the sensor's
 (`RenderedCamera`): one key per episode at
 `reset`, one drop-out uniform per frame, whatever is rendered.
+
+An episode's state is the `SceneEpisode` that `RenderedSceneCamera.reset` returns and each
+`RenderedSceneCamera.capture_scene` takes: episodes interleaved on one camera (the batched env's
+sub-envs share one pybullet world, ~28 MB) each see the frames they would see alone.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from capture_bench.sensing.rendered_sensor import (
     PoseAt,
     RenderedCamera,
     RenderSettings,
+    SceneEpisode,
     ThetaAt,
 )
 from capture_bench.sim.target_motion import FEATURE_POINTS, TargetTrajectory
@@ -55,14 +60,12 @@ class RenderedSceneCamera(RenderedCamera):
     target side's call) and reuses target-only detections where the arm cannot reach.
 
     Attributes:
-        target_only: frame index -> the detections of the target alone, for the seed being
-            played (filled as frames are asked for); None: every frame rendered with the arm.
-        renders: frames rendered with the arm / without it since construction (counts).
+        renders: frames rendered with the arm / without it / reused, since construction, over
+            every episode (counts).
     """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.target_only: dict[int, Detections] | None = None
         self.renders = {"with_arm": 0, "target_only": 0, "reused": 0}
         client = self._world.client
         self._links = list(range(-1, client.getNumJoints(self._world.arm)))
@@ -86,37 +89,57 @@ class RenderedSceneCamera(RenderedCamera):
         features = FEATURE_POINTS[scenario.target.feature_points]
         return cls(model, features, settings, cam.dropout, cam.latency_frames)
 
+    def reset(
+        self,
+        rng: np.random.Generator | None = None,
+        target_only: dict[int, Detections] | None = None,
+    ) -> SceneEpisode:
+        """A new episode's state (`RenderedCamera.reset`: the noise key's one draw from
+        ``rng``) whose frames the arm cannot reach are read from and kept in ``target_only``
+        (frame index -> the detections of the target alone, the seed's store); None: every
+        frame rendered with the arm."""
+        episode = super().reset(rng)
+        episode.target_only = target_only
+        return episode
+
     def capture_scene(
         self,
+        state: SceneEpisode,
         k: int,
         time: float,
         trajectory: TargetTrajectory,
         arm_at: ThetaAt,
         rng: np.random.Generator,
     ) -> Frame | None:
-        """Frame k of the episode, taken at ``time`` (s) of the target on ``trajectory`` with
-        the arm at ``arm_at(t)``: `RenderedCamera.capture` (drop-out, latency)."""
+        """Frame k of the episode ``state``, taken at ``time`` (s) of the target on
+        ``trajectory`` with the arm at ``arm_at(t)``: `RenderedCamera.capture` (drop-out,
+        latency)."""
 
         def pose_at(t: float) -> tuple[FloatArray, FloatArray]:
             return trajectory.position(t), trajectory.rotation(t)
 
-        return self.capture(pose_at, time, arm_at, rng, k)
+        return self.capture(state, pose_at, time, arm_at, rng, k)
 
     def detect(
-        self, pose_at: PoseAt, time: float, theta_at: ThetaAt, frame_index: int
+        self,
+        pose_at: PoseAt,
+        time: float,
+        theta_at: ThetaAt,
+        frame_index: int,
+        episode: SceneEpisode | None = None,
     ) -> Detections:
         """The markers found in frame ``frame_index``: rendered with the arm where it may hide
-        one (or without a ``target_only`` store), else the target-only detection (module
-        docstring)."""
-        store = self.target_only
+        one (or without ``episode`` or its ``target_only`` store), else the target-only
+        detection (module docstring)."""
+        store = None if episode is None else episode.target_only
         if store is None or self.arm_may_hide(pose_at, time, theta_at):
             self.renders["with_arm"] += 1
-            return super().detect(pose_at, time, theta_at, frame_index)
+            return super().detect(pose_at, time, theta_at, frame_index, episode)
         found = store.get(frame_index)
         if found is None:
             self.renders["target_only"] += 1
             with self._arm_away():
-                found = super().detect(pose_at, time, theta_at, frame_index)
+                found = super().detect(pose_at, time, theta_at, frame_index, episode)
             store[frame_index] = found
         else:
             self.renders["reused"] += 1
@@ -248,75 +271,3 @@ def _cross(image: NDArray[np.uint8], u: float, v: float, colour: tuple[int, int,
     a, b = round(u), round(v)
     cv2.line(image, (a - 4, b - 4), (a + 4, b + 4), colour, 1, cv2.LINE_8)
     cv2.line(image, (a - 4, b + 4), (a + 4, b - 4), colour, 1, cv2.LINE_8)
-
-
-#: A camera's per-episode state: what `RenderedCamera.reset` and ``capture`` change.
-_EPISODE_STATE = (
-    "_pipeline",
-    "_count",
-    "_noise_key",
-    "last_visible",
-    "last_dropped",
-    "last_detections",
-    "target_only",
-)
-
-
-class SceneCameraView:
-    """One episode's rendered camera over a `RenderedSceneCamera` that many share (the
-    batched env's sub-envs: one pybullet world, ~28 MB, renders for all): its own latency
-    pipeline, frame count, noise key, last detections and target-only store, swapped into the
-    shared camera for each call. Used where a `RenderedSceneCamera` is (the
-    `SceneCamera` calls)."""
-
-    def __init__(self, camera: RenderedSceneCamera) -> None:
-        self.camera = camera
-        self.model = camera.model
-        self._state = {name: getattr(camera, name) for name in _EPISODE_STATE}
-        self._state["_pipeline"] = type(camera._pipeline)()
-        self._state["target_only"] = None
-
-    @property
-    def target_only(self) -> dict[int, Detections] | None:
-        return self._state["target_only"]
-
-    @target_only.setter
-    def target_only(self, store: dict[int, Detections] | None) -> None:
-        self._state["target_only"] = store
-
-    @property
-    def last_visible(self) -> bool:
-        return bool(self._state["last_visible"])
-
-    @property
-    def last_detections(self) -> Detections | None:
-        return self._state["last_detections"]
-
-    def reset(self, rng: np.random.Generator) -> None:
-        with self._active():
-            self.camera.reset(rng)
-
-    def capture_scene(
-        self,
-        k: int,
-        time: float,
-        trajectory: TargetTrajectory,
-        arm_at: ThetaAt,
-        rng: np.random.Generator,
-    ) -> Frame | None:
-        with self._active():
-            return self.camera.capture_scene(k, time, trajectory, arm_at, rng)
-
-    @contextlib.contextmanager
-    def _active(self) -> Iterator[None]:
-        """This view's episode state in the shared camera for the duration (then taken back)."""
-        camera = self.camera
-        saved = {name: getattr(camera, name) for name in _EPISODE_STATE}
-        for name, value in self._state.items():
-            setattr(camera, name, value)
-        try:
-            yield
-        finally:
-            self._state = {name: getattr(camera, name) for name in _EPISODE_STATE}
-            for name, value in saved.items():
-                setattr(camera, name, value)

@@ -142,7 +142,7 @@ def record_episodes(
 
     Args:
         scenario: the scenario (the estimator's source and settings come from it).
-        camera: the sensor (its settings; it is reset for each episode).
+        camera: the sensor (each episode captured from its start, `Camera.capture_sequence`).
         features: feature points, target frame, m, (N, 3).
         description: the task (arm and capture tolerance) for the bound.
         rngs: one generator per episode; each advances exactly as ``CaptureEnv`` with
@@ -198,7 +198,6 @@ def record_truth(
         images = np.full((time.size, features.shape[0], 2), np.nan)
         visible = np.ones(time.size, dtype=bool)
     else:
-        camera.reset()
         images, visible = camera.capture_sequence(points, rng)
     return EpisodeTruth(plan, time, dt, position, velocity, rotation, images, visible)
 

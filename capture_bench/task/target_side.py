@@ -24,14 +24,16 @@ seeded generator, in an order no action changes).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench.sensing.camera import Camera, CameraModel, Frame
+from capture_bench.sensing.camera import Camera, CameraEpisode, CameraModel, Frame
+from capture_bench.sensing.detector import Detections
 from capture_bench.sensing.estimator import STATUSES, TargetEstimator
 from capture_bench.sensing.photogrammetry import cold_solves
+from capture_bench.sensing.rendered_sensor import SceneEpisode
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.task.episode import EpisodePlan
@@ -48,23 +50,38 @@ class SceneCamera(Protocol):
     `TargetSide` asks instead of `Camera.capture` of the feature points."""
 
     model: CameraModel
-    last_visible: bool
 
-    def reset(self, rng: np.random.Generator) -> None:
-        """Start an episode (its draws from ``rng`` come right after the plan's)."""
+    def reset(
+        self, rng: np.random.Generator, target_only: dict[int, Detections] | None = None
+    ) -> SceneEpisode:
+        """A new episode's state (its draws from ``rng`` come right after the plan's), reading
+        and keeping the frames of the target alone in ``target_only`` (None: none kept)."""
         ...
 
     def capture_scene(
         self,
+        state: SceneEpisode,
         k: int,
         time: float,
         trajectory: TargetTrajectory,
         arm_at: ArmAt,
         rng: np.random.Generator,
     ) -> Frame | None:
-        """Frame k (taken at ``time``, s), the target on ``trajectory`` and the arm at
-        ``arm_at(t)``; the frame delivered now, as `Camera.capture` returns it."""
+        """Frame k of the episode ``state`` (taken at ``time``, s), the target on ``trajectory``
+        and the arm at ``arm_at(t)``; the frame delivered now, as `Camera.capture` returns
+        it."""
         ...
+
+
+class _Sensors(NamedTuple):
+    """What a live side computes its rows with: the camera and its episode state, the
+    estimator, the feature points (target frame, m, (N, 3)) and the episode's generator."""
+
+    camera: Camera | SceneCamera
+    episode: CameraEpisode | SceneEpisode
+    estimator: TargetEstimator
+    features: FloatArray
+    rng: np.random.Generator
 
 
 class TargetSide:
@@ -76,11 +93,7 @@ class TargetSide:
     """
 
     def __init__(
-        self,
-        episode: RecordedEpisode,
-        filled: int,
-        sensors: tuple[Camera | SceneCamera, TargetEstimator, FloatArray, np.random.Generator]
-        | None = None,
+        self, episode: RecordedEpisode, filled: int, sensors: _Sensors | None = None
     ) -> None:
         self.episode = episode
         self.filled = filled  # rows 0 .. filled - 1 hold values
@@ -97,11 +110,12 @@ class TargetSide:
         estimator: TargetEstimator,
         features: FloatArray,
         rng: np.random.Generator,
+        target_only: dict[int, Detections] | None = None,
     ) -> TargetSide:
         """The next episode of ``rng``: its plan drawn (`EpisodePlan.draw`, a winnable
         one), then `live` on it with the same generator."""
         plan = EpisodePlan.draw(scenario, camera.model, features, rng)
-        return cls.live(plan, camera, estimator, features, rng)
+        return cls.live(plan, camera, estimator, features, rng, target_only)
 
     @classmethod
     def live(
@@ -111,9 +125,12 @@ class TargetSide:
         estimator: TargetEstimator,
         features: FloatArray,
         rng: np.random.Generator,
+        target_only: dict[int, Detections] | None = None,
     ) -> TargetSide:
-        """The episode of ``plan`` with nothing computed yet: the camera and the estimator are
-        reset, and each row, when asked for, draws its frame's noise from ``rng``."""
+        """The episode of ``plan`` with nothing computed yet: a new episode of the camera (a
+        scene camera's reading and keeping the target-only frames in ``target_only``, see
+        `SceneCamera.reset`), the estimator reset, and each row, when asked for, drawing its
+        frame's noise from ``rng``."""
         time, dt = plan.step_times()
         n, m = time.size, features.shape[0]
         nan3 = np.full((n, 3), np.nan)
@@ -136,19 +153,22 @@ class TargetSide:
             nees=np.full(n, np.nan),
             bound=None,
         )
-        if isinstance(camera, Camera):
-            camera.reset()
-        else:
-            camera.reset(rng)
+        state = camera.reset() if isinstance(camera, Camera) else camera.reset(rng, target_only)
         estimator.reset()
-        return cls(episode, 0, (camera, estimator, features, rng))
+        return cls(episode, 0, _Sensors(camera, state, estimator, features, rng))
 
     @property
     def needs_arm(self) -> bool:
         """Whether the rows depend on the arm (a scene camera): the env then sets
         `arm_at` before asking for each step's row, and the side cannot be recorded
         ahead of the steps."""
-        return self._sensors is not None and not isinstance(self._sensors[0], Camera)
+        return self._sensors is not None and not isinstance(self._sensors.camera, Camera)
+
+    @property
+    def camera_episode(self) -> CameraEpisode | SceneEpisode | None:
+        """A live side's camera state (its latest capture's flags and, for a scene camera,
+        detections); None for a side recorded or replayed."""
+        return None if self._sensors is None else self._sensors.episode
 
     @classmethod
     def replay(cls, episode: RecordedEpisode) -> TargetSide:
@@ -193,8 +213,9 @@ class TargetSide:
             side._record_truth()
         starts = [image for side in fresh if (image := side._first_frame()) is not None]
         if starts:
-            camera, _, features, _ = fresh[0]._sensors  # type: ignore[misc]
-            cold_solves(np.stack(starts), features, camera.model.focal_length)
+            sensors = fresh[0]._sensors
+            assert sensors is not None
+            cold_solves(np.stack(starts), sensors.features, sensors.camera.model.focal_length)
         for side in fresh:
             side._record_estimates()
         episodes = []
@@ -208,7 +229,7 @@ class TargetSide:
         as `_fill_next` computes and draws them one by one, bit for bit
         (`record_truth`)."""
         assert self._sensors is not None
-        camera, _, features, rng = self._sensors
+        camera, _, _, features, rng = self._sensors
         assert isinstance(camera, Camera)  # record_many refuses a scene camera's side
         ep = self.episode
         truth = record_truth(ep.plan, camera, features, rng)
@@ -231,7 +252,7 @@ class TargetSide:
     def _record_estimates(self) -> None:
         """Every row's estimate after `_record_truth`: the estimator (reset) row by row."""
         assert self._sensors is not None
-        estimator = self._sensors[1]
+        estimator = self._sensors.estimator
         estimator.reset()
         ep = self.episode
         framed = np.isfinite(ep.images).all(axis=(1, 2)).tolist()
@@ -245,22 +266,24 @@ class TargetSide:
         source, whose env never calls the camera), the estimator's update, its errors."""
         if self._sensors is None or self.complete:
             raise IndexError(f"step {self.filled} is past the episode's time limit")
-        camera, estimator, features, rng = self._sensors
+        camera, state, estimator, features, rng = self._sensors
         ep, k = self.episode, self.filled
         time = float(ep.time[k])
         x_t, v_t, rotation = ep.plan.trajectory.state(time)
         if ep.plan.scenario.estimator.source == "truth":
             frame = None
         elif isinstance(camera, Camera):
-            frame = camera.capture(x_t + features @ rotation.T, rng)
+            assert isinstance(state, CameraEpisode)
+            frame = camera.capture(state, x_t + features @ rotation.T, rng)
         else:
             if self.arm_at is None:
                 raise RuntimeError("a scene camera's row needs the arm: set arm_at first")
-            frame = camera.capture_scene(k, time, ep.plan.trajectory, self.arm_at, rng)
+            assert isinstance(state, SceneEpisode)
+            frame = camera.capture_scene(state, k, time, ep.plan.trajectory, self.arm_at, rng)
         ep.position[k], ep.velocity[k], ep.rotation[k] = x_t, v_t, rotation
         if frame is not None:
             ep.images[k] = frame.image_points
-        ep.visible[k] = camera.last_visible
+        ep.visible[k] = state.last_visible
         ep.reachable[k] = kinematics.reachable(x_t)
         self._estimate_row(k, estimator, frame, x_t, v_t)
         self.filled = k + 1
