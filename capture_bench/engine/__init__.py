@@ -5,6 +5,7 @@ A stage between the rules of the benchmark (`capture_bench.task`) and the gymnas
 scenario as an env plays it (`CaptureTask`: the scenario, its published description, the step
 rule, the camera and the spaces of one episode) and `check_actions`, the one rule for an action's
 validity; `capture_bench.engine.cache` holds the target sides and physical-limit bounds already
-computed, kept by (scenario, seed) (`EpisodeCache`). It imports the task, sensing and simulation
-stages, never an environment.
+computed, kept by (scenario, seed) (`EpisodeCache`); `capture_bench.engine.view` the privileged
+view of one episode (`PrivilegedView`: the oracle's API, the same on both envs). It imports the
+task, sensing and simulation stages, never an environment.
 """

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from capture_bench.engine.cache import DEFAULT_EPISODE_CACHE, EpisodeCache, EpisodeKey
 from capture_bench.engine.task import CaptureTask, check_actions
+from capture_bench.engine.view import PrivilegedView
 from capture_bench.envs.core import Observation, TaskAccess
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.rendered_sensor import SceneEpisode
@@ -34,7 +35,6 @@ from capture_bench.sensing.workspace_image import WorkspaceImager
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World
-from capture_bench.task.episode import EpisodePlan
 from capture_bench.task.physical_limit import PhysicalLimit
 from capture_bench.task.recording import RecordedEpisode
 from capture_bench.task.scenarios import Scenario
@@ -81,7 +81,7 @@ def _check_render_size(size: Any) -> tuple[int, int]:
     return int(width), int(height)
 
 
-class CaptureEnv(TaskAccess, gym.Env):
+class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
     """Capture a drifting or tumbling target with the 3-joint arm of Dong & Zhu (2016).
 
     ## Description
@@ -311,50 +311,25 @@ class CaptureEnv(TaskAccess, gym.Env):
         self._time = 0.0
         self._episode_over = True
 
-    # -- privileged API (oracle and tests only) ------------------------------------------------
-    def physical_limit(self) -> PhysicalLimit:
-        """The episode's lower bound on capture time (computed once per episode, lazily; kept in
-        `episode_cache` by (scenario, seed) after a seeded reset)."""
-        episode = self.recorded_episode
-        if episode.bound is None:
-            episode.bound = self.episode_cache.bound_of(self._key, episode.plan, self.description)
-        return episode.bound
+    # -- privileged API (oracle and tests only): PrivilegedView's, over these hooks ----------
+    def _view_episode(self) -> RecordedEpisode | None:
+        return None if self._side is None else self._side.episode
 
-    @property
-    def plan(self) -> EpisodePlan:
-        """This episode's trajectory and control periods, as reset drew them (privileged)."""
-        return self.recorded_episode.plan
+    def _view_step(self) -> int:
+        return self._steps
 
-    @property
-    def recorded_episode(self) -> RecordedEpisode:
-        """This episode's target side (privileged): rows up to the current step are filled (every
-        row with ``reuse_target_side``)."""
-        if self._side is None:
-            raise RuntimeError("call reset() first")
-        return self._side.episode
+    def _view_time(self) -> float:
+        return self._time
+
+    def _view_bound(self, episode: RecordedEpisode) -> PhysicalLimit:
+        """Computed once per episode, lazily; kept in `episode_cache` by (scenario, seed) after
+        a seeded reset."""
+        return self.episode_cache.bound_of(self._key, episode.plan, self.description)
 
     @property
     def episode_key(self) -> EpisodeKey | None:
         """(scenario, seed) of this episode, or None after an unseeded reset."""
         return self._key
-
-    def true_target_position(self, t: float | NDArray) -> NDArray[np.float64]:
-        """X_T(t), global, m (privileged)."""
-        if self._side is None:
-            raise RuntimeError("call reset() before true_target_position()")
-        return self.plan.trajectory.position(t)
-
-    @property
-    def time(self) -> float:
-        """Simulated time since reset, s."""
-        return self._time
-
-    @property
-    def next_control_period(self) -> float:
-        """The real period of the next step, s (privileged: the periods are drawn at reset)."""
-        if self._side is None:
-            raise RuntimeError("call reset() before next_control_period")
-        return float(self.plan.periods[self._steps])
 
     @property
     def joint_angles(self) -> NDArray[np.float64]:

@@ -53,6 +53,7 @@ from numpy.typing import NDArray
 
 from capture_bench.engine.cache import EpisodeCache
 from capture_bench.engine.task import CaptureTask, check_actions
+from capture_bench.engine.view import EpisodeView
 from capture_bench.envs.core import Observation, TaskAccess
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
@@ -62,9 +63,7 @@ from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.sim.world import World, limit_joint_increments
-from capture_bench.task.episode import EpisodePlan, draw_plans, episode_bounds, period_count
-from capture_bench.task.observation import TaskDescription
-from capture_bench.task.physical_limit import PhysicalLimit
+from capture_bench.task.episode import draw_plans, episode_bounds, period_count
 from capture_bench.task.recording import (
     STEP_TRACKS,
     RecordedEpisode,
@@ -406,12 +405,24 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         was reset with, None where the episode continues its sub-env's generator."""
         return list(self._episode_seeds)
 
-    def sub_env(self, i: int) -> SubEnvView:
+    def sub_env(self, i: int) -> EpisodeView:
         """Sub-env ``i`` seen through a single env's privileged API (a privileged agent's view,
         the oracle's), read live from this env."""
         if not 0 <= i < self.num_envs:
             raise IndexError(f"sub-env {i} of {self.num_envs}")
-        return SubEnvView(self, i)
+        return EpisodeView(self, i)
+
+    def row_episode(self, i: int) -> RecordedEpisode | None:
+        """Sub-env ``i``'s current recording (privileged), None before its first reset."""
+        return self._episodes[i]
+
+    def row_step(self, i: int) -> int:
+        """Steps since sub-env ``i``'s reset."""
+        return int(self._steps[i])
+
+    def row_time(self, i: int) -> float:
+        """Simulated time since sub-env ``i``'s reset, s."""
+        return float(self._tracks["time"][i, self._steps[i]])
 
     def close_extras(self, **kwargs: Any) -> None:
         if self._world is not None:
@@ -735,61 +746,6 @@ _TRACK_DTYPES: dict[str, Any] = {
     **dict.fromkeys(("estimate_valid", "visible", "reachable"), np.bool_),
     "estimator_status": np.int8,
 }
-
-
-class SubEnvView:
-    """One sub-env of a [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] with
-    the privileged API of
-    [`CaptureEnv`][capture_bench.envs.capture_env.CaptureEnv] that the oracle reads (``time``,
-    ``next_control_period``, ``true_target_position``, ``physical_limit``, ``plan``,
-    ``recorded_episode``) and the public ``description``, each read from the vector env at the
-    moment it is asked: the same numbers as the single env playing that sub-env's episode.
-    ``unwrapped`` is the view itself, as an agent built on an env expects."""
-
-    def __init__(self, env: CaptureVectorEnv, index: int) -> None:
-        self._env, self.index = env, index
-
-    @property
-    def unwrapped(self) -> SubEnvView:
-        return self
-
-    @property
-    def description(self) -> TaskDescription:
-        """The task's public description."""
-        return self._env.description
-
-    @property
-    def recorded_episode(self) -> RecordedEpisode:
-        """The sub-env's current episode's target side (privileged)."""
-        episode = self._env._episodes[self.index]
-        if episode is None:
-            raise RuntimeError("call reset() before reading a sub-env's episode")
-        return episode
-
-    @property
-    def plan(self) -> EpisodePlan:
-        """The episode's trajectory and control periods (privileged)."""
-        return self.recorded_episode.plan
-
-    def physical_limit(self) -> PhysicalLimit:
-        """The episode's lower bound on capture time (privileged)."""
-        bound = self.recorded_episode.bound
-        assert bound is not None  # every recording the vector env plays carries its bound
-        return bound
-
-    def true_target_position(self, t: float | NDArray) -> NDArray[np.float64]:
-        """X_T(t), global, m (privileged)."""
-        return self.plan.trajectory.position(t)
-
-    @property
-    def time(self) -> float:
-        """Simulated time since the episode's reset, s."""
-        return float(self._env._tracks["time"][self.index, self._env._steps[self.index]])
-
-    @property
-    def next_control_period(self) -> float:
-        """The real period of the next step, s (privileged)."""
-        return float(self.plan.periods[self._env._steps[self.index]])
 
 
 def sub_env_infos(info: dict[str, Any], n: int) -> list[dict[str, Any]]:
