@@ -184,16 +184,16 @@ def test_a_reseed_discards_the_episodes_recorded_ahead(short_scenario):
 def test_episodes_are_recorded_in_batches(short_scenario, monkeypatch):
     """Every training episode is explicitly seeded, yet recorded many at a time (a spy on
     ``record_episodes``; not a timing)."""
-    from capture_bench.envs import vector_env
+    from capture_bench.engine import sides
 
     sizes: list[int] = []
-    original = vector_env.record_episodes
+    original = sides.record_episodes
 
     def spy(*args, **kwargs):
         sizes.append(len(args[-1]))
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(vector_env, "record_episodes", spy)
+    monkeypatch.setattr(sides, "record_episodes", spy)
     env = CaptureSB3VecEnv(N, short_scenario, seed=SEED)
     env.reset()
     started = N

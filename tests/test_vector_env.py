@@ -281,11 +281,11 @@ def test_the_live_ekf_equals_the_recorded_full_horizon_bit_for_bit(scenario, mon
     limit gave it (``LIVE_ESTIMATES_FROM = None``):
     observations, rewards, ends and info, across autoresets, with drop-outs and divergences
     (noisy) and episodes of different lengths (jitter)."""
-    from capture_bench.envs import vector_env
+    from capture_bench.engine import sides
 
     out = []
     for first_live_row in (1, 3, None):  # None: every row recorded, the reference
-        monkeypatch.setattr(vector_env, "LIVE_ESTIMATES_FROM", first_live_row)
+        monkeypatch.setattr(sides, "LIVE_ESTIMATES_FROM", first_live_row)
         env = CaptureVectorEnv(5, scenario)
         out.append(_transitions(env, 260))
         env.close()
@@ -300,11 +300,11 @@ def test_the_live_ekf_equals_the_recorded_one_with_many_sub_envs(monkeypatch):
     """64 sub-envs with seed sources, as training steps them: the recording's EKF then updates
     ~128 filters at once, where OpenBLAS splits a product's rows between threads (and rounds
     the last row of each odd share its own way); the live filter still gives the same floats."""
-    from capture_bench.envs import vector_env
+    from capture_bench.engine import sides
 
     out = []
     for first_live_row in (1, None):
-        monkeypatch.setattr(vector_env, "LIVE_ESTIMATES_FROM", first_live_row)
+        monkeypatch.setattr(sides, "LIVE_ESTIMATES_FROM", first_live_row)
         env = CaptureVectorEnv(64, "noisy")
         out.append(_transitions(env, 120, sources=True))
         env.close()

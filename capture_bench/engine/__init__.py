@@ -6,6 +6,9 @@ scenario as an env plays it (`CaptureTask`: the scenario, its published descript
 rule, the camera and the spaces of one episode) and `check_actions`, the one rule for an action's
 validity; `capture_bench.engine.cache` holds the target sides and physical-limit bounds already
 computed, kept by (scenario, seed) (`EpisodeCache`); `capture_bench.engine.view` the privileged
-view of one episode (`PrivilegedView`: the oracle's API, the same on both envs). It imports the
-task, sensing and simulation stages, never an environment.
+view of one episode (`PrivilegedView`: the oracle's API, the same on both envs);
+`capture_bench.engine.engine` steps N episodes as rows (`EpisodeEngine`) from the arm's side
+(`capture_bench.engine.arm`), the target's side (`capture_bench.engine.sides`, filling
+`capture_bench.engine.tracks`) and the step rule. It imports the task, sensing and simulation
+stages, never an environment.
 """

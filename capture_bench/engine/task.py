@@ -22,7 +22,7 @@ from capture_bench.sensing.rendered_sensor import RenderSettings
 from capture_bench.sensing.sources import ENV_OBSERVATIONS, PIXELS
 from capture_bench.sensing.workspace_image import WorkspaceImager, check_image_size
 from capture_bench.sim.target_motion import FEATURE_POINTS
-from capture_bench.task.episode import describe_task
+from capture_bench.task.episode import describe_task, period_count
 from capture_bench.task.observation import (
     encode_state,
     observation_space,
@@ -85,6 +85,11 @@ def check_actions(actions: Any, shape: tuple[int, ...], name: str) -> FloatArray
     return a
 
 
+#: An observation: the estimate's vector, (16,) (or (N, 16) for N episodes), or with pixels
+#: ``{"image": (3, H, W) uint8, "state": (7,) float32}`` (each with a leading N).
+Observation = NDArray[np.float32] | dict[str, NDArray]
+
+
 class CaptureTask:
     """The task of ``scenario`` as an env plays it, for any number of episodes.
 
@@ -113,6 +118,7 @@ class CaptureTask:
             observation of one episode (`
             observation_space`, or the pixel ``Dict``).
         pixels: whether the agent observes pixels; image_size: (width, height), pixels.
+        steps: the most rows (reset included) an episode has.
     """
 
     def __init__(
@@ -146,6 +152,12 @@ class CaptureTask:
         self.single_observation_space: spaces.Space = (
             pixel_observation_space(self.image_size) if self.pixels else observation_space()
         )
+
+    @property
+    def steps(self) -> int:
+        """The most rows an episode has: reset and one per control period up to the time
+        limit."""
+        return period_count(self.scenario.control) + 1
 
     def imager(self) -> WorkspaceImager:
         """A renderer of this task's pixel observation (it opens a pybullet world: the caller

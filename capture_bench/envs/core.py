@@ -3,24 +3,20 @@
 Each env owns a `capture_bench.engine.task.CaptureTask` (``env.task``); `TaskAccess` gives
 both envs the same public names for it (``scenario``, ``description``, ``rule``,
 ``reward_mode``) and the training curriculum's two levers, `TaskAccess.set_capture_hold` and
-`TaskAccess.set_capture_tolerance`. `Observation` is the type of what they observe.
+`TaskAccess.set_capture_tolerance`. `Observation` (the engine's) is the type of what they
+observe.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-from numpy.typing import NDArray
-
-from capture_bench.engine.task import CaptureTask
+from capture_bench.engine.task import CaptureTask, Observation
 from capture_bench.task.observation import TaskDescription
 from capture_bench.task.scenarios import Scenario
 from capture_bench.task.step_rule import StepRule
 
-#: An observation: the estimate's vector, (16,) (or (N, 16) for N episodes), or with pixels
-#: ``{"image": (3, H, W) uint8, "state": (7,) float32}`` (each with a leading N).
-Observation = NDArray[np.float32] | dict[str, NDArray]
+__all__ = ["Observation", "TaskAccess"]
 
 
 class TaskAccess:

@@ -7,20 +7,14 @@ seeded like gymnasium's ``SyncVectorEnv`` seeds its i-th env, with next-step aut
 ``info`` (tests compare them, to rounding: the single env's filter is filterpy's, this env's the
 batched one, and the single env computes X_E with ``math``).
 
-How it is fast: nothing on the target's side of a step depends on the actions, so each sub-env's
-next episodes are recorded ahead, many at once
-(`capture_bench.task.recording.record_episodes`: camera vectorised over time, the first
-frame's cold photogrammetry and the bound over episodes). The EKF is the one part that runs with
-the steps: one batched filter, a row per sub-env, takes each sub-env's episode from its first row
-(`LIVE_ESTIMATES_FROM`) one row per step played, so no filter runs past its episode's end;
-its numbers are those of the recording of every row, bit for bit (a filter's rows do not depend
-on the other rows of a call). A step then does the arm's side for all sub-envs together: the
-joint limits, forward kinematics and a pybullet collision query only for the sub-envs whose arm
-is near the floor or the base column
-(`capture_bench.sim.collision_screen.clear_of_collisions`); then the task's rules
-(capture along the arc, eq. 20; failures; reward; ``info``; observation) are
-`capture_bench.task.step_rule.StepRule`'s, the same code ``CaptureEnv`` runs for its one
-episode; what both envs are made of is `capture_bench.engine.task.CaptureTask`.
+What it is: seeds, autoreset and gymnasium's vector ``info`` around one
+`capture_bench.engine.engine.EpisodeEngine` of N rows, which holds the episodes and steps them
+(the arm's side for all rows together; the target's side recorded ahead, many episodes at once,
+with one batched filter continuing each recording one row per step played,
+`capture_bench.engine.sides`; the task's rules, `capture_bench.task.step_rule.StepRule`, the
+code ``CaptureEnv`` runs for its one episode). Since nothing on the target's side of a step
+depends on the actions, each sub-env's next episodes are recorded ahead in batches (unless the
+camera renders the arm: then each row is computed as its step comes).
 
 Differences from N single envs, all in the format only:
 
@@ -31,7 +25,7 @@ Differences from N single envs, all in the format only:
   marked only where an episode ended);
   ``failure`` and ``estimator_status`` are object arrays of the single env's values. A sub-env
   that autoresets reports its reset ``info`` (``time``, ``distance``) that step.
-* No rendering, and no privileged API (oracle agents use the single env).
+* No rendering; the privileged API of sub-env i is ``sub_env(i)`` (the oracle's view).
 * With ``observation_source="pixels"`` one renderer, with one pybullet world, draws every
   sub-env's image in turn (`WorkspaceImager`),
   stacked as ``image`` (N, 3, H, W) beside ``state`` (N, 7).
@@ -51,43 +45,25 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
+from capture_bench.engine.arm import ArmSide
 from capture_bench.engine.cache import EpisodeCache
+from capture_bench.engine.engine import EpisodeEngine
+from capture_bench.engine.sides import EpisodeDraw, target_sides
 from capture_bench.engine.task import CaptureTask, check_actions
 from capture_bench.engine.view import EpisodeView
 from capture_bench.envs.core import Observation, TaskAccess
-from capture_bench.sensing.estimator import TargetEstimator
-from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
-from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
-from capture_bench.sensing.workspace_image import WorkspaceImager
-from capture_bench.sim import kinematics
-from capture_bench.sim.collision_screen import clear_of_collisions
-from capture_bench.sim.target_motion import TargetTrajectory
-from capture_bench.sim.world import World, limit_joint_increments
-from capture_bench.task.episode import draw_plans, episode_bounds, period_count
-from capture_bench.task.recording import (
-    STEP_TRACKS,
-    RecordedEpisode,
-    estimate_errors,
-    record_episodes,
-)
+from capture_bench.task.recording import RecordedEpisode
 from capture_bench.task.scenarios import Scenario
-from capture_bench.task.step_rule import BEFORE_TRACKS, OPTIONAL_KEYS, ArmState
-from capture_bench.task.target_side import TargetSide
+from capture_bench.task.step_rule import OPTIONAL_KEYS
 
 FloatArray = NDArray[np.float64]
 RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs episodes)
 #: With seed sources, each sub-env's queue is topped up to ``ceil(RECORD_BATCH / num_envs)``
 #: episodes (at least ``RECORD_AHEAD``), so that a batch holds ~``RECORD_BATCH / 2`` episodes or
-#: more even with few sub-envs: the batched EKF costs 17.5 us per episode-step at 16 episodes and
-#: 9.7 us at 64 (README, ``bench_estimator_batch.py``). Memory: ~100 kB per recorded episode.
+#: more even with few sub-envs: the batched EKF's cost per episode-step falls with the batch
+#: (``benchmarks/bench_estimator_batch.py``; figures in docs/speed.md). Memory: ~100 kB per
+#: recorded episode.
 RECORD_BATCH = 64
-#: With the EKF source, a recording estimates its first ``LIVE_ESTIMATES_FROM`` rows only (row
-#: 0's cold photogrammetry is batched over the recording's episodes); the env's own EKF continues
-#: each episode from there, one row per step played, so no filter runs past its episode's end
-#: (learned policies end most episodes long before the time limit the recording reaches).
-#: None: recordings estimate every row (the reference ``tests/test_vector_env.py`` holds the
-#: live filter to, bit for bit).
-LIVE_ESTIMATES_FROM: int | None = 1
 
 
 class EpisodeSeedSource(Protocol):
@@ -201,80 +177,33 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self.single_action_space = task.single_action_space
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        self._camera, self._features = task.camera, task.features
-        # One pybullet world answers every sub-env's collision query in turn (a world per
-        # sub-env would cost ~28 MB each): the joints are set before each query.
-        self._world: World | None = World(self._features)
-        # observation_source "pixels": one renderer draws every sub-env's image in turn
-        self._imager: WorkspaceImager | None = task.imager() if task.pixels else None
-        self._rngs: list[np.random.Generator | None] = [None] * n
-        # The seed of the generator's first episode, until it is recorded (None: unseeded).
-        self._generator_seeds: list[int | None] = [None] * n
-        self._sources: list[EpisodeSeedSource] | None = None
-        #: Recordings of seeded episodes by (scenario, seed), replayed when a seed comes again.
         rendered = sc.camera.mode == "rendered"
         if episode_cache is not None and not (reference_target_side or rendered):
             raise ValueError(
                 "episode_cache is shared only with reference_target_side=True (recordings a "
                 "CaptureEnv can replay) or a rendered camera; without it the env keeps its own"
             )
+        #: Recordings of seeded episodes by (scenario, seed), replayed when a seed comes again.
         self.episode_cache = (
             EpisodeCache(max_episodes=max(16, 2 * n), max_limits=0)
             if episode_cache is None
             else episode_cache
         )
+        # One pybullet world answers every sub-env's collision query in turn (a world per
+        # sub-env would cost ~28 MB each): the joints are set before each query.
+        self._engine: EpisodeEngine | None = EpisodeEngine(
+            task,
+            n,
+            target_sides(task, n, self.episode_cache, reference_target_side),
+            ArmSide(task.features, task.description.arm),
+        )
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        # The seed of the generator's first episode, until it is recorded (None: unseeded).
+        self._generator_seeds: list[int | None] = [None] * n
+        self._sources: list[EpisodeSeedSource] | None = None
         # (episode seed or None, episode) recorded ahead, in the order each sub-env plays them
         self._queues: list[deque[tuple[int | None, RecordedEpisode]]] = [deque() for _ in range(n)]
         self._episode_seeds: list[int | None] = [None] * n
-        # Row i holds sub-env i's episode, step by step (an episode has at most one step more
-        # than it has control periods).
-        steps = period_count(sc.control) + 1
-        self._tracks: dict[str, NDArray] = {
-            name: np.zeros((n, steps, *_TRACK_SHAPES[name]), dtype=_TRACK_DTYPES[name])
-            for name in STEP_TRACKS
-        }
-        # The EKF source runs each episode's filter only as far as the episode is played: the
-        # recording estimates row 0 (the batched cold photogrammetry), then this filter, one
-        # row per sub-env, continues it step by step with the frames of ``_images``.
-        self._ekf: BatchedTargetEstimator | None = None
-        self._reference: TargetEstimator | None = None
-        # camera.mode "rendered": each sub-env's target side is live (its frames show the arm):
-        # one rendered camera for all, each side holding its episode's camera state, and the
-        # single env's estimator per sub-env
-        self._sides: list[TargetSide | None] | None = None
-        self._scene: RenderedSceneCamera | None = None
-        if rendered:
-            self._scene = RenderedSceneCamera.for_scenario(sc)
-            self._estimators = [
-                TargetEstimator(
-                    self._camera.model,
-                    self._features,
-                    source=sc.estimator.source,
-                    **sc.estimator_settings(),
-                )
-                for _ in range(n)
-            ]
-            self._sides = [None] * n
-        elif reference_target_side:
-            self._reference = TargetEstimator(
-                self._camera.model,
-                self._features,
-                source=sc.estimator.source,
-                **sc.estimator_settings(),
-            )
-        elif sc.estimator.source == "ekf" and LIVE_ESTIMATES_FROM is not None:
-            self._ekf = BatchedTargetEstimator(
-                n, self._camera.model, self._features, **sc.estimator_settings()
-            )
-            self._images = np.full((n, steps, self._features.shape[0], 2), np.nan)
-        # The first row of each sub-env's episode that the live filter estimates (the
-        # recording's continuation step; past the episode's end where the recording holds
-        # every row).
-        self._live_from = np.zeros(n, dtype=np.int64)
-        self._bound = np.full(n, np.nan)
-        self._episodes: list[RecordedEpisode | None] = [None] * n
-        self._steps = np.zeros(n, dtype=np.int64)
-        self._state = ArmState.empty(n)
         # NEXT_STEP: reset these sub-envs at the next step; DISABLED: they wait for reset()
         self._ended = np.ones(n, dtype=bool)
         self._started = False
@@ -330,7 +259,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self._start(envs, explicit)
         self._ended[envs] = False
         self._started = True
-        return self._observe(), self._reset_info(envs)
+        return self._live_engine().observe(), self._reset_info(envs)
 
     def step(
         self, actions: NDArray
@@ -342,7 +271,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         (`capture_bench.engine.task.check_actions`, the rule of `CaptureEnv`),
         and nothing is stepped. After ``close()``: ``RuntimeError``.
         """
-        if self._world is None:
+        if self._engine is None:
             raise RuntimeError("CaptureVectorEnv.step() called after close(); the env is closed")
         if not self._started:
             raise RuntimeError("CaptureVectorEnv.step() called before reset(); call reset() first")
@@ -358,7 +287,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         terminated = np.zeros(n, dtype=bool)
         truncated = np.zeros(n, dtype=bool)
         info = self._step(stepping, a[stepping], rewards, terminated, truncated)
-        obs = self._observe()
+        obs = self._engine.observe()
         if resetting.size:
             for key, value in self._reset_info(resetting).items():
                 if key.startswith("_"):
@@ -414,202 +343,92 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
 
     def row_episode(self, i: int) -> RecordedEpisode | None:
         """Sub-env ``i``'s current recording (privileged), None before its first reset."""
-        return self._episodes[i]
+        return self._live_engine().episodes[i]
 
     def row_step(self, i: int) -> int:
         """Steps since sub-env ``i``'s reset."""
-        return int(self._steps[i])
+        return int(self._live_engine().steps[i])
 
     def row_time(self, i: int) -> float:
         """Simulated time since sub-env ``i``'s reset, s."""
-        return float(self._tracks["time"][i, self._steps[i]])
+        return self._live_engine().time(i)
 
     def close_extras(self, **kwargs: Any) -> None:
-        if self._world is not None:
-            self._world.close()
-            self._world = None
-        if self._scene is not None:
-            self._scene.close()
-            self._scene = None
-        if self._imager is not None:
-            self._imager.close()
-            self._imager = None
+        if self._engine is not None:
+            self._engine.close()
+            self._engine = None
+
+    def _live_engine(self) -> EpisodeEngine:
+        if self._engine is None:
+            raise RuntimeError("CaptureVectorEnv is closed")
+        return self._engine
 
     # -- episodes -------------------------------------------------------------------------------
     def _start(self, envs: NDArray[np.intp], explicit: dict[int, int]) -> None:
         """Begin the next episode of each sub-env in ``envs``: that of the seed ``explicit[i]``
-        where given (seed sources only), else the next recorded one (recording a batch for
-        every sub-env short of episodes when one of them has none)."""
-        if self._sides is not None:
-            self._start_rendered(envs, explicit)
+        where given (seed sources only), else the next one (recorded ahead where the target
+        sides allow it, recording a batch for every sub-env short of episodes when one of them
+        has none)."""
+        engine = self._live_engine()
+        if not engine.sides.ahead:
+            draws = [self._draw(i, explicit) for i in envs.tolist()]
+            engine.begin(envs, engine.prepare(draws))
+            for i, draw in zip(envs.tolist(), draws, strict=True):
+                self._episode_seeds[i] = draw.seed
             return
-        ahead: list[tuple[int, int | None, np.random.Generator]] = []
+        ahead: list[tuple[int, EpisodeDraw]] = []
         if any(i not in explicit and not self._queues[i] for i in envs.tolist()):
             ahead = self._to_record(envs)
-        now = [(i, s, seeding.np_random(s)[0]) for i, s in explicit.items()]
-        recorded = self._record(now + ahead)
-        for (i, seed, _), episode in zip(ahead, recorded[len(now) :], strict=True):
-            self._queues[i].append((seed, episode))
+        now = [(i, EpisodeDraw(s, seeding.np_random(s)[0])) for i, s in explicit.items()]
+        recorded = engine.prepare([draw for _, draw in now + ahead])
+        for (i, draw), episode in zip(ahead, recorded[len(now) :], strict=True):
+            assert isinstance(episode, RecordedEpisode)
+            self._queues[i].append((draw.seed, episode))
         played = {
-            i: (seed, episode)
-            for (i, seed, _), episode in zip(now, recorded[: len(now)], strict=True)
+            i: (draw.seed, episode)
+            for (i, draw), episode in zip(now, recorded[: len(now)], strict=True)
         }
-        filters: list[tuple[int, FilterRows]] = []
+        episodes: list[RecordedEpisode | EpisodeDraw] = []
         for i in envs.tolist():
             seed, episode = played[i] if i in played else self._queues[i].popleft()
-            assert episode.bound is not None  # record_episodes computes it
-            self._episodes[i] = episode
             self._episode_seeds[i] = seed
-            self._load_tracks(i, episode)
-            self._bound[i] = episode.bound.time
-            self._live_from[i] = episode.time.size
-            if episode.continuation is not None:
-                self._images[i, : episode.time.size] = episode.images
-                self._live_from[i] = episode.continuation.step
-                filters.append((i, episode.continuation.filter))
-        if filters and self._ekf is not None:
-            rows, states = zip(*filters, strict=True)
-            self._ekf.restore(list(rows), FilterRows.stack(list(states)))
-        self._steps[envs] = 0
-        self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
+            episodes.append(episode)
+        engine.begin(envs, episodes)
 
-    def _start_rendered(self, envs: NDArray[np.intp], explicit: dict[int, int]) -> None:
-        """`_start` with the rendered camera: each sub-env's next episode as a live target
-        side (``CaptureEnv``'s, drawn from the same generator: the explicit seed, the seed
-        source's next, or the sub-env's own), rows filled as steps come (`_fill_rows`);
-        frames of the target alone kept by seed in `episode_cache`."""
-        assert self._sides is not None and self._scene is not None
-        sc, features, camera = self.scenario, self._features, self._scene
-        home = self.description.arm.home
-        for i in envs.tolist():
-            if i in explicit or self._sources is not None:
-                seed = explicit[i] if i in explicit else int(self._sources[i].next())  # type: ignore[index]
-                rng = seeding.np_random(seed)[0]
-            else:
-                seed, rng = self._generator_seeds[i], self._rngs[i]
-                self._generator_seeds[i] = None  # its later episodes continue the generator
-            assert rng is not None
-            key = None if seed is None else (sc, seed)
-            store = None if key is None else self.episode_cache.scene_frames(key)
-            side = TargetSide.draw(sc, camera, self._estimators[i], features, rng, store)
-            side.arm_at = lambda _t: home
-            episode = side.through(0)
-            episode.bound = bound = self.episode_cache.bound_of(key, episode.plan, self.description)
-            self._sides[i] = side
-            self._episodes[i] = episode
-            self._episode_seeds[i] = seed
-            self._load_tracks(i, episode)
-            self._bound[i] = bound.time
-            self._live_from[i] = episode.time.size
-        self._steps[envs] = 0
-        self.rule.start(self._state, envs, self._tracks["position"][envs, 0])
+    def _draw(self, i: int, explicit: dict[int, int]) -> EpisodeDraw:
+        """Sub-env ``i``'s next episode: the explicit seed's, the seed source's next, or its own
+        generator's (seeded for its first episode, continued after)."""
+        if i in explicit or self._sources is not None:
+            seed = explicit[i] if i in explicit else int(self._sources[i].next())  # type: ignore[index]
+            return EpisodeDraw(seed, seeding.np_random(seed)[0])
+        seed, rng = self._generator_seeds[i], self._rngs[i]
+        assert rng is not None
+        self._generator_seeds[i] = None  # its later episodes continue the generator
+        return EpisodeDraw(seed, rng)
 
-    def _fill_rows(
-        self, idx: NDArray[np.intp], k: NDArray[np.int64], theta0: FloatArray, theta: FloatArray
-    ) -> None:
-        """Row k[j] of sub-env idx[j]'s live target side (rendered camera), the arm moving from
-        ``theta0[j]`` to ``theta[j]`` during the step, copied into the tracks."""
-        assert self._sides is not None
-        times = self._tracks["time"]
-        for j, i in enumerate(idx.tolist()):
-            side = self._sides[i]
-            assert side is not None
-            t0, t1 = float(times[i, k[j] - 1]), float(times[i, k[j]])
-            side.arm_at = joint_path(theta0[j], theta[j], t0, t1)
-            episode = side.through(int(k[j]))
-            for name in STEP_TRACKS:
-                self._tracks[name][i, k[j]] = getattr(episode, name)[k[j]]
-
-    def _record(
-        self, jobs: list[tuple[int, int | None, np.random.Generator]]
-    ) -> list[RecordedEpisode]:
-        """The next episode of each job's generator: from `episode_cache` where its seed
-        was recorded before (the generator then set to its state after that recording), else
-        recorded now, all together (`record_episodes`;
-        one by one as the single env records them with ``reference_target_side``), and kept
-        by seed."""
-        found: list[RecordedEpisode | None] = []
-        for _, seed, rng in jobs:
-            hit = None if seed is None else self.episode_cache.recording((self.scenario, seed))
-            if hit is not None:
-                rng.bit_generator.state = hit[1]
-            found.append(None if hit is None else hit[0])
-        missing = [j for j, episode in enumerate(found) if episode is None]
-        if self._reference is not None:
-            recorded = self._record_as_single_env([jobs[j][2] for j in missing])
-        elif missing:
-            recorded = record_episodes(
-                self.scenario,
-                self._camera,
-                self._features,
-                self.description,
-                [jobs[j][2] for j in missing],
-                estimated_steps=None if self._ekf is None else LIVE_ESTIMATES_FROM,
-            )
-        else:
-            recorded = []
-        for j, episode in zip(missing, recorded, strict=True):
-            found[j] = episode
-            _, seed, rng = jobs[j]
-            if seed is not None:
-                key = (self.scenario, seed)
-                self.episode_cache.keep_recording(key, episode, rng.bit_generator.state)
-        episodes = [episode for episode in found if episode is not None]
-        unbounded = [episode for episode in episodes if episode.bound is None]
-        if unbounded:  # recorded as the single env records (the bound is the plan's)
-            bounds = episode_bounds([episode.plan for episode in unbounded], self.description)
-            for episode, bound in zip(unbounded, bounds, strict=True):
-                episode.bound = bound
-        return episodes
-
-    def _record_as_single_env(self, rngs: Sequence[np.random.Generator]) -> list[RecordedEpisode]:
-        """The next episode of each generator recorded as ``CaptureEnv(reuse_target_side=True)``
-        records it (the same draws, the same code, bit for bit; the photogrammetry's cold
-        solves batched, `TargetSide.record_many`; the plans drawn together,
-        `draw_plans`); their bounds come after, in
-        `_record`."""
-        assert self._reference is not None
-        sc, camera, features = self.scenario, self._camera, self._features
-        plans = draw_plans(sc, camera.model, features, rngs)
-        return TargetSide.record_many(
-            [
-                TargetSide.live(plan, camera, self._reference, features, rng)
-                for plan, rng in zip(plans, rngs, strict=True)
-            ]
-        )
-
-    def _to_record(
-        self, envs: NDArray[np.intp]
-    ) -> list[tuple[int, int | None, np.random.Generator]]:
+    def _to_record(self, envs: NDArray[np.intp]) -> list[tuple[int, EpisodeDraw]]:
         """The episodes to record ahead now for a start of the sub-envs ``envs``, (sub-env,
-        seed, generator) in each sub-env's playing order: one for every sub-env short of
+        draw) in each sub-env's playing order: one for every sub-env short of
         ``RECORD_AHEAD`` (its own generator advances through them; without autoreset only
         for ``envs`` that have none: the others' next episodes may never be asked for), or
         with seed sources every queue topped up (see `RECORD_BATCH`)."""
-        jobs: list[tuple[int, int | None, np.random.Generator]] = []
+        jobs: list[tuple[int, EpisodeDraw]] = []
         if self._sources is None:
             wanted = set(range(self.num_envs))
             if self.autoreset_mode == AutoresetMode.DISABLED:
                 wanted = {i for i in envs.tolist() if not self._queues[i]}
             for i, (queue, rng) in enumerate(zip(self._queues, self._rngs, strict=True)):
                 if i in wanted and len(queue) < RECORD_AHEAD and rng is not None:
-                    jobs.append((i, self._generator_seeds[i], rng))
+                    jobs.append((i, EpisodeDraw(self._generator_seeds[i], rng)))
                     self._generator_seeds[i] = None  # its later episodes continue the generator
             return jobs
         depth = max(RECORD_AHEAD, math.ceil(RECORD_BATCH / self.num_envs))
         for i, (queue, source) in enumerate(zip(self._queues, self._sources, strict=True)):
             for _ in range(depth - len(queue)):
                 seed = int(source.next())
-                jobs.append((i, seed, seeding.np_random(seed)[0]))
+                jobs.append((i, EpisodeDraw(seed, seeding.np_random(seed)[0])))
         return jobs
 
-    def _load_tracks(self, i: int, episode: RecordedEpisode) -> None:
-        """Copy an episode's per-step arrays into row i of the stacked tracks."""
-        length = episode.time.size
-        for name in STEP_TRACKS:
-            self._tracks[name][i, :length] = getattr(episode, name)
-
-    # -- one step of the arm's side --------------------------------------------------------------
     def _step(
         self,
         idx: NDArray[np.intp],
@@ -618,49 +437,14 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         terminated: NDArray[np.bool_],
         truncated: NDArray[np.bool_],
     ) -> dict[str, Any]:
-        """The arm's side of a step for the sub-envs ``idx`` (their actions), then the step rule
-        (`StepRule`), in place; returns the vector info."""
-        n, m = self.num_envs, idx.size
-        tracks, arm = self._tracks, self.description.arm
-        k = self._steps[idx] + 1
-        self._steps[idx] = k
-        if self._ekf is not None and m:
-            live = k >= self._live_from[idx]
-            if live.any():
-                self._estimate(idx[live], k[live])
-        # The world: rate and joint limits (World.apply_joint_increment's, batched).
-        request = self.task.increments(action)
-        theta0 = self._state.theta[idx]
-        dt = tracks["dt"][idx, k]
-        theta, clipped, saturated = limit_joint_increments(theta0, request, dt, arm)
-        if self._sides is not None and m:  # rendered: the frames show the arm where it is now
-            self._fill_rows(idx, k, theta0, theta)
-        before = {name: tracks[name][idx, k - 1] for name in BEFORE_TRACKS}
-        after = {name: track[idx, k] for name, track in tracks.items()}
-        x_e = kinematics.forward_kinematics(theta)
-
-        def collides(ask: NDArray[np.bool_]) -> NDArray[np.bool_]:
-            """pybullet's answer, asked only where contact is possible."""
-            hit = np.zeros(m, dtype=bool)
-            world = self._world
-            assert world is not None  # step() refuses to run after close()
-            for j in np.flatnonzero(ask & ~clear_of_collisions(theta)).tolist():
-                world.set_joint_positions(theta[j].tolist())
-                hit[j] = world.collision() is not None
-            return hit
-
-        def trajectory(j: int) -> TargetTrajectory:
-            episode = self._episodes[idx[j]]
-            assert episode is not None
-            return episode.plan.trajectory
-
-        out = self.rule.step(
-            self._state, idx, before, after, theta, x_e, clipped, saturated, collides, trajectory
-        )
+        """The engine's step of the sub-envs ``idx`` (their actions), in place; returns the
+        vector info."""
+        n, engine = self.num_envs, self._live_engine()
+        out = engine.step(idx, action)
         terminated[idx], truncated[idx] = out.terminated, out.truncated
         rewards[idx] = out.reward
         values = out.info
-        if m == n:  # every sub-env stepped (no autoreset this step)
+        if idx.size == n:  # every sub-env stepped (no autoreset this step)
             info = values
             mask = np.ones(n, dtype=bool)
         else:
@@ -669,55 +453,10 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         info.update({f"_{key}": mask.copy() for key in values})
         over = idx[out.terminated | out.truncated]
         limit = np.full(n, np.nan)
-        limit[over] = self._bound[over]
+        limit[over] = engine.bound[over]
         info["physical_limit_time"] = limit
         info["_physical_limit_time"] = self._mask(over)
         return info
-
-    def _estimate(self, idx: NDArray[np.intp], k: NDArray[np.int64]) -> None:
-        """Row k[j] of the estimate tracks of sub-env idx[j], each at its own step (the row
-        after the last one its filter estimated): one update of the live EKF with those frames
-        (what the recording's batched EKF gives the row: a filter's numbers do not depend on
-        which others update with it), then the errors and NEES as
-        `estimate_errors` derives them."""
-        ekf, tracks = self._ekf, self._tracks
-        assert ekf is not None
-        images = np.full((self.num_envs, *self._images.shape[2:]), np.nan)
-        images[idx] = self._images[idx, k]
-        dt = np.zeros(self.num_envs)
-        dt[idx] = tracks["dt"][idx, k]
-        out = ekf.update(images, dt, self._mask(idx))
-        position, velocity, valid = out.position[idx], out.velocity[idx], out.valid[idx]
-        tracks["estimate_position"][idx, k] = position
-        tracks["estimate_velocity"][idx, k] = velocity
-        tracks["estimate_valid"][idx, k] = valid
-        tracks["estimator_status"][idx, k] = out.status[idx]
-        errors = estimate_errors(
-            position,
-            velocity,
-            out.covariance[idx],
-            valid,
-            tracks["position"][idx, k],
-            tracks["velocity"][idx, k],
-        )
-        for name, value in zip(("position_error", "velocity_error", "nees"), errors, strict=True):
-            tracks[name][idx, k] = value
-
-    def _observe(self) -> Observation:
-        """The observation of every sub-env at its current step (the last real period: that of
-        the step just taken, t_s at reset); with pixels, the images of the arms and of the true
-        targets, and the states."""
-        rows, k = np.arange(self.num_envs), self._steps
-        if self._imager is None:
-            now = {name: self._tracks[name][rows, k] for name in _OBSERVED}
-            return self.rule.observe(self._state, slice(None), now)
-        rotation = np.stack(
-            [episode.rotation[j] for episode, j in zip(self._episodes, k.tolist(), strict=True)]  # type: ignore[union-attr]
-        )
-        position, dt = self._tracks["position"][rows, k], self._tracks["dt"][rows, k]
-        return self.task.pixel_observation(
-            self._imager, self._state, slice(None), position, rotation, dt
-        )
 
     def _mask(self, envs: NDArray[np.intp]) -> NDArray[np.bool_]:
         """(N,) True at ``envs``."""
@@ -731,21 +470,9 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         return {
             "time": np.where(mask, 0.0, np.nan),
             "_time": mask,
-            "distance": np.where(mask, self._state.distance, np.nan),
+            "distance": np.where(mask, self._live_engine().state.distance, np.nan),
             "_distance": mask.copy(),
         }
-
-
-_OBSERVED = ("estimate_valid", "estimate_position", "estimate_velocity", "dt")
-_TRACK_SHAPES: dict[str, tuple[int, ...]] = {
-    name: (3,) if name in {"position", "velocity", "estimate_position", "estimate_velocity"} else ()
-    for name in STEP_TRACKS
-}
-_TRACK_DTYPES: dict[str, Any] = {
-    **dict.fromkeys(STEP_TRACKS, np.float64),
-    **dict.fromkeys(("estimate_valid", "visible", "reachable"), np.bool_),
-    "estimator_status": np.int8,
-}
 
 
 def sub_env_infos(info: dict[str, Any], n: int) -> list[dict[str, Any]]:

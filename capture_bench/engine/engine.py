@@ -1,0 +1,128 @@
+"""N capture episodes stepped as rows: `EpisodeEngine`.
+
+An engine holds what N episodes carry from step to step (`ArmState`, the target side's
+`Tracks`, each row's recording, step index and bound) and applies one step to any subset of
+rows: the arm's side (`ArmSide`: rate and joint limits, forward kinematics, collisions), the
+target's side (`TargetSides`: recorded ahead or computed as the step comes), then the task's
+rules (`capture_bench.task.step_rule.StepRule`: capture along the arc, eq. 20; failures;
+reward; ``info``'s values). It knows no seeds policy, no autoreset and no gymnasium format: the
+environments (`capture_bench.envs`) are those around it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from capture_bench.engine.arm import ArmSide
+from capture_bench.engine.sides import ArmMotion, EpisodeDraw, TargetSides
+from capture_bench.engine.task import CaptureTask, Observation
+from capture_bench.engine.tracks import Tracks
+from capture_bench.sensing.workspace_image import WorkspaceImager
+from capture_bench.sim.target_motion import TargetTrajectory
+from capture_bench.task.recording import RecordedEpisode
+from capture_bench.task.step_rule import BEFORE_TRACKS, ArmState, StepOutcome
+
+FloatArray = NDArray[np.float64]
+_OBSERVED = ("estimate_valid", "estimate_position", "estimate_velocity", "dt")
+
+
+class EpisodeEngine:
+    """N episodes of one task, stepped as rows.
+
+    Args:
+        task: the task (`CaptureTask`).
+        n: the number of rows.
+        sides: the target sides of the rows (`capture_bench.engine.sides.target_sides`).
+        arm: the arm's side (`ArmSide`).
+
+    Attributes:
+        state: what the step rule carries per row (`ArmState`).
+        tracks: the target side of every row, step by step (`Tracks`).
+        steps: steps since each row's start, (N,).
+        episodes: each row's recording (None before its first start).
+        bound: each row's physical-limit time, s, (N,).
+    """
+
+    def __init__(self, task: CaptureTask, n: int, sides: TargetSides, arm: ArmSide) -> None:
+        self.task, self.rule, self.n = task, task.rule, n
+        self.sides, self.arm = sides, arm
+        self.state = ArmState.empty(n)
+        self.tracks = Tracks(n, task.steps)
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.episodes: list[RecordedEpisode | None] = [None] * n
+        self.bound = np.full(n, np.nan)
+        # observation_source "pixels": one renderer draws every row's image in turn
+        self._imager: WorkspaceImager | None = task.imager() if task.pixels else None
+
+    def prepare(self, draws: Sequence[EpisodeDraw]) -> list[RecordedEpisode | EpisodeDraw]:
+        """What `begin` takes for the next episode of each draw (`TargetSides.prepare`)."""
+        return self.sides.prepare(draws)
+
+    def begin(
+        self, rows: NDArray[np.intp], prepared: Sequence[RecordedEpisode | EpisodeDraw]
+    ) -> None:
+        """Start the episode ``prepared[j]`` in row ``rows[j]``, the arm at home."""
+        episodes = self.sides.begin(rows.tolist(), prepared, self.tracks)
+        for i, episode in zip(rows.tolist(), episodes, strict=True):
+            assert episode.bound is not None  # every side bounds the episodes it begins
+            self.episodes[i] = episode
+            self.bound[i] = episode.bound.time
+        self.steps[rows] = 0
+        self.rule.start(self.state, rows, self.tracks["position"][rows, 0])
+
+    def step(self, idx: NDArray[np.intp], actions: FloatArray) -> StepOutcome:
+        """One step of the rows ``idx`` with their ``actions`` (M, 3), checked, in [-1, 1]
+        after clipping: the arm's side, the target's side, then the step rule, in place."""
+        tracks = self.tracks
+        k = self.steps[idx] + 1
+        self.steps[idx] = k
+        theta0 = self.state.theta[idx]
+        theta, x_e, clipped, saturated = self.arm.move(
+            theta0, self.task.increments(actions), tracks["dt"][idx, k]
+        )
+        self.sides.advance(idx, k, ArmMotion(theta0, theta), tracks)
+        before = {name: tracks[name][idx, k - 1] for name in BEFORE_TRACKS}
+        after = {name: track[idx, k] for name, track in tracks.items()}
+
+        def collides(ask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+            return self.arm.collides(theta, ask)
+
+        def trajectory(j: int) -> TargetTrajectory:
+            episode = self.episodes[idx[j]]
+            assert episode is not None
+            return episode.plan.trajectory
+
+        return self.rule.step(
+            self.state, idx, before, after, theta, x_e, clipped, saturated, collides, trajectory
+        )
+
+    def observe(self) -> Observation:
+        """Every row's observation at its current step (the last real period: that of the step
+        just taken, t_s at the start); with pixels, the images of the arms and of the true
+        targets, and the states."""
+        rows, k = np.arange(self.n), self.steps
+        if self._imager is None:
+            now = {name: self.tracks[name][rows, k] for name in _OBSERVED}
+            return self.rule.observe(self.state, slice(None), now)
+        rotation = np.stack(
+            [episode.rotation[j] for episode, j in zip(self.episodes, k.tolist(), strict=True)]  # type: ignore[union-attr]
+        )
+        position, dt = self.tracks["position"][rows, k], self.tracks["dt"][rows, k]
+        return self.task.pixel_observation(
+            self._imager, self.state, slice(None), position, rotation, dt
+        )
+
+    def time(self, i: int) -> float:
+        """Simulated time since row ``i``'s start, s."""
+        return float(self.tracks["time"][i, self.steps[i]])
+
+    def close(self) -> None:
+        """Release the worlds the engine holds (the arm's, the renderers'); safe twice."""
+        self.arm.close()
+        self.sides.close()
+        if self._imager is not None:
+            self._imager.close()
+            self._imager = None

@@ -1,0 +1,325 @@
+"""The target's side of N episodes, one interface for every way of producing it: `TargetSides`.
+
+A target side fills an episode's `Tracks` row: the true state, the camera's frame, the
+estimate and its errors, reachability (`capture_bench.task.recording.RecordedEpisode`'s
+fields). Two strategies:
+
+* `RecordedSides`: nothing of the target's side depends on the actions, so each episode is
+  recorded ahead, many at once (`capture_bench.task.recording.record_episodes`: the camera
+  vectorised over time, the first frame's cold photogrammetry and the bound over episodes), and
+  kept by seed in an `EpisodeCache` so that a seed played again is replayed. With the EKF source
+  one batched filter, a row per episode, continues each recording from its first row
+  (`LIVE_ESTIMATES_FROM`) one row per step played, so no filter runs past its episode's end;
+  its numbers are the recording's of every row, bit for bit (a filter's rows do not depend on
+  the other rows of a call). ``reference=True`` records each episode as the single env does,
+  row by row with filterpy's filter (the stored references are those numbers).
+* `RenderedSides`: the rendered camera's frames show the arm, so each row is computed when its
+  step comes, the arm moving as the step moved it (`ArmMotion`); one rendered camera serves
+  every episode, each holding its own camera state, and what the camera saw of the target alone
+  is kept by seed in the cache.
+
+Both take the next episode of an `EpisodeDraw` (its seed, if any, and the generator it draws
+from, advanced exactly as ``CaptureEnv(reuse_target_side=True).reset(seed)`` advances it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from capture_bench.engine.cache import EpisodeCache
+from capture_bench.engine.task import CaptureTask
+from capture_bench.engine.tracks import Tracks
+from capture_bench.sensing.estimator import TargetEstimator
+from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
+from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
+from capture_bench.task.episode import draw_plans, episode_bounds
+from capture_bench.task.recording import RecordedEpisode, estimate_errors, record_episodes
+from capture_bench.task.target_side import TargetSide
+
+FloatArray = NDArray[np.float64]
+
+#: With the EKF source, a recording estimates its first ``LIVE_ESTIMATES_FROM`` rows only (row
+#: 0's cold photogrammetry is batched over the recording's episodes); `RecordedSides`' own EKF
+#: continues each episode from there, one row per step played, so no filter runs past its
+#: episode's end (learned policies end most episodes long before the time limit the recording
+#: reaches). None: recordings estimate every row (the reference ``tests/test_vector_env.py``
+#: holds the live filter to, bit for bit).
+LIVE_ESTIMATES_FROM: int | None = 1
+
+
+class EpisodeDraw(NamedTuple):
+    """Where an episode comes from: its seed (None: unseeded, not kept) and the generator it
+    draws from (seeded with it, or a generator continued)."""
+
+    seed: int | None
+    rng: np.random.Generator
+
+
+class ArmMotion(NamedTuple):
+    """The arms of the stepping rows during a step: joint angles at its start and at its end,
+    rad, (M, 3) each (the joint rates are constant within a step)."""
+
+    theta0: FloatArray
+    theta1: FloatArray
+
+
+class TargetSides(Protocol):
+    """The target side of N episodes (rows), whatever produces it."""
+
+    #: Whether an episode can be prepared before it is played (no frame shows the arm): the
+    #: vector env then records episodes ahead, in batches.
+    ahead: bool
+
+    def prepare(self, draws: Sequence[EpisodeDraw]) -> list[RecordedEpisode | EpisodeDraw]:
+        """What `begin` takes for the next episode of each draw: its recording for sides that
+        prepare `ahead` (each generator advanced as the episode's own draws advance it), the
+        draw itself otherwise."""
+        ...
+
+    def begin(
+        self, rows: Sequence[int], prepared: Sequence[RecordedEpisode | EpisodeDraw], tracks: Tracks
+    ) -> list[RecordedEpisode]:
+        """Start row ``rows[j]``'s episode from ``prepared[j]``: its tracks' rows filled as far
+        as they are known (row 0 at least), its estimator reset or restored. Returns each row's
+        episode, its bound set."""
+        ...
+
+    def advance(
+        self, rows: NDArray[np.intp], k: NDArray[np.int64], arm: ArmMotion, tracks: Tracks
+    ) -> None:
+        """Row ``k[j]`` of each stepping row ``rows[j]``'s tracks, the arm having moved as ``arm``
+        says during the step."""
+        ...
+
+    def close(self) -> None:
+        """Release what the sides hold open (a renderer's pybullet world)."""
+        ...
+
+
+class RecordedSides:
+    """Target sides recorded ahead and kept by seed (see the module docstring).
+
+    Args:
+        task: the task (scenario, camera, features, description).
+        n: the number of rows.
+        cache: where recordings of seeded episodes are kept and found again.
+        reference: record each episode as ``CaptureEnv`` does, row by row to the time limit
+            (filterpy's filter; the batched photogrammetry cold solves are the same).
+    """
+
+    ahead = True
+
+    def __init__(self, task: CaptureTask, n: int, cache: EpisodeCache, reference: bool) -> None:
+        sc = task.scenario
+        self.task, self.cache = task, cache
+        self._reference: TargetEstimator | None = None
+        self._ekf: BatchedTargetEstimator | None = None
+        if reference:
+            self._reference = TargetEstimator(
+                task.camera.model, task.features, source=sc.estimator.source,
+                **sc.estimator_settings(),
+            )  # fmt: skip
+        elif sc.estimator.source == "ekf" and LIVE_ESTIMATES_FROM is not None:
+            self._ekf = BatchedTargetEstimator(
+                n, task.camera.model, task.features, **sc.estimator_settings()
+            )
+            self._images = np.full(
+                (n, task.steps, task.features.shape[0], 2), np.nan
+            )  # each row's frames, for its live filter
+        # The first row of each episode that the live filter estimates (the recording's
+        # continuation step; past the episode's end where the recording holds every row).
+        self._live_from = np.zeros(n, dtype=np.int64)
+
+    def prepare(self, draws: Sequence[EpisodeDraw]) -> list[RecordedEpisode | EpisodeDraw]:
+        """The next episode of each draw: from the cache where its seed was recorded before (the
+        generator then set to its state after that recording), else recorded now, all together
+        (one by one as the single env records them with ``reference``), and kept by seed."""
+        task = self.task
+        found: list[RecordedEpisode | None] = []
+        for seed, rng in draws:
+            hit = None if seed is None else self.cache.recording((task.scenario, seed))
+            if hit is not None:
+                rng.bit_generator.state = hit[1]
+            found.append(None if hit is None else hit[0])
+        missing = [j for j, episode in enumerate(found) if episode is None]
+        rngs = [draws[j].rng for j in missing]
+        if not missing:
+            recorded: list[RecordedEpisode] = []
+        elif self._reference is not None:
+            recorded = self._record_as_single_env(rngs)
+        else:
+            recorded = record_episodes(
+                task.scenario,
+                task.camera,
+                task.features,
+                task.description,
+                rngs,
+                estimated_steps=None if self._ekf is None else LIVE_ESTIMATES_FROM,
+            )
+        for j, episode in zip(missing, recorded, strict=True):
+            found[j] = episode
+            seed, rng = draws[j]
+            if seed is not None:
+                self.cache.keep_recording((task.scenario, seed), episode, rng.bit_generator.state)
+        episodes = [episode for episode in found if episode is not None]
+        unbounded = [episode for episode in episodes if episode.bound is None]
+        if unbounded:  # recorded as the single env records (the bound is the plan's)
+            bounds = episode_bounds([episode.plan for episode in unbounded], task.description)
+            for episode, bound in zip(unbounded, bounds, strict=True):
+                episode.bound = bound
+        return list(episodes)
+
+    def _record_as_single_env(self, rngs: Sequence[np.random.Generator]) -> list[RecordedEpisode]:
+        """The next episode of each generator recorded as ``CaptureEnv(reuse_target_side=True)``
+        records it (the same draws, the same code, bit for bit; the photogrammetry's cold
+        solves batched, `TargetSide.record_many`; the plans drawn together, `draw_plans`)."""
+        assert self._reference is not None
+        task = self.task
+        plans = draw_plans(task.scenario, task.camera.model, task.features, rngs)
+        return TargetSide.record_many(
+            [
+                TargetSide.live(plan, task.camera, self._reference, task.features, rng)
+                for plan, rng in zip(plans, rngs, strict=True)
+            ]
+        )
+
+    def begin(
+        self, rows: Sequence[int], prepared: Sequence[RecordedEpisode | EpisodeDraw], tracks: Tracks
+    ) -> list[RecordedEpisode]:
+        filters: list[tuple[int, FilterRows]] = []
+        episodes = []
+        for i, episode in zip(rows, prepared, strict=True):
+            assert isinstance(episode, RecordedEpisode)  # prepared ahead
+            tracks.load(i, episode)
+            self._live_from[i] = episode.time.size
+            if episode.continuation is not None:
+                self._images[i, : episode.time.size] = episode.images
+                self._live_from[i] = episode.continuation.step
+                filters.append((i, episode.continuation.filter))
+            episodes.append(episode)
+        if filters and self._ekf is not None:
+            filter_rows, states = zip(*filters, strict=True)
+            self._ekf.restore(list(filter_rows), FilterRows.stack(list(states)))
+        return episodes
+
+    def advance(
+        self, rows: NDArray[np.intp], k: NDArray[np.int64], arm: ArmMotion, tracks: Tracks
+    ) -> None:
+        """The live filter's rows (recorded rows are in the tracks already)."""
+        if self._ekf is not None and rows.size:
+            live = k >= self._live_from[rows]
+            if live.any():
+                self._estimate(rows[live], k[live], tracks)
+
+    def _estimate(self, idx: NDArray[np.intp], k: NDArray[np.int64], tracks: Tracks) -> None:
+        """Row k[j] of the estimate tracks of row idx[j], each at its own step (the row after
+        the last one its filter estimated): one update of the live EKF with those frames (what
+        the recording's batched EKF gives the row: a filter's numbers do not depend on which
+        others update with it), then the errors and NEES as `estimate_errors` derives them."""
+        ekf = self._ekf
+        assert ekf is not None
+        n = self._images.shape[0]
+        images = np.full((n, *self._images.shape[2:]), np.nan)
+        images[idx] = self._images[idx, k]
+        dt = np.zeros(n)
+        dt[idx] = tracks["dt"][idx, k]
+        active = np.zeros(n, dtype=bool)
+        active[idx] = True
+        out = ekf.update(images, dt, active)
+        position, velocity, valid = out.position[idx], out.velocity[idx], out.valid[idx]
+        tracks["estimate_position"][idx, k] = position
+        tracks["estimate_velocity"][idx, k] = velocity
+        tracks["estimate_valid"][idx, k] = valid
+        tracks["estimator_status"][idx, k] = out.status[idx]
+        errors = estimate_errors(
+            position,
+            velocity,
+            out.covariance[idx],
+            valid,
+            tracks["position"][idx, k],
+            tracks["velocity"][idx, k],
+        )
+        for name, value in zip(("position_error", "velocity_error", "nees"), errors, strict=True):
+            tracks[name][idx, k] = value
+
+    def close(self) -> None:
+        pass
+
+
+class RenderedSides:
+    """Target sides computed step by step from the rendered camera's frames (see the module
+    docstring): each row ``CaptureEnv``'s live target side, with its own estimator (filterpy's)
+    and camera state, and one `RenderedSceneCamera` for all."""
+
+    ahead = False
+
+    def __init__(self, task: CaptureTask, n: int, cache: EpisodeCache) -> None:
+        sc = task.scenario
+        self.task, self.cache = task, cache
+        self.camera: RenderedSceneCamera | None = RenderedSceneCamera.for_scenario(sc)
+        self._estimators = [
+            TargetEstimator(
+                task.camera.model,
+                task.features,
+                source=sc.estimator.source,
+                **sc.estimator_settings(),
+            )  # fmt: skip
+            for _ in range(n)
+        ]
+        self.sides: list[TargetSide | None] = [None] * n
+
+    def prepare(self, draws: Sequence[EpisodeDraw]) -> list[RecordedEpisode | EpisodeDraw]:
+        return list(draws)
+
+    def begin(
+        self, rows: Sequence[int], prepared: Sequence[RecordedEpisode | EpisodeDraw], tracks: Tracks
+    ) -> list[RecordedEpisode]:
+        """Each row's episode drawn from its draw's generator, as ``CaptureEnv`` draws it; the
+        frames of the target alone kept by seed in the cache."""
+        assert self.camera is not None
+        task, home = self.task, self.task.description.arm.home
+        episodes = []
+        for i, draw in zip(rows, prepared, strict=True):
+            assert isinstance(draw, EpisodeDraw)
+            key = None if draw.seed is None else (task.scenario, draw.seed)
+            store = None if key is None else self.cache.scene_frames(key)
+            side = TargetSide.draw(
+                task.scenario, self.camera, self._estimators[i], task.features, draw.rng, store
+            )
+            side.arm_at = lambda _t: home
+            episode = side.through(0)
+            episode.bound = self.cache.bound_of(key, episode.plan, task.description)
+            self.sides[i] = side
+            tracks.load(i, episode)
+            episodes.append(episode)
+        return episodes
+
+    def advance(
+        self, rows: NDArray[np.intp], k: NDArray[np.int64], arm: ArmMotion, tracks: Tracks
+    ) -> None:
+        """Row k[j] of row idx[j]'s live side, the arm moving from ``arm.theta0[j]`` to
+        ``arm.theta1[j]`` during the step, copied into the tracks."""
+        times = tracks["time"]
+        for j, i in enumerate(rows.tolist()):
+            side = self.sides[i]
+            assert side is not None
+            t0, t1 = float(times[i, k[j] - 1]), float(times[i, k[j]])
+            side.arm_at = joint_path(arm.theta0[j], arm.theta1[j], t0, t1)
+            tracks.copy_row(i, int(k[j]), side.through(int(k[j])))
+
+    def close(self) -> None:
+        if self.camera is not None:
+            self.camera.close()
+            self.camera = None
+
+
+def target_sides(task: CaptureTask, n: int, cache: EpisodeCache, reference: bool) -> TargetSides:
+    """The target sides of ``n`` rows of ``task``: rendered where the scenario's camera renders,
+    else recorded ahead (``reference``: as the single env records)."""
+    if task.scenario.camera.mode == "rendered":
+        return RenderedSides(task, n, cache)
+    return RecordedSides(task, n, cache, reference)
