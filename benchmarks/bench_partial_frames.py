@@ -25,7 +25,7 @@ from capture_bench.task.scenarios import load_scenario
 
 def play(scenario: str, rule: str, seeds: list[int]) -> dict[str, float]:
     env = CaptureEnv(scenario)
-    env._estimator.partial_frames = rule
+    env.engine.sides.estimators[0].partial_frames = rule
     captured, ratios, errors, partial, steps = 0, [], [], 0, 0
     try:
         for seed in seeds:
@@ -35,7 +35,7 @@ def play(scenario: str, rule: str, seeds: list[int]) -> dict[str, float]:
             while not done:
                 obs, _, terminated, truncated, info = env.step(agent.predict(obs)[0])
                 done = terminated or truncated
-                found = env._side.camera_episode.last_detections
+                found = env.engine.sides.sides[0].camera_episode.last_detections
                 steps += 1
                 partial += found is not None and 0 < found.found.sum() < found.found.size
                 if math.isfinite(info["estimate_position_error"]):

@@ -43,7 +43,7 @@ def steps_per_second(env: CaptureEnv, seeds: list[int]) -> tuple[float, int, dic
             steps += 1
             done = terminated or truncated
     seconds = time.perf_counter() - start
-    camera = env._scene_camera
+    camera = env.engine.sides.camera
     return steps / seconds, steps, dict(camera.renders) if camera else {}
 
 
@@ -61,12 +61,14 @@ def main() -> None:
         live.close()
         shared = CaptureEnv(name, reuse_target_side=True, episode_cache=EpisodeCache(100))
         rows.append(("first agent", *steps_per_second(shared, seeds)))
-        shared._scene_camera.renders = dict.fromkeys(shared._scene_camera.renders, 0)
+        camera = shared.engine.sides.camera
+        camera.renders = dict.fromkeys(camera.renders, 0)
         rows.append(("next agent", *steps_per_second(shared, seeds)))
         shared.close()
         if args.full:
             full = CaptureEnv(name)
-            full._scene_camera = RenderedSceneCamera.for_scenario(
+            full.engine.sides.camera.close()
+            full.engine.sides.camera = RenderedSceneCamera.for_scenario(
                 full.task.scenario, windowed=False
             )
             rows.append(("full frames", *steps_per_second(full, seeds[:3])))

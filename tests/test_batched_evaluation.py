@@ -271,16 +271,16 @@ def test_a_model_without_row_exact_layers_acts_row_by_row(monkeypatch):
 
 
 def test_a_recording_the_single_env_made_is_replayed_by_the_batched_env():
-    """Shared recordings go both ways: a seed the single env recorded (without its bound, which
-    it computes lazily) is replayed by the batched env, which adds the bound; an env that does
-    not record as the single env does refuses to share."""
+    """Shared recordings go both ways: a seed the single env recorded (its bound, the plan's,
+    kept by seed in the cache) is replayed by the batched env; an env that does not record as
+    the single env does refuses to share."""
     from capture_bench.engine.cache import EpisodeCache
 
     cache = EpisodeCache()
     single = CaptureEnv("paper", reuse_target_side=True, episode_cache=cache)
     single.reset(seed=1_000_004)
     (key,) = cache.recorded_keys()
-    assert cache.recording(key)[0].bound is None
+    assert cache.recording(key)[0].bound is cache.limit(key) is not None
     vector = CaptureVectorEnv(
         1,
         "paper",

@@ -34,7 +34,7 @@ def _play(env: CaptureEnv, agent_name: str, seed: int) -> list[tuple]:
                 info["estimator_status"],
                 info["target_visible"],
                 info["capture_time"],
-                env._side.camera_episode.last_detections.found.tolist(),
+                env.engine.sides.sides[0].camera_episode.last_detections.found.tolist(),
             )
         )
     return steps
@@ -44,7 +44,8 @@ def _play(env: CaptureEnv, agent_name: str, seed: int) -> list[tuple]:
 def reference_env():
     """Every frame rendered in full (1280 x 960) with the arm, no store: the reference."""
     env = CaptureEnv("grasp_rendered")
-    env._scene_camera = RenderedSceneCamera.for_scenario(env.task.scenario, windowed=False)
+    env.engine.sides.camera.close()
+    env.engine.sides.camera = RenderedSceneCamera.for_scenario(env.task.scenario, windowed=False)
     yield env
     env.close()
 
@@ -63,7 +64,7 @@ def test_reused_target_frames_and_windows_play_the_episodes_of_full_frames(refer
                 expected = _play(reference_env, agent, seed)
                 assert _play(fast, agent, seed) == expected, (agent, seed)
                 hidden += sum(1 for step in expected[1:] if not all(step[-1]))
-        renders = fast._scene_camera.renders
+        renders = fast.engine.sides.camera.renders
         assert renders["reused"] > 0 and renders["with_arm"] > 0 and renders["target_only"] > 0
     finally:
         fast.close()

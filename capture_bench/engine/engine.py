@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from capture_bench.engine.arm import ArmSide
-from capture_bench.engine.sides import ArmMotion, EpisodeDraw, TargetSides
+from capture_bench.engine.sides import ArmMotion, EpisodeDraw, Rows, Steps, TargetSides
 from capture_bench.engine.task import CaptureTask, Observation
 from capture_bench.engine.tracks import Tracks
 from capture_bench.sensing.workspace_image import WorkspaceImager
@@ -42,8 +42,11 @@ class EpisodeEngine:
         state: what the step rule carries per row (`ArmState`).
         tracks: the target side of every row, step by step (`Tracks`).
         steps: steps since each row's start, (N,).
-        episodes: each row's recording (None before its first start).
-        bound: each row's physical-limit time, s, (N,).
+        episodes: each row's recording (None before its first start; its ``bound`` set where
+            the target sides bound their episodes, the recorded and the rendered).
+
+    A one-row engine (the single env) may step and observe its row as ``slice(None)``: the
+    same rule on views instead of index arrays.
     """
 
     def __init__(self, task: CaptureTask, n: int, sides: TargetSides, arm: ArmSide) -> None:
@@ -53,7 +56,6 @@ class EpisodeEngine:
         self.tracks = Tracks(n, task.steps)
         self.steps = np.zeros(n, dtype=np.int64)
         self.episodes: list[RecordedEpisode | None] = [None] * n
-        self.bound = np.full(n, np.nan)
         # observation_source "pixels": one renderer draws every row's image in turn
         self._imager: WorkspaceImager | None = task.imager() if task.pixels else None
 
@@ -63,22 +65,26 @@ class EpisodeEngine:
 
     def begin(
         self, rows: NDArray[np.intp], prepared: Sequence[RecordedEpisode | EpisodeDraw]
-    ) -> None:
-        """Start the episode ``prepared[j]`` in row ``rows[j]``, the arm at home."""
+    ) -> dict[str, NDArray]:
+        """Start the episode ``prepared[j]`` in row ``rows[j]``, the arm at home; returns the
+        rows' reset ``info`` values (`StepRule.start`)."""
         episodes = self.sides.begin(rows.tolist(), prepared, self.tracks)
         for i, episode in zip(rows.tolist(), episodes, strict=True):
-            assert episode.bound is not None  # every side bounds the episodes it begins
             self.episodes[i] = episode
-            self.bound[i] = episode.bound.time
         self.steps[rows] = 0
-        self.rule.start(self.state, rows, self.tracks["position"][rows, 0])
+        return self.rule.start(self.state, rows, self.tracks["position"][rows, 0])
 
-    def step(self, idx: NDArray[np.intp], actions: FloatArray) -> StepOutcome:
+    def step(self, idx: Rows, actions: FloatArray) -> StepOutcome:
         """One step of the rows ``idx`` with their ``actions`` (M, 3), checked, in [-1, 1]
         after clipping: the arm's side, the target's side, then the step rule, in place."""
         tracks = self.tracks
-        k = self.steps[idx] + 1
-        self.steps[idx] = k
+        k: Steps
+        if isinstance(idx, slice):  # the one row of a one-row engine
+            k = int(self.steps[0]) + 1
+            self.steps[0] = k
+        else:
+            k = self.steps[idx] + 1
+            self.steps[idx] = k
         theta0 = self.state.theta[idx]
         theta, x_e, clipped, saturated = self.arm.move(
             theta0, self.task.increments(actions), tracks["dt"][idx, k]
@@ -91,7 +97,7 @@ class EpisodeEngine:
             return self.arm.collides(theta, ask)
 
         def trajectory(j: int) -> TargetTrajectory:
-            episode = self.episodes[idx[j]]
+            episode = self.episodes[j if isinstance(idx, slice) else idx[j]]
             assert episode is not None
             return episode.plan.trajectory
 
@@ -103,17 +109,31 @@ class EpisodeEngine:
         """Every row's observation at its current step (the last real period: that of the step
         just taken, t_s at the start); with pixels, the images of the arms and of the true
         targets, and the states."""
-        rows, k = np.arange(self.n), self.steps
+        rows, k = self._now()
         if self._imager is None:
             now = {name: self.tracks[name][rows, k] for name in _OBSERVED}
             return self.rule.observe(self.state, slice(None), now)
         rotation = np.stack(
-            [episode.rotation[j] for episode, j in zip(self.episodes, k.tolist(), strict=True)]  # type: ignore[union-attr]
+            [
+                episode.rotation[j]  # type: ignore[union-attr]
+                for episode, j in zip(self.episodes, self.steps.tolist(), strict=True)
+            ]
         )
         position, dt = self.tracks["position"][rows, k], self.tracks["dt"][rows, k]
         return self.task.pixel_observation(
             self._imager, self.state, slice(None), position, rotation, dt
         )
+
+    def now(self, name: str) -> NDArray:
+        """Track ``name`` of every row at its current step, (N, ...)."""
+        rows, k = self._now()
+        return self.tracks[name][rows, k]
+
+    def _now(self) -> tuple[Rows, Steps]:
+        """Every row and its current step (for one row, a slice and a step: views)."""
+        if self.n == 1:
+            return slice(None), int(self.steps[0])
+        return np.arange(self.n), self.steps
 
     def time(self, i: int) -> float:
         """Simulated time since row ``i``'s start, s."""

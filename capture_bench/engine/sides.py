@@ -2,7 +2,7 @@
 
 A target side fills an episode's `Tracks` row: the true state, the camera's frame, the
 estimate and its errors, reachability (`capture_bench.task.recording.RecordedEpisode`'s
-fields). Two strategies:
+fields). Three strategies:
 
 * `RecordedSides`: nothing of the target's side depends on the actions, so each episode is
   recorded ahead, many at once (`capture_bench.task.recording.record_episodes`: the camera
@@ -13,6 +13,8 @@ fields). Two strategies:
   its numbers are the recording's of every row, bit for bit (a filter's rows do not depend on
   the other rows of a call). ``reference=True`` records each episode as the single env does,
   row by row with filterpy's filter (the stored references are those numbers).
+* `LiveSides`: each row computed when its step comes, drawing the camera's noise from the
+  episode's generator then, as a plain gymnasium env does (the single env's default).
 * `RenderedSides`: the rendered camera's frames show the arm, so each row is computed when its
   step comes, the arm moving as the step moved it (`ArmMotion`); one rendered camera serves
   every episode, each holding its own camera state, and what the camera saw of the target alone
@@ -36,11 +38,15 @@ from capture_bench.engine.tracks import Tracks
 from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
-from capture_bench.task.episode import draw_plans, episode_bounds
+from capture_bench.task.episode import draw_plans
 from capture_bench.task.recording import RecordedEpisode, estimate_errors, record_episodes
 from capture_bench.task.target_side import TargetSide
 
 FloatArray = NDArray[np.float64]
+#: The rows of a step: an index array, or ``slice(None)``: the one row of a one-row engine.
+Rows = NDArray[np.intp] | slice
+#: Each row's step (M,), or the one row's step.
+Steps = NDArray[np.int64] | int
 
 #: With the EKF source, a recording estimates its first ``LIVE_ESTIMATES_FROM`` rows only (row
 #: 0's cold photogrammetry is batched over the recording's episodes); `RecordedSides`' own EKF
@@ -88,9 +94,7 @@ class TargetSides(Protocol):
         episode, its bound set."""
         ...
 
-    def advance(
-        self, rows: NDArray[np.intp], k: NDArray[np.int64], arm: ArmMotion, tracks: Tracks
-    ) -> None:
+    def advance(self, rows: Rows, k: Steps, arm: ArmMotion, tracks: Tracks) -> None:
         """Row ``k[j]`` of each stepping row ``rows[j]``'s tracks, the arm having moved as ``arm``
         says during the step."""
         ...
@@ -137,7 +141,8 @@ class RecordedSides:
     def prepare(self, draws: Sequence[EpisodeDraw]) -> list[RecordedEpisode | EpisodeDraw]:
         """The next episode of each draw: from the cache where its seed was recorded before (the
         generator then set to its state after that recording), else recorded now, all together
-        (one by one as the single env records them with ``reference``), and kept by seed."""
+        (one by one as the single env records them with ``reference``), and kept by seed; each
+        bounded (with ``reference`` the bound is the plan's, kept by seed in the cache)."""
         task = self.task
         found: list[RecordedEpisode | None] = []
         for seed, rng in draws:
@@ -166,11 +171,10 @@ class RecordedSides:
             if seed is not None:
                 self.cache.keep_recording((task.scenario, seed), episode, rng.bit_generator.state)
         episodes = [episode for episode in found if episode is not None]
-        unbounded = [episode for episode in episodes if episode.bound is None]
-        if unbounded:  # recorded as the single env records (the bound is the plan's)
-            bounds = episode_bounds([episode.plan for episode in unbounded], task.description)
-            for episode, bound in zip(unbounded, bounds, strict=True):
-                episode.bound = bound
+        for episode, (seed, _) in zip(episodes, draws, strict=True):
+            if episode.bound is None:  # recorded as the single env records: kept by seed
+                key = None if seed is None else (task.scenario, seed)
+                episode.bound = self.cache.bound_of(key, episode.plan, task.description)
         return list(episodes)
 
     def _record_as_single_env(self, rngs: Sequence[np.random.Generator]) -> list[RecordedEpisode]:
@@ -194,7 +198,10 @@ class RecordedSides:
         episodes = []
         for i, episode in zip(rows, prepared, strict=True):
             assert isinstance(episode, RecordedEpisode)  # prepared ahead
-            tracks.load(i, episode)
+            if self._ekf is None:  # every row recorded: read in place where one row
+                tracks.share(i, episode)
+            else:  # the live filter writes the rows past the recording's
+                tracks.load(i, episode)
             self._live_from[i] = episode.time.size
             if episode.continuation is not None:
                 self._images[i, : episode.time.size] = episode.images
@@ -206,10 +213,10 @@ class RecordedSides:
             self._ekf.restore(list(filter_rows), FilterRows.stack(list(states)))
         return episodes
 
-    def advance(
-        self, rows: NDArray[np.intp], k: NDArray[np.int64], arm: ArmMotion, tracks: Tracks
-    ) -> None:
+    def advance(self, rows: Rows, k: Steps, arm: ArmMotion, tracks: Tracks) -> None:
         """The live filter's rows (recorded rows are in the tracks already)."""
+        if isinstance(rows, slice):
+            rows, k = np.zeros(1, dtype=np.intp), np.array([k])
         if self._ekf is not None and rows.size:
             live = k >= self._live_from[rows]
             if live.any():
@@ -250,18 +257,19 @@ class RecordedSides:
         pass
 
 
-class RenderedSides:
-    """Target sides computed step by step from the rendered camera's frames (see the module
-    docstring): each row ``CaptureEnv``'s live target side, with its own estimator (filterpy's)
-    and camera state, and one `RenderedSceneCamera` for all."""
+class LiveSides:
+    """Target sides computed row by row as steps come, each row a live
+    `capture_bench.task.target_side.TargetSide` with its own estimator (filterpy's) and camera
+    state, drawing the camera's noise from its episode's generator step by step, as a plain
+    gymnasium env does. Nothing is kept: the episode's bound is left to be asked for."""
 
     ahead = False
 
-    def __init__(self, task: CaptureTask, n: int, cache: EpisodeCache) -> None:
+    def __init__(self, task: CaptureTask, n: int) -> None:
         sc = task.scenario
-        self.task, self.cache = task, cache
-        self.camera: RenderedSceneCamera | None = RenderedSceneCamera.for_scenario(sc)
-        self._estimators = [
+        self.task = task
+        #: Each row's estimator (filterpy's; reset at each episode's start).
+        self.estimators = [
             TargetEstimator(
                 task.camera.model,
                 task.features,
@@ -278,38 +286,85 @@ class RenderedSides:
     def begin(
         self, rows: Sequence[int], prepared: Sequence[RecordedEpisode | EpisodeDraw], tracks: Tracks
     ) -> list[RecordedEpisode]:
-        """Each row's episode drawn from its draw's generator, as ``CaptureEnv`` draws it; the
-        frames of the target alone kept by seed in the cache."""
-        assert self.camera is not None
-        task, home = self.task, self.task.description.arm.home
+        """Each row's episode drawn from its draw's generator (`TargetSide.draw`), row 0
+        computed."""
+        home = self.task.description.arm.home
         episodes = []
         for i, draw in zip(rows, prepared, strict=True):
             assert isinstance(draw, EpisodeDraw)
-            key = None if draw.seed is None else (task.scenario, draw.seed)
-            store = None if key is None else self.cache.scene_frames(key)
-            side = TargetSide.draw(
-                task.scenario, self.camera, self._estimators[i], task.features, draw.rng, store
-            )
+            side = self._draw(i, draw)
             side.arm_at = lambda _t: home
             episode = side.through(0)
-            episode.bound = self.cache.bound_of(key, episode.plan, task.description)
             self.sides[i] = side
-            tracks.load(i, episode)
+            tracks.share(i, episode)  # the side fills its episode's rows
             episodes.append(episode)
         return episodes
 
-    def advance(
-        self, rows: NDArray[np.intp], k: NDArray[np.int64], arm: ArmMotion, tracks: Tracks
-    ) -> None:
-        """Row k[j] of row idx[j]'s live side, the arm moving from ``arm.theta0[j]`` to
-        ``arm.theta1[j]`` during the step, copied into the tracks."""
-        times = tracks["time"]
-        for j, i in enumerate(rows.tolist()):
+    def _draw(self, i: int, draw: EpisodeDraw) -> TargetSide:
+        task = self.task
+        return TargetSide.draw(
+            task.scenario, task.camera, self.estimators[i], task.features, draw.rng
+        )
+
+    def advance(self, rows: Rows, k: Steps, arm: ArmMotion, tracks: Tracks) -> None:
+        """Row k[j] of row rows[j]'s live side, copied into the tracks."""
+        for j, (i, step) in enumerate(_row_steps(rows, k)):
             side = self.sides[i]
             assert side is not None
-            t0, t1 = float(times[i, k[j] - 1]), float(times[i, k[j]])
-            side.arm_at = joint_path(arm.theta0[j], arm.theta1[j], t0, t1)
-            tracks.copy_row(i, int(k[j]), side.through(int(k[j])))
+            self._before_row(side, j, i, step, arm, tracks)
+            tracks.copy_row(i, step, side.through(step))
+
+    def _before_row(
+        self, side: TargetSide, j: int, i: int, k: int, arm: ArmMotion, tracks: Tracks
+    ) -> None:
+        """What a row needs before its step ``k`` is computed (nothing: the camera sees the
+        target alone)."""
+
+    def close(self) -> None:
+        pass
+
+
+class RenderedSides(LiveSides):
+    """Live target sides whose frames come from one `RenderedSceneCamera` (they show the arm, as
+    it moved during the step: `ArmMotion`); each row's camera state is its own. Each episode
+    is bounded at its start (kept by seed in the cache), and with ``keep_frames`` what the
+    camera saw of the target alone is kept by seed in the cache too."""
+
+    def __init__(
+        self, task: CaptureTask, n: int, cache: EpisodeCache, keep_frames: bool = True
+    ) -> None:
+        super().__init__(task, n)
+        self.cache, self.keep_frames = cache, keep_frames
+        self.camera: RenderedSceneCamera | None = RenderedSceneCamera.for_scenario(task.scenario)
+
+    def begin(
+        self, rows: Sequence[int], prepared: Sequence[RecordedEpisode | EpisodeDraw], tracks: Tracks
+    ) -> list[RecordedEpisode]:
+        episodes = super().begin(rows, prepared, tracks)
+        task = self.task
+        for draw, episode in zip(prepared, episodes, strict=True):
+            assert isinstance(draw, EpisodeDraw)
+            key = None if draw.seed is None else (task.scenario, draw.seed)
+            episode.bound = self.cache.bound_of(key, episode.plan, task.description)
+        return episodes
+
+    def _draw(self, i: int, draw: EpisodeDraw) -> TargetSide:
+        assert self.camera is not None
+        task = self.task
+        store = None
+        if self.keep_frames and draw.seed is not None:
+            store = self.cache.scene_frames((task.scenario, draw.seed))
+        return TargetSide.draw(
+            task.scenario, self.camera, self.estimators[i], task.features, draw.rng, store
+        )
+
+    def _before_row(
+        self, side: TargetSide, j: int, i: int, k: int, arm: ArmMotion, tracks: Tracks
+    ) -> None:
+        """The arm's path during step ``k`` (the frame shows it)."""
+        times = tracks["time"]
+        t0, t1 = float(times[i, k - 1]), float(times[i, k])
+        side.arm_at = joint_path(arm.theta0[j], arm.theta1[j], t0, t1)
 
     def close(self) -> None:
         if self.camera is not None:
@@ -317,9 +372,22 @@ class RenderedSides:
             self.camera = None
 
 
-def target_sides(task: CaptureTask, n: int, cache: EpisodeCache, reference: bool) -> TargetSides:
-    """The target sides of ``n`` rows of ``task``: rendered where the scenario's camera renders,
-    else recorded ahead (``reference``: as the single env records)."""
+def _row_steps(rows: Rows, k: Steps) -> list[tuple[int, int]]:
+    """(row, step) pairs of a step's rows: index arrays with a step each, or every row of a
+    one-row engine (``slice(None)``) at step ``k``."""
+    if isinstance(rows, slice):
+        return [(0, int(k))]
+    return list(zip(rows.tolist(), np.asarray(k).tolist(), strict=True))
+
+
+def target_sides(
+    task: CaptureTask, n: int, cache: EpisodeCache, *, recorded: bool = True, reference: bool
+) -> TargetSides:
+    """The target sides of ``n`` rows of ``task``: rendered where the scenario's camera renders
+    (the target-only frames kept in the cache if ``recorded``), else recorded ahead if
+    ``recorded`` (``reference``: as the single env records), else live."""
     if task.scenario.camera.mode == "rendered":
-        return RenderedSides(task, n, cache)
-    return RecordedSides(task, n, cache, reference)
+        return RenderedSides(task, n, cache, keep_frames=recorded)
+    if recorded:
+        return RecordedSides(task, n, cache, reference)
+    return LiveSides(task, n)

@@ -1,16 +1,15 @@
-"""``CaptureEnv``: the gymnasium environment, the N = 1 case of the task's step rule.
+"""``CaptureEnv``: the gymnasium environment, the N = 1 case of the episode engine.
 
-The rules of a step (capture, eq. 20 along the arc; failures; rewards; ``info``; the observation,
-eq. 13) are `capture_bench.task.step_rule.StepRule`'s, which this env applies to its one
-episode as [`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] applies them to N:
-the same
-code, called with one row. What both envs are made of (the scenario, the published description,
-the rule, the camera) is `capture_bench.engine.task.CaptureTask`, and the curriculum's levers
-`capture_bench.envs.core.TaskAccess`'s. The target's
-side of an episode (trajectory, camera eq. 2, estimator eqs. 3-12) comes from one
-`TargetSide`, live or replayed. What this module adds: the
-pybullet world (the arm's rate and joint limits, collisions, rendering) and the privileged
-interface the oracle uses.
+An episode is one row of a `capture_bench.engine.engine.EpisodeEngine`, the engine
+[`CaptureVectorEnv`][capture_bench.envs.vector_env.CaptureVectorEnv] steps N rows of: the arm's
+side (rate and joint limits, forward kinematics, collisions), the target's side (trajectory,
+camera eq. 2, estimator eqs. 3-12: live row by row, recorded at reset and replayed, or rendered;
+`capture_bench.engine.sides`) and the rules of a step (capture, eq. 20 along the arc; failures;
+rewards; ``info``; the observation, eq. 13: `capture_bench.task.step_rule.StepRule`), the same
+code. What both envs are made of is `capture_bench.engine.task.CaptureTask`, the curriculum's
+levers `capture_bench.envs.core.TaskAccess`'s. What this module adds: gymnasium's single-env
+API and ``info``, rendering, and the privileged interface the oracle uses
+(`capture_bench.engine.view.PrivilegedView`).
 """
 
 from __future__ import annotations
@@ -24,30 +23,22 @@ import gymnasium as gym
 import numpy as np
 from numpy.typing import NDArray
 
+from capture_bench.engine.arm import ArmSide
 from capture_bench.engine.cache import DEFAULT_EPISODE_CACHE, EpisodeCache, EpisodeKey
+from capture_bench.engine.engine import EpisodeEngine
+from capture_bench.engine.sides import EpisodeDraw, RenderedSides, target_sides
 from capture_bench.engine.task import CaptureTask, check_actions
 from capture_bench.engine.view import PrivilegedView
 from capture_bench.envs.core import Observation, TaskAccess
-from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.rendered_sensor import SceneEpisode
-from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
-from capture_bench.sensing.workspace_image import WorkspaceImager
-from capture_bench.sim import kinematics
-from capture_bench.sim.target_motion import TargetTrajectory
-from capture_bench.sim.world import World
 from capture_bench.task.physical_limit import PhysicalLimit
 from capture_bench.task.recording import RecordedEpisode
 from capture_bench.task.scenarios import Scenario
-from capture_bench.task.step_rule import (
-    BEFORE_TRACKS,
-    FAILURES,
-    ArmState,
-    scalar_info,
-)
-from capture_bench.task.target_side import TargetSide
+from capture_bench.task.step_rule import FAILURES, scalar_info
 
 __all__ = ["FAILURES", "CaptureEnv"]
 _ALL = slice(None)  # the single env's one episode, as rows of the step rule
+_ROW = np.zeros(1, dtype=np.intp)  # the same, as an index array
 
 
 def _check_display(render_mode: str | None) -> None:
@@ -290,33 +281,20 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
         self.action_space = task.single_action_space
         self.observation_space = task.single_observation_space
         self.camera_model = task.camera.model
-        sc = task.scenario
-        # The single episode's filter: filterpy's EKF (LeanExtendedKalmanFilter), ~4x faster at
-        # one episode than the batched filter's n = 1 (TargetEstimator's docstring).
-        self._estimator = TargetEstimator(
-            self.camera_model, task.features, source=sc.estimator.source, **sc.estimator_settings()
-        )
-        # camera.mode "rendered": frames rendered with the arm in them, the markers found in
-        # pixels (built on first use: it opens a pybullet world of its own)
         self.rendered = rendered
-        self._scene_camera: RenderedSceneCamera | None = None
-        # observation_source "pixels": the image's renderer (built on first use: its own world)
-        self._imager: WorkspaceImager | None = None
-        self._world: World | None = None
+        # The episode engine of one row (built at the first reset: it opens pybullet worlds)
+        self._engine: EpisodeEngine | None = None
         self._closed = False
-        self._side: TargetSide | None = None  # this episode's target side
         self._key: EpisodeKey | None = None  # (scenario, seed) of a seeded reset
-        self._state = ArmState.empty(1)
-        self._steps = 0  # steps since reset
         self._time = 0.0
         self._episode_over = True
 
     # -- privileged API (oracle and tests only): PrivilegedView's, over these hooks ----------
     def _view_episode(self) -> RecordedEpisode | None:
-        return None if self._side is None else self._side.episode
+        return None if self._engine is None else self._engine.episodes[0]
 
     def _view_step(self) -> int:
-        return self._steps
+        return 0 if self._engine is None else int(self._engine.steps[0])
 
     def _view_time(self) -> float:
         return self._time
@@ -332,9 +310,25 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
         return self._key
 
     @property
+    def engine(self) -> EpisodeEngine:
+        """The episode engine of this env's one row (privileged: tests and benchmarks reach the
+        target side, its camera and estimator through it); built when first asked for, it opens
+        the env's pybullet worlds (`close` closes them)."""
+        if self._engine is None:
+            task = self.task
+            sides = target_sides(
+                task, 1, self.episode_cache, recorded=self.reuse_target_side, reference=True
+            )
+            arm = ArmSide(task.features, task.description.arm, render_mode=self.render_mode)
+            self._engine = EpisodeEngine(task, 1, sides, arm)
+        return self._engine
+
+    @property
     def joint_angles(self) -> NDArray[np.float64]:
         """Current joint angles, rad, (3,)."""
-        return self._state.theta[0].copy()
+        if self._engine is None:
+            return np.zeros(3)
+        return self._engine.state.theta[0].copy()
 
     # -- gymnasium API --------------------------------------------------------------------------
     def reset(
@@ -342,91 +336,68 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
     ) -> tuple[Observation, dict[str, Any]]:
         super().reset(seed=seed)
         self._closed = False
-        if self._world is None:
-            self._world = World(self.task.features, render_mode=self.render_mode)
+        engine = self.engine
         self._key = None if seed is None else (self.scenario, int(seed))
-        if self.rendered:
-            self._side = self._rendered_side()
-        elif self.reuse_target_side:
-            self._side = self._recorded_side()
-        else:
-            self._side = self._live_side()
-        self._steps = 0
+        draw = EpisodeDraw(None if seed is None else int(seed), self.np_random)
+        info = scalar_info(engine.begin(_ROW, engine.prepare([draw])))
         self._time = 0.0
-        home = self.description.arm.home
-        self._side.arm_at = lambda _t: home
-        episode = self._side.through(0)
-        info = scalar_info(self.rule.start(self._state, _ALL, episode.position[:1]))
-        self._world.reset(self.description.arm.home, episode.position[0], episode.rotation[0])
+        episode = engine.episodes[0]
+        assert episode is not None
+        engine.arm.world.reset(self.description.arm.home, episode.position[0], episode.rotation[0])
         self._traces: dict[str, list[NDArray]] = {
             "target": [episode.position[0]],
-            "end_effector": [self._state.x_e[0].copy()],
+            "end_effector": [engine.state.x_e[0].copy()],
         }
         self._episode_over = False
-        return self._observe(0, episode.rows(0)), info
+        return self._observe(), info
 
     def step(self, action: NDArray) -> tuple[Observation, float, bool, bool, dict[str, Any]]:
         if self._closed:
             raise RuntimeError("CaptureEnv.step() called after close(); the env is closed")
-        if self._world is None or self._side is None:
+        engine = self._engine
+        if engine is None or engine.episodes[0] is None:
             raise RuntimeError("CaptureEnv.step() called before reset(); call env.reset() first")
         if self._episode_over:
             raise RuntimeError("the episode has ended; call env.reset() before step()")
         a = check_actions(action, (3,), "action")
-        k = self._steps + 1
-        side = self._side
-        theta0 = self._state.theta[0].copy() if side.needs_arm else None
-        joint_step = self._world.apply_joint_increment(self.task.increments(a), side.episode.dt[k])
-        if theta0 is not None:  # a rendered frame shows the arm during the step
-            t1 = float(side.episode.time[k])
-            side.arm_at = joint_path(theta0, joint_step.theta, self._time, t1)
-        episode = side.through(k)  # the target's side (a live one draws from np_random)
-        theta = joint_step.theta[None]
-        x_e = kinematics.forward_kinematics_point(joint_step.theta)[None]
-        after = episode.rows(k)
-        out = self.rule.step(
-            self._state,
-            _ALL,
-            episode.rows(k - 1, BEFORE_TRACKS),
-            after,
-            theta,
-            x_e,
-            np.array([joint_step.clipped]),
-            np.array([joint_step.saturated]),
-            self._collides,
-            self._trajectory,
-        )
+        out = engine.step(_ALL, a[None])
         terminated, truncated = bool(out.terminated[0]), bool(out.truncated[0])
         info = scalar_info(out.info)
-        self._steps, self._time = k, info["time"]
+        self._time = info["time"]
         self._episode_over = terminated or truncated
         if self._episode_over:
             info["physical_limit_time"] = self.physical_limit().time
         if self.render_mode is not None:  # the target never collides: only images show it
-            self._world.set_target_pose(episode.position[k], episode.rotation[k])
+            k = int(engine.steps[0])
+            episode = engine.episodes[0]
+            assert episode is not None
+            world = engine.arm.world
+            world.set_joint_positions(engine.state.theta[0].tolist())
+            world.set_target_pose(episode.position[k], episode.rotation[k])
             self._traces["target"].append(episode.position[k])
-            self._traces["end_effector"].append(x_e[0])
-        obs = self._observe(k, after)
-        return obs, out.reward.item(0), terminated, truncated, info
+            self._traces["end_effector"].append(engine.state.x_e[0].copy())
+        return self._observe(), out.reward.item(0), terminated, truncated, info
 
     def render(self) -> NDArray[np.uint8] | None:
-        if self.render_mode is None or self._world is None:
+        if self.render_mode is None or self._engine is None:
             return None
         width, height = self.render_size
         if self.render_view == "camera":
             return self._camera_view() if self.render_mode == "rgb_array" else None
         traces = {k: np.array(v) for k, v in self._traces.items()}
-        image = self._world.render(width, height, traces=traces)
+        image = self._engine.arm.world.render(width, height, traces=traces)
         return image if self.render_mode == "rgb_array" else None
 
     def _camera_view(self) -> NDArray[np.uint8]:
         """The rendered camera's image of this step with its detections and the estimate."""
-        if self._scene_camera is None or self._side is None:
+        sides = None if self._engine is None else self._engine.sides
+        side = None if not isinstance(sides, RenderedSides) else sides.sides[0]
+        if side is None or sides.camera is None:  # type: ignore[union-attr]
             raise RuntimeError("call reset() before render()")
-        episode, k = self._side.episode, self._steps
-        state = self._side.camera_episode
+        episode, k = side.episode, self._view_step()
+        state = side.camera_episode
         assert isinstance(state, SceneEpisode)  # a rendered side is live
-        return self._scene_camera.view(
+        return sides.camera.view(  # type: ignore[union-attr]
             self.joint_angles,
             episode.position[k],
             episode.rotation[k],
@@ -436,83 +407,18 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
         )
 
     def close(self) -> None:
-        """Disconnect the pybullet world; safe twice. ``step()`` then raises; ``reset()`` opens a
-        new world and the env can be used again."""
+        """Disconnect the pybullet worlds; safe twice. ``step()`` then raises; ``reset()`` opens
+        new worlds and the env can be used again."""
         self._closed = True
-        if self._world is not None:
-            self._world.close()
-            self._world = None
-        if self._scene_camera is not None:
-            self._scene_camera.close()
-            self._scene_camera = None
-        if self._imager is not None:
-            self._imager.close()
-            self._imager = None
+        if self._engine is not None:
+            self._engine.close()
+            self._engine = None
 
-    def _observe(self, k: int, now: dict[str, NDArray]) -> Observation:
-        """The observation at step ``k`` (``now``: the target side's row k): the estimate's
-        vector, or with pixels the image of the arm and of the true target, and the state."""
-        if not self.task.pixels:
-            return self.rule.observe(self._state, _ALL, now)[0]
-        if self._imager is None:
-            self._imager = self.task.imager()
-        episode = self.recorded_episode
-        obs = self.task.pixel_observation(
-            self._imager,
-            self._state,
-            _ALL,
-            episode.position[k : k + 1],
-            episode.rotation[k : k + 1],
-            now["dt"],
-        )
-        return {"image": obs["image"][0], "state": obs["state"][0]}
-
-    # -- the episode's target side ---------------------------------------------------------------
-    def _live_side(self) -> TargetSide:
-        """A new trajectory and control periods from ``np_random``, and a target side whose
-        steps are computed (and draw the camera's noise) as they come."""
-        task = self.task
-        return TargetSide.draw(
-            task.scenario, task.camera, self._estimator, task.features, self.np_random
-        )
-
-    def _rendered_side(self) -> TargetSide:
-        """A live side whose frames come from the rendered camera. With
-        `reuse_target_side` and a seed, the camera keeps what it saw of the target alone
-        in `episode_cache` by (scenario, seed) and renders again only a frame the arm may
-        reach (`RenderedSceneCamera`)."""
-        if self._scene_camera is None:
-            self._scene_camera = RenderedSceneCamera.for_scenario(self.task.scenario)
-        store = None
-        if self.reuse_target_side and self._key is not None:
-            store = self.episode_cache.scene_frames(self._key)
-        task = self.task
-        rng = self.np_random
-        return TargetSide.draw(
-            task.scenario, self._scene_camera, self._estimator, task.features, rng, store
-        )
-
-    def _recorded_side(self) -> TargetSide:
-        """This seed's target side to the time limit, recorded now (as live steps would compute
-        it, in the same order of random draws) unless `episode_cache` has it; an unseeded
-        reset is recorded and not kept. ``np_random`` then stands where the recording left it."""
-        found = None if self._key is None else self.episode_cache.recording(self._key)
-        if found is None:
-            episode = self._live_side().record_all()
-            state = self.np_random.bit_generator.state
-            if self._key is not None:
-                self.episode_cache.keep_recording(self._key, episode, state)
-        else:
-            episode, state = found
-        self.np_random.bit_generator.state = state
-        return TargetSide.replay(episode)
-
-    # -- the world's answers to the step rule -----------------------------------------------------
-    def _collides(self, ask: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        """Whether the arm is in collision now, if ``ask`` (one episode) asks."""
-        assert self._world is not None  # step() refuses to run before reset() or after close()
-        return np.array([bool(ask[0]) and self._world.collision() is not None])
-
-    def _trajectory(self, j: int) -> TargetTrajectory:
-        """The episode's true trajectory (the step rule's arc test asks for episode j = 0)."""
-        return self.recorded_episode.plan.trajectory
+    def _observe(self) -> Observation:
+        """The observation of the current step: the estimate's vector, or with pixels the image
+        of the arm and of the true target, and the state."""
+        assert self._engine is not None
+        obs = self._engine.observe()
+        if isinstance(obs, dict):
+            return {"image": obs["image"][0], "state": obs["state"][0]}
+        return obs[0]

@@ -194,7 +194,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self._engine: EpisodeEngine | None = EpisodeEngine(
             task,
             n,
-            target_sides(task, n, self.episode_cache, reference_target_side),
+            target_sides(task, n, self.episode_cache, reference=reference_target_side),
             ArmSide(task.features, task.description.arm),
         )
         self._rngs: list[np.random.Generator | None] = [None] * n
@@ -453,7 +453,10 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         info.update({f"_{key}": mask.copy() for key in values})
         over = idx[out.terminated | out.truncated]
         limit = np.full(n, np.nan)
-        limit[over] = engine.bound[over]
+        for i in over.tolist():
+            bound = engine.episodes[i].bound  # type: ignore[union-attr]
+            assert bound is not None  # recorded and rendered sides bound every episode
+            limit[i] = bound.time
         info["physical_limit_time"] = limit
         info["_physical_limit_time"] = self._mask(over)
         return info

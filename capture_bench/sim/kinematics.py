@@ -74,12 +74,12 @@ def forward_kinematics(theta: ArrayLike) -> FloatArray:
         End-effector position in the global frame, metres, shape (3,) or (N, 3).
     """
     q = np.asarray(theta, dtype=float)
-    t1, t2, t3 = q[..., 0], q[..., 1], q[..., 2]
-    r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
+    t1, t2, t23 = q[..., 0], q[..., 1], q[..., 1] + q[..., 2]
+    r = L1 * np.cos(t2) + L2 * np.sin(t23)
     out = np.empty(q.shape)
     out[..., 0] = r * np.cos(t1)
     out[..., 1] = r * np.sin(t1)
-    out[..., 2] = L1 * np.sin(t2) - L2 * np.cos(t2 + t3)
+    out[..., 2] = L1 * np.sin(t2) - L2 * np.cos(t23)
     return out
 
 

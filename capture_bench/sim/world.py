@@ -422,15 +422,13 @@ def limit_joint_increments(
         ``(theta_after (M, 3), clipped (M,), saturated (M,))`` as in `JointStep`.
     """
     step_max = arm.joint_rate_limits * dt[:, None]
-    step = np.where(
-        delta_theta > step_max, step_max, np.where(delta_theta < -step_max, -step_max, delta_theta)
-    )
+    step = np.minimum(np.maximum(delta_theta, -step_max), step_max)
     unclipped = theta + step
     lowest, highest = np.minimum(arm.joint_lower, theta), np.maximum(arm.joint_upper, theta)
     after = np.minimum(np.maximum(unclipped, lowest), highest)
-    clipped = np.any((step != delta_theta) | (after != unclipped), axis=1)
-    saturated = np.any(np.abs(after - theta) >= SATURATION_FRACTION * step_max, axis=1)
-    return np.asarray(after, dtype=float), clipped, saturated
+    clipped = ((step != delta_theta) | (after != unclipped)).any(axis=1)
+    saturated = (np.abs(after - theta) >= SATURATION_FRACTION * step_max).any(axis=1)
+    return after, clipped, saturated
 
 
 def _closed(*args: object, **kwargs: object) -> NoReturn:

@@ -1,4 +1,4 @@
-"""One producer of an episode's target side, live or replayed.
+"""One producer of an episode's target side, live or recorded.
 
 An episode's target side is everything on the target's half of every step: the true state
 (trajectory, paper section 4), the camera's frame (eq. 2), the estimate in the global frame
@@ -9,15 +9,13 @@ seeded generator, in an order no action changes).
 
 `TargetSide` holds it as one `RecordedEpisode`:
 
-* live (`TargetSide.live`), the single env's default: step k's row is computed when the
-  step asks for it (`TargetSide.through`), drawing the camera's noise from the env's
-  generator then, step by step, as a plain gymnasium env would;
-* recorded (`TargetSide.record_all`): every row to the time limit at once, in the same order
-  of draws (``CaptureEnv(reuse_target_side=True)``);
-* replayed (`TargetSide.replay`): a recording kept, for instance in an episode cache
-  (`capture_bench.engine.cache.EpisodeCache`).
+* live (`TargetSide.live`): step k's row is computed when the step asks for it
+  (`TargetSide.through`), drawing the camera's noise from the episode's generator then, step by
+  step, as a plain gymnasium env would (a row of `capture_bench.engine.sides.LiveSides`);
+* recorded (`TargetSide.record_many`): every row to the time limit at once, in the same order
+  of draws (`capture_bench.engine.sides.RecordedSides`' recording as the single env records).
 
-``CaptureVectorEnv`` records its episodes in batches
+`RecordedSides` otherwise records episodes in batches
 (`capture_bench.task.recording.record_episodes`), the same record type.
 """
 
@@ -88,8 +86,7 @@ class TargetSide:
     """One episode's target side as a `RecordedEpisode`, its rows filled up to
     `filled` (every row once complete).
 
-    Build it with `live` or `replay`; read row k of ``episode`` after
-    `through` (k).
+    Build it with `live` (or `draw`); read row k of ``episode`` after `through` (k).
     """
 
     def __init__(
@@ -169,11 +166,6 @@ class TargetSide:
         """A live side's camera state (its latest capture's flags and, for a scene camera,
         detections); None for a side recorded or replayed."""
         return None if self._sensors is None else self._sensors.episode
-
-    @classmethod
-    def replay(cls, episode: RecordedEpisode) -> TargetSide:
-        """A recorded episode, every row available."""
-        return cls(episode, episode.time.size)
 
     @property
     def complete(self) -> bool:
