@@ -95,7 +95,7 @@ def test_the_state_is_the_true_joints_end_effector_and_period(env):
     for action in _actions(5):
         obs, _, _, _, info = env.step(action)
         theta = env.joint_angles
-        x_e = kinematics.forward_kinematics_point(theta)
+        x_e = kinematics.forward_kinematics(theta)
         expected = np.concatenate([theta / np.pi, x_e, [info["dt"] / t_s]])
         assert obs["state"].dtype == np.float32
         np.testing.assert_allclose(obs["state"], expected.astype(np.float32), rtol=0, atol=0)

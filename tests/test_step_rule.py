@@ -127,7 +127,7 @@ def test_an_env_given_its_own_episode_cache_keeps_recordings_there_and_clear_emp
 
 # -- the rule at one episode, against hand-computed steps ---------------------------------------
 
-X_E = kinematics.forward_kinematics_point(kinematics.HOME)  # the arm holds still at home
+X_E = kinematics.forward_kinematics(kinematics.HOME)  # the arm holds still at home
 _OK, _DIVERGED = STATUSES.index("ok"), STATUSES.index("diverged")
 
 

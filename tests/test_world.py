@@ -1,5 +1,5 @@
-"""Tests of the pybullet world: URDF vs analytic kinematics, rate/joint clipping, collisions,
-client ownership and rendering."""
+"""Tests of the pybullet world (URDF vs analytic kinematics, collisions, client ownership and
+rendering), of the rate and joint limits and of the arm side that uses both."""
 
 from __future__ import annotations
 
@@ -8,7 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from references.joint_limits import apply_joint_increment
 
+from capture_bench.engine.arm import ArmSide
 from capture_bench.sim.kinematics import (
     HOME,
     JOINT_LOWER,
@@ -23,7 +25,7 @@ from capture_bench.sim.kinematics import (
     within_limits,
 )
 from capture_bench.sim.rotations import axis_angle_to_matrix
-from capture_bench.sim.world import World
+from capture_bench.sim.world import World, limit_joint_increments
 
 FEATURES = np.array([(0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (0.0, 0.1, 0.0), (0.0, 0.0, 0.05)])
 DT = 0.05
@@ -64,66 +66,101 @@ def test_pybullet_link_frames_match_analytic_fk(world):
     assert worst < FK_TOL
 
 
-def test_huge_request_moves_each_joint_exactly_its_rate_limit(world):
-    world.reset(HOME, TARGET_AWAY, np.eye(3))
-    step = world.apply_joint_increment(np.array([100.0, 100.0, -100.0]), DT)
+def _limit(theta, delta, dt: float = DT):
+    """`limit_joint_increments` for one arm: (theta after (3,), clipped, saturated)."""
+    after, clipped, saturated = limit_joint_increments(
+        np.array([theta], dtype=float), np.array([delta], dtype=float), np.array([dt]), ArmSpec()
+    )
+    return after[0], bool(clipped[0]), bool(saturated[0])
+
+
+def test_huge_request_moves_each_joint_exactly_its_rate_limit():
+    theta, clipped, saturated = _limit(HOME, [100.0, 100.0, -100.0])
     expected = JOINT_RATE_LIMITS * DT * np.array([1.0, 1.0, -1.0])
-    np.testing.assert_allclose(step.applied, expected, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(step.theta, HOME + expected, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(step.theta_before, HOME)
-    np.testing.assert_array_equal(world.theta, step.theta)
-    assert step.clipped and step.saturated and not step.at_joint_limit
+    np.testing.assert_allclose(theta - HOME, expected, rtol=0, atol=1e-12)
+    assert clipped and saturated and within_limits(theta)
 
 
-def test_rate_limit_scales_with_the_actual_dt(world):
-    world.reset(HOME, TARGET_AWAY, np.eye(3))
-    step = world.apply_joint_increment(np.array([-9.0, -9.0, 9.0]), 0.1)
+def test_rate_limit_scales_with_the_actual_dt():
+    theta, _, _ = _limit(HOME, [-9.0, -9.0, 9.0], 0.1)
     np.testing.assert_allclose(
-        step.applied, JOINT_RATE_LIMITS * 0.1 * np.array([-1, -1, 1]), rtol=0, atol=1e-12
+        theta - HOME, JOINT_RATE_LIMITS * 0.1 * np.array([-1, -1, 1]), rtol=0, atol=1e-12
     )
 
 
-def test_small_request_is_applied_unchanged(world):
-    world.reset(HOME, TARGET_AWAY, np.eye(3))
+def test_small_request_is_applied_unchanged():
     delta = 0.5 * JOINT_RATE_LIMITS * DT * np.array([1.0, -1.0, 0.3])
-    step = world.apply_joint_increment(delta, DT)
-    np.testing.assert_allclose(step.applied, delta, rtol=0, atol=1e-15)
-    assert not step.clipped and not step.saturated and not step.at_joint_limit
+    theta, clipped, saturated = _limit(HOME, delta)
+    np.testing.assert_array_equal(theta, HOME + delta)
+    assert not clipped and not saturated
 
 
-def test_request_at_exactly_the_rate_limit_saturates_without_clipping(world):
-    world.reset(HOME, TARGET_AWAY, np.eye(3))
-    step = world.apply_joint_increment(np.array([0.0, 0.0, 1.0]) * JOINT_RATE_LIMITS * DT, DT)
-    assert step.saturated and not step.clipped
+def test_request_at_exactly_the_rate_limit_saturates_without_clipping():
+    _, clipped, saturated = _limit(HOME, np.array([0.0, 0.0, 1.0]) * JOINT_RATE_LIMITS * DT)
+    assert saturated and not clipped
 
 
-def test_joint_limit_clips_and_flags(world):
+def test_joint_limit_clips_and_flags():
     start = np.array([0.0, JOINT_UPPER[1] - 0.005, 0.0])
-    world.reset(start, TARGET_AWAY, np.eye(3))
-    step = world.apply_joint_increment(np.array([0.0, 1.0, 0.0]), DT)
-    assert step.theta[1] == JOINT_UPPER[1]
-    assert step.applied[1] == pytest.approx(0.005, abs=1e-12)
-    assert step.clipped and step.at_joint_limit and not step.saturated
-    again = world.apply_joint_increment(np.array([0.0, 0.01, 0.0]), DT)  # push on the limit
-    assert again.applied[1] == 0.0 and again.clipped and again.at_joint_limit
+    theta, clipped, saturated = _limit(start, [0.0, 1.0, 0.0])
+    assert theta[1] == JOINT_UPPER[1]
+    assert theta[1] - start[1] == pytest.approx(0.005, abs=1e-12)
+    assert clipped and not saturated
+    again, clipped, _ = _limit(theta, [0.0, 0.01, 0.0])  # push on the limit
+    assert again[1] == theta[1] and clipped
 
 
-def test_joint_outside_limits_never_moves_further_out_nor_jumps_in(world):
+def test_joint_outside_limits_never_moves_further_out_nor_jumps_in():
     start = _deg(0, 20, -85)  # theta3 below its -70 deg limit, set directly
-    world.reset(start, TARGET_AWAY, np.eye(3))
-    out = world.apply_joint_increment(np.array([0.0, 0.0, -0.01]), DT)
-    assert out.applied[2] == 0.0 and out.clipped
-    back = world.apply_joint_increment(np.array([0.0, 0.0, 0.01]), DT)
-    assert back.applied[2] == pytest.approx(0.01, abs=1e-15)
+    out, clipped, _ = _limit(start, [0.0, 0.0, -0.01])
+    assert out[2] == start[2] and clipped
+    back, _, _ = _limit(start, [0.0, 0.0, 0.01])
+    assert back[2] - start[2] == pytest.approx(0.01, abs=1e-15)
 
 
-@pytest.mark.parametrize(
-    "delta, dt",
-    [([np.nan, 0, 0], DT), ([0, 0], DT), ([0, 0, 0], 0.0), ([0, 0, 0], -DT), ([0, 0, 0], np.inf)],
-)
-def test_bad_increments_raise(world, delta, dt):
-    with pytest.raises(ValueError):
-        world.apply_joint_increment(np.array(delta, dtype=float), dt)
+def test_limits_equal_the_scalar_reference_bit_for_bit():
+    rng = np.random.default_rng(5)
+    theta0 = rng.uniform(JOINT_LOWER - 0.2, JOINT_UPPER + 0.2, (500, 3))
+    request = rng.uniform(-0.6, 0.6, (500, 3))
+    request[::7] = JOINT_RATE_LIMITS * 0.05 * np.array([1.0, -1.0, 1.0])  # exactly at the rate
+    dt = rng.uniform(0.03, 0.07, 500)
+    dt[::7] = 0.05
+    after, clipped, saturated = limit_joint_increments(theta0, request, dt, ArmSpec())
+    for i in range(500):
+        step = apply_joint_increment(theta0[i], request[i], dt[i])
+        np.testing.assert_array_equal(after[i], step.theta)
+        assert (clipped[i], saturated[i]) == (step.clipped, step.saturated)
+    assert 50 < clipped.sum() < 500 and saturated.sum() > 50
+
+
+def test_arm_side_moves_by_the_limits_and_forward_kinematics():
+    arm_side = ArmSide(FEATURES, ArmSpec())
+    try:
+        rng = np.random.default_rng(6)
+        theta0 = rng.uniform(JOINT_LOWER, JOINT_UPPER, (40, 3))
+        request = rng.uniform(-0.3, 0.3, (40, 3))
+        dt = np.full(40, DT)
+        theta, x_e, clipped, saturated = arm_side.move(theta0, request, dt)
+        expected = limit_joint_increments(theta0, request, dt, ArmSpec())
+        np.testing.assert_array_equal(theta, expected[0])
+        np.testing.assert_array_equal(clipped, expected[1])
+        np.testing.assert_array_equal(saturated, expected[2])
+        np.testing.assert_array_equal(x_e, forward_kinematics(theta))
+        # Collisions: pybullet's answer on the rows asked, False elsewhere.
+        # home, then the floor, base and self collisions of test_collision_poses, one not asked
+        poses = np.array([HOME, _deg(0, 20, -20), _deg(0, 45, -83), _deg(0, 20, -95), HOME])
+        ask = np.array([True, True, True, True, False])
+        poses[4] = _deg(0, 20, -20)
+        world = arm_side.world
+        truth = []
+        for q in poses:
+            world.set_joint_positions(q.tolist())
+            truth.append(world.collision() is not None)
+        assert truth == [False, True, True, True, True]
+        np.testing.assert_array_equal(arm_side.collides(poses, ask), np.array(truth) & ask)
+    finally:
+        arm_side.close()
+        arm_side.close()  # safe twice
 
 
 def test_theta_is_a_copy(world):

@@ -83,22 +83,6 @@ def forward_kinematics(theta: ArrayLike) -> FloatArray:
     return out
 
 
-def forward_kinematics_point(theta: ArrayLike) -> FloatArray:
-    """`forward_kinematics` for one joint vector, with ``math`` (the per-step fast path).
-
-    Args:
-        theta: joint angles, rad, shape (3,).
-
-    Returns:
-        End-effector position in the global frame, metres, shape (3,).
-    """
-    t1, t2, t3 = (float(v) for v in cast("Iterable[float]", theta))
-    r = L1 * math.cos(t2) + L2 * math.sin(t2 + t3)
-    return np.array(
-        (r * math.cos(t1), r * math.sin(t1), L1 * math.sin(t2) - L2 * math.cos(t2 + t3))
-    )
-
-
 def elbow_position(theta: ArrayLike) -> FloatArray:
     """Position of joint 3 (the elbow) in the global frame, metres, shape (3,) or (N, 3)."""
     q = np.asarray(theta, dtype=float)

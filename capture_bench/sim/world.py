@@ -8,10 +8,11 @@ metres and radians; the floor is the plane ``z = -L0``. The arm is loaded from
 m; pybullet 3.2.7 stores link offsets and joint rotations as 32-bit floats, so 1e-9 m is not
 attainable).
 
-The arm is driven **kinematically**, as in the paper: joint angles are set, not simulated. The
-world enforces ``|delta_theta_i| <= theta_dot_max_i * dt`` and the joint limits whatever an agent
-asks. The target has no collision shape: capture is a geometric test done
-elsewhere; the target is only drawn.
+The arm is driven **kinematically**, as in the paper: joint angles are set, not simulated.
+`limit_joint_increments` is the rule that keeps them within ``|delta_theta_i| <= theta_dot_max_i
+* dt`` and the joint limits whatever an agent asks; the world sets the angles it is given. The
+target has no collision shape: capture is a geometric test done elsewhere; the target is only
+drawn.
 
 ``World`` imports nothing from gymnasium. It owns one ``BulletClient``; ``close()`` is safe twice.
 
@@ -22,9 +23,7 @@ modules (`capture_bench.sim.collision_screen`, `capture_bench.sim.traces`).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn, cast
 
@@ -57,27 +56,6 @@ _TRACE_COLOURS = ((220, 40, 40), (40, 90, 230), (30, 160, 60), (230, 150, 20), (
 _CAMERA = {"target": (0.25, 0.0, 0.1), "distance": 1.9, "yaw": 50.0, "pitch": -22.0, "fov": 45.0}
 
 
-@dataclass(slots=True)  # not frozen: frozen __init__ costs ~1.5 us per step
-class JointStep:
-    """What one `World.apply_joint_increment` did.
-
-    Attributes:
-        theta_before: joint angles before the step, rad, shape (3,).
-        theta: joint angles after the step, rad, shape (3,).
-        applied: the increment really applied, ``theta - theta_before``, rad, shape (3,).
-        clipped: the world reduced the request (rate limit or joint limit) on some joint.
-        saturated: some joint ran at >= 0.999 of its rate limit ``theta_dot_max_i * dt``.
-        at_joint_limit: some joint ends on its lower or upper limit.
-    """
-
-    theta_before: FloatArray
-    theta: FloatArray
-    applied: FloatArray
-    clipped: bool
-    saturated: bool
-    at_joint_limit: bool
-
-
 class World:
     """Floor, base column, arm and target in a private pybullet client.
 
@@ -86,8 +64,8 @@ class World:
             are drawn as coloured spheres (red, green, blue, yellow in that order).
         render_mode: ``None`` or ``"rgb_array"`` (headless ``DIRECT`` client) or ``"human"`` (a
             ``GUI`` window; needs a display).
-        arm: the arm's published constants; the rate and joint limits are enforced from it. The
-            link lengths must be Table 1's (the URDF models that arm only). Default ``ArmSpec()``.
+        arm: the arm's published constants: the joints start at its home pose; the link lengths
+            must be Table 1's (the URDF models that arm only). Default ``ArmSpec()``.
         marker_radius: None (default) for the target above; a radius in metres for the rendered
             camera's target instead (`capture_bench.sim.markers.create_marked_target`:
             spheres of that radius in the detector's colours, red, green, cyan, magenta, and a
@@ -119,9 +97,6 @@ class World:
             raise ValueError(f"feature_points must be a finite (4, 3) array, got {features.shape}")
         self.render_mode = render_mode
         self.feature_points = features
-        self._rate = tuple(float(v) for v in arm.joint_rate_limits)
-        self._lower = tuple(float(v) for v in arm.joint_lower)
-        self._upper = tuple(float(v) for v in arm.joint_upper)
         self._q = cast("tuple[float, float, float]", tuple(float(v) for v in arm.home))
         self._debug_items: dict[str, int] = {}  # trace name -> GUI debug item id
 
@@ -209,7 +184,7 @@ class World:
 
         Args:
             theta: joint angles, rad, shape (3,). Not clipped to the joint limits (tests use
-                poses outside them); `apply_joint_increment` never moves a joint further out.
+                poses outside them); `limit_joint_increments` never moves a joint further out.
             target_position: capture point in the global frame, metres, shape (3,).
             target_rotation: R_gt, target axes as columns in global coordinates, shape (3, 3).
         """
@@ -240,52 +215,6 @@ class World:
         if len(p) != 3 or len(r) != 3:
             raise ValueError("position must have shape (3,) and rotation (3, 3)")
         self._reset_base(self.target, p, quaternion_xyzw(r))
-
-    def apply_joint_increment(self, delta_theta: ArrayLike, dt: float) -> JointStep:
-        """Move the joints by ``delta_theta`` within the rate and joint limits (kinematic control).
-
-        Each ``|delta_i|`` is clipped to ``theta_dot_max_i * dt``, then the result to the joint
-        limits (a joint already outside them, set by `reset`, may not move further out).
-
-        Args:
-            delta_theta: requested joint increments, rad, shape (3,).
-            dt: the real duration of this control step, s, > 0.
-
-        Returns:
-            The `JointStep` that happened.
-        """
-        d = (
-            delta_theta.tolist()
-            if isinstance(delta_theta, np.ndarray)
-            else list(cast("Iterable[float]", delta_theta))
-        )
-        if len(d) != 3 or not (math.isfinite(d[0]) and math.isfinite(d[1]) and math.isfinite(d[2])):
-            raise ValueError(f"delta_theta must be a finite (3,) array, got {delta_theta!r}")
-        if not (dt > 0.0 and math.isfinite(dt)):
-            raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
-        dt = float(dt)  # a numpy scalar would make every operation below several times slower
-        before = self._q
-        new = []
-        clipped = saturated = at_limit = False
-        for d_i, q_i, rate, lower, upper in zip(d, before, self._rate, self._lower, self._upper):
-            step_max = rate * dt
-            step = step_max if d_i > step_max else (-step_max if d_i < -step_max else d_i)
-            unclipped = q_i + step
-            q = min(max(unclipped, min(lower, q_i)), max(upper, q_i))
-            clipped = clipped or step != d_i or q != unclipped
-            saturated = saturated or abs(q - q_i) >= SATURATION_FRACTION * step_max
-            at_limit = at_limit or q <= lower or q >= upper
-            new.append(q)
-        self._set_joints((new[0], new[1], new[2]))
-        rows = np.array((before, new))
-        return JointStep(
-            theta_before=rows[0],
-            theta=rows[1],
-            applied=rows[1] - rows[0],
-            clipped=clipped,
-            saturated=saturated,
-            at_joint_limit=at_limit,
-        )
 
     def collision(self) -> str | None:
         """Which collision the arm is in now: ``"floor"``, ``"base"``, ``"self"`` or ``None``.
@@ -410,7 +339,10 @@ def limit_joint_increments(
     dt: FloatArray,
     arm: ArmSpec,
 ) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
-    """`World.apply_joint_increment`'s limits for M arms at once, with the same arithmetic.
+    """The arm's rate and joint limits applied to M requested increments.
+
+    Each ``|delta_i|`` is clipped to ``theta_dot_max_i * dt``, then the result to the joint limits
+    (a joint already outside them, set by `World.reset`, may not move further out).
 
     Args:
         theta: joint angles before the step, rad, (M, 3).
@@ -419,16 +351,18 @@ def limit_joint_increments(
         arm: the rate and joint limits.
 
     Returns:
-        ``(theta_after (M, 3), clipped (M,), saturated (M,))`` as in `JointStep`.
+        ``(theta_after (M, 3), clipped (M,), saturated (M,))``: the joint angles after the step;
+        whether a limit (rate or joint) reduced the request on some joint; whether some joint ran
+        at >= ``SATURATION_FRACTION`` of its rate limit ``theta_dot_max_i * dt``.
     """
     step_max = arm.joint_rate_limits * dt[:, None]
-    step = np.minimum(np.maximum(delta_theta, -step_max), step_max)
+    step = np.minimum(np.maximum(delta_theta, -step_max), step_max)  # to ±step_max (> 0)
     unclipped = theta + step
     lowest, highest = np.minimum(arm.joint_lower, theta), np.maximum(arm.joint_upper, theta)
     after = np.minimum(np.maximum(unclipped, lowest), highest)
-    clipped = ((step != delta_theta) | (after != unclipped)).any(axis=1)
-    saturated = (np.abs(after - theta) >= SATURATION_FRACTION * step_max).any(axis=1)
-    return after, clipped, saturated
+    clipped = np.any((step != delta_theta) | (after != unclipped), axis=1)
+    saturated = np.any(np.abs(after - theta) >= SATURATION_FRACTION * step_max, axis=1)
+    return np.asarray(after, dtype=float), clipped, saturated
 
 
 def _closed(*args: object, **kwargs: object) -> NoReturn:

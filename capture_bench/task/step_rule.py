@@ -281,7 +281,7 @@ class StepRule:
     def start(self, state: ArmState, rows: Rows, target_position: FloatArray) -> dict[str, NDArray]:
         """Begin episodes ``rows`` at the home pose; ``target_position`` X_T at reset, (M, 3).
         Returns their reset ``info`` values (`RESET_INFO_KEYS`), (M,) each."""
-        x_e = kinematics.forward_kinematics_point(self.home)
+        x_e = kinematics.forward_kinematics(self.home)
         state.theta[rows] = self.home
         state.x_e[rows] = x_e
         state.path_length[rows] = state.since_frame[rows] = state.unreachable_for[rows] = 0.0
@@ -560,7 +560,7 @@ class StepRule:
         out.time[i] = done
         out.speed[i] = float(speeds[-1])
         out.speed_max[i] = largest
-        x_e = kinematics.forward_kinematics_point(theta0 + end * applied)
+        x_e = kinematics.forward_kinematics(theta0 + end * applied)
         x_t = (1.0 - end) * positions[0][i] + end * positions[1][i]
         out.distance[i] = math.sqrt(float(np.dot(x_e - x_t, x_e - x_t)))
 
