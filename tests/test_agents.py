@@ -9,7 +9,7 @@ import pytest
 
 import capture_bench.agents as agents
 from capture_bench.agents import AGENTS, IncrementalIK, Oracle, make_agent
-from capture_bench.agents.incremental_ik import incremental_step, lambda_max_of
+from capture_bench.agents.incremental_ik import IncrementalStep, incremental_steps, lambda_max_of
 from capture_bench.agents.residual import RESIDUAL_BASES
 from capture_bench.sim.kinematics import (
     HOME,
@@ -26,6 +26,14 @@ from capture_bench.task.observation import TaskDescription, decode_observation, 
 DESCRIPTION = TaskDescription()
 T_S = DESCRIPTION.control_period
 RATES = DESCRIPTION.arm.joint_rate_limits
+
+
+def incremental_step(
+    theta, target_position, target_velocity, description, **kwargs
+) -> IncrementalStep:
+    """`incremental_steps` for one episode: Theta, X^_T, Xdot^_T of shape (3,)."""
+    rows = (np.asarray(v, dtype=float)[None] for v in (theta, target_position, target_velocity))
+    return incremental_steps(*rows, description, **kwargs).row(0)
 
 
 class PublicEnv:

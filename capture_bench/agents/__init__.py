@@ -25,7 +25,7 @@ from capture_bench.agents.baselines import (
     PurePursuit,
     RandomAgent,
 )
-from capture_bench.agents.incremental_ik import FOLLOW_THROUGH, IncrementalIK, incremental_step
+from capture_bench.agents.incremental_ik import FOLLOW_THROUGH, IncrementalIK, incremental_steps
 from capture_bench.agents.oracle import Oracle
 from capture_bench.agents.protocol import Agent
 
@@ -120,6 +120,6 @@ __all__ = [
     "Oracle",
     "PurePursuit",
     "RandomAgent",
-    "incremental_step",
+    "incremental_steps",
     "make_agent",
 ]

@@ -201,29 +201,6 @@ def incremental_steps(
     return IncrementalStep(increment, n, u, lam_max, speed, singular)
 
 
-def incremental_step(
-    theta: NDArray,
-    target_position: NDArray,
-    target_velocity: NDArray,
-    description: TaskDescription,
-    cap: bool = True,
-    det_threshold: float = DET_THRESHOLD,
-    damping: float = DAMPING,
-    follow_through: float = 0.0,
-) -> IncrementalStep:
-    """`incremental_steps` for one episode: Theta, X^_T, Xdot^_T of shape (3,)."""
-    return incremental_steps(
-        np.asarray(theta, dtype=float)[None],
-        np.asarray(target_position, dtype=float)[None],
-        np.asarray(target_velocity, dtype=float)[None],
-        description,
-        cap,
-        det_threshold,
-        damping,
-        follow_through,
-    ).row(0)
-
-
 class IncrementalIK(AnalyticController):
     """The paper's lambda_max controller (eqs. 13-19) as an
     [`capture_bench.agents.protocol.Agent`][capture_bench.agents.protocol.Agent].

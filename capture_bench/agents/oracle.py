@@ -70,7 +70,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from capture_bench.agents.base import predict_each, safe_action
-from capture_bench.agents.incremental_ik import incremental_step
+from capture_bench.agents.incremental_ik import incremental_steps
 from capture_bench.sim.kinematics import forward_kinematics, inverse_kinematics, within_limits
 from capture_bench.task.capture import (
     held_capture,
@@ -337,7 +337,7 @@ class Oracle:
         if star is not None and away:
             return safe_action((star - theta) / scale)  # full rate toward theta*
         self.mode = "fallback"
-        step = incremental_step(theta, goal, np.zeros(3), desc, cap=True)
+        step = incremental_steps(theta[None], goal[None], np.zeros((1, 3)), desc, cap=True).row(0)
         return safe_action(desc.increment_to_action(step.increment))
 
     def predict(
