@@ -34,7 +34,7 @@ from capture_bench.task.scenarios import (
     list_scenarios,
     load_scenario,
 )
-from capture_bench.training.hyperparameters import load_hyperparameters
+from capture_bench.training.config.hyperparameters import load_hyperparameters
 
 SHIPPED = scenarios.SCENARIO_DIR
 NAME_RULE = "lowercase letters, digits and _"

@@ -1,4 +1,4 @@
-"""The task statistics of training episodes (capture_bench/training/episode_stats.py), on
+"""The task statistics of training episodes (capture_bench/training/common/episode_stats.py), on
 hand-built ``info`` dicts, and against the leaderboard's per-episode record on a real episode."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from capture_bench.task.step_rule import END_INFO_KEYS, FAILURES, INFO_KEYS
-from capture_bench.training.episode_stats import (
+from capture_bench.training.common.episode_stats import (
     EpisodeStats,
     EpisodeTracker,
     episode_stats,

@@ -389,7 +389,7 @@ def test_help_teaches_the_valid_agents_scenarios_suites_algorithms_and_examples(
     from capture_bench.evaluation.agents_loading import builtin_names
     from capture_bench.evaluation.suites import list_suites
     from capture_bench.task.scenarios import list_scenarios
-    from capture_bench.training.hyperparameters import ALGORITHMS
+    from capture_bench.training.config.hyperparameters import ALGORITHMS
 
     assert main(["--help"]) == 0
     out = capsys.readouterr().out

@@ -23,7 +23,7 @@ from capture_bench.agents.sb3_policy import (
 )
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 from capture_bench.training.seeds import TrainingSeeds
 
 SIZE = 36  # a small image keeps the tiny runs fast; the default is 84
@@ -207,7 +207,7 @@ def test_shipping_a_pixel_run_writes_a_card_that_replays_in_pixel_envs(pixel_run
     from test_model_cards import _check_replay
     from test_safe_models import _assert_same_actions
 
-    from capture_bench.training.model_card import ship
+    from capture_bench.training.train.model_card import ship
 
     target = ship(pixel_run, "px", episodes=2, out=tmp_path / "models")
     card = json.loads((target / "metadata.json").read_text())["model_card"]

@@ -10,7 +10,7 @@ from typing import Any
 from capture_bench.argparsing import OneLineParser
 from capture_bench.sensing.sources import ENV_OBSERVATIONS
 from capture_bench.task.rewards import REWARD_MODES
-from capture_bench.training.hyperparameters import ALGORITHMS
+from capture_bench.training.config.hyperparameters import ALGORITHMS
 
 
 def option(default: Any, doc: str, choices: tuple[str, ...] | None = None) -> Any:

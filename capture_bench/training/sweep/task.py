@@ -4,7 +4,7 @@ and the run directory sent back whole as a tar archive.
 Nothing here assumes the driver's filesystem: the task gets everything it reads as bytes (the
 run directory to resume, the ``--config`` file) and returns everything it wrote, so the run can
 happen on any node of the cluster and land under the driver's ``--runs``
-(`capture_bench.training.sweep`). Ray's cancellation (``ray.cancel``, not forced) raises
+(`capture_bench.training.sweep.command`). Ray's cancellation (``ray.cancel``, not forced) raises
 KeyboardInterrupt in the task: train.py then saves a checkpoint, as on Ctrl-C, and the run
 directory still comes back, resumable.
 """
@@ -20,7 +20,7 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from capture_bench.training.run_plan import train_argv
+from capture_bench.training.common.run_plan import train_argv
 
 #: Characters of a run's output kept in its result (the end: where an error is).
 OUTPUT_TAIL = 4000
@@ -32,7 +32,7 @@ class RunSpec:
 
     Attributes:
         name: the run directory's name, ``<scenario>-<arm>-<seed>``.
-        scenario, arm, seed: what it trains (`capture_bench.training.run_plan`).
+        scenario, arm, seed: what it trains (`capture_bench.training.common.run_plan`).
         options: train.py options of a new run (``--set``, ``--total-timesteps``), without
             ``--config`` and ``--device``.
         device: train.py's ``--device``, new or resumed.
@@ -135,7 +135,7 @@ def train_run(spec: RunSpec) -> RunResult:
             resume = spec.partial is not None
             argv = train_argv(run_dir, spec.scenario, spec.arm, spec.seed, resume, options)
             argv += ["--device", spec.device]
-            from capture_bench.training.run import main as train_main
+            from capture_bench.training.common.run import main as train_main
 
             with contextlib.redirect_stdout(output), contextlib.redirect_stderr(output):
                 try:

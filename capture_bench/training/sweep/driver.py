@@ -1,6 +1,6 @@
 """The driver's side of a sweep on Ray: the runs sent as tasks, their results installed under
 ``--runs`` as they come back, the cancellation on Ctrl-C, and what the summary says of the
-nodes (`capture_bench.training.sweep` is the command)."""
+nodes (`capture_bench.training.sweep.command` is the command)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from typing import Any
 from capture_bench.files import atomic_write
 from capture_bench.interrupts import interrupts_deferred, sigterm_as_interrupt
 from capture_bench.task.scenarios import ConfigError
-from capture_bench.training.run_plan import resumable_step
-from capture_bench.training.sweep_task import RunResult, RunSpec, train_run, unpack
+from capture_bench.training.common.run_plan import resumable_step
+from capture_bench.training.sweep.task import RunResult, RunSpec, train_run, unpack
 
 #: Prefix of the folders a run is unpacked into, under ``--runs``, before it is renamed in.
 STAGING_PREFIX = ".sweep-"

@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from capture_bench.task.scenarios import ConfigError
-from capture_bench.training.checkpoint import list_checkpoints
+from capture_bench.training.common.checkpoint import list_checkpoints
 
 #: An arm ``<algo>-pixels``: ``<algo>`` trained on the camera's pixels.
 PIXEL_ARM = "-pixels"
@@ -31,7 +31,7 @@ def arm_options(arm: str) -> tuple[str, list[str]]:
     """The algorithm of an arm (``ppo``, or ``ppo-pixels``) and the train.py options it adds."""
     if not arm.endswith(PIXEL_ARM):
         return arm, []
-    from capture_bench.training.run import pixel_config
+    from capture_bench.training.common.build import pixel_config
 
     algo = arm.removesuffix(PIXEL_ARM)
     return algo, ["--observation-source", "pixels", "--config", str(pixel_config(algo))]

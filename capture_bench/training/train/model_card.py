@@ -1,4 +1,4 @@
-"""Ship a trained policy: ``python -m capture_bench.training.model_card RUN_DIR --name NAME``.
+"""Ship a trained policy: ``python -m capture_bench.training.train.model_card RUN_DIR --name NAME``.
 
 RUN_DIR is a finished run (its final policy) or a run's ``best/`` (the policy of its best periodic
 validation, as the RL Zoo ships ``best_model``; the card says which, and at which step). Copies
@@ -26,7 +26,7 @@ from typing import Any
 from capture_bench.files import atomic_write
 from capture_bench.paths import models_dir
 from capture_bench.task.scenarios import ConfigError, load_scenario
-from capture_bench.training.policy_export import BEST_DIR, IMITATION_FILE, VALIDATION_FILE
+from capture_bench.training.common.policy_export import BEST_DIR, IMITATION_FILE, VALIDATION_FILE
 
 #: The fields every model card has (``metadata.json`` key ``model_card``).
 CARD_FIELDS = ("command", "total_timesteps", "wall_time_s", "hardware", "training_seed",
@@ -99,8 +99,8 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
     per episode and summarised."""
     from capture_bench.agents.sb3_policy import load_policy, observation_options, read_metadata
     from capture_bench.envs.vector_env import CaptureVectorEnv
-    from capture_bench.training.episode_stats import summarize
-    from capture_bench.training.validation_run import run_validation
+    from capture_bench.training.common.episode_stats import summarize
+    from capture_bench.training.common.validation_run import run_validation
 
     metadata = read_metadata(model_dir)
     loaded = load_policy(metadata)
@@ -131,7 +131,7 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
 def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Path:
     """Copy the run to ``models/<name>/`` with its model card; return the directory."""
     from capture_bench.provenance import machine
-    from capture_bench.training.mixture import mixture_scenarios
+    from capture_bench.training.common.mixture import mixture_scenarios
 
     run_dir = Path(run_dir)
     meta_file = run_dir / "metadata.json"
@@ -177,7 +177,7 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
     }
     imitation_file = config_file.parent / IMITATION_FILE
     if imitation_file.is_file():  # DAgger before the algorithm (training/imitation.py)
-        from capture_bench.training.imitation import describe_teacher
+        from capture_bench.training.common.imitation import describe_teacher
 
         card["imitation"] = {
             "teacher": describe_teacher(meta.get("hyperparameters", {}).get("imitate", "")),
@@ -351,7 +351,7 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m capture_bench.training.model_card",
+    parser = argparse.ArgumentParser(prog="python -m capture_bench.training.train.model_card",
                                      description=__doc__.splitlines()[0])  # fmt: skip
     parser.add_argument(
         "run_dir", help="a finished run (or its best/); with --revalidate, models/<name>"

@@ -12,7 +12,7 @@ seeds, and writes one report page, ``learning_curves.md`` and a self-contained
   seed's validation capture rate first reached ``incremental_ik``'s (median over the seeds that
   did, and how many did);
 * aggregate statistics over the training seeds (rliable,
-  `capture_bench.training.seed_statistics`): per algorithm the IQM, optimality gap and mean
+  `capture_bench.training.curves.seed_statistics`): per algorithm the IQM, optimality gap and mean
   of the runs' final mean per-episode score with stratified bootstrap intervals, and the
   probability of improvement between algorithms; the unit of replication is the training seed;
   and their performance profiles, ``performance_profile.png`` (the share of an algorithm's
@@ -32,7 +32,7 @@ level is then pooled the same way. ``--arms`` reads runs of any name instead of 
 training recipes trained by their own commands).
 
 Every number comes from the runs' ``validations.csv`` (written by train.py's periodic
-validation: `capture_bench.training.policy_export.VALIDATIONS_FILE`) and, for a run that
+validation: `capture_bench.training.common.policy_export.VALIDATIONS_FILE`) and, for a run that
 imitated a controller first, its ``imitation.json`` (the policy validated after each DAgger
 round: the curve starts there, and the algorithm's steps follow the imitation's), so the page is
 regenerated without training again. Validation seeds only: nothing here reads a published
@@ -58,10 +58,11 @@ from capture_bench import rliable_stats
 from capture_bench.argparsing import OneLineParser
 from capture_bench.files import atomic_write, check_writable
 from capture_bench.task.scenarios import ConfigError
-from capture_bench.training import run_plan, seed_statistics
-from capture_bench.training.mixture import mixture_name, mixture_scenarios
-from capture_bench.training.policy_export import IMITATION_FILE, VALIDATIONS_FILE
-from capture_bench.training.run_plan import is_finished, run_path, train_argv
+from capture_bench.training.common import run_plan
+from capture_bench.training.common.mixture import mixture_name, mixture_scenarios
+from capture_bench.training.common.policy_export import IMITATION_FILE, VALIDATIONS_FILE
+from capture_bench.training.common.run_plan import is_finished, run_path, train_argv
+from capture_bench.training.curves import seed_statistics
 
 METRICS = (
     ("capture_rate", "validation capture rate"),
@@ -190,8 +191,8 @@ def baseline_level(scenario: str, episodes: int) -> dict[str, float]:
     them."""
     from capture_bench.agents.incremental_ik import IncrementalIK
     from capture_bench.envs.vector_env import CaptureVectorEnv
-    from capture_bench.training.episode_stats import summarize
-    from capture_bench.training.validation_run import run_validation
+    from capture_bench.training.common.episode_stats import summarize
+    from capture_bench.training.common.validation_run import run_validation
 
     played = []
     for sc in mixture_scenarios(scenario):
@@ -512,7 +513,7 @@ def train_runs(
 ) -> int:
     """Train (or resume) every run of each arm that has not finished; the first non-zero exit
     status."""
-    from capture_bench.training.run import main as train_main
+    from capture_bench.training.common.run import main as train_main
 
     for arm in arms:
         for seed in seeds:
@@ -528,7 +529,7 @@ def train_runs(
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from capture_bench.training.hyperparameters import ALGORITHMS
+    from capture_bench.training.config.hyperparameters import ALGORITHMS
 
     parser = OneLineParser(
         prog="python -m capture_bench curves",

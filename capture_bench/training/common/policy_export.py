@@ -24,7 +24,7 @@ from typing import Any
 
 from capture_bench.files import atomic_write
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.training.options import command_line
+from capture_bench.training.config.options import command_line
 
 BEST_DIR = "best"
 VALIDATION_FILE = "validation.json"
@@ -37,9 +37,10 @@ SELECTION_RULE = (
 
 
 #: Every validation of a run, one row each: ``step``, ``wall_time_s`` (training time of the run
-#: so far, validations included), then the statistics. Read by `capture_bench.training.curves`.
+#: so far, validations included), then the statistics. Read by
+#: `capture_bench.training.curves.command`.
 VALIDATIONS_FILE = "validations.csv"
-#: What a run's imitation did (`capture_bench.training.imitation.dagger`), as JSON.
+#: What a run's imitation did (`capture_bench.training.common.imitation.dagger`), as JSON.
 IMITATION_FILE = "imitation.json"
 
 
@@ -98,7 +99,7 @@ def policy_metadata(
             observations are normalised), named in ``model`` and ``vecnormalize``.
     """
     from capture_bench.provenance import git_state, package_versions
-    from capture_bench.training.mixture import is_mixture, mixture_name
+    from capture_bench.training.common.mixture import is_mixture, mixture_name
 
     mixed = is_mixture(config.scenario)
     scenario = None if mixed else load_scenario(config.scenario)

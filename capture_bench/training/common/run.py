@@ -1,16 +1,19 @@
-"""What ``train.py`` does: check every option before any work, build the envs and the SB3 model
-(or restore the run's newest checkpoint), learn, and save the policy in the safe form.
+"""One training run, what ``train.py`` does: check every option before any work, build the envs
+and the SB3 model (`capture_bench.training.common.build`; or restore the run's newest checkpoint),
+learn, and save the policy in the safe form. ``train.py``'s command
+(`capture_bench.training.train.command`) is `main`; the sweep's tasks and ``curves --train``
+train their runs with it, and the sweep checks its runs' options with `prepare`.
 
 Hyper-parameters come from ``configs/algos/<algo>.yaml``, with ``--config`` (a file that may
 set a few keys), ``--set`` and the options layered over it, validated by
-`capture_bench.training.hyperparameters`. A run goes to ``--run-dir``, by default
+`capture_bench.training.config.hyperparameters`. A run goes to ``--run-dir``, by default
 ``runs/<scenario>-<algo>-<seed>`` or, where that is taken, the first free ``..._2``, ``..._3``;
 an existing run is never written into but by ``--resume``. A run directory holds
 ``config.json`` (everything needed to resume), ``tb/`` (TensorBoard), ``checkpoints/step_<N>/``
-(`capture_bench.training.checkpoint`: parameters, optimiser state, counters, replay buffer
+(`capture_bench.training.common.checkpoint`: parameters, optimiser state, counters, replay buffer
 and VecNormalize statistics, written under a temporary name and renamed, and read back without
 unpickling anything), ``best/`` (the policy of the best periodic validation so far, in the safe
-form: `capture_bench.training.policy_export`), and at the end the policy in the safe form
+form: `capture_bench.training.common.policy_export`), and at the end the policy in the safe form
 ``policy.pt`` + ``metadata.json`` (`capture_bench.agents.policy_file`), beside SB3's own
 ``model.zip``.
 Ctrl-C (SIGINT) or SIGTERM saves a checkpoint and exits with status 130 or 143. A user's mistake
@@ -23,13 +26,10 @@ rounded total.
 from __future__ import annotations
 
 import contextlib
-import itertools
 import json
 import os
-import signal
 import sys
 import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,43 +37,51 @@ from capture_bench.argparsing import program
 from capture_bench.files import atomic_write, check_writable
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.sensing.sources import ENV_OBSERVATIONS, PIXELS
-from capture_bench.task.scenarios import CONFIG_DIR, ConfigError, load_scenario
-from capture_bench.training.checkpoint import (
+from capture_bench.task.scenarios import ConfigError
+from capture_bench.training.common.build import (
+    build_model,
+    build_venv,
+    check_curricula,
+    check_imitation,
+    check_observation,
+    check_shaping,
+    close_envs,
+    curriculum_callbacks,
+    fill_curriculum_steps,
+    mixture_curricula,
+    shares_of,
+)
+from capture_bench.training.common.checkpoint import (
     CheckpointError,
     list_checkpoints,
     read_checkpoint,
     restore,
 )
-from capture_bench.training.hyperparameters import (
-    ALGORITHMS,
-    CURRICULA,
-    OFF_POLICY,
-    TRAINING_KEYS,
-    algorithm_class,
-    image_size,
-    memory_estimate,
-    planned_steps,
-    resolve_hyperparameters,
-    sb3_kwargs,
-    steps_per_update,
-    validate_hyperparameters,
-)
-from capture_bench.training.mixture import (
-    MixtureVecEnv,
+from capture_bench.training.common.mixture import (
     is_mixture,
     mixture_name,
     mixture_scenarios,
-    mixture_shares,
 )
-from capture_bench.training.options import (
+from capture_bench.training.common.policy_export import IMITATION_FILE
+from capture_bench.training.common.run_lock import RunLock
+from capture_bench.training.config.hyperparameters import (
+    ALGORITHMS,
+    OFF_POLICY,
+    TRAINING_KEYS,
+    algorithm_class,
+    memory_estimate,
+    planned_steps,
+    resolve_hyperparameters,
+    steps_per_update,
+    validate_hyperparameters,
+)
+from capture_bench.training.config.options import (
     FLAGS,
     RESUMABLE_OPTIONS,
     TrainConfig,
     parse_args,
 )
-from capture_bench.training.policy_export import IMITATION_FILE
-from capture_bench.training.run_lock import RunLock
-from capture_bench.training.seeds import TrainingSeeds, check_training_seed
+from capture_bench.training.seeds import check_training_seed
 
 #: Memory one training environment holds (a pybullet world, the estimator, the recordings):
 #: measured ~30 MB per CaptureEnv on the 2-core machine; the check leaves a margin.
@@ -85,11 +93,6 @@ BATCHED_ENV_MEMORY_BYTES = 2 * 2**20
 #: environments with its buffers, networks and update batch (the estimate,
 #: `memory_estimate`).
 MEMORY_SHARE = 0.8
-#: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
-#: number it read from there). One: the networks are small (a few 256-wide layers, batches of
-#: <= 1024), so a second thread saves little in the update and costs a spin-waiting core that
-#: the env side (the same process) and other processes need; see docs/speed.md, "Training speed".
-TORCH_THREADS = 1
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -352,62 +355,6 @@ def free_run_dir(default: Path) -> Path:
     return candidate
 
 
-def pixel_config(algo: str) -> Path:
-    """The shipped hyper-parameters of ``algo`` on pixels (``configs/pixels/<algo>.yaml``; only
-    some algorithms have one)."""
-    return CONFIG_DIR / "pixels" / f"{algo}.yaml"
-
-
-def check_observation(config: TrainConfig, hp: dict) -> None:
-    """The policy fits what the agent observes: ``MultiInputPolicy`` (a CNN on the image beside
-    the arm state) for ``pixels``, ``MlpPolicy`` for an estimate; pixels train on-policy (an
-    off-policy replay buffer of 84 x 84 images would hold tens of GB), on one scenario, without a
-    residual base (it reads the estimate) and without ``normalize`` (the policy scales the image,
-    the state is of order one)."""
-    pixels = config.observation_source == PIXELS
-    given = f"--observation-source {config.observation_source}"
-    if pixels and is_mixture(config.scenario):
-        raise ConfigError(f"{given}: train pixels on one scenario, not {config.scenario}")
-    if pixels and config.algo in OFF_POLICY:
-        raise ConfigError(
-            f"{given}: {config.algo} keeps a replay buffer of images (tens of GB at 84 x 84); "
-            "train pixels with ppo or a2c"
-        )
-    from capture_bench.provenance import display_path
-
-    shipped = pixel_config(config.algo)
-    hint = f" (--config {display_path(shipped)})" if pixels and shipped.is_file() else ""
-    if pixels and hp["policy"] != "MultiInputPolicy":
-        raise ConfigError(
-            f"{given}: the agent sees a Dict (image, state), which policy {hp['policy']} cannot "
-            f"read; use policy MultiInputPolicy with features_extractor combined{hint}"
-        )
-    if not pixels and hp["policy"] == "MultiInputPolicy":
-        seen = config.observation_source or "each scenario's estimate"
-        raise ConfigError(
-            f"policy MultiInputPolicy reads the pixel observation; train it with "
-            f"--observation-source pixels, or use MlpPolicy for {seen}"
-        )
-    for key, bad in (("residual", "none"), ("normalize", False)):
-        if pixels and hp[key] != bad:
-            raise ConfigError(
-                f"{given}: {key} {hp[key]} is not available with pixels; set {key}: {bad}"
-            )
-    if pixels:
-        from capture_bench.sensing.workspace_image import check_image_size
-
-        try:
-            check_image_size(image_size(hp), load_scenario(config.scenario).camera.model())
-        except ValueError as exc:
-            raise ConfigError(f"key 'image_size': {exc}") from None
-    if "image_size" in hp and not pixels:
-        seen = config.observation_source or "each scenario's estimate"
-        raise ConfigError(
-            f"key 'image_size' sizes the pixel observation; train with --observation-source "
-            f"pixels, or drop it for {seen}"
-        )
-
-
 def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
     """What a mixture of ``count`` scenarios needs: the batched env, sub-envs for every scenario
     (`mixture_shares`), and no setting that depends on one
@@ -440,75 +387,14 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
             )
 
 
-def shares_of(config: TrainConfig, hp: dict) -> list[int]:
-    """The sub-envs of each scenario of ``config``'s mixture, in its order
-    (`mixture_shares` of ``hp``'s ``mixture_weights``)."""
-    names = [s.name for s in mixture_scenarios(config.scenario)]
-    return mixture_shares(config.n_envs or hp["n_envs"], names, hp.get("mixture_weights"))
-
-
-def fill_curriculum_steps(hp: dict) -> None:
-    """Give a curriculum without ``curriculum_steps`` half the run's ``total_timesteps``."""
-    if any(key in hp for key in CURRICULA):
-        hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
-
-
-def check_curricula(hp: dict, scenario: Any) -> None:
-    """A curriculum starts on the easy side of the scenario's rule and moves to it: a tolerance
-    above its epsilon, a hold below its ``capture.hold``."""
-    hold, eps = scenario.capture.hold, scenario.capture_tolerance
-    if "curriculum_hold" in hp and not hp["curriculum_hold"] < hold:
-        raise ConfigError(
-            f"curriculum_hold {hp['curriculum_hold']:g} s is not below {scenario.name}'s "
-            f"capture.hold {hold:g} s; the curriculum grows the hold to it (e.g. "
-            "--scenario grasp --set curriculum_hold=0)"
-        )
-    if "curriculum_tolerance" in hp and not hp["curriculum_tolerance"] > eps:
-        raise ConfigError(
-            f"curriculum_tolerance {hp['curriculum_tolerance']:g} m is not above "
-            f"{scenario.name}'s capture tolerance {eps:g} m; the curriculum shrinks it to that"
-        )
-
-
-def check_imitation(config: TrainConfig, hp: dict, scenarios: list[str]) -> None:
-    """``imitate`` fits an actor-critic policy to a controller that reads the same observation,
-    and leaves the learned policy alone: PPO or A2C, the estimate's observation, no residual and
-    no VecNormalize (whose statistics the controller would not see); a controller per scenario
-    names only ``scenarios`` (the run's) and gives each one."""
-    if "imitate" not in hp:
-        return
-    from capture_bench.training.imitation import describe_teacher, teacher_names
-
-    teacher_names(hp["imitate"], scenarios)
-    teacher = describe_teacher(hp["imitate"])
-    if config.algo not in ("ppo", "a2c"):
-        raise ConfigError(
-            f"imitate {teacher}: fits an actor-critic policy (ppo or a2c), not {config.algo}"
-        )
-    if hp["residual"] != "none":
-        raise ConfigError(
-            f"imitate {teacher} with residual {hp['residual']}: a hybrid already acts through "
-            "its controller; choose one"
-        )
-    if hp["normalize"]:
-        raise ConfigError(
-            f"imitate {teacher}: the controller reads the raw observation; set normalize: false"
-        )
-    if config.observation_source == PIXELS:
-        raise ConfigError(
-            f"imitate {teacher}: the controller reads the target estimate, not pixels; train "
-            "on the estimate (leave out --observation-source pixels)"
-        )
-
-
 def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any) -> dict[str, Any]:
     """DAgger from ``hp["imitate"]`` on the run's training envs (``venv`` inside ``VecMonitor``,
     so the imitation's episodes stay out of the algorithm's statistics), the policy validated
     after each round where the run validates (``eval_freq``; ``progress``'s validation, nothing
-    logged): `capture_bench.training.imitation.dagger`."""
+    logged): `capture_bench.training.common.imitation.dagger`."""
     from capture_bench.engine.task import resolve_scenario
     from capture_bench.task.episode import describe_task
-    from capture_bench.training.imitation import dagger, make_teacher, teacher_names
+    from capture_bench.training.common.imitation import dagger, make_teacher, teacher_names
 
     if is_mixture(config.scenario):
         scenarios, shares = mixture_scenarios(config.scenario), shares_of(config, hp)
@@ -523,19 +409,6 @@ def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any)
     return dagger(model, raw, teacher, hp["imitation_rounds"], hp["imitation_steps"],
                   hp["imitation_epochs"], config.seed or 0, validate=validate,
                   floor=hp["imitation_floor"])  # fmt: skip
-
-
-def check_shaping(hp: dict) -> None:
-    """``reward: shaped`` is potential-based only for the discount it assumes."""
-    from capture_bench.task.rewards import SHAPING_GAMMA
-
-    gamma = hp.get("gamma", 0.99)  # SB3's default for every algorithm
-    if hp["reward"] == "shaped" and gamma != SHAPING_GAMMA:
-        raise ConfigError(
-            f"reward shaped is potential-based shaping for gamma {SHAPING_GAMMA} "
-            f"(capture_bench/task/rewards.py), but gamma is {gamma}; set gamma={SHAPING_GAMMA} "
-            "or use reward dense"
-        )
 
 
 def resolved_yaml(config: TrainConfig, hp: dict, origin: dict) -> str:
@@ -674,156 +547,6 @@ def note_rounding(algo: str, hp: dict, done: int = 0) -> None:
               f"rounded up to {end}")  # fmt: skip
 
 
-def make_env(config: TrainConfig, hp: dict, rank: int, subprocess: bool) -> Any:
-    """A thunk building environment ``rank``: CaptureEnv with training seeds only."""
-
-    def thunk() -> Any:
-        if subprocess:  # signals are the main process's: it saves, then ends the workers
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-            signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        from capture_bench.envs.capture_env import CaptureEnv
-
-        scenario = load_scenario(config.scenario)
-        env = CaptureEnv(
-            scenario,
-            observation_source=config.observation_source,
-            reward=hp["reward"],
-            image_size=image_size(hp),
-        )
-        return TrainingSeeds(env, scenario, seed=(config.seed or 0) * 1000 + rank)
-
-    return thunk
-
-
-def build_venv(config: TrainConfig, hp: dict) -> Any:
-    """The training envs of ``config.vec_env`` in a ``VecMonitor`` (and ``VecNormalize`` where
-    ``hp["normalize"]``): ``batched`` (`
-    CaptureSB3VecEnv`, one process), or SB3's ``dummy`` / ``subproc`` vector envs of single
-    ``CaptureEnv``s; all draw the same training-seed episodes."""
-    from stable_baselines3.common.vec_env import (
-        DummyVecEnv,
-        SubprocVecEnv,
-        VecMonitor,
-        VecNormalize,
-    )
-
-    n_envs = config.n_envs or 1
-    venv: Any
-    if is_mixture(config.scenario):  # each scenario's share of the sub-envs, side by side
-        from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
-
-        scenarios = mixture_scenarios(config.scenario)
-        venv = MixtureVecEnv([
-            CaptureSB3VecEnv(share, sc, seed=(config.seed or 0) * 1000 + k, reward=hp["reward"])
-            for k, (sc, share) in enumerate(zip(scenarios, shares_of(config, hp), strict=True))
-        ])  # fmt: skip
-    elif config.vec_env == "batched":
-        from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
-
-        venv = CaptureSB3VecEnv(
-            n_envs,
-            config.scenario,
-            seed=config.seed or 0,
-            observation_source=config.observation_source,
-            reward=hp["reward"],
-            image_size=image_size(hp),
-        )
-    else:
-        subprocess = config.vec_env == "subproc"
-        fns = [make_env(config, hp, i, subprocess) for i in range(n_envs)]
-        venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
-    venv = VecMonitor(venv)
-    if hp["residual"] != "none":  # a hybrid: the policy's action is a residual on the base
-        from capture_bench.engine.task import resolve_scenario
-        from capture_bench.task.episode import describe_task
-        from capture_bench.training.residual_vec_env import ResidualVecEnv
-
-        description = describe_task(resolve_scenario(config.scenario, config.observation_source))
-        venv = ResidualVecEnv(venv, hp["residual"], hp["residual_scale"], description)
-    if hp["normalize"]:
-        venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99))
-    return venv
-
-
-def set_torch_threads() -> int:
-    """Give torch `TORCH_THREADS` intra-op threads, unless the user chose a number with
-    ``OMP_NUM_THREADS``; return the number torch uses."""
-    import torch
-
-    if not os.environ.get("OMP_NUM_THREADS"):
-        torch.set_num_threads(TORCH_THREADS)
-    return torch.get_num_threads()
-
-
-def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str | None) -> Any:
-    """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``hp`` (torch
-    threads: `set_torch_threads`)."""
-    set_torch_threads()
-    algorithm = algorithm_class(config.algo)
-    return algorithm(
-        hp["policy"], venv, seed=config.seed, device=config.device,
-        tensorboard_log=tensorboard_log, **sb3_kwargs(hp, config.algo),
-    )  # fmt: skip
-
-
-def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
-    """The curricula ``hp`` asks for on ``scenario`` (training only), by the name of their
-    callback in `capture_bench.training.callbacks`, with its keyword arguments:
-    ``{"ToleranceCurriculum": {"start": m, "final": eps (m, 3 numbers), "steps": ..., "delay":
-    ...}, "HoldCurriculum": {"start": s, "final": capture.hold (s), ...}}``; empty where it asks
-    for none. ``hp`` holds ``curriculum_steps`` (``prepare`` fills it in)."""
-    if not any(key in hp for key in CURRICULA):
-        return {}
-    from capture_bench.task.episode import describe_task
-
-    schedule = {"steps": hp["curriculum_steps"], "delay": hp["curriculum_delay"]}
-    found: dict[str, dict[str, Any]] = {}
-    if "curriculum_tolerance" in hp:
-        final = [float(x) for x in describe_task(scenario).capture_tolerance]
-        found["ToleranceCurriculum"] = {"start": hp["curriculum_tolerance"], "final": final}
-    if "curriculum_hold" in hp:
-        found["HoldCurriculum"] = {"start": hp["curriculum_hold"], "final": scenario.capture.hold}
-    return {name: {**kwargs, **schedule} for name, kwargs in found.items()}
-
-
-def mixture_curricula(
-    hp: dict, scenarios: Sequence[Any], shares: Sequence[int]
-) -> list[tuple[str, dict[str, Any]]]:
-    """A mixture's curricula, scenario by scenario: each of `curricula` on a scenario
-    where it moves (a hold curriculum where ``curriculum_hold`` is below the scenario's
-    ``capture.hold``, a tolerance one where ``curriculum_tolerance`` is above its epsilon; the
-    others keep their rule), bound to that scenario's sub-envs of the
-    `MixtureVecEnv` (``indices``: its ``shares[k]``,
-    after the earlier scenarios') and labelled by it."""
-    out = []
-    offsets = [0, *itertools.accumulate(shares)]
-    for k, scenario in enumerate(scenarios):
-        for name, kwargs in curricula(hp, scenario).items():
-            if name == "HoldCurriculum" and not kwargs["start"] < kwargs["final"]:
-                continue
-            if name == "ToleranceCurriculum" and not kwargs["start"] > max(kwargs["final"]):
-                continue
-            indices = list(range(offsets[k], offsets[k + 1]))
-            out.append((name, {**kwargs, "indices": indices, "label": scenario.name}))
-    return out
-
-
-def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
-    """The curricula ``hp`` asks for (training only: validation keeps the scenario's rule), as
-    SB3 callbacks (`curricula`; on a mixture, one per scenario it moves on,
-    `mixture_curricula`); none where it asks for none (a mixture's spec, which names no
-    one scenario, is then never loaded)."""
-    if not any(key in hp for key in CURRICULA):
-        return []
-    from capture_bench.training import callbacks
-
-    if is_mixture(config.scenario):
-        found = mixture_curricula(hp, mixture_scenarios(config.scenario), shares_of(config, hp))
-    else:
-        found = list(curricula(hp, load_scenario(config.scenario)).items())
-    return [getattr(callbacks, name)(**kwargs) for name, kwargs in found]
-
-
 def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
     """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
     from capture_bench.training.callbacks import Checkpointer, Progress, RolloutMetrics
@@ -859,7 +582,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     status, imitating = 0, False
     try:
         if "imitate" in hp:  # a resumed run's warm-up goes on frozen where it stopped
-            from capture_bench.training.imitation import FrozenActor
+            from capture_bench.training.common.imitation import FrozenActor
 
             callbacks.append(FrozenActor(hp["imitation_warmup"]))
         imitating = checkpoint is None and "imitate" in hp
@@ -898,27 +621,9 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     return 0
 
 
-def close_envs(venv: Any, interrupted: bool) -> None:
-    """Close the vectorised envs; after an interrupt, kill subprocess workers instead.
-
-    The signal can land while the main process waits on the workers' pipes; SB3's graceful close
-    would then wait for replies already consumed, forever (seen on the 16-env device run). The
-    workers ignore SIGINT and SIGTERM (the main process handles them), so they are killed.
-    """
-    base = venv.unwrapped
-    if interrupted and hasattr(base, "processes"):
-        for process in base.processes:
-            process.kill()
-        for process in base.processes:
-            process.join(timeout=5)
-        base.closed = True
-        return
-    venv.close()
-
-
 def add_wall_time(run_dir: Path, seconds: float) -> float:
     """Add a session's training time to ``run_dir/wall_time.json``; return the total, s."""
-    from capture_bench.training.policy_export import WALL_TIME_FILE, recorded_wall_time
+    from capture_bench.training.common.policy_export import WALL_TIME_FILE, recorded_wall_time
 
     path = run_dir / WALL_TIME_FILE
     total = recorded_wall_time(run_dir) + seconds
@@ -936,7 +641,7 @@ def save_final(
     """Write the policy in the safe form (``policy.pt`` + declared ``metadata.json``, loaded
     without unpickling: `capture_bench.agents.policy_file`), and SB3's own ``model.zip`` (+
     ``vecnormalize.pkl``) for SB3 users who trust the run."""
-    from capture_bench.training.policy_export import (
+    from capture_bench.training.common.policy_export import (
         export_policy,
         policy_metadata,
         save_sb3_files,

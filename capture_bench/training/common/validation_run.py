@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from capture_bench.envs.vector_env import sub_env_infos
-from capture_bench.training.episode_stats import EpisodeStats, EpisodeTracker
+from capture_bench.training.common.episode_stats import EpisodeStats, EpisodeTracker
 
 
 def run_validation(

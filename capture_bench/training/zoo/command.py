@@ -56,17 +56,17 @@ from capture_bench.task.scenarios import (
     list_scenarios,
     load_scenario,
 )
-from capture_bench.training.hyperparameters import (
-    ACTIVATIONS,
-    ALGO_KEYS,
-    ALGORITHMS,
-    resolve_hyperparameters,
-)
-from capture_bench.training.run import (
+from capture_bench.training.common.build import (
     check_curricula,
     check_shaping,
     curricula,
     fill_curriculum_steps,
+)
+from capture_bench.training.config.hyperparameters import (
+    ACTIVATIONS,
+    ALGO_KEYS,
+    ALGORITHMS,
+    resolve_hyperparameters,
 )
 
 PROG = "python -m capture_bench zoo-hyperparams"

@@ -15,15 +15,20 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger
 
 from capture_bench.training.callbacks import Progress
-from capture_bench.training.hyperparameters import (
+from capture_bench.training.common.build import (
+    build_model,
+    build_venv,
+    close_envs,
+    curriculum_callbacks,
+)
+from capture_bench.training.config.hyperparameters import (
     CURRICULA,
     planned_steps,
     validate_hyperparameters,
 )
-from capture_bench.training.options import TrainConfig
-from capture_bench.training.run import build_model, build_venv, close_envs, curriculum_callbacks
-from capture_bench.training.search_spaces import merge, sample
-from capture_bench.training.tune_options import Setup
+from capture_bench.training.config.options import TrainConfig
+from capture_bench.training.tune.options import Setup
+from capture_bench.training.tune.search_spaces import merge, sample
 
 
 def objective_value(capture_rate: float, ratio: float, n_episodes: int) -> float:

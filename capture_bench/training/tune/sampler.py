@@ -24,7 +24,7 @@ import optuna
 from optuna.samplers import BaseSampler, TPESampler
 
 if TYPE_CHECKING:
-    from capture_bench.training.tune_options import TuneConfig
+    from capture_bench.training.tune.options import TuneConfig
 
 
 def trial_seed(seed: int, number: int) -> int:

@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.task.scenarios import Scenario
-from capture_bench.training.hyperparameters import ALGORITHMS
-from capture_bench.training.options import option as _opt
+from capture_bench.training.config.hyperparameters import ALGORITHMS
+from capture_bench.training.config.options import option as _opt
 
 
 @dataclass
@@ -69,7 +69,7 @@ class TuneConfig:
 
 @dataclass
 class Setup:
-    """A checked `TuneConfig`, resolved (`capture_bench.training.tune.prepare`):
+    """A checked `TuneConfig`, resolved (`capture_bench.training.tune.command.prepare`):
     what every trial uses."""
 
     config: TuneConfig

@@ -7,7 +7,7 @@ validations inside each trial), for the validation capture rate.
     python tune.py --algo sac --scenario paper --trials 40 --workers 4   # 4 trials at a time
 
 Each trial trains ``--n-timesteps`` steps on training seeds only, with the hyper-parameters it
-samples (`capture_bench.training.search_spaces`) merged over those ``train.py`` would train
+samples (`capture_bench.training.tune.search_spaces`) merged over those ``train.py`` would train
 the scenario with (``configs/algos/<algo>.yaml`` and its scenario section, ``--config`` layered
 over them) and validated like any config file, and is validated ``--n-evaluations`` times on
 the first ``--eval-episodes`` validation seeds (never a published evaluation seed). The score of
@@ -16,10 +16,10 @@ first and, among equal capture rates, the median ratio of capture time to the ph
 (lower is better). The options are `TuneConfig`.
 Trials are stored in ``--storage`` (default ``sqlite:///<output>/study.db``); a study with the
 same name is resumed with the settings it was created with
-(`capture_bench.training.tune_study`: an option left out takes the study's value, another
+(`capture_bench.training.tune.study`: an option left out takes the study's value, another
 value is refused). ``--workers N`` runs N trials at once in worker processes, ``--ray-address``
 as Ray tasks on a cluster, and a second ``tune.py`` on the same study adds its trials to it
-(`capture_bench.training.tune_workers`). At the end (also after Ctrl-C) ``--output`` gets
+(`capture_bench.training.tune.workers`). At the end (also after Ctrl-C) ``--output`` gets
 ``best.yaml`` (for ``train.py --config``), ``trials.csv``, ``optimization_history.png`` and
 ``param_importances.png`` from every trial of the study, each written atomically. A user's
 mistake is one line on stderr and exit 2, found before anything is written.
@@ -38,18 +38,18 @@ from capture_bench.files import check_writable
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.ray_cluster import check_ray_cluster
 from capture_bench.task.scenarios import ConfigError, load_scenario
-from capture_bench.training.hyperparameters import (
+from capture_bench.training.config.hyperparameters import (
     ALGORITHMS,
     OFF_POLICY,
     SB3_N_STEPS,
     resolve_hyperparameters,
 )
-from capture_bench.training.search_spaces import SAMPLERS, Choice
 from capture_bench.training.seeds import check_training_seed
-from capture_bench.training.tune_options import Setup, TuneConfig
-from capture_bench.training.tune_outputs import OUTPUT_FILES, redacted, write_outputs
-from capture_bench.training.tune_storage import shared_url
-from capture_bench.training.tune_study import keep_settings
+from capture_bench.training.tune.options import Setup, TuneConfig
+from capture_bench.training.tune.outputs import OUTPUT_FILES, redacted, write_outputs
+from capture_bench.training.tune.search_spaces import SAMPLERS, Choice
+from capture_bench.training.tune.storage import shared_url
+from capture_bench.training.tune.study import keep_settings
 
 PROG = program("tune.py")  # capture-bench-tune when run as that console script
 INSTALL_HINT = "pip install 'capture-bench[tune]' (or: pip install 'optuna>=3.4')"
@@ -91,7 +91,7 @@ def prepare(config: TuneConfig, given: set[str] | None = None) -> Setup:
     """Check and resolve every option before any work; writes nothing. ``given``: the options
     given on the command line (default: none; the others may take a continued study's value,
     `open_study`). Raises [`ConfigError`][capture_bench.ConfigError] naming what is wrong."""
-    from capture_bench.training.run import check_curricula, check_shaping
+    from capture_bench.training.common.build import check_curricula, check_shaping
 
     config.algo = config.algo.lower()
     if config.algo not in ALGORITHMS:
@@ -221,12 +221,12 @@ def open_study(setup: Setup) -> Any:
     """Create the study in ``setup.storage``, or load the one of that name: then its algorithm and
     scenario must match, and ``setup`` takes the settings its trials ran with, or a differing
     option is refused (`keep_settings`). The study
-    samples and prunes as `tune_sampler` says (trial n's random
+    samples and prunes as `sampler` says (trial n's random
     numbers seeded with ``(--seed, n)``)."""
     import optuna
 
-    from capture_bench.training.tune_sampler import configure
-    from capture_bench.training.tune_storage import open_storage
+    from capture_bench.training.tune.sampler import configure
+    from capture_bench.training.tune.storage import open_storage
 
     config = setup.config
     try:
@@ -274,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     _note_rollouts(setup)
     _note_workers(setup)
-    from capture_bench.training.tune_workers import run_study
+    from capture_bench.training.tune.workers import run_study
 
     print(
         f"tuning {setup.config.algo.upper()} on {setup.scenario.name}: study {setup.study_name!r} "

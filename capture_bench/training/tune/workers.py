@@ -2,7 +2,7 @@
 tasks on a cluster (``--ray-address``), every one a client of the same study storage.
 
 A worker opens its own connection to the storage (`
-open_storage`), takes the study's sampler and pruner (`tune_sampler`)
+open_storage`), takes the study's sampler and pruner (`sampler`)
 and runs its share of ``--trials`` (`shares`) with ``study.optimize``; the storage numbers
 the trials, so workers never collide, and each trial records the worker that ran it (user
 attribute ``worker``, ``host:pid``). Trials write no files (no run directory, a logger that writes
@@ -43,7 +43,7 @@ from capture_bench.interrupts import (
     sigterm_as_interrupt,
 )
 from capture_bench.ray_cluster import import_ray, start_ray
-from capture_bench.training.tune_storage import open_storage, shared_url
+from capture_bench.training.tune.storage import open_storage, shared_url
 from capture_bench.worker_processes import (
     end_with_parent,
     process_context,
@@ -51,14 +51,14 @@ from capture_bench.worker_processes import (
 )
 
 if TYPE_CHECKING:
-    from capture_bench.training.tune_options import Setup
+    from capture_bench.training.tune.options import Setup
 
 #: Seconds a stopped worker has to record its trial as failed before it is killed.
 STOP_GRACE_S = 30.0
 #: The user attribute naming the worker that runs a trial (``host:pid``).
 WORKER_ATTR = "worker"
 #: Modules the forkserver imports once, so that each worker forks with them loaded.
-PRELOAD = ("capture_bench.training.tune_trial",)
+PRELOAD = ("capture_bench.training.tune.trial",)
 #: The option that asks for Ray, as its messages name it.
 RAY_OPTION = "--ray-address"
 
@@ -90,7 +90,7 @@ def load_study(setup: Setup) -> Any:
     """``setup``'s study, opened afresh (a worker's own connection), with its sampler and pruner."""
     import optuna
 
-    from capture_bench.training.tune_sampler import configure
+    from capture_bench.training.tune.sampler import configure
 
     study = optuna.load_study(study_name=setup.study_name, storage=open_storage(setup.storage))
     return configure(study, setup.config)
@@ -109,7 +109,7 @@ def run_trials(
     then no other trial starts. In a Ray task (``signals`` empty) Ray's cancellation raises
     KeyboardInterrupt wherever the task is.
     """
-    from capture_bench.training.tune_trial import run_trial
+    from capture_bench.training.tune.trial import run_trial
 
     interrupts: list[KeyboardInterrupt] = []
     name = f"{socket.gethostname()}:{os.getpid()}"

@@ -13,7 +13,7 @@ DAgger's point. After each round the policy's mean action is fitted to the label
 so far (mean squared error, Adam, ``imitation_epochs`` passes; with ``imitation_floor`` > 0 each
 label's error is taken relative to the teacher's action above that floor,
 `label_weights`). The policy then acts alone: nothing of the controller is left in it,
-unlike a residual (`capture_bench.training.residual_vec_env`).
+unlike a residual (`capture_bench.training.common.residual_vec_env`).
 
 ``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
 (`FrozenActor`), so the critic, still untrained, learns the imitated policy's values

@@ -13,10 +13,10 @@ import json
 from typing import TYPE_CHECKING, Any
 
 from capture_bench.task.scenarios import ConfigError
-from capture_bench.training.search_spaces import describe_space
+from capture_bench.training.tune.search_spaces import describe_space
 
 if TYPE_CHECKING:
-    from capture_bench.training.tune_options import Setup
+    from capture_bench.training.tune.options import Setup
 
 #: The settings that define a trial -> the option that sets each (None: the code, not an option).
 #: ``config`` is kept beside them, the path the base hyper-parameters came from (for messages
@@ -131,7 +131,7 @@ def _refusal(setup: Setup, key: str, value: Any, current: Any, config: str | Non
         name = next(n for n in sorted({*value, *current}) if value.get(n) != current.get(n))
         return (
             f"{study} samples {name} as {value.get(name, '(not sampled)')}, but "
-            f"capture_bench/training/search_spaces.py now samples it as "
+            f"capture_bench/training/tune/search_spaces.py now samples it as "
             f"{current.get(name, '(not sampled)')}; continue it with the code that created it, "
             f"or {advice}"
         )

@@ -91,8 +91,9 @@ TRAINING_KEYS = {
     # a tolerance curriculum, training only: eq. 20 counts a capture at curriculum_tolerance (m)
     # at first, shrinking geometrically to the scenario's epsilon over curriculum_steps
     "curriculum_tolerance": Rule("float", 0.0, 1.0, low_inclusive=False),
-    # imitation first (capture_bench/training/imitation.py): DAgger from this analytic controller
-    # (or, in a mixture, one per scenario: {default: <controller>, <scenario>: <controller>}),
+    # imitation first (capture_bench/training/common/imitation.py): DAgger from this analytic
+    # controller (or, in a mixture, one per scenario: {default: <controller>, <scenario>:
+    # <controller>}),
     # imitation_rounds rounds of imitation_steps environment steps, imitation_epochs passes of the
     # fit after each; then imitation_warmup steps of the algorithm train the critic alone
     "imitate": Rule("choice_per_name", choices=RESIDUAL_BASES),

@@ -1,12 +1,12 @@
 """Training sweeps on Ray: ``python -m capture_bench sweep``.
 
 Trains every combination of ``--algos``, ``--scenarios`` and ``--seeds``, each run one Ray task
-(`capture_bench.training.sweep_task.train_run`, asking Ray for ``--cpus-per-run`` CPUs and
+(`capture_bench.training.sweep.task.train_run`, asking Ray for ``--cpus-per-run`` CPUs and
 ``--gpus-per-run`` GPUs) on a new local Ray instance (on the loopback; no other cluster is
 joined) or on the running cluster ``--ray-address`` names (`capture_bench.ray_cluster`
 starts or joins it and ships this checkout to the nodes). Each run is what
 ``train.py`` writes, at ``<runs>/<scenario>-<arm>-<seed>`` (the naming of ``curves --train``:
-`capture_bench.training.run_plan`). The task trains in a temporary directory of its node and
+`capture_bench.training.common.run_plan`). The task trains in a temporary directory of its node and
 sends the directory back as a tar archive; this process unpacks it beside its place under
 ``--runs`` and renames it in (``config.json``'s ``run_dir`` set to that place), so the nodes
 share no filesystem and no run directory is ever half-written.
@@ -46,12 +46,12 @@ from capture_bench.files import atomic_write, check_writable
 from capture_bench.interrupts import exit_status, signals_ignored
 from capture_bench.paths import CHECKOUT_DIR
 from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
-from capture_bench.training import run_plan
-from capture_bench.training.hyperparameters import ALGORITHMS
-from capture_bench.training.run_plan import is_finished, resumable_step, run_path, train_argv
+from capture_bench.training.common import run_plan
+from capture_bench.training.common.run_plan import is_finished, resumable_step, run_path, train_argv
+from capture_bench.training.config.hyperparameters import ALGORITHMS
 from capture_bench.training.seeds import check_training_seed
-from capture_bench.training.sweep_ray import Run
-from capture_bench.training.sweep_task import RunSpec, pack
+from capture_bench.training.sweep.driver import Run
+from capture_bench.training.sweep.task import RunSpec, pack
 
 PROG = "python -m capture_bench sweep"
 NAME = "sweep"  # in error lines: "sweep: error: ..."
@@ -174,9 +174,9 @@ def check_train_options(
         ConfigError: the options do not make a valid train.py run; the message names the arm and
             the scenario.
     """
-    from capture_bench.training.checkpoint import CheckpointError
-    from capture_bench.training.options import parse_args
-    from capture_bench.training.run import prepare
+    from capture_bench.training.common.checkpoint import CheckpointError
+    from capture_bench.training.common.run import prepare
+    from capture_bench.training.config.options import parse_args
 
     notes: list[str] = []
     with tempfile.TemporaryDirectory(prefix="capture-bench-sweep-check-") as tmp:
@@ -346,7 +346,7 @@ def run_sweep(sweep: Sweep) -> int:
     if not todo:
         print(plan_line)
         return finish(sweep, {}, None)
-    from capture_bench.training import sweep_ray
+    from capture_bench.training.sweep import driver as sweep_ray
 
     started = ray_cluster.start_ray(sweep.address, "the sweep", excludes=_excludes(sweep.runs))
     try:

@@ -22,7 +22,7 @@ import yaml
 from capture_bench.files import atomic_write, directory_lock
 
 if TYPE_CHECKING:
-    from capture_bench.training.tune_options import Setup
+    from capture_bench.training.tune.options import Setup
 
 OUTPUT_FILES = ("best.yaml", "trials.csv", "optimization_history.png", "param_importances.png")
 
@@ -93,7 +93,7 @@ def best_yaml(trial: Any, setup: Setup) -> str:
         f"{attrs.get('capture_rate')} on {attrs.get('eval_episodes')} validation seeds, "
         f"median ratio to the limit {ratio_text}",
         f"(after {trial.user_attrs.get('n_timesteps')} steps; objective_value in "
-        "capture_bench/training/tune_trial.py).",
+        "capture_bench/training/tune/trial.py).",
         f"Tuned by: {setup.command} (the study's settings, every trial's)",
         f"Train with: python train.py --algo {algo} --scenario {scenario} --config "
         f"{setup.output / 'best.yaml'}",
