@@ -87,7 +87,7 @@ def _try(load: Callable[[], Any]) -> tuple[Any, str | None]:
 
 def list_everything() -> list[str]:
     """The lines ``python -m capture_bench list`` prints."""
-    from capture_bench.evaluation.suites import SUITES_DIR, list_suites, load_suite
+    from capture_bench.evaluation.running.suites import SUITES_DIR, list_suites, load_suite
     from capture_bench.task.scenarios import (
         SCENARIO_DIR,
         invalid_scenarios,

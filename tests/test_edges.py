@@ -219,7 +219,8 @@ def test_a_signal_as_the_report_is_written_says_what_is_on_disk(
     """The one line names the report written if the new report is in place, and says that
     nothing was written (the previous report as it was) if not; the files agree. A signal that
     comes while the previous report is replaced lands once the new one is in place."""
-    from capture_bench.evaluation import cli, report
+    from capture_bench.evaluation import cli
+    from capture_bench.evaluation.reporting import report
 
     out = tmp_path / "reports"
     previous = out / report_name

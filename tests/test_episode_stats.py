@@ -117,10 +117,10 @@ def test_tracker_interleaving_two_envs_gives_each_episode_its_own_steps():
 
 def test_a_real_episode_agrees_with_the_leaderboard_record():
     """The capture, failure, capture time and ratio of a real episode are the leaderboard's
-    (capture_bench.evaluation.rollout.run_episode) on the same seed."""
+    (capture_bench.evaluation.running.rollout.run_episode) on the same seed."""
     from capture_bench.agents.baselines import Hold, PurePursuit
     from capture_bench.envs.capture_env import CaptureEnv
-    from capture_bench.evaluation.rollout import run_episode
+    from capture_bench.evaluation.running.rollout import run_episode
 
     env = CaptureEnv("paper")
     outcomes = []

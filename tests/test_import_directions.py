@@ -18,6 +18,8 @@ is listed in `EXCEPTIONS` with its reason.
 Within ``training``, each job has its folder (`TRAINING_JOBS`: ``train``, ``tune``, ``sweep``,
 ``curves``, ``zoo``) over what they share (``config``, ``common`` and the top-level modules): a
 job's modules are imported only by the same job, never by another job nor by what they share.
+Within ``evaluation``, ``running`` (suites, agents, rollouts, backends, videos) never imports
+``reporting`` (what the report makes of the records).
 """
 
 from __future__ import annotations
@@ -204,6 +206,17 @@ def job_crossings(arrows: list[Arrow]) -> list[Arrow]:
     ]
 
 
+def running_into_reporting(arrows: list[Arrow]) -> list[Arrow]:
+    """The arrows from ``evaluation.running`` into ``evaluation.reporting``."""
+    running, reporting = f"{PACKAGE}.evaluation.running", f"{PACKAGE}.evaluation.reporting"
+    return [
+        arrow
+        for arrow in arrows
+        if (arrow.source == running or arrow.source.startswith(running + "."))
+        and (arrow.target == reporting or arrow.target.startswith(reporting + "."))
+    ]
+
+
 def cycles(arrows: list[Arrow]) -> list[tuple[list[str], list[Arrow]]]:
     """Each group of modules that import each other in a loop (Tarjan's strongly connected
     components), with one circle of arrows through it: a shortest way from its first module back."""
@@ -298,6 +311,14 @@ def test_training_jobs_never_import_each_other() -> None:
     )
 
 
+def test_evaluation_running_never_imports_reporting() -> None:
+    _, arrows = _package()
+    wrong = running_into_reporting(arrows)
+    assert not wrong, "evaluation.running imports evaluation.reporting:\n" + "\n".join(
+        str(a) for a in wrong
+    )
+
+
 def test_exceptions_are_still_needed() -> None:
     _, arrows = _package()
     present = {(a.source, a.target) for a in arrows}
@@ -379,4 +400,26 @@ def test_the_job_check_finds_a_job_importing_another(tmp_path: Path) -> None:
     assert sorted((a.source, a.target) for a in job_crossings(arrows)) == [
         ("capture_bench.training.common.plan", "capture_bench.training.sweep.task"),
         ("capture_bench.training.tune.command", "capture_bench.training.train.command"),
+    ]
+
+
+def test_the_evaluation_check_finds_running_importing_reporting(tmp_path: Path) -> None:
+    files = {
+        "__init__.py": "",
+        "evaluation/__init__.py": "",
+        "evaluation/errors.py": "",
+        "evaluation/pipeline.py": "from .reporting import report\nfrom .running import backends\n",
+        "evaluation/running/__init__.py": "",
+        "evaluation/running/backends.py": "from capture_bench.evaluation import errors\n",
+        "evaluation/running/video.py": "def f():\n    from ..reporting.plots import draw\n",
+        "evaluation/reporting/__init__.py": "",
+        "evaluation/reporting/report.py": "from capture_bench.evaluation.running import backends\n",
+        "evaluation/reporting/plots.py": "",
+    }
+    for name, text in files.items():
+        (tmp_path / PACKAGE / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / PACKAGE / name).write_text(text)
+    _, arrows = find_arrows(tmp_path)
+    assert [(a.source, a.target) for a in running_into_reporting(arrows)] == [
+        ("capture_bench.evaluation.running.video", "capture_bench.evaluation.reporting.plots"),
     ]

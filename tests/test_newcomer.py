@@ -13,8 +13,8 @@ import pytest
 from rich.console import Console
 
 from capture_bench.evaluation import cli as evaluate_cli
-from capture_bench.evaluation.aggregate import RankingRow
-from capture_bench.evaluation.suites import SUITES_DIR, load_suite, shadowed_suite
+from capture_bench.evaluation.reporting.aggregate import RankingRow
+from capture_bench.evaluation.running.suites import SUITES_DIR, load_suite, shadowed_suite
 from capture_bench.provenance import describe_machine, machine, provenance_text
 from capture_bench.training.common import run as train_run
 from capture_bench.training.tune import command as tune

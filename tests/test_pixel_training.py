@@ -119,7 +119,12 @@ def test_a_pixel_model_evaluates_through_evaluate_py_in_pixel_envs(pixel_run, tm
 
 
 def test_the_batched_evaluation_of_a_pixel_model_equals_the_single_env(pixel_run):
-    from capture_bench.evaluation.backends import EpisodeTask, close_envs, run_batch, run_task
+    from capture_bench.evaluation.running.backends import (
+        EpisodeTask,
+        close_envs,
+        run_batch,
+        run_task,
+    )
 
     seeds = load_scenario("paper").evaluation_seeds[:3]
     tasks = [EpisodeTask(str(pixel_run), "paper", seed) for seed in seeds]
@@ -194,7 +199,7 @@ def test_a_declared_image_must_be_uint8_from_0_to_255(pixel_run):
 def test_models_glob_leaves_pixel_models_to_be_named(pixel_run, tmp_path):
     import shutil
 
-    from capture_bench.evaluation.agents_loading import expand_specs
+    from capture_bench.evaluation.running.agents_loading import expand_specs
 
     shutil.copytree(pixel_run, tmp_path / "px", ignore=shutil.ignore_patterns("checkpoints", "tb"))
     shutil.copytree("models/ppo-paper", tmp_path / "ppo-paper")

@@ -15,9 +15,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from capture_bench.evaluation import plots, report
-from capture_bench.evaluation.aggregate import rank_agents, summarise_all
-from capture_bench.evaluation.report import (
+from capture_bench.evaluation.reporting import plots, report
+from capture_bench.evaluation.reporting.aggregate import rank_agents, summarise_all
+from capture_bench.evaluation.reporting.report import (
     DETAIL_HEADER,
     MAIN_HEADER,
     READING,

@@ -110,7 +110,7 @@ def test_a_residual_run_is_named_declared_and_validated_as_the_hybrid(residual_r
 
 def test_evaluation_rebuilds_the_hybrid_from_the_metadata(residual_run):
     from capture_bench.agents.sb3_policy import SB3Policy, load_sb3_policy
-    from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
+    from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
 
     env = CaptureEnv("paper")
     try:

@@ -18,14 +18,14 @@ from test_evaluation_metrics import _report_data, record
 from test_vision_report import _data
 
 from capture_bench import rliable_stats
-from capture_bench.evaluation import rliable_report
-from capture_bench.evaluation.report import (
+from capture_bench.evaluation.reporting import rliable_report
+from capture_bench.evaluation.reporting.report import (
     figure_names,
     markdown,
     rliable_numbers,
     write_report,
 )
-from capture_bench.evaluation.summary import probability_of_improvement, score
+from capture_bench.evaluation.reporting.summary import probability_of_improvement, score
 from capture_bench.task.score import episode_score
 from capture_bench.training.curves import seed_statistics
 
@@ -264,7 +264,7 @@ def test_an_old_validations_file_without_mean_score_is_read_and_extended(tmp_pat
 
 
 def test_the_profile_figure_depends_on_the_records_alone():
-    from capture_bench.evaluation.report import figures
+    from capture_bench.evaluation.reporting.report import figures
 
     data = _data(_equal_counts())
     first = figures(data, [rliable_report.FIGURE])

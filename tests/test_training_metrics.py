@@ -226,7 +226,7 @@ def test_best_model_is_written_whole_and_loads_as_a_policy_directory(run_dir):
 
     from capture_bench.agents.sb3_policy import load_sb3_policy
     from capture_bench.envs.capture_env import CaptureEnv
-    from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
+    from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
     from capture_bench.training.common.checkpoint import read_checkpoint
 
     best = run_dir / "best"

@@ -1,9 +1,9 @@
 """Two sets of episodes on the same seeds, compared seed by seed: the report's paired sections.
 
 A comparison has two sides, A (the baseline) and B, that share everything but one thing: the same
-agent on a scenario and on its rendered twin (`capture_bench.evaluation.vision`), or two
+agent on a scenario and on its rendered twin (`capture_bench.evaluation.reporting.vision`), or two
 agents, one fed by the estimator and one by the camera's pixels, on one scenario
-(`capture_bench.evaluation.pixel_comparison`). On the seeds evaluated on both sides
+(`capture_bench.evaluation.reporting.pixel_comparison`). On the seeds evaluated on both sides
 (`compare`; a seed evaluated on one side only is left out and named):
 
 * capture rate of each side, Wilson 95% interval;
@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from capture_bench.evaluation.metrics import Estimate, bootstrap_estimate, wilson_interval
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.reporting.metrics import Estimate, bootstrap_estimate, wilson_interval
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 
 
 @dataclass(frozen=True)

@@ -23,20 +23,20 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench import rliable_stats
-from capture_bench.evaluation.aggregate import rank_agents, summarise_all
 from capture_bench.evaluation.errors import EvaluationError
-from capture_bench.evaluation.report import ReportData, csv_value
-from capture_bench.evaluation.report_folder import (
+from capture_bench.evaluation.reporting.aggregate import rank_agents, summarise_all
+from capture_bench.evaluation.reporting.report import ReportData, csv_value
+from capture_bench.evaluation.reporting.report_folder import (
     PACKAGE,
     EpisodeKey,
     SourceReport,
     episode_text,
     read_report,
 )
-from capture_bench.evaluation.rollout import EPISODE_COLUMNS, TIMING_COLUMNS, EpisodeRecord
-from capture_bench.evaluation.suites import VALIDATION_NOTE, VALIDATION_SUFFIX
-from capture_bench.evaluation.video import EpisodeVideo
-from capture_bench.evaluation.watch import choose_episodes
+from capture_bench.evaluation.reporting.watch import choose_episodes
+from capture_bench.evaluation.running.rollout import EPISODE_COLUMNS, TIMING_COLUMNS, EpisodeRecord
+from capture_bench.evaluation.running.suites import VALIDATION_NOTE, VALIDATION_SUFFIX
+from capture_bench.evaluation.running.video import EpisodeVideo
 from capture_bench.files import check_writable, episode_file_name
 from capture_bench.provenance import git_state
 

@@ -25,9 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.evaluation.errors import EvaluationError
-from capture_bench.evaluation.merge import episode_cells
-from capture_bench.evaluation.report_folder import read_report
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.reporting.merge import episode_cells
+from capture_bench.evaluation.reporting.report_folder import read_report
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.paths import CHECKOUT_DIR
 from capture_bench.provenance import describe_machine, display_path, reproduction_key
 

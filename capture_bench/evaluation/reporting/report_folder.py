@@ -2,8 +2,8 @@
 
 Its episodes come from ``episodes.csv`` (`read_episodes`,
 every field exact), what they were played on from ``results.json``'s provenance; the fields a
-merge (`capture_bench.evaluation.merge`) reads are checked for their types, and the episodes
-against the agents and seeds the provenance names. Anything else is an `EvaluationError`
+merge (`capture_bench.evaluation.reporting.merge`) reads are checked for their types, and the
+episodes against the agents and seeds the provenance names. Anything else is an `EvaluationError`
 of one line naming the file.
 """
 
@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.evaluation.errors import EvaluationError
-from capture_bench.evaluation.report import read_episodes
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.reporting.report import read_episodes
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.provenance import display_path
 
 #: What a report folder must hold to be read back.

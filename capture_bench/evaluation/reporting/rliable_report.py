@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from capture_bench import rliable_stats
-from capture_bench.evaluation.rollout import EpisodeRecord
-from capture_bench.evaluation.summary import score
+from capture_bench.evaluation.reporting.summary import score
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 
 TITLE = "Aggregate statistics (rliable)"
 #: The section's key in ``results.json``.

@@ -1,6 +1,7 @@
 """The report's summary, taken in at a glance: what the ranking plot (under the ranking's
 table), the heatmap and the probability-of-improvement matrix (of the best-ranked agents:
-`capture_bench.evaluation.plots.improvement_agents`) near the top of the HTML show, as numbers.
+`capture_bench.evaluation.reporting.plots.improvement_agents`) near the top of the HTML show, as
+numbers.
 
 * **heatmap**: agent x scenario, the capture rate and the median ratio to the physical limit of
   each cell (the same `Summary` figures as the
@@ -8,7 +9,7 @@ table), the heatmap and the probability-of-improvement matrix (of the best-ranke
 * **ranking with intervals**: each agent's mean capture rate over the ranked scenarios (the
   ranking's number) with a 95% percentile-bootstrap interval, resampling the published seeds
   within each scenario, the same resample for every agent (paired), beside its 95% rank interval
-  and its tie group (`capture_bench.evaluation.aggregate.with_rank_intervals`: an agent is
+  and its tie group (`capture_bench.evaluation.reporting.aggregate.with_rank_intervals`: an agent is
   tied with the agent ranked just above it when their rank intervals overlap);
 * **probability of improvement** P(X > Y), rliable's definition (Agarwal et al. 2021): per
   scenario, the Mann-Whitney U statistic of X's episode scores against Y's over n * m (ties count
@@ -16,7 +17,7 @@ table), the heatmap and the probability-of-improvement matrix (of the best-ranke
   scenarios. An episode's score (`capture_bench.task.score.episode_score`) is physical
   limit / capture time, in (0, 1], and 0 for a failure, so a capture beats a failure and a
   faster capture a slower one. rliable's own statistics of the same scores, with intervals, are
-  a section of the report (`capture_bench.evaluation.rliable_report`).
+  a section of the report (`capture_bench.evaluation.reporting.rliable_report`).
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from capture_bench.evaluation.aggregate import RankingRow, Summary, counted_scenarios
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.reporting.aggregate import RankingRow, Summary, counted_scenarios
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.task.score import episode_score
 
 BOOTSTRAP_RESAMPLES = 2000

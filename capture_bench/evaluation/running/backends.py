@@ -33,14 +33,14 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.engine.cache import EpisodeCache
-from capture_bench.evaluation.agents_loading import (
+from capture_bench.evaluation.errors import EvaluationError
+from capture_bench.evaluation.running.agents_loading import (
     AgentSpec,
     build_agent,
     declares_sampled_actions,
     resolve_agent,
 )
-from capture_bench.evaluation.errors import EvaluationError
-from capture_bench.evaluation.rollout import (
+from capture_bench.evaluation.running.rollout import (
     EpisodeRecord,
     EpisodeTrace,
     run_episode,
@@ -65,10 +65,11 @@ MIN_SEEDS_PER_CHUNK = 25
 #: Modules the forkserver imports once, so that each worker starts with them loaded: the
 #: episodes' (torch and Stable-Baselines3 for the trained models, ~1.5 s a worker otherwise, at
 #: its first chunk) and the report media's (not ``matplotlib.pyplot``: imported there before
-#: `capture_bench.evaluation.plots` selects its backend, it drew one figure in other bytes).
+#: `capture_bench.evaluation.reporting.plots` selects its backend, it drew one figure in other
+#: bytes).
 #: The server imports them while the main process plans.
 PRELOAD = (
-    "capture_bench.evaluation.backends",
+    "capture_bench.evaluation.running.backends",
     "capture_bench.envs.capture_env",
     "capture_bench.agents",
     "capture_bench.evaluation.pipeline",
@@ -187,7 +188,7 @@ def run_task(
     """Run one task in this process in a single env (cached per scenario; agent built afresh).
 
     ``env``: run on this environment of the task's scenario instead of the cached one (a
-    rendering one, `capture_bench.evaluation.video`), by the same steps: the same episode.
+    rendering one, `capture_bench.evaluation.running.video`), by the same steps: the same episode.
     """
     spec = task_spec(task)
     env = _env(task.scenario, spec) if env is None else env

@@ -5,7 +5,7 @@ learned agent ranked highest in the overall ranking (a trained model), on one se
 evaluated seed on which the reference captured, or the first seed if it captured on none. Without
 a trained model in the run only the reference is shown; without the reference, the best-ranked
 model on the first seed it captured. The videos themselves are made by
-`capture_bench.evaluation.video`; this module only chooses and lays them out.
+`capture_bench.evaluation.running.video`; this module only chooses and lays them out.
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from capture_bench.evaluation.aggregate import RankingRow
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.reporting.aggregate import RankingRow
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 
 if TYPE_CHECKING:
-    from capture_bench.evaluation.video import EpisodeVideo
+    from capture_bench.evaluation.running.video import EpisodeVideo
 
 TITLE = "Episodes to watch"
 #: Said under the section's title, in both the Markdown and the HTML report.

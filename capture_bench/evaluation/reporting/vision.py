@@ -16,9 +16,9 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-from capture_bench.evaluation import paired
-from capture_bench.evaluation.paired import Paired, PairedSection
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.reporting import paired
+from capture_bench.evaluation.reporting.paired import Paired, PairedSection
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.task.scenarios import Scenario, load_scenario
 from capture_bench.validation import ConfigError
 

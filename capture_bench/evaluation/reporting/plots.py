@@ -5,9 +5,9 @@
 * failures by reason: per scenario, each agent's episodes split into captured and each reason;
 * ratio to the physical limit: per scenario, the distribution of capture time / bound per agent;
 * one episode: distance, estimate error and actions vs time (``--episode-plots``);
-* the summary (`capture_bench.evaluation.summary`): the agent x scenario heatmap, the
+* the summary (`capture_bench.evaluation.reporting.summary`): the agent x scenario heatmap, the
   ranking with intervals, the probability-of-improvement matrix of the top agents;
-* rliable's performance profiles (`capture_bench.evaluation.rliable_report`).
+* rliable's performance profiles (`capture_bench.evaluation.reporting.rliable_report`).
 
 Sized for what they hold, to be read at their natural size: every figure's height grows with its
 number of agent rows (`ROW_INCHES` each, so no two tick labels overlap), its width stays within
@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 
 from capture_bench import rliable_stats
-from capture_bench.evaluation.aggregate import Summary
-from capture_bench.evaluation.rollout import EpisodeRecord, EpisodeTrace
+from capture_bench.evaluation.reporting.aggregate import Summary
+from capture_bench.evaluation.running.rollout import EpisodeRecord, EpisodeTrace
 
 DPI = 90
 #: matplotlib's font sizes, points (1.25 px each at `DPI`), for every report figure.

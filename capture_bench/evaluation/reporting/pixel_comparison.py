@@ -14,9 +14,9 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from capture_bench.evaluation import paired
-from capture_bench.evaluation.paired import Paired, PairedSection
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.reporting import paired
+from capture_bench.evaluation.reporting.paired import Paired, PairedSection
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.sensing.sources import PIXELS
 
 TITLE = "Pixels vs the estimate"

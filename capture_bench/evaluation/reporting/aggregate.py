@@ -1,6 +1,6 @@
 """Episode records -> one summary per agent x scenario, and the overall ranking.
 
-Pure functions of the records (see `capture_bench.evaluation.metrics` for the statistics).
+Pure functions of the records (see `capture_bench.evaluation.reporting.metrics` for the statistics).
 
 Ranking rule (`RANKING_RULE`): agents are ranked by their capture rate averaged over the
 suite's scenarios (each scenario weighs the same); ties (equal to 1e-9) are broken by the mean over
@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from capture_bench.evaluation.metrics import (
+from capture_bench.evaluation.reporting.metrics import (
     Estimate,
     PairedComparison,
     SurvivalCurve,
@@ -44,7 +44,7 @@ from capture_bench.evaluation.metrics import (
     paired_comparison,
     wilson_interval,
 )
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
 from capture_bench.task.step_rule import FAILURES
 

@@ -27,8 +27,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from capture_bench.evaluation import pixel_comparison, plots, rliable_report, summary, vision, watch
-from capture_bench.evaluation.aggregate import (
+from capture_bench.evaluation.errors import EvaluationError
+from capture_bench.evaluation.reporting import (
+    pixel_comparison,
+    plots,
+    rliable_report,
+    summary,
+    vision,
+    watch,
+)
+from capture_bench.evaluation.reporting.aggregate import (
     RANKING_RULE,
     RankingRow,
     Summary,
@@ -36,18 +44,17 @@ from capture_bench.evaluation.aggregate import (
     summary_row,
     with_rank_intervals,
 )
-from capture_bench.evaluation.errors import EvaluationError
-from capture_bench.evaluation.metrics import Estimate
-from capture_bench.evaluation.paired import Paired, PairedSection
-from capture_bench.evaluation.rliable_report import RliableSection
-from capture_bench.evaluation.rollout import EPISODE_COLUMNS, EpisodeRecord
-from capture_bench.evaluation.suites import VALIDATION_SUFFIX
+from capture_bench.evaluation.reporting.metrics import Estimate
+from capture_bench.evaluation.reporting.paired import Paired, PairedSection
+from capture_bench.evaluation.reporting.rliable_report import RliableSection
+from capture_bench.evaluation.running.rollout import EPISODE_COLUMNS, EpisodeRecord
+from capture_bench.evaluation.running.suites import VALIDATION_SUFFIX
 from capture_bench.interrupts import interrupts_deferred
 from capture_bench.provenance import REPRODUCIBILITY, provenance_text
 from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
 
 if TYPE_CHECKING:
-    from capture_bench.evaluation.video import EpisodeVideo
+    from capture_bench.evaluation.running.video import EpisodeVideo
 
 CSV_FILES = ("results.csv", "episodes.csv")
 #: The section "Aggregate statistics (rliable)": its numbers, or None and why it has none.
@@ -68,7 +75,8 @@ class ReportData:
         ranking: the overall ranking; a ranking without rank intervals gets them here, from
             ``records`` (`with_rank_intervals`).
         provenance: JSON-ready provenance (git, hashes, versions, seeds, timing).
-        videos: the episodes to watch (`capture_bench.evaluation.watch`), in display order.
+        videos: the episodes to watch (`capture_bench.evaluation.reporting.watch`), in display
+            order.
     """
 
     suite: str
@@ -217,7 +225,7 @@ NOT_RANKED_HEADER = ("agent", "scenario", "capture rate", "median ratio to limit
 
 
 def paired_cells(c: Paired, first: str, reference: str) -> list[str]:
-    """One row of a paired table (`capture_bench.evaluation.paired`), labelled by the
+    """One row of a paired table (`capture_bench.evaluation.reporting.paired`), labelled by the
     comparison's attribute ``first``."""
     label = getattr(c, first)
     return [
@@ -235,8 +243,8 @@ def paired_cells(c: Paired, first: str, reference: str) -> list[str]:
 
 def paired_sections(data: ReportData) -> list[PairedSection]:
     """The report's paired sections, where it holds what they compare: rendered against
-    analytic vision (`capture_bench.evaluation.vision`), pixels against the estimate
-    (`capture_bench.evaluation.pixel_comparison`)."""
+    analytic vision (`capture_bench.evaluation.reporting.vision`), pixels against the estimate
+    (`capture_bench.evaluation.reporting.pixel_comparison`)."""
     models = data.provenance.get("config_hashes", {}).get("models", {})
     found = (
         vision.section(data.records),
@@ -422,8 +430,9 @@ def summary_text(data: ReportData) -> str:
 
 
 def rliable_numbers(data: ReportData) -> RliableNumbers:
-    """The section "Aggregate statistics (rliable)" (`capture_bench.evaluation.rliable_report`)
-    of ``data``: ``(its numbers, None)``, or ``(None, why the records make no score matrices)``."""
+    """The section "Aggregate statistics (rliable)"
+    (`capture_bench.evaluation.reporting.rliable_report`) of ``data``: ``(its numbers, None)``, or
+    ``(None, why the records make no score matrices)``."""
     agents = _agents(data)
     reason = rliable_report.unavailable(data.records, agents)
     if reason is not None:

@@ -26,8 +26,8 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from capture_bench.evaluation.backends import EpisodeTask, make_env, run_task, task_spec
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.running.backends import EpisodeTask, make_env, run_task, task_spec
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.files import atomic_write, episode_file_name
 
 #: Frame size, (width, height) pixels: readable, and ~1 KB a frame in the GIF.

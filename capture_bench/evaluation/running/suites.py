@@ -51,8 +51,8 @@ class Suite:
         path: the file it came from.
         sha256: hash of the file's bytes (provenance).
         videos: the report shows, for each scenario, the reference and the best-ranked trained
-            model on one seed as animated GIFs (`capture_bench.evaluation.watch`); they are
-            run again with rendering after the evaluation.
+            model on one seed as animated GIFs (`capture_bench.evaluation.reporting.watch`); they
+            are run again with rendering after the evaluation.
         reference_given: the file names its ``reference`` (then it must be one of the file's
             agents, checked where they are resolved); without it the reference is
             ``incremental_ik``, and a suite that does not play it has no paired comparison.
