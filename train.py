@@ -5,8 +5,9 @@
     python train.py --resume runs/paper-ppo-0 --total-timesteps 4000000
     tensorboard --logdir runs/paper-ppo-0/tb
 
-The same command is installed as ``capture-bench-train``. Everything it does is in
-`capture_bench.training.run` (options, hyper-parameters, checkpoints, the safe policy form).
+The same command is installed as ``capture-bench-train``; it is
+`capture_bench.training.train.command`. What a run does is in `capture_bench.training.common.run`
+(options, hyper-parameters, checkpoints, the safe policy form).
 """
 
 from __future__ import annotations
@@ -16,11 +17,11 @@ from script_entry import command_main, run
 __all__ = ["main"]
 
 PROG = "train.py"
-COMMAND = "capture_bench.training.run:main"
+COMMAND = "capture_bench.training.train.command:main"
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command (`capture_bench.training.run.main`); returns the exit status."""
+    """Run the command (`capture_bench.training.train.command.main`); returns the exit status."""
     return command_main(COMMAND)(argv)
 
 

@@ -7,7 +7,7 @@
 
 The same command is installed as ``capture-bench-tune`` (needs the ``tune`` extra:
 ``pip install 'capture-bench[tune]'``). Everything it does is in
-`capture_bench.training.tune`.
+`capture_bench.training.tune.command`.
 """
 
 from __future__ import annotations
@@ -17,11 +17,11 @@ from script_entry import command_main, run
 __all__ = ["main"]
 
 PROG = "tune.py"
-COMMAND = "capture_bench.training.tune:main"
+COMMAND = "capture_bench.training.tune.command:main"
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command (`capture_bench.training.tune.main`); returns the exit status."""
+    """Run the command (`capture_bench.training.tune.command.main`); returns the exit status."""
     return command_main(COMMAND)(argv)
 
 

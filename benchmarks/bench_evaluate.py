@@ -91,14 +91,14 @@ class _Timer:
 def breakdown(episodes: int, suite: str) -> None:
     """Split episode time into env reset / env step / predict, per agent and per scenario, as a
     worker plays a chunk: every agent on the same ``episodes`` seeds, one batch per agent
-    (`capture_bench.evaluation.backends.run_batch`; the first agent's reset records each
+    (`capture_bench.evaluation.running.backends.run_batch`; the first agent's reset records each
     seed's target side, the others replay it)."""
     sys.path.insert(0, str(ROOT))
     from capture_bench.envs.capture_env import CaptureEnv
     from capture_bench.envs.vector_env import CaptureVectorEnv
-    from capture_bench.evaluation import backends
-    from capture_bench.evaluation.agents_loading import expand_specs, resolve_agent
-    from capture_bench.evaluation.suites import ALL, load_suite
+    from capture_bench.evaluation.running import backends
+    from capture_bench.evaluation.running.agents_loading import expand_specs, resolve_agent
+    from capture_bench.evaluation.running.suites import ALL, load_suite
     from capture_bench.task.scenarios import list_scenarios, load_scenario
 
     loaded = load_suite(suite)

@@ -51,8 +51,8 @@ def run_panda(algo: str, steps: int) -> None:
     import stable_baselines3
     from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 
-    from capture_bench.training.hyperparameters import load_hyperparameters, sb3_kwargs
-    from capture_bench.training.run import set_torch_threads
+    from capture_bench.training.common.build import set_torch_threads
+    from capture_bench.training.config.hyperparameters import load_hyperparameters, sb3_kwargs
 
     hp, _ = load_hyperparameters(algo, CONFIGS / f"{algo}.yaml")
     # The relative-log-distance features read capture-bench's observation layout: panda-gym's
@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.panda:
         run_panda(args.panda[0], int(args.panda[1]))
         return 0
-    from capture_bench.training.hyperparameters import OFF_POLICY, load_hyperparameters
+    from capture_bench.training.config.hyperparameters import OFF_POLICY, load_hyperparameters
 
     algos = args.algos or sorted(p.stem for p in CONFIGS.glob("*.yaml"))
     print(f"$ python benchmarks/bench_train.py {' '.join(argv or sys.argv[1:])}".rstrip())

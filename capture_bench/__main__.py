@@ -6,14 +6,14 @@
 ``capture-bench-train`` / ``capture-bench-tune``, with the same options.
 
 ``python -m capture_bench curves ...``: learning curves from several training seeds
-(`capture_bench.training.curves`).
+(`capture_bench.training.curves.command`).
 
 ``python -m capture_bench zoo-hyperparams``: the RL Zoo's hyper-parameter files
-(``configs/zoo/<algo>.yml``) made from ``configs/algos/`` (`capture_bench.training.zoo`).
+(``configs/zoo/<algo>.yml``) made from ``configs/algos/`` (`capture_bench.training.zoo.command`).
 
 ``python -m capture_bench sweep ...``: train every combination of algorithms, scenarios and
 training seeds, each run a Ray task, on this machine or a Ray cluster
-(`capture_bench.training.sweep`).
+(`capture_bench.training.sweep.command`).
 
 ``python -m capture_bench list``: what is installed, and what is broken, in one screen. It prints
 the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges), the
@@ -87,14 +87,18 @@ def _try(load: Callable[[], Any]) -> tuple[Any, str | None]:
 
 def list_everything() -> list[str]:
     """The lines ``python -m capture_bench list`` prints."""
-    from capture_bench.evaluation.suites import SUITES_DIR, list_suites, load_suite
+    from capture_bench.evaluation.running.suites import SUITES_DIR, list_suites, load_suite
     from capture_bench.task.scenarios import (
         SCENARIO_DIR,
         invalid_scenarios,
         list_scenarios,
         load_scenario,
     )
-    from capture_bench.training.hyperparameters import ALGO_DIR, ALGORITHMS, load_hyperparameters
+    from capture_bench.training.config.hyperparameters import (
+        ALGO_DIR,
+        ALGORITHMS,
+        load_hyperparameters,
+    )
 
     lines = [f"scenarios ({SCENARIO_DIR}):"]
     for name in list_scenarios():
@@ -159,23 +163,23 @@ def _command(args: list[str]) -> Callable[[], int]:
 
         return functools.partial(evaluate, args[1:])
     if args and args[0] == "train":
-        from capture_bench.training.run import main as train
+        from capture_bench.training.train.command import main as train
 
         return functools.partial(train, args[1:])
     if args and args[0] == "tune":
-        from capture_bench.training.tune import main as tune
+        from capture_bench.training.tune.command import main as tune
 
         return functools.partial(tune, args[1:])
     if args and args[0] == "curves":
-        from capture_bench.training.curves import main as curves
+        from capture_bench.training.curves.command import main as curves
 
         return functools.partial(curves, args[1:])
     if args and args[0] == "zoo-hyperparams":
-        from capture_bench.training.zoo import main as zoo_hyperparams
+        from capture_bench.training.zoo.command import main as zoo_hyperparams
 
         return functools.partial(zoo_hyperparams, args[1:])
     if args and args[0] == "sweep":
-        from capture_bench.training.sweep import main as sweep
+        from capture_bench.training.sweep.command import main as sweep
 
         return functools.partial(sweep, args[1:])
     return functools.partial(_list, args)

@@ -21,7 +21,7 @@ import numpy as np
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.evaluation.rollout import run_episode
+from capture_bench.evaluation.running.rollout import run_episode
 from capture_bench.task.scenarios import list_scenarios, load_scenario
 
 NEAR = 0.02  # m: "closing in"

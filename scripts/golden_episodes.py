@@ -200,7 +200,7 @@ def play(case: Case, seeds: tuple[int, ...] | None = None, live: bool = False) -
     from capture_bench.engine.cache import EpisodeCache
     from capture_bench.envs.capture_env import CaptureEnv
     from capture_bench.envs.vector_env import CaptureVectorEnv
-    from capture_bench.evaluation.rollout import run_episode, run_episodes
+    from capture_bench.evaluation.running.rollout import run_episode, run_episodes
 
     seeds = case.seeds if seeds is None else seeds
     if case.kind == "single":
@@ -244,7 +244,7 @@ def record_columns() -> list[str]:
     """The float columns of an `EpisodeRecord` the files keep (its timing columns aside)."""
     from typing import get_type_hints
 
-    from capture_bench.evaluation.rollout import TIMING_COLUMNS, EpisodeRecord
+    from capture_bench.evaluation.running.rollout import TIMING_COLUMNS, EpisodeRecord
 
     hints = get_type_hints(EpisodeRecord)
     return [name for name, kind in hints.items() if kind is float and name not in TIMING_COLUMNS]

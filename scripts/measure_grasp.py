@@ -28,7 +28,7 @@ import numpy as np
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.evaluation.rollout import run_episode
+from capture_bench.evaluation.running.rollout import run_episode
 from capture_bench.task.scenarios import Scenario, load_scenario
 
 AGENT_SOURCES = (("incremental_ik", None), ("incremental_ik_uncapped", None), ("oracle", "truth"))

@@ -27,7 +27,7 @@ from pathlib import Path
 from capture_bench.argparsing import OneLineParser
 from capture_bench.files import atomic_write, check_writable
 from capture_bench.task.scenarios import ConfigError
-from capture_bench.training.policy_export import VALIDATIONS_FILE
+from capture_bench.training.common.policy_export import VALIDATIONS_FILE
 
 #: The columns of ``validations.csv`` the figure draws.
 COLUMNS = ("step", "capture_rate", "median_ratio_to_limit")

@@ -13,7 +13,7 @@ table cell. The blocks and their sources:
 * ``leaderboard``: the overall ranking of ``reports/published/default/results.json`` (the
   published leaderboard, which ``python evaluate.py --publish`` writes), the columns of the
   report's *Overall ranking* without its ``scenarios`` column, each cell formatted by the
-  report's own `capture_bench.evaluation.report.ranking_cells`;
+  report's own `capture_bench.evaluation.reporting.report.ranking_cells`;
 * ``leaderboard-scenarios``: the same report, one row per agent in ranking order, one column per
   scenario: capture rate · median ratio of capture time to the physical limit;
 * ``published-cells AGENT...``: the same table for the named agents only (in the order named);
@@ -27,7 +27,7 @@ table cell. The blocks and their sources:
   the run's wall-clock time and workers, its machine);
 * ``reproduction-verdict``: what ``python evaluate.py`` prints at its end when it reproduces the
   published report episode for episode (the report compared with itself by
-  `capture_bench.evaluation.reproduction`);
+  `capture_bench.evaluation.reporting.reproduction`);
 * ``test-reference-machine`` (a value): the machine and packages of
   ``tests/data/default_suite_reference.json``, which the test suite holds episodes to bit for bit;
 * ``models``: every shipped model, ``models/*/metadata.json``'s model card: algorithm (a
@@ -56,9 +56,9 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.argparsing import OneLineParser
-from capture_bench.evaluation.aggregate import RankingRow
-from capture_bench.evaluation.report import RANKING_HEADER, ranking_cells
-from capture_bench.evaluation.reproduction import (
+from capture_bench.evaluation.reporting.aggregate import RankingRow
+from capture_bench.evaluation.reporting.report import RANKING_HEADER, ranking_cells
+from capture_bench.evaluation.reporting.reproduction import (
     METRICS,
     compare,
     json_number,

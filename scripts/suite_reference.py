@@ -65,7 +65,7 @@ def suite_tasks():
 
 def task_key(task) -> tuple[str, str, str]:
     """A task's (agent, scenario, seed) as its record, and so the reference's row, names them."""
-    from capture_bench.evaluation.backends import scenario_label, task_spec
+    from capture_bench.evaluation.running.backends import scenario_label, task_spec
 
     return task_spec(task).label, scenario_label(task.scenario), str(task.seed)
 
@@ -96,8 +96,8 @@ def main(argv: list[str] | None = None) -> int:
         print("agents without reference rows: " + (", ".join(missing) or "none"))
         return 1 if missing else 0
 
-    from capture_bench.evaluation.backends import run_task
-    from capture_bench.evaluation.merge import episode_cells
+    from capture_bench.evaluation.reporting.merge import episode_cells
+    from capture_bench.evaluation.running.backends import run_task
     from capture_bench.files import atomic_write
     from capture_bench.provenance import git_state
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 
 
 def record(agent: str, scenario: str, seed: int, ratio: float | None) -> EpisodeRecord:

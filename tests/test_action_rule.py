@@ -13,7 +13,7 @@ from stand_in import sb3_model
 from capture_bench.agents.policy_file import PolicyLoadError, save_policy
 from capture_bench.agents.sb3_policy import read_metadata
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
+from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
 
 
 def _model(tmp_path, actions=None):

@@ -16,9 +16,9 @@ from gymnasium.vector import AutoresetMode
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
-from capture_bench.evaluation.backends import EpisodeTask, run_task, run_tasks
 from capture_bench.evaluation.pipeline import EvaluationConfig, plan_evaluation
-from capture_bench.evaluation.rollout import TIMING_COLUMNS, run_episode, run_episodes
+from capture_bench.evaluation.running.backends import EpisodeTask, run_task, run_tasks
+from capture_bench.evaluation.running.rollout import TIMING_COLUMNS, run_episode, run_episodes
 from capture_bench.task.scenarios import load_scenario
 
 #: The default suite's episodes on the first two published seeds of every scenario, every agent,
@@ -223,7 +223,7 @@ def _observations(per_scenario: int = 200) -> np.ndarray:
 def test_a_models_batch_of_rows_equals_each_row_alone(name):
     """``predict_rows`` (one forward pass, row-exact layers) against ``predict`` on each
     observation alone, bit for bit: what lets the evaluation batch a model's episodes."""
-    from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
+    from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
 
     agent = build_agent(resolve_agent(f"models/{name}"), CaptureEnv("paper"), 0)
     obs = _observations()
@@ -255,7 +255,7 @@ def test_a_model_without_row_exact_layers_acts_row_by_row(monkeypatch):
     import weakref
 
     from capture_bench.agents import row_exact
-    from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
+    from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
 
     monkeypatch.setattr(row_exact, "row_exact_forward", lambda layer: None)
     monkeypatch.setattr(row_exact, "_LAYERS", weakref.WeakKeyDictionary())

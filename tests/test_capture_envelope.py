@@ -11,7 +11,7 @@ import pytest
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.evaluation.rollout import run_episode
+from capture_bench.evaluation.running.rollout import run_episode
 from capture_bench.sim.kinematics import forward_kinematics
 from capture_bench.task.capture import (
     VELOCITY_RESOLUTION,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from stand_in import sb3_model
 
-from capture_bench.training.checkpoint import (
+from capture_bench.training.common.checkpoint import (
     CheckpointError,
     list_checkpoints,
     read_checkpoint,

@@ -24,7 +24,7 @@ from capture_bench.evaluation import pipeline
 from capture_bench.evaluation.cli import main as evaluate
 from capture_bench.evaluation.errors import SuiteError
 from capture_bench.evaluation.pipeline import EvaluationConfig, plan_evaluation
-from capture_bench.evaluation.suites import load_suite
+from capture_bench.evaluation.running.suites import load_suite
 from capture_bench.sim import kinematics, target_motion
 from capture_bench.task import scenarios
 from capture_bench.task.scenarios import (
@@ -34,7 +34,7 @@ from capture_bench.task.scenarios import (
     list_scenarios,
     load_scenario,
 )
-from capture_bench.training.hyperparameters import load_hyperparameters
+from capture_bench.training.config.hyperparameters import load_hyperparameters
 
 SHIPPED = scenarios.SCENARIO_DIR
 NAME_RULE = "lowercase letters, digits and _"

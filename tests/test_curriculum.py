@@ -90,7 +90,7 @@ def test_a_curriculum_schedule_alone_is_one_line(tmp_path, capsys, key):
 def test_the_default_curriculum_is_half_the_runs_budget_after_the_options(tmp_path, monkeypatch):
     import json
 
-    from capture_bench.training import run as training_run
+    from capture_bench.training.common import run as training_run
 
     monkeypatch.setattr(training_run, "train", lambda *args: 0)  # resolve and save only
     run_dir = tmp_path / "run"
@@ -205,7 +205,7 @@ def test_the_plain_grasp_command_resolves_to_the_shipped_ppo_grasp_hyperparamete
     import json
     from pathlib import Path
 
-    from capture_bench.training.hyperparameters import resolve_hyperparameters
+    from capture_bench.training.config.hyperparameters import resolve_hyperparameters
 
     hp, _, origin = resolve_hyperparameters("ppo", load_scenario("grasp"), None, ())
     card = Path(__file__).parents[1] / "models" / "ppo-grasp" / "metadata.json"

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from capture_bench.training.curves import main, mean_interval, time_to_baseline
+from capture_bench.training.curves.command import main, mean_interval, time_to_baseline
 
 TINY = ["n_envs=2", "total_timesteps=128", "eval_freq=64", "eval_episodes=3",
         "policy_kwargs.net_arch=[8]", "n_steps=32", "checkpoint_freq=0"]  # fmt: skip
@@ -182,7 +182,7 @@ def test_an_algorithm_without_pixel_hyperparameters_is_one_line(tmp_path, capsys
 def test_a_validation_file_without_the_score_column_scores_0_where_nothing_was_captured(tmp_path):
     """Runs trained before validations recorded mean_score: a validation that captured nothing
     scored 0 on every episode, so its mean score is 0; the others stay unknown (NaN)."""
-    from capture_bench.training.curves import SCORE, read_curve
+    from capture_bench.training.curves.command import SCORE, read_curve
 
     (tmp_path / "config.json").write_text(json.dumps({"hyperparameters": {"eval_episodes": 4}}))
     (tmp_path / "validations.csv").write_text(
@@ -201,7 +201,7 @@ def test_arms_of_a_mixture_read_their_runs_against_incremental_ik_pooled_over_it
     train.py on the mixture, read under their own names; incremental_ik's level is its
     validation pooled over both scenarios' first seeds, as the mixture's validation pools."""
     import train
-    from capture_bench.training.curves import baseline_level
+    from capture_bench.training.curves.command import baseline_level
 
     runs = tmp_path / "runs"
     sets = [f"--set={item}" for item in TINY]
@@ -255,7 +255,7 @@ def test_a_run_that_imitated_first_starts_its_curve_at_the_imitations_rounds(tmp
     the imitation's last policy, stands for the last round); a run without the file is as it
     was recorded."""
     import train
-    from capture_bench.training.curves import SCORE, read_curve
+    from capture_bench.training.curves.command import SCORE, read_curve
 
     run_dir = tmp_path / "run"
     sets = [*TINY, "batch_size=64", "imitate=incremental_ik", "imitation_steps=32", "imitation_rounds=2",
@@ -280,7 +280,7 @@ def test_a_run_that_imitated_first_starts_its_curve_at_the_imitations_rounds(tmp
 
 
 def test_a_wall_clock_not_recorded_reads_as_a_dash():
-    from capture_bench.training.curves import _format_time
+    from capture_bench.training.curves.command import _format_time
 
     assert _format_time(float("nan")) == "-"
     assert _format_time(30.0) == "30 s" and _format_time(600.0) == "10.0 min"

@@ -57,8 +57,8 @@ def test_the_image_size_default_and_the_pixels_size_still_work():
 
 
 def test_training_makes_its_envs_without_an_image_size_unless_it_observes_pixels():
-    from capture_bench.training.hyperparameters import image_size
-    from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+    from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
+    from capture_bench.training.config.hyperparameters import image_size
 
     assert image_size({}) is None and image_size({"image_size": 64}) == (64, 64)
     venv = CaptureSB3VecEnv(2, "paper")  # a mixture's envs are made so
@@ -116,7 +116,7 @@ COMMANDS = {
     "evaluate.py (cli)": (
         "capture_bench.evaluation.cli", "path", ["evaluate.py", "--suite", "quick"]
     ),
-    "train.py": ("capture_bench.training.run", "path", ["train.py", "--algo", "ppo"]),
+    "train.py": ("capture_bench.training.common.run", "path", ["train.py", "--algo", "ppo"]),
     "tune.py": ("capture_bench", "path", ["tune.py", "--algo", "sac"]),
     "python -m capture_bench": (
         "capture_bench.evaluation.cli", "module", ["capture_bench", "evaluate", "--suite", "quick"]
@@ -219,7 +219,8 @@ def test_a_signal_as_the_report_is_written_says_what_is_on_disk(
     """The one line names the report written if the new report is in place, and says that
     nothing was written (the previous report as it was) if not; the files agree. A signal that
     comes while the previous report is replaced lands once the new one is in place."""
-    from capture_bench.evaluation import cli, report
+    from capture_bench.evaluation import cli
+    from capture_bench.evaluation.reporting import report
 
     out = tmp_path / "reports"
     previous = out / report_name

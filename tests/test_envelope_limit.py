@@ -12,7 +12,7 @@ from scipy.optimize import lsq_linear
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.evaluation.rollout import run_episode
+from capture_bench.evaluation.running.rollout import run_episode
 from capture_bench.sim import kinematics as k
 from capture_bench.sim.target_motion import sample_trajectory
 from capture_bench.task.physical_limit import (

@@ -1,4 +1,4 @@
-"""The task statistics of training episodes (capture_bench/training/episode_stats.py), on
+"""The task statistics of training episodes (capture_bench/training/common/episode_stats.py), on
 hand-built ``info`` dicts, and against the leaderboard's per-episode record on a real episode."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from capture_bench.task.step_rule import END_INFO_KEYS, FAILURES, INFO_KEYS
-from capture_bench.training.episode_stats import (
+from capture_bench.training.common.episode_stats import (
     EpisodeStats,
     EpisodeTracker,
     episode_stats,
@@ -117,10 +117,10 @@ def test_tracker_interleaving_two_envs_gives_each_episode_its_own_steps():
 
 def test_a_real_episode_agrees_with_the_leaderboard_record():
     """The capture, failure, capture time and ratio of a real episode are the leaderboard's
-    (capture_bench.evaluation.rollout.run_episode) on the same seed."""
+    (capture_bench.evaluation.running.rollout.run_episode) on the same seed."""
     from capture_bench.agents.baselines import Hold, PurePursuit
     from capture_bench.envs.capture_env import CaptureEnv
-    from capture_bench.evaluation.rollout import run_episode
+    from capture_bench.evaluation.running.rollout import run_episode
 
     env = CaptureEnv("paper")
     outcomes = []

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from capture_bench.agents.policy_file import ObservationNormalizer, save_policy
-from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
-from capture_bench.evaluation.aggregate import RESULT_TIMING_COLUMNS
-from capture_bench.evaluation.rollout import TIMING_COLUMNS
-from capture_bench.evaluation.suites import load_suite
+from capture_bench.evaluation.reporting.aggregate import RESULT_TIMING_COLUMNS
+from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
+from capture_bench.evaluation.running.rollout import TIMING_COLUMNS
+from capture_bench.evaluation.running.suites import load_suite
 from capture_bench.task.scenarios import load_scenario
 from evaluate import main
 
@@ -175,7 +175,7 @@ def test_ray_gives_the_serial_results(quick_report, tmp_path, local_ray):
 def test_chunks_hold_every_agent_on_a_few_seeds_of_one_scenario():
     """Chunks are what a worker runs together: every agent on the same seeds, so the env's recorded
     target side (``reuse_target_side``) serves all but the first agent of each seed."""
-    from capture_bench.evaluation.backends import EpisodeTask, make_chunks
+    from capture_bench.evaluation.running.backends import EpisodeTask, make_chunks
 
     tasks = [
         EpisodeTask(agent, scenario, seed)
@@ -198,7 +198,7 @@ def test_chunks_shrink_towards_the_end_for_several_workers():
     """Guided chunks: large first (fewer batched steps per episode), small last (the workers end
     together); every (scenario, seed) in exactly one chunk, a scenario's remainder never a
     sliver; one worker gets the largest chunks."""
-    from capture_bench.evaluation.backends import (
+    from capture_bench.evaluation.running.backends import (
         MIN_SEEDS_PER_CHUNK,
         SEEDS_PER_CHUNK,
         EpisodeTask,
@@ -228,7 +228,7 @@ def test_chunks_shrink_towards_the_end_for_several_workers():
 def test_records_come_back_in_task_order_whatever_the_chunks(monkeypatch):
     """run_tasks groups tasks by scenario and seed; the records still follow the task list (here
     with agents interleaved, a repeated task, and a scenario whose seeds span two chunks)."""
-    from capture_bench.evaluation import backends
+    from capture_bench.evaluation.running import backends
 
     monkeypatch.setattr(backends, "run_batch", list)  # a "record" is its task
     tasks = [
@@ -386,10 +386,10 @@ def test_bad_input_is_one_line_exit_2_and_no_report(argv, expected, tmp_path, ca
 
 
 def test_help_teaches_the_valid_agents_scenarios_suites_algorithms_and_examples(capsys):
-    from capture_bench.evaluation.agents_loading import builtin_names
-    from capture_bench.evaluation.suites import list_suites
+    from capture_bench.evaluation.running.agents_loading import builtin_names
+    from capture_bench.evaluation.running.suites import list_suites
     from capture_bench.task.scenarios import list_scenarios
-    from capture_bench.training.hyperparameters import ALGORITHMS
+    from capture_bench.training.config.hyperparameters import ALGORITHMS
 
     assert main(["--help"]) == 0
     out = capsys.readouterr().out

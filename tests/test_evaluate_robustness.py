@@ -117,7 +117,7 @@ def test_an_interrupt_while_the_workers_start_waits_until_each_can_be_killed(mon
     outlive evaluate.py and fail to read its start-up data)."""
     from concurrent.futures import ProcessPoolExecutor
 
-    from capture_bench.evaluation import backends
+    from capture_bench.evaluation.running import backends
 
     started: list = []
 

@@ -11,14 +11,14 @@ import math
 import numpy as np
 import pytest
 
-from capture_bench.evaluation.aggregate import (
+from capture_bench.evaluation.reporting.aggregate import (
     Summary,
     failure_reasons,
     rank_agents,
     summarise_all,
     summary_row,
 )
-from capture_bench.evaluation.metrics import (
+from capture_bench.evaluation.reporting.metrics import (
     Estimate,
     bootstrap_estimate,
     interquartile_mean,
@@ -26,7 +26,7 @@ from capture_bench.evaluation.metrics import (
     paired_comparison,
     wilson_interval,
 )
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 
 NAN = math.nan
 
@@ -173,7 +173,7 @@ def test_ranking_ties_on_capture_rate_are_broken_by_the_ratio():
 def test_the_overall_table_shows_the_median_relative_speed_at_capture():
     """Mean over scenarios (with a capture) of the median relative speed at capture: a column of
     the ranking table in every output, not part of the ranking."""
-    from capture_bench.evaluation.report import RANKING_HEADER, markdown, ranking_cells
+    from capture_bench.evaluation.reporting.report import RANKING_HEADER, markdown, ranking_cells
 
     recs = [record("slow", s, 3.0) for s in range(5)]  # 10 mm/s on paper
     recs += [
@@ -197,7 +197,7 @@ def test_the_overall_table_shows_the_median_relative_speed_at_capture():
 
 
 def test_summarise_refuses_an_empty_cell():
-    from capture_bench.evaluation.aggregate import summarise
+    from capture_bench.evaluation.reporting.aggregate import summarise
 
     with pytest.raises(ValueError):
         summarise([])
@@ -205,7 +205,7 @@ def test_summarise_refuses_an_empty_cell():
 
 
 def _report_data(suite: str = "synthetic"):
-    from capture_bench.evaluation.report import ReportData
+    from capture_bench.evaluation.reporting.report import ReportData
 
     recs = _cells() + [record("fast", s, 1.2, scenario="drift") for s in range(3)]
     recs += [record("incremental_ik", s, None, scenario="drift") for s in range(3)]
@@ -227,7 +227,7 @@ def test_report_files_from_records(tmp_path):
     import json
     from html.parser import HTMLParser
 
-    from capture_bench.evaluation.report import write_report
+    from capture_bench.evaluation.reporting.report import write_report
 
     target = write_report(_report_data(), tmp_path)
     assert target == tmp_path / "synthetic"
@@ -265,8 +265,8 @@ def test_report_files_from_records(tmp_path):
 
 
 def test_a_failed_report_leaves_the_previous_one_and_no_staging_directory(tmp_path, monkeypatch):
-    from capture_bench.evaluation import plots
-    from capture_bench.evaluation.report import write_report
+    from capture_bench.evaluation.reporting import plots
+    from capture_bench.evaluation.reporting.report import write_report
 
     write_report(_report_data(), tmp_path)
     before = (tmp_path / "synthetic" / "results.csv").read_bytes()
@@ -285,7 +285,7 @@ def test_a_failed_report_leaves_the_previous_one_and_no_staging_directory(tmp_pa
 
 
 def test_figure_groups_split_every_figure_once_and_an_unknown_name_is_refused():
-    from capture_bench.evaluation.report import figure_groups, figure_names, figures
+    from capture_bench.evaluation.reporting.report import figure_groups, figure_names, figures
 
     data = _report_data()
     names = figure_names(data)

@@ -67,7 +67,7 @@ def test_the_torch_extractor_is_the_observation_then_the_numpy_features():
     with pytest.raises(ValueError, match=r"shape \(16,\)"):
         RelativeLogDistance(gymnasium.spaces.Box(-1, 1, (4,), np.float32))
     assert set(FEATURE_EXTRACTORS) == {"flatten", "relative_log_distance", "combined"}
-    from capture_bench.training.hyperparameters import FEATURES
+    from capture_bench.training.config.hyperparameters import FEATURES
 
     assert FEATURES == tuple(FEATURE_EXTRACTORS)  # the config's choices are the extractors
 

@@ -23,9 +23,9 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from capture_bench.evaluation.errors import SuiteError
-from capture_bench.evaluation.suites import Suite, load_suite
+from capture_bench.evaluation.running.suites import Suite, load_suite
 from capture_bench.task.scenarios import ConfigError, Scenario, SeedConfig, load_scenario
-from capture_bench.training.hyperparameters import (
+from capture_bench.training.config.hyperparameters import (
     ALGO_KEYS,
     ALGORITHMS,
     IMITATION_DEFAULTS,

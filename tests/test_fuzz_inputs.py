@@ -31,11 +31,11 @@ import evaluate
 import train
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.evaluation import cli as evaluation_cli
-from capture_bench.evaluation.backends import BACKENDS
-from capture_bench.evaluation.report import ReportData
+from capture_bench.evaluation.reporting.report import ReportData
+from capture_bench.evaluation.running.backends import BACKENDS
 from capture_bench.task.scenarios import CONFIG_DIR, list_scenarios
-from capture_bench.training import run as training_run
-from capture_bench.training.hyperparameters import ALGORITHMS
+from capture_bench.training.common import run as training_run
+from capture_bench.training.config.hyperparameters import ALGORITHMS
 
 FUZZ = settings(
     deadline=None,

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from capture_bench.envs.capture_env import CaptureEnv
-from capture_bench.evaluation.backends import EpisodeTask, close_envs, run_task
-from capture_bench.evaluation.rollout import TIMING_COLUMNS
+from capture_bench.evaluation.running.backends import EpisodeTask, close_envs, run_task
+from capture_bench.evaluation.running.rollout import TIMING_COLUMNS
 from capture_bench.task.scenarios import list_scenarios, load_scenario
 
 EPISODES = Path(__file__).parents[1] / "reports" / "published" / "default" / "episodes.csv"
@@ -83,7 +83,7 @@ def test_the_bound_with_a_hold_is_the_arrival_plus_the_hold():
 
 
 def test_grasp_is_shipped_in_the_default_suite_with_its_own_seeds():
-    from capture_bench.evaluation.suites import load_suite
+    from capture_bench.evaluation.running.suites import load_suite
 
     assert "grasp" in list_scenarios()
     assert load_suite("default").scenarios == ("all",)  # every analytic shipped scenario

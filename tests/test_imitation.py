@@ -1,4 +1,4 @@
-"""Imitation before reinforcement (capture_bench/training/imitation.py): DAgger's labels are the
+"""Imitation before reinforcement (capture_bench/training/common/imitation.py): DAgger's labels are the
 controller's actions on every visited observation (a mixture's rows each by their scenario's
 controller), the fit brings the policy's actions to the controller's, the frozen warm-up leaves
 the actor alone while the critic learns, and what imitation cannot take is one line."""
@@ -14,7 +14,7 @@ import train
 from capture_bench.agents.residual import make_base
 from capture_bench.task.episode import describe_task
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.training.imitation import (
+from capture_bench.training.common.imitation import (
     FrozenActor,
     actor_parameters,
     dagger,
@@ -32,7 +32,7 @@ TINY = ["n_envs=4", "total_timesteps=256", "n_steps=32", "batch_size=64", "eval_
 def _model(n_envs: int, scenario: str = "paper", **kwargs):
     from stable_baselines3 import PPO
 
-    from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+    from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
     venv = CaptureSB3VecEnv(n_envs, scenario, seed=0)
     policy_kwargs = {"net_arch": [32, 32], "log_std_init": -2.0}
@@ -62,7 +62,7 @@ def test_each_scenario_of_a_mixture_can_have_its_own_teacher():
     assert names == ["incremental_ik_uncapped", "incremental_ik"]
     descriptions = [describe_task(load_scenario(n)) for n in ("paper", "grasp")]
     teacher = make_teacher(names, descriptions, [3, 3])
-    from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+    from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
     venv = CaptureSB3VecEnv(6, "paper", seed=0)
     try:
@@ -100,7 +100,7 @@ def test_a_teacher_mapping_that_misses_the_runs_scenarios_is_refused(mapping, ex
 def test_dagger_labels_with_the_teacher_and_the_fit_brings_the_policy_to_it():
     """After DAgger on paper, the policy's deterministic actions on states neither has seen are
     closer (by half) to incremental_ik's than the untrained policy's were."""
-    from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+    from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
     model, venv = _model(16)
     teacher = make_teacher(["incremental_ik"], [describe_task(load_scenario("paper"))], [16])
@@ -239,7 +239,7 @@ def test_a_run_resumed_inside_its_warm_up_keeps_the_actor_frozen_and_does_not_im
 def test_a_run_stopped_during_its_imitation_saves_no_checkpoint_and_resumes_from_the_start(
     tmp_path, monkeypatch, capsys
 ):
-    from capture_bench.training import imitation
+    from capture_bench.training.common import imitation
 
     run_dir = tmp_path / "run"
     sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=1",
@@ -261,7 +261,7 @@ def test_a_run_stopped_during_its_imitation_saves_no_checkpoint_and_resumes_from
 
 
 def test_the_card_of_an_imitated_policy_says_what_it_imitated_and_counts_every_step(tmp_path):
-    from capture_bench.training.model_card import ship
+    from capture_bench.training.train.model_card import ship
 
     run_dir = tmp_path / "run"
     sets = [*TINY, "imitate=incremental_ik_uncapped", "imitation_steps=64",

@@ -14,6 +14,12 @@ Stages, lowest first (`STAGES`): the helpers any stage may use (top-level module
 ``training`` and ``evaluation``, siblings that do not import each other, and ``__main__.py`` above
 all. A module may import its own stage and the stages below it. Anything that has to break this
 is listed in `EXCEPTIONS` with its reason.
+
+Within ``training``, each job has its folder (`TRAINING_JOBS`: ``train``, ``tune``, ``sweep``,
+``curves``, ``zoo``) over what they share (``config``, ``common`` and the top-level modules): a
+job's modules are imported only by the same job, never by another job nor by what they share.
+Within ``evaluation``, ``running`` (suites, agents, rollouts, backends, videos) never imports
+``reporting`` (what the report makes of the records).
 """
 
 from __future__ import annotations
@@ -71,6 +77,9 @@ PICKLED_PATHS: dict[str, str] = {
         "lives in capture_bench.agents.features"
     ),
 }
+
+#: The folders of ``capture_bench.training`` that hold one job each; none imports another.
+TRAINING_JOBS = ("train", "tune", "sweep", "curves", "zoo")
 
 _ENTRY_POINT = re.compile(r"[A-Za-z_][\w.]*:[A-Za-z_]\w*")
 
@@ -177,6 +186,37 @@ def back_arrows(arrows: list[Arrow]) -> list[Arrow]:
     return wrong
 
 
+def training_job(module: str) -> str | None:
+    """The training job whose folder holds ``module`` (`TRAINING_JOBS`), or None."""
+    parts = module.split(".")
+    if parts[1:2] == ["training"] and len(parts) > 2 and parts[2] in TRAINING_JOBS:
+        return parts[2]
+    return None
+
+
+def job_crossings(arrows: list[Arrow]) -> list[Arrow]:
+    """The arrows from a module of ``training`` into a job's folder other than its own: from
+    another job, or from what the jobs share (``config``, ``common``, the top-level modules)."""
+    return [
+        arrow
+        for arrow in arrows
+        if arrow.source.split(".")[1:2] == ["training"]
+        and training_job(arrow.target) is not None
+        and training_job(arrow.source) != training_job(arrow.target)
+    ]
+
+
+def running_into_reporting(arrows: list[Arrow]) -> list[Arrow]:
+    """The arrows from ``evaluation.running`` into ``evaluation.reporting``."""
+    running, reporting = f"{PACKAGE}.evaluation.running", f"{PACKAGE}.evaluation.reporting"
+    return [
+        arrow
+        for arrow in arrows
+        if (arrow.source == running or arrow.source.startswith(running + "."))
+        and (arrow.target == reporting or arrow.target.startswith(reporting + "."))
+    ]
+
+
 def cycles(arrows: list[Arrow]) -> list[tuple[list[str], list[Arrow]]]:
     """Each group of modules that import each other in a loop (Tarjan's strongly connected
     components), with one circle of arrows through it: a shortest way from its first module back."""
@@ -263,6 +303,22 @@ def test_no_import_cycle() -> None:
     assert not found, f"modules that import each other in a circle:\n{text}"
 
 
+def test_training_jobs_never_import_each_other() -> None:
+    _, arrows = _package()
+    wrong = job_crossings(arrows)
+    assert not wrong, "imports into another training job's folder (move what is shared to " + (
+        "training/common/):\n" + "\n".join(str(a) for a in wrong)
+    )
+
+
+def test_evaluation_running_never_imports_reporting() -> None:
+    _, arrows = _package()
+    wrong = running_into_reporting(arrows)
+    assert not wrong, "evaluation.running imports evaluation.reporting:\n" + "\n".join(
+        str(a) for a in wrong
+    )
+
+
 def test_exceptions_are_still_needed() -> None:
     _, arrows = _package()
     present = {(a.source, a.target) for a in arrows}
@@ -315,4 +371,55 @@ def test_the_checks_find_a_back_arrow_and_a_circle(tangled: Path) -> None:
     assert sorted((a.source, a.target) for a in circle) == [
         ("capture_bench.envs.core", "capture_bench.envs.step"),
         ("capture_bench.envs.step", "capture_bench.envs.core"),
+    ]
+
+
+def test_the_job_check_finds_a_job_importing_another(tmp_path: Path) -> None:
+    files = {
+        "__init__.py": "",
+        "training/__init__.py": "",
+        "training/callbacks.py": "",
+        "training/common/__init__.py": "",
+        "training/common/build.py": "from capture_bench.training import callbacks\n",
+        "training/common/plan.py": "from capture_bench.training.sweep import task\n",
+        "training/tune/__init__.py": "",
+        "training/tune/command.py": (
+            "from capture_bench.training.common import build\nfrom . import trial\n"
+            "def f():\n    from capture_bench.training.train.command import main\n"
+        ),
+        "training/tune/trial.py": "",
+        "training/train/__init__.py": "",
+        "training/train/command.py": "main = None\n",
+        "training/sweep/__init__.py": "",
+        "training/sweep/task.py": "",
+    }
+    for name, text in files.items():
+        (tmp_path / PACKAGE / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / PACKAGE / name).write_text(text)
+    _, arrows = find_arrows(tmp_path)
+    assert sorted((a.source, a.target) for a in job_crossings(arrows)) == [
+        ("capture_bench.training.common.plan", "capture_bench.training.sweep.task"),
+        ("capture_bench.training.tune.command", "capture_bench.training.train.command"),
+    ]
+
+
+def test_the_evaluation_check_finds_running_importing_reporting(tmp_path: Path) -> None:
+    files = {
+        "__init__.py": "",
+        "evaluation/__init__.py": "",
+        "evaluation/errors.py": "",
+        "evaluation/pipeline.py": "from .reporting import report\nfrom .running import backends\n",
+        "evaluation/running/__init__.py": "",
+        "evaluation/running/backends.py": "from capture_bench.evaluation import errors\n",
+        "evaluation/running/video.py": "def f():\n    from ..reporting.plots import draw\n",
+        "evaluation/reporting/__init__.py": "",
+        "evaluation/reporting/report.py": "from capture_bench.evaluation.running import backends\n",
+        "evaluation/reporting/plots.py": "",
+    }
+    for name, text in files.items():
+        (tmp_path / PACKAGE / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / PACKAGE / name).write_text(text)
+    _, arrows = find_arrows(tmp_path)
+    assert [(a.source, a.target) for a in running_into_reporting(arrows)] == [
+        ("capture_bench.evaluation.running.video", "capture_bench.evaluation.reporting.plots"),
     ]

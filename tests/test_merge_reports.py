@@ -14,10 +14,19 @@ from pathlib import Path
 import pytest
 from test_evaluation_metrics import record
 
-from capture_bench.evaluation.aggregate import RESULT_TIMING_COLUMNS, rank_agents, summarise_all
 from capture_bench.evaluation.errors import EvaluationError
-from capture_bench.evaluation.report import ReportData, csv_value, read_episodes, write_report
-from capture_bench.evaluation.rollout import EPISODE_COLUMNS, TIMING_COLUMNS, EpisodeRecord
+from capture_bench.evaluation.reporting.aggregate import (
+    RESULT_TIMING_COLUMNS,
+    rank_agents,
+    summarise_all,
+)
+from capture_bench.evaluation.reporting.report import (
+    ReportData,
+    csv_value,
+    read_episodes,
+    write_report,
+)
+from capture_bench.evaluation.running.rollout import EPISODE_COLUMNS, TIMING_COLUMNS, EpisodeRecord
 from evaluate import main
 
 AGENTS = ["incremental_ik", "pure_pursuit"]

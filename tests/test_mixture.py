@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from capture_bench.task.scenarios import ConfigError, list_scenarios
-from capture_bench.training.mixture import (
+from capture_bench.training.common.mixture import (
     MixtureVecEnv,
     is_mixture,
     mixture_name,
     mixture_scenarios,
 )
-from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
 
 def test_the_mixture_steps_as_its_parts_side_by_side():
@@ -133,7 +133,7 @@ def test_a_mixtures_curricula_move_on_each_scenario_they_apply_to():
     """Each scenario of a mixture gets the curricula that move on it, on its own share of the
     sub-envs, to its own rule: the hold only where the scenario asks one (grasp and tumbling,
     not paper_eq20), the tolerance on every scenario to its own epsilon."""
-    from capture_bench.training.run import mixture_curricula
+    from capture_bench.training.common.build import mixture_curricula
 
     scenarios = mixture_scenarios("paper_eq20,grasp,tumbling")
     hp = {"curriculum_hold": 0.0, "curriculum_tolerance": 0.05, "curriculum_steps": 10,
@@ -172,7 +172,7 @@ def test_a_mixture_run_with_a_hold_curriculum_grows_grasps_hold_alone(tmp_path):
 def test_the_weights_split_the_sub_envs_in_proportion_and_sum_to_n_envs():
     """mixture_shares: equal without weights; with weights, in proportion (a scenario left out
     weighs 1), the largest remainders rounded up (ties to the earlier scenario), each >= 1."""
-    from capture_bench.training.mixture import mixture_shares
+    from capture_bench.training.common.mixture import mixture_shares
 
     names = ["circular", "drift", "evasive", "grasp", "jitter", "noisy", "paper", "tumbling"]
     assert mixture_shares(64, names) == [8] * 8
@@ -201,7 +201,7 @@ def test_the_weights_split_the_sub_envs_in_proportion_and_sum_to_n_envs():
     ],
 )
 def test_shares_that_cannot_be_are_refused(n_envs, weights, expected):
-    from capture_bench.training.mixture import mixture_shares
+    from capture_bench.training.common.mixture import mixture_shares
 
     names = ["paper", "grasp", "drift", "noisy"][: 4 if weights is None else 2]
     with pytest.raises(ConfigError, match=expected):
@@ -211,9 +211,9 @@ def test_shares_that_cannot_be_are_refused(n_envs, weights, expected):
 def test_a_weighted_run_gives_each_scenario_its_share_and_grasps_curriculum_its_own(tmp_path):
     """paper_eq20+grasp weighted 1:2 on 6 sub-envs: paper_eq20's batched env has 2, grasp's 4, and the
     hold curriculum moves grasp's 4 (sub-envs 2-5) alone."""
-    from capture_bench.training.hyperparameters import resolve_hyperparameters
-    from capture_bench.training.options import TrainConfig
-    from capture_bench.training.run import build_venv, curriculum_callbacks
+    from capture_bench.training.common.build import build_venv, curriculum_callbacks
+    from capture_bench.training.config.hyperparameters import resolve_hyperparameters
+    from capture_bench.training.config.options import TrainConfig
 
     hp, _, _ = resolve_hyperparameters("ppo", None, None, [
         "n_envs=6", "mixture_weights={grasp: 2}", "curriculum_hold=0", "curriculum_steps=10",

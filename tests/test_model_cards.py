@@ -11,7 +11,7 @@ import pytest
 
 import train
 from capture_bench.provenance import reproduction_key
-from capture_bench.training.model_card import (
+from capture_bench.training.train.model_card import (
     CARD_BATCH,
     CARD_FIELDS,
     REPLAY_CHECK,
@@ -132,7 +132,7 @@ def test_shipping_a_runs_best_validation_says_so(tmp_path):
 
 
 def test_shipping_a_directory_without_a_run_config_is_one_line(tmp_path, capsys):
-    from capture_bench.training.model_card import main
+    from capture_bench.training.train.model_card import main
 
     lone = tmp_path / "best"
     lone.mkdir()
@@ -145,7 +145,7 @@ def test_shipping_a_directory_without_a_run_config_is_one_line(tmp_path, capsys)
 
 
 def test_revalidating_a_card_keeps_what_it_shipped_with_and_writes_one_section(tmp_path):
-    from capture_bench.training.model_card import (
+    from capture_bench.training.train.model_card import (
         ENVELOPE_SECTION,
         VALIDATION_HEADING,
         VALIDATION_V0_HEADING,

@@ -13,11 +13,11 @@ import pytest
 from rich.console import Console
 
 from capture_bench.evaluation import cli as evaluate_cli
-from capture_bench.evaluation.aggregate import RankingRow
-from capture_bench.evaluation.suites import SUITES_DIR, load_suite, shadowed_suite
+from capture_bench.evaluation.reporting.aggregate import RankingRow
+from capture_bench.evaluation.running.suites import SUITES_DIR, load_suite, shadowed_suite
 from capture_bench.provenance import describe_machine, machine, provenance_text
-from capture_bench.training import run as train_run
-from capture_bench.training import tune
+from capture_bench.training.common import run as train_run
+from capture_bench.training.tune import command as tune
 
 ROOT = Path(__file__).parents[1]
 COMMITTED = ROOT / "reports" / "published" / "default" / "results.json"
@@ -136,7 +136,8 @@ def test_an_empty_value_is_refused_in_one_line(
 
 
 def test_every_option_still_takes_its_values():
-    from capture_bench.training import curves, options
+    from capture_bench.training.config import options
+    from capture_bench.training.curves import command as curves
 
     config = evaluate_cli.parse_config(
         ["--agents", "hold,random", "incremental_ik", "--scenarios", "paper,", "--out", "x"]

@@ -1,5 +1,5 @@
 """The report's pixels-vs-estimate section, on synthetic records: which agents pair, the paired
-figures (those of `capture_bench.evaluation.paired.compare`, checked against independent
+figures (those of `capture_bench.evaluation.reporting.paired.compare`, checked against independent
 references in ``test_vision_report.py``), and where the section appears."""
 
 from __future__ import annotations
@@ -11,8 +11,13 @@ from test_evaluation_metrics import record
 from test_vision_report import _data as _vision_data
 from test_vision_report import _images
 
-from capture_bench.evaluation.pixel_comparison import HEADER, TEXT, TITLE, pixel_comparisons
-from capture_bench.evaluation.report import ReportData, html_page, markdown, write_report
+from capture_bench.evaluation.reporting.pixel_comparison import (
+    HEADER,
+    TEXT,
+    TITLE,
+    pixel_comparisons,
+)
+from capture_bench.evaluation.reporting.report import ReportData, html_page, markdown, write_report
 
 MODELS = {
     "ppo-paper": {"trained_observation_source": "ekf"},

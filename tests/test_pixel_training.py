@@ -23,7 +23,7 @@ from capture_bench.agents.sb3_policy import (
 )
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 from capture_bench.training.seeds import TrainingSeeds
 
 SIZE = 36  # a small image keeps the tiny runs fast; the default is 84
@@ -119,7 +119,12 @@ def test_a_pixel_model_evaluates_through_evaluate_py_in_pixel_envs(pixel_run, tm
 
 
 def test_the_batched_evaluation_of_a_pixel_model_equals_the_single_env(pixel_run):
-    from capture_bench.evaluation.backends import EpisodeTask, close_envs, run_batch, run_task
+    from capture_bench.evaluation.running.backends import (
+        EpisodeTask,
+        close_envs,
+        run_batch,
+        run_task,
+    )
 
     seeds = load_scenario("paper").evaluation_seeds[:3]
     tasks = [EpisodeTask(str(pixel_run), "paper", seed) for seed in seeds]
@@ -194,7 +199,7 @@ def test_a_declared_image_must_be_uint8_from_0_to_255(pixel_run):
 def test_models_glob_leaves_pixel_models_to_be_named(pixel_run, tmp_path):
     import shutil
 
-    from capture_bench.evaluation.agents_loading import expand_specs
+    from capture_bench.evaluation.running.agents_loading import expand_specs
 
     shutil.copytree(pixel_run, tmp_path / "px", ignore=shutil.ignore_patterns("checkpoints", "tb"))
     shutil.copytree("models/ppo-paper", tmp_path / "ppo-paper")
@@ -207,7 +212,7 @@ def test_shipping_a_pixel_run_writes_a_card_that_replays_in_pixel_envs(pixel_run
     from test_model_cards import _check_replay
     from test_safe_models import _assert_same_actions
 
-    from capture_bench.training.model_card import ship
+    from capture_bench.training.train.model_card import ship
 
     target = ship(pixel_run, "px", episodes=2, out=tmp_path / "models")
     card = json.loads((target / "metadata.json").read_text())["model_card"]

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from capture_bench.evaluation import cli as evaluate_cli
-from capture_bench.evaluation import reproduction
-from capture_bench.evaluation.reproduction import compare, read_published
+from capture_bench.evaluation.reporting import reproduction
+from capture_bench.evaluation.reporting.reproduction import compare, read_published
 
 ROOT = Path(__file__).parents[1]
 QUICK = ["--suite", "quick", "--workers", "1"]

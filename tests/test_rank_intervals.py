@@ -13,7 +13,7 @@ import random
 import numpy as np
 import pytest
 
-from capture_bench.evaluation.aggregate import (
+from capture_bench.evaluation.reporting.aggregate import (
     RankingRow,
     Summary,
     counted_scenarios,
@@ -25,8 +25,8 @@ from capture_bench.evaluation.aggregate import (
     unranked_scenarios,
     with_rank_intervals,
 )
-from capture_bench.evaluation.metrics import Estimate
-from capture_bench.evaluation.report import (
+from capture_bench.evaluation.reporting.metrics import Estimate
+from capture_bench.evaluation.reporting.report import (
     RANKING_HEADER,
     READING,
     ReportData,
@@ -40,7 +40,7 @@ from capture_bench.evaluation.report import (
     report_capture_rule,
     summary_text,
 )
-from capture_bench.evaluation.rollout import EpisodeRecord
+from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
 from tests.records import record
 
@@ -305,6 +305,6 @@ def _data(records: list[EpisodeRecord], ranking: list[RankingRow]) -> ReportData
 
 def _images(data: ReportData) -> dict[str, bytes]:
     """Stand-in figures: the page's text is what these tests read."""
-    from capture_bench.evaluation.report import figure_names
+    from capture_bench.evaluation.reporting.report import figure_names
 
     return {name: b"\x89PNG" for name in figure_names(data)}

@@ -19,7 +19,7 @@ from capture_bench.agents import make_agent
 from capture_bench.engine.task import CaptureTask
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv, sub_env_infos
-from capture_bench.evaluation.rollout import run_episode
+from capture_bench.evaluation.running.rollout import run_episode
 from capture_bench.sim.kinematics import HOME, forward_kinematics, jacobian
 from capture_bench.task.rewards import REWARD_TERMS
 from capture_bench.task.scenarios import load_scenario

@@ -19,18 +19,18 @@ from pathlib import Path
 
 import pytest
 
-from capture_bench.evaluation.aggregate import rank_agents, summarise_all
 from capture_bench.evaluation.cli import main
-from capture_bench.evaluation.merge import carried_videos
-from capture_bench.evaluation.report import (
+from capture_bench.evaluation.reporting.aggregate import rank_agents, summarise_all
+from capture_bench.evaluation.reporting.merge import carried_videos
+from capture_bench.evaluation.reporting.report import (
     ReportData,
     figure_names,
     figures,
     html_page,
     report_capture_rule,
 )
-from capture_bench.evaluation.report_folder import read_report
-from capture_bench.evaluation.suites import load_suite
+from capture_bench.evaluation.reporting.report_folder import read_report
+from capture_bench.evaluation.running.suites import load_suite
 
 ROOT = Path(__file__).parents[1]
 PUBLISHED = ROOT / "reports" / "published" / "default"

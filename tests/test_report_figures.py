@@ -15,9 +15,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from capture_bench.evaluation import plots, report
-from capture_bench.evaluation.aggregate import rank_agents, summarise_all
-from capture_bench.evaluation.report import (
+from capture_bench.evaluation.reporting import plots, report
+from capture_bench.evaluation.reporting.aggregate import rank_agents, summarise_all
+from capture_bench.evaluation.reporting.report import (
     DETAIL_HEADER,
     MAIN_HEADER,
     READING,
@@ -285,7 +285,7 @@ def test_the_figures_are_the_same_bytes_however_they_are_split():
 
 
 def test_the_learning_curves_page_renders_code_spans_and_fits_a_phone():
-    from capture_bench.training.curves import _html
+    from capture_bench.training.curves.command import _html
 
     page = _html(
         "# Learning curves on `paper`\n\nThe dashed line is `incremental_ik`.\n\n"
@@ -306,7 +306,7 @@ def test_the_learning_curves_page_renders_code_spans_and_fits_a_phone():
 def test_the_committed_learning_curves_pages_are_what_the_code_makes_of_their_markdown():
     from pathlib import Path
 
-    from capture_bench.training.curves import _html
+    from capture_bench.training.curves.command import _html
 
     root = Path(__file__).parents[1]
     pages = sorted(root.glob("docs/results/*/learning_curves.html"))

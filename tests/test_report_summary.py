@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from capture_bench.evaluation.report import SUMMARY_FIGURES, summary_text
-from capture_bench.evaluation.summary import (
+from capture_bench.evaluation.reporting.report import SUMMARY_FIGURES, summary_text
+from capture_bench.evaluation.reporting.summary import (
     heatmap_cells,
     probability_of_improvement,
     ranking_intervals,
@@ -92,7 +92,7 @@ def test_every_summary_plot_is_written_and_embedded_before_the_scenarios(report)
 def test_the_u_statistic_is_scipys_exactly():
     from scipy.stats import mannwhitneyu
 
-    from capture_bench.evaluation.summary import mann_whitney_u
+    from capture_bench.evaluation.reporting.summary import mann_whitney_u
 
     rng = np.random.default_rng(3)
     for _ in range(50):

@@ -53,8 +53,8 @@ def test_a_zero_residual_is_the_base_controller_and_batches_agree():
 
 
 def test_the_training_envs_step_with_the_base_plus_the_scaled_residual():
-    from capture_bench.training.residual_vec_env import ResidualVecEnv
-    from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+    from capture_bench.training.common.residual_vec_env import ResidualVecEnv
+    from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
     scale, residual = 0.3, np.array([[0.5, -0.5, 0.2], [-1.0, 1.0, 0.0]], np.float32)
     plain = CaptureSB3VecEnv(2, "paper", seed=4)
@@ -110,7 +110,7 @@ def test_a_residual_run_is_named_declared_and_validated_as_the_hybrid(residual_r
 
 def test_evaluation_rebuilds_the_hybrid_from_the_metadata(residual_run):
     from capture_bench.agents.sb3_policy import SB3Policy, load_sb3_policy
-    from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
+    from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
 
     env = CaptureEnv("paper")
     try:

@@ -21,14 +21,14 @@ import yaml
 
 import capture_bench
 from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
-from capture_bench.training.hyperparameters import (
+from capture_bench.training.common.build import curriculum_callbacks, fill_curriculum_steps
+from capture_bench.training.config.hyperparameters import (
     ALGORITHMS,
     resolve_hyperparameters,
     sb3_kwargs,
 )
-from capture_bench.training.options import TrainConfig
-from capture_bench.training.run import curriculum_callbacks, fill_curriculum_steps
-from capture_bench.training.zoo import ZOO_DIR, main, zoo_entry, zoo_file, zoo_path
+from capture_bench.training.config.options import TrainConfig
+from capture_bench.training.zoo.command import ZOO_DIR, main, zoo_entry, zoo_file, zoo_path
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO_OF = {load_scenario(name).env_id: name for name in list_scenarios()}

@@ -18,16 +18,16 @@ from test_evaluation_metrics import _report_data, record
 from test_vision_report import _data
 
 from capture_bench import rliable_stats
-from capture_bench.evaluation import rliable_report
-from capture_bench.evaluation.report import (
+from capture_bench.evaluation.reporting import rliable_report
+from capture_bench.evaluation.reporting.report import (
     figure_names,
     markdown,
     rliable_numbers,
     write_report,
 )
-from capture_bench.evaluation.summary import probability_of_improvement, score
+from capture_bench.evaluation.reporting.summary import probability_of_improvement, score
 from capture_bench.task.score import episode_score
-from capture_bench.training import seed_statistics
+from capture_bench.training.curves import seed_statistics
 
 REPS = 40  # small: the equalities hold at any number of resamples
 
@@ -241,8 +241,8 @@ def test_the_curves_statistics_are_rliables_over_the_training_seeds():
 
 
 def test_an_old_validations_file_without_mean_score_is_read_and_extended(tmp_path):
-    from capture_bench.training.curves import SCORE, final_scores, read_curve
-    from capture_bench.training.policy_export import VALIDATIONS_FILE, append_validation
+    from capture_bench.training.common.policy_export import VALIDATIONS_FILE, append_validation
+    from capture_bench.training.curves.command import SCORE, final_scores, read_curve
 
     run = tmp_path / "paper-ppo-0"
     run.mkdir()
@@ -264,7 +264,7 @@ def test_an_old_validations_file_without_mean_score_is_read_and_extended(tmp_pat
 
 
 def test_the_profile_figure_depends_on_the_records_alone():
-    from capture_bench.evaluation.report import figures
+    from capture_bench.evaluation.reporting.report import figures
 
     data = _data(_equal_counts())
     first = figures(data, [rliable_report.FIGURE])
@@ -278,7 +278,7 @@ def test_without_rliable_the_commands_that_need_it_say_so_in_one_line(
     import sys
 
     from capture_bench.evaluation.cli import main as evaluate
-    from capture_bench.training.curves import main as curves
+    from capture_bench.training.curves.command import main as curves
 
     monkeypatch.setitem(sys.modules, "rliable", None)  # import rliable now fails
     with pytest.raises(rliable_stats.RliableMissing, match="pip install rliable"):

@@ -28,7 +28,7 @@ from capture_bench.agents.sb3_policy import (
     load_trusted,
     read_metadata,
 )
-from capture_bench.evaluation.agents_loading import shipped_models
+from capture_bench.evaluation.running.agents_loading import shipped_models
 
 MODELS = Path(__file__).parents[1] / "models"
 

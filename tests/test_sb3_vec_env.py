@@ -19,7 +19,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.training.sb3_vec_env import CaptureSB3VecEnv
+from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 from capture_bench.training.seeds import TrainingSeeds
 
 N = 4

@@ -115,7 +115,7 @@ def test_list_command_shows_valid_and_invalid_scenarios_suites_and_algorithms(sc
     assert out[header + 1].split()[0] == "unclosed" and "invalid YAML" in out[header + 1]
     assert out[header + 2].split()[0] == "warp" and WARP_ERROR in out[header + 2]
     assert any(line.split()[:2] == ["default", "all;"] for line in out)
-    from capture_bench.training.hyperparameters import ALGORITHMS
+    from capture_bench.training.config.hyperparameters import ALGORITHMS
 
     n = len(ALGORITHMS)
     assert [line.split()[0] for line in out[-n:]] == list(ALGORITHMS)

@@ -168,7 +168,7 @@ def test_the_batched_env_plays_the_single_envs_rendered_episodes():
     from gymnasium.vector import AutoresetMode
 
     from capture_bench.envs.vector_env import CaptureVectorEnv
-    from capture_bench.evaluation.rollout import TIMING_COLUMNS, run_episode, run_episodes
+    from capture_bench.evaluation.running.rollout import TIMING_COLUMNS, run_episode, run_episodes
 
     seeds = load_scenario("paper_rendered").evaluation_seeds[:3]
 
@@ -253,8 +253,8 @@ def test_env_checkers_pass_on_a_rendered_scenario():
 def test_the_same_seed_plays_the_same_rendered_rollout_twice_and_on_any_worker_count():
     """Rendered episodes through the evaluation's backends: in this process, again, and on two
     worker processes, the same records (timing aside)."""
-    from capture_bench.evaluation.backends import EpisodeTask, close_envs, run_tasks
-    from capture_bench.evaluation.rollout import TIMING_COLUMNS
+    from capture_bench.evaluation.running.backends import EpisodeTask, close_envs, run_tasks
+    from capture_bench.evaluation.running.rollout import TIMING_COLUMNS
 
     seeds = load_scenario("paper_rendered").evaluation_seeds[1:3]
     tasks = [
@@ -301,8 +301,8 @@ def test_the_gif_of_a_rendered_scenario_shows_the_cameras_view():
 
     from PIL import Image
 
-    from capture_bench.evaluation.backends import EpisodeTask
-    from capture_bench.evaluation.video import record_video
+    from capture_bench.evaluation.running.backends import EpisodeTask
+    from capture_bench.evaluation.running.video import record_video
 
     seed = load_scenario("paper_rendered").evaluation_seeds[1]
     video = record_video(EpisodeTask("incremental_ik", "paper_rendered", seed), steps=None)

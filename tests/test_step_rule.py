@@ -17,7 +17,7 @@ from capture_bench.engine.task import CaptureTask
 from capture_bench.envs import capture_env
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
-from capture_bench.evaluation.aggregate import KNOWN_FAILURES
+from capture_bench.evaluation.reporting.aggregate import KNOWN_FAILURES
 from capture_bench.sensing.estimator import STATUSES, TargetEstimate
 from capture_bench.sim import kinematics
 from capture_bench.task.observation import encode_observation

@@ -22,7 +22,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from capture_bench.training.sweep import SUMMARY_FILE, main, parse_seeds
+from capture_bench.training.sweep.command import SUMMARY_FILE, main, parse_seeds
 from capture_bench.validation import ConfigError
 from tests.processes import alive, descendants
 
@@ -170,7 +170,7 @@ def test_every_run_lands_under_the_drivers_runs_from_both_nodes(cluster, tmp_pat
 def _interrupted_run(run_dir: Path) -> None:
     """train.py stopped by Ctrl-C at step 64 of 128: it saves a checkpoint and exits 130."""
     from capture_bench.training import callbacks
-    from capture_bench.training.run import main as train
+    from capture_bench.training.common.run import main as train
 
     original = callbacks.Progress._on_step
 
@@ -195,7 +195,7 @@ def rerun(cluster, tmp_path_factory):
 
     Returns (the runs folder, the command's result, the files of paper-ppo-0 and those of
     paper-ppo-1 before)."""
-    from capture_bench.training.run import main as train
+    from capture_bench.training.common.run import main as train
 
     root = tmp_path_factory.mktemp("rerun")
     runs = root / "runs"
@@ -258,7 +258,7 @@ def test_failing_runs_are_reported_with_their_error_and_the_others_complete(reru
 
 def test_a_gpu_asked_of_a_cluster_without_one_is_refused(monkeypatch):
     """Ray would wait forever for a node with a GPU: the sweep is refused first."""
-    from capture_bench.training.sweep_ray import check_resources
+    from capture_bench.training.sweep.driver import check_resources
 
     nodes = [{"Alive": True, "Resources": {"CPU": 4.0}},
              {"Alive": True, "Resources": {"CPU": 2.0, "GPU": 1.0}},

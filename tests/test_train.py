@@ -13,7 +13,10 @@ from stand_in import TINY_PPO
 
 import train
 from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
-from capture_bench.training.hyperparameters import load_hyperparameters, validate_hyperparameters
+from capture_bench.training.config.hyperparameters import (
+    load_hyperparameters,
+    validate_hyperparameters,
+)
 from capture_bench.training.seeds import TrainingSeeds, check_training_seed
 
 TINY = TINY_PPO
@@ -94,7 +97,7 @@ def test_a_moved_run_resumes_in_its_new_directory(tmp_path):
 
 
 def test_sac_resume_restores_replay_buffer_and_vecnormalize(tmp_path):
-    from capture_bench.training.checkpoint import read_checkpoint
+    from capture_bench.training.common.checkpoint import read_checkpoint
 
     config = tmp_path / "sac.yaml"
     config.write_text(
@@ -142,7 +145,7 @@ def test_bad_algo_unknown_key_and_bad_value_are_one_line_exit_2(capsys, tmp_path
 
 
 def test_shipped_algo_files_are_valid():
-    from capture_bench.training.hyperparameters import ALGO_DIR, ALGORITHMS
+    from capture_bench.training.config.hyperparameters import ALGO_DIR, ALGORITHMS
 
     assert sorted(p.stem for p in ALGO_DIR.glob("*.yaml")) == sorted(ALGORITHMS)
     for algo in ALGORITHMS:

@@ -15,7 +15,7 @@ import yaml
 
 import train
 from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
-from capture_bench.training.hyperparameters import (
+from capture_bench.training.config.hyperparameters import (
     ALGORITHMS,
     OFF_POLICY,
     load_hyperparameters,
@@ -321,7 +321,7 @@ def test_without_run_dir_each_run_gets_a_directory_of_its_own(tmp_path, monkeypa
 
 
 def test_the_free_run_directory_skips_anything_that_holds_files(tmp_path):
-    from capture_bench.training.run import free_run_dir
+    from capture_bench.training.common.run import free_run_dir
 
     base = tmp_path / "paper-ppo-0"
     assert free_run_dir(base) == base

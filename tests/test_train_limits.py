@@ -19,7 +19,7 @@ import pytest
 from stand_in import TINY_PPO
 
 import train
-from capture_bench.training import run as train_run
+from capture_bench.training.common import run as train_run
 
 ROOT = Path(__file__).parents[1]
 MODEL = ROOT / "models" / "ppo-paper"
@@ -173,7 +173,7 @@ def test_the_estimate_bounds_what_sb3_allocates_and_the_shipped_configs_fit_a_la
     from capture_bench.agents.features import EXTRA_SIZE
     from capture_bench.task.observation import observation_space
     from capture_bench.task.scenarios import load_scenario
-    from capture_bench.training.hyperparameters import (
+    from capture_bench.training.config.hyperparameters import (
         ACTION_SIZE,
         ALGORITHMS,
         EXTRA_FEATURES,
@@ -367,7 +367,11 @@ def test_a_zip_bomb_checkpoint_is_refused_before_it_is_read(tmp_path, monkeypatc
     import numpy as np
     from stand_in import sb3_model
 
-    from capture_bench.training.checkpoint import CheckpointError, read_checkpoint, save_checkpoint
+    from capture_bench.training.common.checkpoint import (
+        CheckpointError,
+        read_checkpoint,
+        save_checkpoint,
+    )
 
     model, _ = sb3_model("SAC")
     step = save_checkpoint(model, tmp_path, replay_buffer=True)
@@ -462,7 +466,7 @@ def test_two_train_processes_on_one_run_and_the_lock_outlives_no_crash(tmp_path,
         one_line_error(
             capsys, ["--config", str(tiny), "--run-dir", str(run_dir)], "already holds a run"
         )
-        from capture_bench.training.checkpoint import list_checkpoints
+        from capture_bench.training.common.checkpoint import list_checkpoints
 
         while not list_checkpoints(run_dir / "checkpoints") and proc.poll() is None:
             proc.stdout.readline()

@@ -214,7 +214,7 @@ def test_a_signal_saves_a_checkpoint_that_resumes(tmp_path, signum, status, vec_
     time.sleep(0.5)
     left = [pid for pid in workers if alive(pid)]
     assert not left, f"workers {left} outlived train.py"
-    from capture_bench.training.checkpoint import list_checkpoints
+    from capture_bench.training.common.checkpoint import list_checkpoints
 
     (steps, _), *_ = reversed(list_checkpoints(run_dir / "checkpoints"))
     assert steps > 0

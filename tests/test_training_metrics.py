@@ -16,7 +16,7 @@ from stand_in import sb3_model, spaces
 import train
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.task.step_rule import FAILURES
-from capture_bench.training.episode_stats import (
+from capture_bench.training.common.episode_stats import (
     EpisodeStats,
     EpisodeTracker,
     finite_items,
@@ -164,7 +164,7 @@ def test_batched_validation_equals_single_envs_on_the_same_seeds():
     while others still play) and a small SB3 model with VecNormalize statistics (fails)."""
     from capture_bench.agents.baselines import PurePursuit
     from capture_bench.envs.vector_env import CaptureVectorEnv
-    from capture_bench.training.validation_run import run_validation
+    from capture_bench.training.common.validation_run import run_validation
 
     seeds = list(load_scenario("paper").validation_seeds[:4])
     venv = CaptureVectorEnv(len(seeds), "paper")
@@ -226,8 +226,8 @@ def test_best_model_is_written_whole_and_loads_as_a_policy_directory(run_dir):
 
     from capture_bench.agents.sb3_policy import load_sb3_policy
     from capture_bench.envs.capture_env import CaptureEnv
-    from capture_bench.evaluation.agents_loading import build_agent, resolve_agent
-    from capture_bench.training.checkpoint import read_checkpoint
+    from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
+    from capture_bench.training.common.checkpoint import read_checkpoint
 
     best = run_dir / "best"
     assert sorted(p.name for p in best.iterdir()) == ["metadata.json", "model.zip", "policy.pt",
@@ -265,7 +265,7 @@ def test_best_model_is_written_whole_and_loads_as_a_policy_directory(run_dir):
 
 
 def test_better_means_capture_rate_then_ratio_to_limit_then_time():
-    from capture_bench.training.policy_export import is_better
+    from capture_bench.training.common.policy_export import is_better
 
     def v(rate, ratio=NAN, time=NAN):
         return {"capture_rate": rate, "median_ratio_to_limit": ratio, "median_capture_time": time}
@@ -282,8 +282,8 @@ def test_better_means_capture_rate_then_ratio_to_limit_then_time():
 def test_best_dir_is_replaced_only_by_a_better_validation_and_never_half_written(
     tmp_path, monkeypatch
 ):
-    from capture_bench.training import policy_export
-    from capture_bench.training.policy_export import BestModel
+    from capture_bench.training.common import policy_export
+    from capture_bench.training.common.policy_export import BestModel
 
     model, _ = sb3_model("PPO", learn=32)
     meta = {"algorithm": "PPO", "scenario": "paper"}

@@ -20,11 +20,14 @@ import train
 import tune
 from capture_bench import __main__ as cli
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.training.hyperparameters import load_hyperparameters, validate_hyperparameters
-from capture_bench.training.search_spaces import SAMPLERS, Choice, merge, sample
-from capture_bench.training.tune import open_study, parse_args, prepare
-from capture_bench.training.tune_options import TuneConfig
-from capture_bench.training.tune_trial import objective_value, report_validation
+from capture_bench.training.config.hyperparameters import (
+    load_hyperparameters,
+    validate_hyperparameters,
+)
+from capture_bench.training.tune.command import open_study, parse_args, prepare
+from capture_bench.training.tune.options import TuneConfig
+from capture_bench.training.tune.search_spaces import SAMPLERS, Choice, merge, sample
+from capture_bench.training.tune.trial import objective_value, report_validation
 
 TINY_SAC = """\
 n_envs: 1
@@ -270,7 +273,7 @@ def test_python_m_capture_bench_tune_is_the_same_command(capsys):
 
 def test_ctrl_c_stops_after_writing_what_finished(monkeypatch, tmp_path, capsys):
     """A stand-in for training: trial 0 finishes, Ctrl-C lands in trial 1."""
-    from capture_bench.training import tune_trial
+    from capture_bench.training.tune import trial as tune_trial
 
     def stand_in(trial: optuna.Trial, setup) -> float:
         trial.set_user_attr("hyperparameters", tune_trial.trial_hyperparameters(trial, setup))
@@ -309,8 +312,8 @@ def test_a_study_stores_the_settings_that_define_its_trials(tuned):
 def test_continuing_a_study_without_its_options_runs_its_trials_as_before(
     tuned, tmp_path, capsys, monkeypatch
 ):
-    from capture_bench.training import tune_trial
     from capture_bench.training.callbacks import ToleranceCurriculum
+    from capture_bench.training.tune import trial as tune_trial
 
     real, made = tune_trial.curriculum_callbacks, []
 
@@ -385,7 +388,7 @@ def test_a_config_with_other_hyperparameters_is_refused_naming_the_key(tmp_path,
 
 
 def test_a_changed_search_space_is_refused(tmp_path, capsys, monkeypatch):
-    from capture_bench.training.search_spaces import Param
+    from capture_bench.training.tune.search_spaces import Param
 
     argv = _study_with_a_trial(tmp_path)
     monkeypatch.setitem(SAMPLERS["sac"], "tau", Param(Choice((0.005, 0.01)), "tau"))

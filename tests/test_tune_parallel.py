@@ -23,11 +23,11 @@ from test_tune import load, one_line_error, tiny_argv
 
 import tune
 from capture_bench.interrupts import Terminated, held_interrupts
-from capture_bench.training.search_spaces import sample
-from capture_bench.training.tune import open_study, parse_args, prepare
-from capture_bench.training.tune_options import TuneConfig
-from capture_bench.training.tune_sampler import configure
-from capture_bench.training.tune_workers import STOP_GRACE_S, WORKER_ATTR, HeldTrial, shares
+from capture_bench.training.tune.command import open_study, parse_args, prepare
+from capture_bench.training.tune.options import TuneConfig
+from capture_bench.training.tune.sampler import configure
+from capture_bench.training.tune.search_spaces import sample
+from capture_bench.training.tune.workers import STOP_GRACE_S, WORKER_ATTR, HeldTrial, shares
 
 ROOT = Path(__file__).parents[1]
 COMPLETE = optuna.trial.TrialState.COMPLETE

@@ -7,9 +7,9 @@ import math
 import pytest
 
 from capture_bench.evaluation.errors import SuiteError
-from capture_bench.evaluation.suites import load_suite
+from capture_bench.evaluation.running.suites import load_suite
 from capture_bench.task.scenarios import load_scenario
-from capture_bench.training.hyperparameters import load_hyperparameters
+from capture_bench.training.config.hyperparameters import load_hyperparameters
 from capture_bench.validation import ConfigError, Rule, check_mapping
 
 

@@ -15,12 +15,12 @@ import pytest
 from PIL import Image
 from test_evaluation_metrics import record
 
-from capture_bench.evaluation.aggregate import RankingRow
-from capture_bench.evaluation.report import csv_value
-from capture_bench.evaluation.rollout import TIMING_COLUMNS
-from capture_bench.evaluation.suites import SuiteError, load_suite
-from capture_bench.evaluation.video import FRAME_SIZE
-from capture_bench.evaluation.watch import choose_episodes
+from capture_bench.evaluation.reporting.aggregate import RankingRow
+from capture_bench.evaluation.reporting.report import csv_value
+from capture_bench.evaluation.reporting.watch import choose_episodes
+from capture_bench.evaluation.running.rollout import TIMING_COLUMNS
+from capture_bench.evaluation.running.suites import SuiteError, load_suite
+from capture_bench.evaluation.running.video import FRAME_SIZE
 from capture_bench.task.scenarios import load_scenario
 from evaluate import main
 

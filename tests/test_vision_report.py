@@ -11,16 +11,15 @@ import numpy as np
 import pytest
 from test_evaluation_metrics import _report_data, record
 
-from capture_bench.evaluation.aggregate import rank_agents, summarise_all
-from capture_bench.evaluation.report import (
+from capture_bench.evaluation.reporting.aggregate import rank_agents, summarise_all
+from capture_bench.evaluation.reporting.report import (
     ReportData,
     figure_names,
     html_page,
     markdown,
     write_report,
 )
-from capture_bench.evaluation.suites import load_suite
-from capture_bench.evaluation.vision import (
+from capture_bench.evaluation.reporting.vision import (
     HEADER,
     TEXT,
     TITLE,
@@ -28,6 +27,7 @@ from capture_bench.evaluation.vision import (
     rendered_twins,
     vision_comparisons,
 )
+from capture_bench.evaluation.running.suites import load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 LOST = (3, 7, 11, 15, 19)  # seeds the rendered camera loses

@@ -28,7 +28,7 @@ class Agent(Protocol):
     agent once per batch of episodes and asks it with every episode's observation at each step
     (row i for episode i; an ended episode's action is ignored); any other agent once per
     episode, each asked with its own episode's observation
-    (`capture_bench.evaluation.rollout.run_episodes`).
+    (`capture_bench.evaluation.running.rollout.run_episodes`).
     """
 
     def predict(

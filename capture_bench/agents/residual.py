@@ -4,7 +4,7 @@
 
 the direction that asks whether learning can improve the paper's controller rather than replace
 it. ``train.py`` trains pi this way with ``residual: incremental_ik`` (and ``residual_scale``
-alpha; `capture_bench.training.residual_vec_env.ResidualVecEnv` applies the sum inside the
+alpha; `capture_bench.training.common.residual_vec_env.ResidualVecEnv` applies the sum inside the
 training envs), the model's metadata declares ``residual: {base, scale}``, and evaluation rebuilds
 the same sum (`residual_agent`). The leaderboard labels such a row a hybrid: it is not a
 learned controller on its own.

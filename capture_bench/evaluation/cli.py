@@ -13,9 +13,9 @@ Writes ``<out>/<suite>/`` (leaderboard.md/.html, results.csv/.json, episodes.csv
 ``reports/`` by default, git-ignored), replacing the previous report only once the new one is
 complete, and ends by comparing it with the published report of the same suite,
 ``reports/published/<suite>/``, value by value (printed, and written beside the report as
-``reproduction.md``/``.json``: `capture_bench.evaluation.reproduction`). Only ``--publish``
-writes the published report (a shipped suite as defined, on the published seeds), and no output
-option may point inside it otherwise; with the suite's ``videos`` (the
+``reproduction.md``/``.json``: `capture_bench.evaluation.reporting.reproduction`). Only
+``--publish`` writes the published report (a shipped suite as defined, on the published seeds),
+and no output option may point inside it otherwise; with the suite's ``videos`` (the
 default) its "Episodes to watch" show the reference and the best-ranked trained model on one seed
 of each scenario as GIFs. ``--agents``, ``--scenarios`` or
 ``--episodes`` that change the suite make a custom selection, written to
@@ -32,7 +32,7 @@ fits the terminal (80 columns in a pipe or a CI log: then without the per-scenar
 Models load without unpickling anything (``--trust-model`` to allow an SB3 ``.zip``).
 ``--merge DIR DIR ...`` plays no episode: it merges finished reports into
 ``<out>/merged-<hash>/`` once they are checked to be mergeable
-(`capture_bench.evaluation.merge`), or refuses in one line.
+(`capture_bench.evaluation.reporting.merge`), or refuses in one line.
 """
 
 from __future__ import annotations
@@ -48,10 +48,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from capture_bench.argparsing import OneLineParser, program
-from capture_bench.evaluation import reproduction
-from capture_bench.evaluation.aggregate import RankingRow
-from capture_bench.evaluation.backends import BACKENDS, prestart_workers
-from capture_bench.evaluation.merge import plan_merge
 from capture_bench.evaluation.pipeline import (
     INPUT_ERRORS,
     EvaluationConfig,
@@ -59,8 +55,11 @@ from capture_bench.evaluation.pipeline import (
     plan_evaluation,
     run_evaluation,
 )
-from capture_bench.evaluation.report import ReportData, write_report
-from capture_bench.evaluation.reproduction import (
+from capture_bench.evaluation.reporting import reproduction
+from capture_bench.evaluation.reporting.aggregate import RankingRow
+from capture_bench.evaluation.reporting.merge import plan_merge
+from capture_bench.evaluation.reporting.report import ReportData, write_report
+from capture_bench.evaluation.reporting.reproduction import (
     PublishedReport,
     as_json,
     compare,
@@ -68,7 +67,8 @@ from capture_bench.evaluation.reproduction import (
     read_published,
     summary_lines,
 )
-from capture_bench.evaluation.suites import ALL, SEED_SETS, shadowed_suite
+from capture_bench.evaluation.running.backends import BACKENDS, prestart_workers
+from capture_bench.evaluation.running.suites import ALL, SEED_SETS, shadowed_suite
 from capture_bench.files import atomic_write
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
 from capture_bench.provenance import display_path, git_state
@@ -86,8 +86,8 @@ def _epilog() -> str:
     the algorithms train.py trains (a broken file is left out here; ``python -m capture_bench
     list`` names it and its error)."""
     from capture_bench.agents.algorithms import ALGORITHMS
-    from capture_bench.evaluation.agents_loading import builtin_names
-    from capture_bench.evaluation.suites import list_suites
+    from capture_bench.evaluation.running.agents_loading import builtin_names
+    from capture_bench.evaluation.running.suites import list_suites
     from capture_bench.paths import models_dir
     from capture_bench.task.scenarios import list_scenarios
 
@@ -501,7 +501,7 @@ def main(argv: list[str] | None = None) -> int:
     interrupt's one line says what is on disk: no report written (a previous one as it was), or
     the report folder written before it came (an interrupt during the replacement lands once the
     new report is in place: `write_report`)."""
-    from capture_bench.evaluation.report import reports_written
+    from capture_bench.evaluation.reporting.report import reports_written
 
     with sigterm_as_interrupt(), reports_written() as written:
         try:

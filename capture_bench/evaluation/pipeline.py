@@ -16,21 +16,30 @@ from typing import Any
 
 from capture_bench import rliable_stats
 from capture_bench.agents.sb3_policy import PolicyLoadError, read_metadata
-from capture_bench.evaluation import reproduction
-from capture_bench.evaluation.agents_loading import (
-    AgentSpec,
-    check_agent,
-    expand_specs,
-    resolve_agent,
-)
-from capture_bench.evaluation.aggregate import (
+from capture_bench.evaluation.errors import AgentSpecError, EvaluationError, SuiteError
+from capture_bench.evaluation.reporting import reproduction
+from capture_bench.evaluation.reporting.aggregate import (
     RankingRow,
     Summary,
     rank_agents,
     summarise_cells,
     summary_cells,
 )
-from capture_bench.evaluation.backends import (
+from capture_bench.evaluation.reporting.report import (
+    ReportData,
+    figure_groups,
+    figures,
+    write_report,
+)
+from capture_bench.evaluation.reporting.reproduction import is_inside
+from capture_bench.evaluation.reporting.watch import choose_episodes
+from capture_bench.evaluation.running.agents_loading import (
+    AgentSpec,
+    check_agent,
+    expand_specs,
+    resolve_agent,
+)
+from capture_bench.evaluation.running.backends import (
     BACKENDS,
     RAY_BACKEND,
     EpisodeTask,
@@ -41,11 +50,8 @@ from capture_bench.evaluation.backends import (
     run_tasks,
     scenario_label,
 )
-from capture_bench.evaluation.errors import AgentSpecError, EvaluationError, SuiteError
-from capture_bench.evaluation.report import ReportData, figure_groups, figures, write_report
-from capture_bench.evaluation.reproduction import is_inside
-from capture_bench.evaluation.rollout import EpisodeRecord
-from capture_bench.evaluation.suites import (
+from capture_bench.evaluation.running.rollout import EpisodeRecord
+from capture_bench.evaluation.running.suites import (
     ALL,
     SEED_SETS,
     SUITES_DIR,
@@ -55,8 +61,7 @@ from capture_bench.evaluation.suites import (
     load_suite,
     narrow,
 )
-from capture_bench.evaluation.video import EpisodeVideo, record_video, write_videos
-from capture_bench.evaluation.watch import choose_episodes
+from capture_bench.evaluation.running.video import EpisodeVideo, record_video, write_videos
 from capture_bench.files import check_writable, episode_file_name
 from capture_bench.provenance import (
     display_path,
@@ -95,7 +100,7 @@ class EvaluationConfig:
         out: reports are written to ``<out>/<suite>/``.
         episode_plots: if set, per-episode figures of the first seed of every agent x scenario.
         video: if set, animated GIFs of the first ``video_episodes`` seeds of every agent x
-            scenario are written there (`capture_bench.evaluation.video`).
+            scenario are written there (`capture_bench.evaluation.running.video`).
         video_episodes: how many seeds of each agent x scenario ``video`` records (>= 1, at most
             the episodes evaluated).
         trust_model: load a model directory that has no safe policy file from its SB3 ``.zip``
@@ -375,7 +380,7 @@ def _provenance(
 
 def write_episode_plots(plan: Plan, directory: Path) -> list[Path]:
     """Per-episode figures of the first seed of every agent x scenario (run again, in process)."""
-    from capture_bench.evaluation.plots import episode_figure
+    from capture_bench.evaluation.reporting.plots import episode_figure
 
     directory.mkdir(parents=True, exist_ok=True)
     written = []

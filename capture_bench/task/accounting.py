@@ -1,9 +1,9 @@
 """One episode's accounting from the environment's ``info``: whether and when it captured, why it
 failed, its ratio to the physical limit, and its estimate errors step by step.
 
-The evaluation's records (`capture_bench.evaluation.rollout`) and the training's statistics
-(`capture_bench.training.episode_stats`) both read an episode through this module, so a capture,
-a failure and a ratio mean the same in a training log and on the leaderboard.
+The evaluation's records (`capture_bench.evaluation.running.rollout`) and the training's statistics
+(`capture_bench.training.common.episode_stats`) both read an episode through this module, so a
+capture, a failure and a ratio mean the same in a training log and on the leaderboard.
 """
 
 from __future__ import annotations

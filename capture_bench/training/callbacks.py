@@ -2,7 +2,7 @@
 episodes, progress lines and periodic validation (which keeps the best model).
 
 TensorBoard scalars written beside SB3's own (the statistics of
-`capture_bench.training.episode_stats`, NaN ones left out):
+`capture_bench.training.common.episode_stats`, NaN ones left out):
 
 * ``rollout/capture_rate``, ``rollout/median_capture_time`` (s), ``rollout/median_ratio_to_limit``,
   ``rollout/mean_score``, ``rollout/failure/<reason>`` (each of ``timeout``, ``collision``,
@@ -27,14 +27,14 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from capture_bench.training.checkpoint import BUFFER_FILE, list_checkpoints, save_checkpoint
-from capture_bench.training.episode_stats import (
+from capture_bench.training.common.checkpoint import BUFFER_FILE, list_checkpoints, save_checkpoint
+from capture_bench.training.common.episode_stats import (
     EpisodeStats,
     EpisodeTracker,
     finite_items,
     summarize,
 )
-from capture_bench.training.policy_export import (
+from capture_bench.training.common.policy_export import (
     BestModel,
     append_validation,
     policy_metadata,
@@ -148,10 +148,10 @@ class _Normalized:
 class Checkpointer(BaseCallback):
     """Save a checkpoint every ``every`` environment steps (0: only when asked).
 
-    A checkpoint at N steps is the directory ``step_N/`` of `capture_bench.training.checkpoint`
-    (written under a temporary name and renamed, so it is complete when it exists; read back
-    without unpickling). Replay buffers older than the last two checkpoints are deleted (they
-    are large); the rest of each checkpoint is kept.
+    A checkpoint at N steps is the directory ``step_N/`` of
+    `capture_bench.training.common.checkpoint` (written under a temporary name and renamed, so it
+    is complete when it exists; read back without unpickling). Replay buffers older than the last
+    two checkpoints are deleted (they are large); the rest of each checkpoint is kept.
 
     Args:
         directory: where checkpoints go (created).
@@ -297,9 +297,9 @@ class Progress(BaseCallback):
         (`summarize`; each scenario of a mixture
         weighs the same), the seeds, and on a mixture each scenario's own statistics."""
         from capture_bench.envs.vector_env import CaptureVectorEnv
-        from capture_bench.training.hyperparameters import image_size
-        from capture_bench.training.mixture import mixture_scenarios
-        from capture_bench.training.validation_run import run_validation
+        from capture_bench.training.common.mixture import mixture_scenarios
+        from capture_bench.training.common.validation_run import run_validation
+        from capture_bench.training.config.hyperparameters import image_size
 
         stats = model.get_vec_normalize_env()
         normalize = None if stats is None else stats.normalize_obs

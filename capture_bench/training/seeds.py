@@ -39,7 +39,7 @@ def check_training_seed(seed: int, scenario: Scenario) -> None:
 class TrainingSeedDraw:
     """A stream of episode seeds drawn uniformly from ``scenario.training_seeds``, skipping any
     evaluation or validation seed; one per sub-env, shared by `TrainingSeeds` and
-    `capture_bench.training.sb3_vec_env.CaptureSB3VecEnv` so that both draw the same
+    `capture_bench.training.common.sb3_vec_env.CaptureSB3VecEnv` so that both draw the same
     episodes.
 
     Args:

@@ -1,0 +1,343 @@
+"""What every training job builds and checks the same way: the option checks a run's
+hyper-parameters pass (observation, imitation, curricula, shaping), the training envs
+(`build_venv`: batched, ``dummy`` or ``subproc``, a mixture's scenarios side by side, the residual
+and ``VecNormalize`` wrappers), the SB3 model (`build_model`), the curricula as callbacks
+(`curriculum_callbacks`) and closing the envs (`close_envs`).
+
+``train.py`` (`capture_bench.training.common.run`), ``tune.py``'s trials, the RL Zoo's
+hyper-parameter files and the sweep's and curves' run plans share these, so a trial, a Zoo run
+and a train.py run build the same thing from the same options.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from capture_bench.sensing.sources import PIXELS
+from capture_bench.task.scenarios import CONFIG_DIR, ConfigError, load_scenario
+from capture_bench.training.common.mixture import (
+    MixtureVecEnv,
+    is_mixture,
+    mixture_scenarios,
+    mixture_shares,
+)
+from capture_bench.training.config.hyperparameters import (
+    CURRICULA,
+    OFF_POLICY,
+    algorithm_class,
+    image_size,
+    sb3_kwargs,
+)
+from capture_bench.training.config.options import (
+    TrainConfig,
+)
+from capture_bench.training.seeds import TrainingSeeds
+
+#: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
+#: number it read from there). One: the networks are small (a few 256-wide layers, batches of
+#: <= 1024), so a second thread saves little in the update and costs a spin-waiting core that
+#: the env side (the same process) and other processes need; see docs/speed.md, "Training speed".
+TORCH_THREADS = 1
+
+
+def pixel_config(algo: str) -> Path:
+    """The shipped hyper-parameters of ``algo`` on pixels (``configs/pixels/<algo>.yaml``; only
+    some algorithms have one)."""
+    return CONFIG_DIR / "pixels" / f"{algo}.yaml"
+
+
+def check_observation(config: TrainConfig, hp: dict) -> None:
+    """The policy fits what the agent observes: ``MultiInputPolicy`` (a CNN on the image beside
+    the arm state) for ``pixels``, ``MlpPolicy`` for an estimate; pixels train on-policy (an
+    off-policy replay buffer of 84 x 84 images would hold tens of GB), on one scenario, without a
+    residual base (it reads the estimate) and without ``normalize`` (the policy scales the image,
+    the state is of order one)."""
+    pixels = config.observation_source == PIXELS
+    given = f"--observation-source {config.observation_source}"
+    if pixels and is_mixture(config.scenario):
+        raise ConfigError(f"{given}: train pixels on one scenario, not {config.scenario}")
+    if pixels and config.algo in OFF_POLICY:
+        raise ConfigError(
+            f"{given}: {config.algo} keeps a replay buffer of images (tens of GB at 84 x 84); "
+            "train pixels with ppo or a2c"
+        )
+    from capture_bench.provenance import display_path
+
+    shipped = pixel_config(config.algo)
+    hint = f" (--config {display_path(shipped)})" if pixels and shipped.is_file() else ""
+    if pixels and hp["policy"] != "MultiInputPolicy":
+        raise ConfigError(
+            f"{given}: the agent sees a Dict (image, state), which policy {hp['policy']} cannot "
+            f"read; use policy MultiInputPolicy with features_extractor combined{hint}"
+        )
+    if not pixels and hp["policy"] == "MultiInputPolicy":
+        seen = config.observation_source or "each scenario's estimate"
+        raise ConfigError(
+            f"policy MultiInputPolicy reads the pixel observation; train it with "
+            f"--observation-source pixels, or use MlpPolicy for {seen}"
+        )
+    for key, bad in (("residual", "none"), ("normalize", False)):
+        if pixels and hp[key] != bad:
+            raise ConfigError(
+                f"{given}: {key} {hp[key]} is not available with pixels; set {key}: {bad}"
+            )
+    if pixels:
+        from capture_bench.sensing.workspace_image import check_image_size
+
+        try:
+            check_image_size(image_size(hp), load_scenario(config.scenario).camera.model())
+        except ValueError as exc:
+            raise ConfigError(f"key 'image_size': {exc}") from None
+    if "image_size" in hp and not pixels:
+        seen = config.observation_source or "each scenario's estimate"
+        raise ConfigError(
+            f"key 'image_size' sizes the pixel observation; train with --observation-source "
+            f"pixels, or drop it for {seen}"
+        )
+
+
+def shares_of(config: TrainConfig, hp: dict) -> list[int]:
+    """The sub-envs of each scenario of ``config``'s mixture, in its order
+    (`mixture_shares` of ``hp``'s ``mixture_weights``)."""
+    names = [s.name for s in mixture_scenarios(config.scenario)]
+    return mixture_shares(config.n_envs or hp["n_envs"], names, hp.get("mixture_weights"))
+
+
+def fill_curriculum_steps(hp: dict) -> None:
+    """Give a curriculum without ``curriculum_steps`` half the run's ``total_timesteps``."""
+    if any(key in hp for key in CURRICULA):
+        hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
+
+
+def check_curricula(hp: dict, scenario: Any) -> None:
+    """A curriculum starts on the easy side of the scenario's rule and moves to it: a tolerance
+    above its epsilon, a hold below its ``capture.hold``."""
+    hold, eps = scenario.capture.hold, scenario.capture_tolerance
+    if "curriculum_hold" in hp and not hp["curriculum_hold"] < hold:
+        raise ConfigError(
+            f"curriculum_hold {hp['curriculum_hold']:g} s is not below {scenario.name}'s "
+            f"capture.hold {hold:g} s; the curriculum grows the hold to it (e.g. "
+            "--scenario grasp --set curriculum_hold=0)"
+        )
+    if "curriculum_tolerance" in hp and not hp["curriculum_tolerance"] > eps:
+        raise ConfigError(
+            f"curriculum_tolerance {hp['curriculum_tolerance']:g} m is not above "
+            f"{scenario.name}'s capture tolerance {eps:g} m; the curriculum shrinks it to that"
+        )
+
+
+def check_imitation(config: TrainConfig, hp: dict, scenarios: list[str]) -> None:
+    """``imitate`` fits an actor-critic policy to a controller that reads the same observation,
+    and leaves the learned policy alone: PPO or A2C, the estimate's observation, no residual and
+    no VecNormalize (whose statistics the controller would not see); a controller per scenario
+    names only ``scenarios`` (the run's) and gives each one."""
+    if "imitate" not in hp:
+        return
+    from capture_bench.training.common.imitation import describe_teacher, teacher_names
+
+    teacher_names(hp["imitate"], scenarios)
+    teacher = describe_teacher(hp["imitate"])
+    if config.algo not in ("ppo", "a2c"):
+        raise ConfigError(
+            f"imitate {teacher}: fits an actor-critic policy (ppo or a2c), not {config.algo}"
+        )
+    if hp["residual"] != "none":
+        raise ConfigError(
+            f"imitate {teacher} with residual {hp['residual']}: a hybrid already acts through "
+            "its controller; choose one"
+        )
+    if hp["normalize"]:
+        raise ConfigError(
+            f"imitate {teacher}: the controller reads the raw observation; set normalize: false"
+        )
+    if config.observation_source == PIXELS:
+        raise ConfigError(
+            f"imitate {teacher}: the controller reads the target estimate, not pixels; train "
+            "on the estimate (leave out --observation-source pixels)"
+        )
+
+
+def check_shaping(hp: dict) -> None:
+    """``reward: shaped`` is potential-based only for the discount it assumes."""
+    from capture_bench.task.rewards import SHAPING_GAMMA
+
+    gamma = hp.get("gamma", 0.99)  # SB3's default for every algorithm
+    if hp["reward"] == "shaped" and gamma != SHAPING_GAMMA:
+        raise ConfigError(
+            f"reward shaped is potential-based shaping for gamma {SHAPING_GAMMA} "
+            f"(capture_bench/task/rewards.py), but gamma is {gamma}; set gamma={SHAPING_GAMMA} "
+            "or use reward dense"
+        )
+
+
+def make_env(config: TrainConfig, hp: dict, rank: int, subprocess: bool) -> Any:
+    """A thunk building environment ``rank``: CaptureEnv with training seeds only."""
+
+    def thunk() -> Any:
+        if subprocess:  # signals are the main process's: it saves, then ends the workers
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        from capture_bench.envs.capture_env import CaptureEnv
+
+        scenario = load_scenario(config.scenario)
+        env = CaptureEnv(
+            scenario,
+            observation_source=config.observation_source,
+            reward=hp["reward"],
+            image_size=image_size(hp),
+        )
+        return TrainingSeeds(env, scenario, seed=(config.seed or 0) * 1000 + rank)
+
+    return thunk
+
+
+def build_venv(config: TrainConfig, hp: dict) -> Any:
+    """The training envs of ``config.vec_env`` in a ``VecMonitor`` (and ``VecNormalize`` where
+    ``hp["normalize"]``): ``batched`` (`
+    CaptureSB3VecEnv`, one process), or SB3's ``dummy`` / ``subproc`` vector envs of single
+    ``CaptureEnv``s; all draw the same training-seed episodes."""
+    from stable_baselines3.common.vec_env import (
+        DummyVecEnv,
+        SubprocVecEnv,
+        VecMonitor,
+        VecNormalize,
+    )
+
+    n_envs = config.n_envs or 1
+    venv: Any
+    if is_mixture(config.scenario):  # each scenario's share of the sub-envs, side by side
+        from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
+
+        scenarios = mixture_scenarios(config.scenario)
+        venv = MixtureVecEnv([
+            CaptureSB3VecEnv(share, sc, seed=(config.seed or 0) * 1000 + k, reward=hp["reward"])
+            for k, (sc, share) in enumerate(zip(scenarios, shares_of(config, hp), strict=True))
+        ])  # fmt: skip
+    elif config.vec_env == "batched":
+        from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
+
+        venv = CaptureSB3VecEnv(
+            n_envs,
+            config.scenario,
+            seed=config.seed or 0,
+            observation_source=config.observation_source,
+            reward=hp["reward"],
+            image_size=image_size(hp),
+        )
+    else:
+        subprocess = config.vec_env == "subproc"
+        fns = [make_env(config, hp, i, subprocess) for i in range(n_envs)]
+        venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
+    venv = VecMonitor(venv)
+    if hp["residual"] != "none":  # a hybrid: the policy's action is a residual on the base
+        from capture_bench.engine.task import resolve_scenario
+        from capture_bench.task.episode import describe_task
+        from capture_bench.training.common.residual_vec_env import ResidualVecEnv
+
+        description = describe_task(resolve_scenario(config.scenario, config.observation_source))
+        venv = ResidualVecEnv(venv, hp["residual"], hp["residual_scale"], description)
+    if hp["normalize"]:
+        venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99))
+    return venv
+
+
+def set_torch_threads() -> int:
+    """Give torch `TORCH_THREADS` intra-op threads, unless the user chose a number with
+    ``OMP_NUM_THREADS``; return the number torch uses."""
+    import torch
+
+    if not os.environ.get("OMP_NUM_THREADS"):
+        torch.set_num_threads(TORCH_THREADS)
+    return torch.get_num_threads()
+
+
+def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str | None) -> Any:
+    """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``hp`` (torch
+    threads: `set_torch_threads`)."""
+    set_torch_threads()
+    algorithm = algorithm_class(config.algo)
+    return algorithm(
+        hp["policy"], venv, seed=config.seed, device=config.device,
+        tensorboard_log=tensorboard_log, **sb3_kwargs(hp, config.algo),
+    )  # fmt: skip
+
+
+def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
+    """The curricula ``hp`` asks for on ``scenario`` (training only), by the name of their
+    callback in `capture_bench.training.callbacks`, with its keyword arguments:
+    ``{"ToleranceCurriculum": {"start": m, "final": eps (m, 3 numbers), "steps": ..., "delay":
+    ...}, "HoldCurriculum": {"start": s, "final": capture.hold (s), ...}}``; empty where it asks
+    for none. ``hp`` holds ``curriculum_steps`` (``prepare`` fills it in)."""
+    if not any(key in hp for key in CURRICULA):
+        return {}
+    from capture_bench.task.episode import describe_task
+
+    schedule = {"steps": hp["curriculum_steps"], "delay": hp["curriculum_delay"]}
+    found: dict[str, dict[str, Any]] = {}
+    if "curriculum_tolerance" in hp:
+        final = [float(x) for x in describe_task(scenario).capture_tolerance]
+        found["ToleranceCurriculum"] = {"start": hp["curriculum_tolerance"], "final": final}
+    if "curriculum_hold" in hp:
+        found["HoldCurriculum"] = {"start": hp["curriculum_hold"], "final": scenario.capture.hold}
+    return {name: {**kwargs, **schedule} for name, kwargs in found.items()}
+
+
+def mixture_curricula(
+    hp: dict, scenarios: Sequence[Any], shares: Sequence[int]
+) -> list[tuple[str, dict[str, Any]]]:
+    """A mixture's curricula, scenario by scenario: each of `curricula` on a scenario
+    where it moves (a hold curriculum where ``curriculum_hold`` is below the scenario's
+    ``capture.hold``, a tolerance one where ``curriculum_tolerance`` is above its epsilon; the
+    others keep their rule), bound to that scenario's sub-envs of the
+    `MixtureVecEnv` (``indices``: its ``shares[k]``,
+    after the earlier scenarios') and labelled by it."""
+    out = []
+    offsets = [0, *itertools.accumulate(shares)]
+    for k, scenario in enumerate(scenarios):
+        for name, kwargs in curricula(hp, scenario).items():
+            if name == "HoldCurriculum" and not kwargs["start"] < kwargs["final"]:
+                continue
+            if name == "ToleranceCurriculum" and not kwargs["start"] > max(kwargs["final"]):
+                continue
+            indices = list(range(offsets[k], offsets[k + 1]))
+            out.append((name, {**kwargs, "indices": indices, "label": scenario.name}))
+    return out
+
+
+def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
+    """The curricula ``hp`` asks for (training only: validation keeps the scenario's rule), as
+    SB3 callbacks (`curricula`; on a mixture, one per scenario it moves on,
+    `mixture_curricula`); none where it asks for none (a mixture's spec, which names no
+    one scenario, is then never loaded)."""
+    if not any(key in hp for key in CURRICULA):
+        return []
+    from capture_bench.training import callbacks
+
+    if is_mixture(config.scenario):
+        found = mixture_curricula(hp, mixture_scenarios(config.scenario), shares_of(config, hp))
+    else:
+        found = list(curricula(hp, load_scenario(config.scenario)).items())
+    return [getattr(callbacks, name)(**kwargs) for name, kwargs in found]
+
+
+def close_envs(venv: Any, interrupted: bool) -> None:
+    """Close the vectorised envs; after an interrupt, kill subprocess workers instead.
+
+    The signal can land while the main process waits on the workers' pipes; SB3's graceful close
+    would then wait for replies already consumed, forever (seen on the 16-env device run). The
+    workers ignore SIGINT and SIGTERM (the main process handles them), so they are killed.
+    """
+    base = venv.unwrapped
+    if interrupted and hasattr(base, "processes"):
+        for process in base.processes:
+            process.kill()
+        for process in base.processes:
+            process.join(timeout=5)
+        base.closed = True
+        return
+    venv.close()

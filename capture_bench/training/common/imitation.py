@@ -1,0 +1,265 @@
+"""Imitation before reinforcement: DAgger (Ross, Gordon & Bagnell 2011) from an analytic
+controller, then the run's own algorithm goes on from the imitated policy.
+
+With ``imitate: <controller>`` (one of `RESIDUAL_BASES`:
+deterministic, acting from the observation alone; in a mixture, also a controller per scenario,
+``{default: <controller>, <scenario>: <controller>}``: `teacher_names`), a new run first
+plays ``imitation_rounds`` rounds of ``imitation_steps`` environment steps on its own training
+envs (training seeds only). Every visited observation is labelled with the controller's action
+(the teacher's, built from each scenario's public description, so a mixture's sub-envs each get
+their scenario's); round 0 follows the teacher, the later rounds follow the policy being trained
+(deterministic actions), so the data set also holds the states the policy itself reaches,
+DAgger's point. After each round the policy's mean action is fitted to the labels of every round
+so far (mean squared error, Adam, ``imitation_epochs`` passes; with ``imitation_floor`` > 0 each
+label's error is taken relative to the teacher's action above that floor,
+`label_weights`). The policy then acts alone: nothing of the controller is left in it,
+unlike a residual (`capture_bench.training.common.residual_vec_env`).
+
+``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
+(`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
+before its advantages move the actor.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+#: Adam's learning rate and minibatch size for the imitation fit.
+IMITATION_LR = 1e-3
+IMITATION_BATCH = 1024
+
+#: N observations (N, 16) -> the teacher's N actions (N, 3)
+Teacher = Callable[[np.ndarray], np.ndarray]
+
+
+def teacher_names(imitate: str | dict[str, str], scenarios: Sequence[str]) -> list[str]:
+    """The controller each of ``scenarios`` imitates: ``imitate`` itself (a controller name), or
+    its entry in a mapping of scenario names (and ``default``, for the scenarios it does not name)
+    to controller names.
+
+    Raises:
+        ConfigError: the mapping names a scenario outside ``scenarios``, or leaves one without a
+            controller and has no ``default``.
+    """
+    from capture_bench.validation import ConfigError
+
+    if isinstance(imitate, str):
+        return [imitate] * len(scenarios)
+    unknown = sorted(set(imitate) - {"default", *scenarios})
+    if unknown:
+        raise ConfigError(
+            f"imitate names {unknown[0]!r}, which is not a scenario of this run; valid keys: "
+            f"default, {', '.join(scenarios)}"
+        )
+    missing = [name for name in scenarios if name not in imitate and "default" not in imitate]
+    if missing:
+        raise ConfigError(
+            f"imitate gives scenario {missing[0]!r} no controller; name it, or add default: "
+            "<controller> for the scenarios the mapping leaves out"
+        )
+    return [imitate.get(name, imitate.get("default", "")) for name in scenarios]
+
+
+def describe_teacher(imitate: str | dict[str, str]) -> str:
+    """``imitate`` in words: ``incremental_ik``, or ``incremental_ik_uncapped (grasp:
+    incremental_ik)`` for a mapping whose default is the first controller."""
+    if isinstance(imitate, str):
+        return imitate
+    others = ", ".join(f"{k}: {v}" for k, v in imitate.items() if k != "default")
+    if "default" not in imitate:
+        return others
+    return imitate["default"] + (f" ({others})" if others else "")
+
+
+def make_teacher(
+    names: Sequence[str], descriptions: Sequence[Any], shares: Sequence[int]
+) -> Teacher:
+    """The controllers for the training envs: the first ``shares[0]`` rows act with controller
+    ``names[0]`` built from ``descriptions[0]``, the next ``shares[1]`` with ``names[1]`` from
+    ``descriptions[1]``, and so on (one scenario: one name and description, all rows)."""
+    from capture_bench.agents.residual import make_base
+
+    controllers = [make_base(n, d) for n, d in zip(names, descriptions, strict=True)]
+    bounds = np.cumsum([0, *shares])
+
+    def act(observations: np.ndarray) -> np.ndarray:
+        rows = [
+            np.asarray(c.predict(observations[lo:hi])[0], dtype=np.float32)
+            for c, lo, hi in zip(controllers, bounds[:-1], bounds[1:], strict=True)
+        ]
+        return np.concatenate(rows)
+
+    return act
+
+
+def mean_actions(policy: Any, observations: Any) -> Any:
+    """The policy's mean (deterministic, before clipping) actions, a torch tensor with grad."""
+    return policy.get_distribution(observations).distribution.mean
+
+
+def label_weights(targets: np.ndarray, floor: float) -> np.ndarray | None:
+    """Each label's weight in the fit: None (all equal, plain MSE) for ``floor`` 0, else
+    1 / (||a||^2 + floor^2) scaled to a mean of 1, so the fit minimises the error relative to the
+    teacher's action ``a`` wherever ||a|| is above ``floor``: the small last steps onto the capture
+    point count as much as the full-speed ones."""
+    if floor <= 0:
+        return None
+    w = 1.0 / (np.sum(np.square(targets, dtype=np.float64), axis=1) + floor**2)
+    return (w / w.mean()).astype(np.float32)
+
+
+def fit(
+    policy: Any,
+    observations: np.ndarray,
+    targets: np.ndarray,
+    epochs: int,
+    seed: int,
+    floor: float = 0.0,
+) -> float:
+    """Fit the policy's mean action to ``targets`` (squared error, weighted by
+    `label_weights` of ``floor``; Adam on the actor's parameters, minibatches of
+    `IMITATION_BATCH` in a seeded order); return the last epoch's mean loss."""
+    import torch
+
+    params = list(actor_parameters(policy))
+    optimizer = torch.optim.Adam(params, lr=IMITATION_LR)
+    rng = np.random.default_rng(seed)
+    x = torch.as_tensor(observations, dtype=torch.float32, device=policy.device)
+    y = torch.as_tensor(targets, dtype=torch.float32, device=policy.device)
+    weights = label_weights(targets, floor)
+    w = None if weights is None else torch.as_tensor(weights[:, None], device=policy.device)
+    policy.set_training_mode(True)
+    loss_sum = 0.0
+    for _ in range(epochs):
+        order = torch.as_tensor(rng.permutation(len(x)), device=policy.device)
+        loss_sum = 0.0
+        for start in range(0, len(x), IMITATION_BATCH):
+            batch = order[start : start + IMITATION_BATCH]
+            squared = (mean_actions(policy, x[batch]) - y[batch]) ** 2
+            loss = torch.mean(squared if w is None else w[batch] * squared)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            loss_sum += loss.item() * len(batch)
+    policy.set_training_mode(False)
+    return loss_sum / len(x)
+
+
+def actor_parameters(policy: Any) -> list[Any]:
+    """The parameters that shape the policy's action and not the critic's value: the actor's
+    layers, the action head, the log std, and the features extractor where the actor has its own
+    (SB3's ``share_features_extractor=False``) or it is shared with the critic."""
+    import torch
+
+    extractor = getattr(policy, "pi_features_extractor", policy.features_extractor)
+    found = [
+        *extractor.parameters(),
+        *policy.mlp_extractor.policy_net.parameters(),
+        *policy.action_net.parameters(),
+    ]
+    if isinstance(getattr(policy, "log_std", None), torch.nn.Parameter):
+        found.append(policy.log_std)
+    return found
+
+
+def dagger(  # noqa: PLR0913
+    model: Any,
+    venv: Any,
+    teacher: Teacher,
+    rounds: int,
+    steps: int,
+    epochs: int,
+    seed: int,
+    log: Callable[[str], None] = print,
+    validate: Callable[[], dict[str, float]] | None = None,
+    floor: float = 0.0,
+) -> dict[str, Any]:
+    """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring
+    (``floor``: the fit's `label_weights`).
+    Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
+    share of the round's actions on which policy and teacher agree within 0.05 in every joint
+    (None for round 0, where the teacher acts), the wall clock, s, and with ``validate`` (the
+    run's validation: pooled statistics of the policy on validation seeds) the policy's
+    validation after each round and the wall clock then, its learning curve (``validations``)."""
+    start = time.perf_counter()
+    per_round = max(1, math.ceil(steps / venv.num_envs))
+    observations, labels = [], []
+    losses: list[float] = []
+    agreement: list[float | None] = []
+    curve: list[dict[str, float]] = []
+    obs = venv.reset()
+    for r in range(rounds):
+        close = []
+        for _ in range(per_round):
+            target = teacher(obs)
+            observations.append(np.array(obs, dtype=np.float32))
+            labels.append(target)
+            if r == 0:
+                action = target
+            else:
+                action, _ = model.policy.predict(obs, deterministic=True)
+                close.append(np.all(np.abs(action - target) <= 0.05, axis=1))
+            obs, _, _, _ = venv.step(np.asarray(action, dtype=np.float32))
+        loss = fit(model.policy, np.concatenate(observations), np.concatenate(labels), epochs,
+                   seed + r, floor)  # fmt: skip
+        losses.append(loss)
+        agreement.append(float(np.mean(np.concatenate(close))) if close else None)
+        rows = sum(len(o) for o in observations)
+        note = "" if r == 0 else f", policy within 0.05 of the teacher on {agreement[-1]:.0%}"
+        if validate is not None:
+            stats = validate()
+            keys = ("capture_rate", "median_ratio_to_limit", "mean_score")
+            wall = round(time.perf_counter() - start, 1)
+            curve.append({"environment_steps": rows, **{k: _finite(stats[k]) for k in keys},
+                          "wall_time_s": wall})  # fmt: skip
+            note += (f"; validation capture rate {stats['capture_rate']:.2f}, median ratio "
+                     f"{stats['median_ratio_to_limit']:.2f}")  # fmt: skip
+        log(f"imitation round {r + 1}/{rounds}: {rows} labelled steps, fit MSE {loss:.2e}{note}")
+    return {
+        "rounds": rounds,
+        "environment_steps": rounds * per_round * venv.num_envs,
+        "labelled_steps": sum(len(o) for o in observations),
+        "fit_mse": losses,
+        "agreement": agreement,
+        "wall_time_s": round(time.perf_counter() - start, 1),
+        **({"validations": curve} if validate is not None else {}),
+    }
+
+
+def _finite(value: float) -> float | None:
+    """``value`` as a float, None for NaN (JSON has no NaN)."""
+    return None if math.isnan(value) else float(value)
+
+
+class FrozenActor(BaseCallback):
+    """Keep the actor's parameters (`actor_parameters`) out of the algorithm's updates for
+    the first ``steps`` environment steps of the run: only the critic learns meanwhile."""
+
+    def __init__(self, steps: int) -> None:
+        super().__init__()
+        self.steps = int(steps)
+        self._frozen: bool | None = None
+
+    def _set(self, frozen: bool) -> None:
+        if frozen != self._frozen:
+            for p in actor_parameters(self.model.policy):
+                p.requires_grad_(not frozen)
+            self._frozen = frozen
+
+    def _on_training_start(self) -> None:
+        self._on_rollout_start()
+
+    def _on_rollout_start(self) -> None:
+        self._set(self.num_timesteps < self.steps)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_training_end(self) -> None:
+        self._set(False)

@@ -1,0 +1,3 @@
+"""Training configuration: the hyper-parameter files (``configs/algos/*.yaml``, their keys, bounds
+and layering: `hyperparameters`) and ``train.py``'s typed options (`options`), which every
+training job reads and none of them owns."""
