@@ -52,7 +52,7 @@ METADATA_FILE = "metadata.json"
 # whose members torch and SB3 read whole into memory, each member's buffer allocated at the size
 # the archive's central directory declares. So their sizes are checked before anything is read
 # (`check_archive`): a few kilobytes of deflated zeros can declare gigabytes. The limits lie
-# far above any model train.py writes (the largest shipped file: 13 MB, the pixel policy's .zip).
+# far above any model train.py writes (the largest shipped file is the pixel policy's .zip).
 #: The most bytes a model file may hold on disk.
 MAX_MODEL_FILE_BYTES = 512 * 2**20
 #: The most bytes a model file's archive may declare, all its members uncompressed together.

@@ -21,9 +21,10 @@ from capture_bench.sim.world import World, limit_joint_increments
 
 __all__ = ["ArmSide"]
 
-# Fewer asked rows than this go to pybullet unscreened: a query (~5 us a pose) costs less than a
-# call of the screen (~14 us at any M); the screen never clears a colliding pose, so the answers
-# are the same either way.
+# Fewer asked rows than this go to pybullet unscreened: a query per pose costs less than a call
+# of the screen, whose cost is per call at any M (``benchmarks/bench_world.py`` times both:
+# ``collision`` and ``ArmSide.collides``); the screen never clears a colliding pose, so the
+# answers are the same either way.
 SCREEN_FROM = 3
 
 

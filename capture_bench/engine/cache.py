@@ -27,10 +27,11 @@ class EpisodeCache:
 
     ``reset(seed=s)`` draws the episode's target side from the scenario and s alone, before
     anything an agent does, so every agent evaluated on the same seed has the same recording and
-    the same bound (it costs ~8 ms per episode). An evaluation runs every agent on a few seeds at
-    a time in one worker, so a few recordings suffice (``max_episodes``, least recently used
-    dropped first; ~60 KB each at 200 steps); bounds are small (``max_limits``, all dropped when
-    full).
+    the same bound, each computed once (``benchmarks/bench_reset.py`` times recording an
+    episode and its bound). An evaluation runs every agent on a few seeds at a time in one
+    worker, so a few recordings suffice (``max_episodes``, least recently used dropped first;
+    each holds its episode's arrays, a row per step); bounds are small (``max_limits``, all
+    dropped when full).
     Each env uses `DEFAULT_EPISODE_CACHE` unless given another; `clear` empties it.
     """
 

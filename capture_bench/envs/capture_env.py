@@ -206,10 +206,10 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
     display; on Linux without ``DISPLAY``, ``ValueError`` at construction, suggesting
     ``"rgb_array"``). ``render_size``: (width, height) of the image
     ``render()`` returns, pixels, default (640, 480) (a video of many episodes asks for less:
-    pybullet's TinyRenderer takes ~50 ms a frame at 640 x 480, ~12 ms at 320 x 240); two whole
-    numbers >= 1, else ``ValueError``. ``reuse_target_side``: when True,
-    ``reset(seed=s)`` records the target's side of the whole episode up to the time limit at once
-    (trajectory, control periods, camera frames, estimates: a
+    pybullet's TinyRenderer's cost grows with the pixels; ``benchmarks/bench_render.py`` times
+    frames of two sizes); two whole numbers >= 1, else ``ValueError``. ``reuse_target_side``:
+    when True, ``reset(seed=s)`` records the target's side of the whole episode up to the time
+    limit at once (trajectory, control periods, camera frames, estimates: a
     `RecordedEpisode`, none of which depends on the actions)
     and keeps it in ``episode_cache`` by (scenario, s); a later ``reset(seed=s)`` replays it instead
     of computing it again. Every observation, reward and ``info`` is identical to a run without it;

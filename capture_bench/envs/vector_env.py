@@ -61,8 +61,8 @@ RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs ep
 #: With seed sources, each sub-env's queue is topped up to ``ceil(RECORD_BATCH / num_envs)``
 #: episodes (at least ``RECORD_AHEAD``), so that a batch holds ~``RECORD_BATCH / 2`` episodes or
 #: more even with few sub-envs: the batched EKF's cost per episode-step falls with the batch
-#: (``benchmarks/bench_estimator_batch.py``; figures in docs/speed.md). Memory: ~100 kB per
-#: recorded episode.
+#: (``benchmarks/bench_estimator_batch.py``; figures in docs/speed.md). Memory: each queued
+#: recorded episode's arrays, a row per step.
 RECORD_BATCH = 64
 
 
@@ -102,8 +102,9 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             instead of all episodes at once with the batched filter. The episodes are then the
             single env's bit for bit in everything the target side gives (estimates, errors,
             NEES; the batched filter's differ from filterpy's in the last bits); recording costs
-            more (~8 ms per episode) but is done once per seed (`episode_cache`), which
-            is what the leaderboard wants: every agent on the same seeds.
+            more (``benchmarks/bench_reset.py``, ``recorded``) but is done once per seed
+            (`episode_cache`), which is what the leaderboard wants: every agent on the same
+            seeds.
         episode_cache: with ``reference_target_side``, where recordings of seeded episodes are
             kept by (scenario, seed) and found again: the recordings are the single env's, so
             a ``CaptureEnv`` given the same cache replays them too, and this env replays the
@@ -189,8 +190,9 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             if episode_cache is None
             else episode_cache
         )
-        # One pybullet world answers every sub-env's collision query in turn (a world per
-        # sub-env would cost ~28 MB each): the joints are set before each query.
+        # One pybullet world answers every sub-env's collision query in turn (a world is most of
+        # an env's memory, and one per sub-env would multiply it): the joints are set before each
+        # query.
         self._engine: EpisodeEngine | None = EpisodeEngine(
             task,
             n,

@@ -16,7 +16,7 @@ are written into arrays the filter owns. The filter equations (eq. 7) are those 
 ``ExtendedKalmanFilter.predict`` and ``update``, run by
 `LeanExtendedKalmanFilter`, a subclass that computes them
 with fewer numpy calls (tests check it against filterpy's own methods step for step). That module,
-and so filterpy (whose import pulls in ``scipy.stats``: ~0.6 s), is imported when the first
+and so filterpy (whose import pulls in ``scipy.stats``, a slow import), is imported when the first
 `TargetEKF` is built: the batched estimator (`capture_bench.sensing.estimator_batch`),
 which training runs on, uses this module's model and never needs it.
 """

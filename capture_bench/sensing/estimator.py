@@ -114,8 +114,10 @@ class TargetEstimator:
 
     The ``"ekf"`` source for many episodes at once is
     `BatchedTargetEstimator` (tested equal to this
-    one step for step); this one stays for a single episode, where it is ~4x faster than the
-    batched filter at n = 1 (figures in `capture_bench.sensing.estimator_batch`).
+    one step for step); this one stays for a single episode, where it is the faster of the
+    two (why: `capture_bench.sensing.estimator_batch`; the figures:
+    ``benchmarks/bench_estimator_batch.py``, the table "The batched estimator" of
+    ``docs/speed.md``).
 
     Args:
         camera_model: the (fixed) camera's geometry.
@@ -325,7 +327,8 @@ class TargetEstimator:
 def normalised_error_squared(error: NDArray[np.float64], covariance: NDArray[np.float64]) -> float:
     """NEES ``e^T P^-1 e`` by a Cholesky solve (P symmetric positive definite); NaN if P is not.
 
-    LAPACK directly: ``np.linalg.solve`` costs ~13 us per call here, this ~3 us, every EKF step.
+    LAPACK directly, every EKF step: far cheaper on a 6 x 6 matrix than ``np.linalg.solve``,
+    whose per-call handling outweighs the arithmetic at that size.
     """
     chol, info = lapack.dpotrf(covariance)
     if info != 0:

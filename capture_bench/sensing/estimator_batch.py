@@ -8,11 +8,12 @@ then update, predict-only without a frame, divergence rules, re-initialisation, 
 wrapping, global-frame output (eqs. 11-12) and status. The rules and constants come from
 `capture_bench.sensing.estimator` and `capture_bench.sensing.ekf`; see their docstrings.
 
-Why two filters: each is the faster where it runs. Per episode and update, this one costs 22 us
-at n = 16 and 6.3 us at n = 64 (recordings, ``CaptureVectorEnv``), but 272 us at n = 1, where
-the single filter (one episode's, the single env's) costs 69 us
-(``OPENBLAS_NUM_THREADS=1 taskset -c 0 python benchmarks/bench_estimator_batch.py --sizes 1 16 64
---clock cpu``).
+Why two filters: each is the faster where it runs. Per episode and update, this one's cost falls
+as n grows (each numpy call's overhead is shared by the batch), and with tens of episodes
+(recordings, ``CaptureVectorEnv``) it is far below the single filter's; at n = 1 that overhead is
+all of it, and the single filter (one episode's, the single env's) is the faster
+(``OPENBLAS_NUM_THREADS=1 taskset -c 0 python benchmarks/bench_estimator_batch.py --clock cpu``
+times both; the table "The batched estimator" of ``docs/speed.md`` holds its figures).
 
 The filter (eqs. 3-7) is the single filter's, with its state permuted into blocks,
 ``X = (q, q_dot)`` with ``q = (x, y, z, theta_x, theta_y, theta_z)`` the pose (the paper orders

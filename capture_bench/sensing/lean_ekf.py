@@ -2,8 +2,8 @@
 that `capture_bench.sensing.ekf.TargetEKF` runs (eq. 7 of the paper).
 
 A module of its own so that importing the model (`capture_bench.sensing.ekf`) does not
-import filterpy, whose import pulls in ``scipy.stats`` (~0.6 s of a training process that never
-builds a single-episode filter).
+import filterpy, whose import pulls in ``scipy.stats`` (a slow import, which a training process
+that never builds a single-episode filter does without).
 """
 
 from __future__ import annotations
@@ -33,9 +33,10 @@ class LeanExtendedKalmanFilter(ExtendedKalmanFilter):
     factorisation (LAPACK ``dpotrf``/``dpotrs``; S is symmetric positive definite) instead of
     ``scipy.linalg.inv``, and the per-call argument handling (``args``, scalar ``R``, ``residual``)
     is left out: ``update(z, HJacobian, Hx)`` with array ``z`` and the filter's own ``R`` (any other
-    call goes to filterpy's method). On this 12-state, 8-measurement filter the update takes 38 us
-    against filterpy's 45 and the predict 11 against 15 (``benchmarks/bench_estimator.py``); the
-    results agree with filterpy's to rounding (``tests/test_estimator.py``).
+    call goes to filterpy's method). On this 12-state, 8-measurement filter both are faster than
+    filterpy's (``benchmarks/bench_estimator.py`` times the update against filterpy's: the table
+    "The estimator's parts" of ``docs/speed.md``); the results agree with filterpy's to rounding
+    (``tests/test_estimator.py``).
 
     Raises:
         numpy.linalg.LinAlgError: S is not positive definite (or not finite).

@@ -657,10 +657,12 @@ def solve_pose(
     return dataclasses.replace(cold, pose=cold.pose.copy())  # the kept one stays untouched
 
 
-# The multi-start costs ~5 ms and is a pure function of the image: an evaluation that runs several
-# agents on one seed images the same first frame each time (reset draws it before any agent
-# acts), so it is solved once per process. Keyed by the exact bytes, like the projection table;
-# the least recently used is dropped first beyond _COLD_SOLVES_KEPT.
+# The multi-start is the costliest solve (24 starts: ``benchmarks/bench_photogrammetry_batch.py``,
+# the table "The batched cold photogrammetry" of docs/speed.md) and is a pure function of the
+# image: an evaluation that runs several agents on one seed images the same first frame each time
+# (reset draws it before any agent acts), so it is solved once per process. Keyed by the exact
+# bytes, like the projection table; the least recently used is dropped first beyond
+# _COLD_SOLVES_KEPT.
 _ColdKey = tuple[bytes, bytes, int, float, int, float]
 _COLD_SOLVES: OrderedDict[_ColdKey, PoseSolution] = OrderedDict()
 _COLD_SOLVES_KEPT = 4096
@@ -683,7 +685,8 @@ def cold_solves(
     (M, N, 2), memoised: the images not kept yet are solved at once (`solve_pose_batch`,
     each image's result bit for bit its result alone) and kept. A caller that knows the frames
     its estimators will start from (a recording of many episodes) solves them here first and
-    pays ~1.9 ms an image instead of ~5.6 (``benchmarks/bench_photogrammetry_batch.py``); the
+    pays far less an image than one solve a call (``benchmarks/bench_photogrammetry_batch.py``;
+    the table "The batched cold photogrammetry" of ``docs/speed.md``); the
     estimators' `solve_pose` then finds them. The solutions returned are the kept ones:
     copy before changing them."""
     uv = np.asarray(images, dtype=float)

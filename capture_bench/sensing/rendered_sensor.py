@@ -12,13 +12,13 @@ instant, plus ``WINDOW_MARGIN_PX``, cut to the sensor; with motion blur one wind
 all. A marker not wholly beyond the near plane at every instant, or whose window misses the
 sensor, is missing (``no_blob``) without rendering, in both paths. Before each window, the shapes
 whose bounding spheres cannot reach it are hidden (`window_keeps`; alpha 0, which
-TinyRenderer skips): the pixels stay the same and a capture costs ~10 % less. Measured by
-``bench_rendered_sensor.py`` (one core of a shared machine, default settings, target 0.9-1.4 m,
-arm in view): 2.4-2.6 ms a capture (385-420/s): rendering 1.6 ms (~0.4 ms of it the four
-``getCameraImage`` calls before any pixel, the rest ~200 ns per pixel of marker or arm shaded),
-detection 0.3 ms, windows, culling, exact-float re-detections and bookkeeping 0.5 ms; the full
-frame 60-70 ms. One window over all four markers takes twice as long to render (the arm behind
-them is costly to shade); merging overlapping windows measured no gain.
+TinyRenderer skips): the pixels stay the same and a capture costs less.
+``benchmarks/bench_rendered_sensor.py`` times a capture and its parts (the table "The rendered
+camera" of ``docs/speed.md``): rendering the windows is most of it (a fixed cost per
+``getCameraImage`` call before any pixel, then the pixels of marker or arm shaded), then
+detection, then windows, culling, exact-float re-detections and bookkeeping; the full frame
+costs many times a windowed capture. One window over all four markers takes longer to render
+(the arm behind them is costly to shade); merging overlapping windows measured no gain.
 
 **Windowed = full frame** (``windowed=False``), because:
 
@@ -29,8 +29,9 @@ them is costly to shade); merging overlapping windows measured no gain.
   the blue arm makes cyan), which the one blur window covers;
 * the detector adds the window's origin to a crop-relative centroid before the crop's offset,
   which rounds like the full frame's single sum only when the origin is 0 or in the centroid's
-  binade ``[2^k, 2^(k+1))``; otherwise (`exact_origin`, ~20 % of markers, 5 % of the time)
-  the marker is detected again from the window cut at ``2^k`` or padded with black to 0.
+  binade ``[2^k, 2^(k+1))``; otherwise (`exact_origin`, ~20 % of markers, a small part of a
+  capture's time) the marker is detected again from the window cut at ``2^k`` or padded with
+  black to 0.
 
 No window rule equalises TinyRenderer's float32 rasterisation through each window's own frustum:
 a pixel centre on a triangle's edge to float32 precision may be drawn in one and not the other.

@@ -24,7 +24,7 @@ plays episodes both ways and compares them frame by frame). The random stream is
 
 An episode's state is the `SceneEpisode` that `RenderedSceneCamera.reset` returns and each
 `RenderedSceneCamera.capture_scene` takes: episodes interleaved on one camera (the batched env's
-sub-envs share one pybullet world, ~28 MB) each see the frames they would see alone.
+sub-envs share one pybullet world) each see the frames they would see alone.
 """
 
 from __future__ import annotations

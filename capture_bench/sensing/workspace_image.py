@@ -180,7 +180,8 @@ class WorkspaceImager:
         """The reference: the crop rendered at full pixel density, RGB, ``(s height, s width,
         3)`` (row, column, channel, as `
         render_frame` gives it); `render`'s pixel ``[:, i, j]`` is its pixel
-        ``[s i + s // 2, s j + s // 2]`` (module docstring). ~100 ms at 924 x 924."""
+        ``[s i + s // 2, s j + s // 2]`` (module docstring). Far costlier than `render`: it shades
+        every pixel of the crop."""
         world = self._open_world()
         world.set_joint_positions(np.asarray(theta, dtype=float).tolist())
         world.set_target_pose(position, rotation)

@@ -127,7 +127,8 @@ class World:
             else create_marked_target(bullet, features, marker_radius)
         )
 
-        # Hot-path functions bound to this client once (BulletClient.__getattr__ costs ~1 us).
+        # Hot-path functions bound to this client once (each attribute read on the client goes
+        # through BulletClient.__getattr__).
         self._reset_joints = bullet.resetJointStatesMultiDof
         self._reset_base = bullet.resetBasePositionAndOrientation
         self._detect = bullet.performCollisionDetection

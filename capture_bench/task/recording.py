@@ -352,14 +352,13 @@ def estimate_errors_scalar(
     form to rounding.
 
     Kept because it matters to the single env's speed: at one row, numpy's batched linear
-    algebra is mostly per-call overhead, 28 us a call against 4.5 us here (``taskset -c 0
-    python -m timeit -s "import numpy as np; from capture_bench.task.recording import
-    estimate_errors as f; a = np.ones((1, 3)); c = np.eye(6)[None]; v = np.ones(1, bool);
-    z = 0 * a" "f(a, a, c, v, z, z)"``, and the same for this function), ~50 us of a ~400 us
-    step in the env: the single env (``taskset -c 0 python benchmarks/bench_env.py --seconds 3
-    --scenarios paper --sources ekf``) gives 2,470-2,620 steps/s with this function and
-    1,850-2,690 with the batched form, at times under three times panda-gym's PandaReach-v3
-    (~820 steps/s).
+    algebra is mostly per-call overhead, which this scalar form avoids, and the single env runs
+    it every step. ``taskset -c 0 python -m timeit -s "import numpy as np; from
+    capture_bench.task.recording import estimate_errors as f; a = np.ones((1, 3));
+    c = np.eye(6)[None]; v = np.ones(1, bool); z = 0 * a" "f(a, a, c, v, z, z)"`` times the
+    batched form (and the same for this function); ``taskset -c 0 python
+    benchmarks/bench_env.py --scenarios paper --sources ekf`` times the single env with this
+    function (the table "The single env and its parts" of ``docs/speed.md``).
     """
     if not estimate.valid:
         return math.nan, math.nan, math.nan

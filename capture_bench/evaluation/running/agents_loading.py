@@ -202,8 +202,8 @@ def _model(spec: AgentSpec) -> Any:
     if key not in _MODEL_CACHE:
         import torch
 
-        # one observation at a time: intra-op threads only add overhead (3.4 vs 0.5 ms/predict
-        # for a 128x128 MLP on 2 cores), and parallelism comes from the worker processes
+        # one observation at a time: intra-op threads only add overhead to a small MLP's
+        # predict, and parallelism comes from the worker processes
         torch.set_num_threads(1)
         metadata = read_metadata(spec.target)
         _MODEL_CACHE[key] = load_policy(metadata, trust_model=spec.trust_model)

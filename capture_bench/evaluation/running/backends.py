@@ -57,16 +57,16 @@ from capture_bench.worker_processes import (
 BACKENDS = ("serial", "process", "ray")
 #: Most seeds per chunk (each with every agent): the batch each agent plays at once. A batched
 #: step has a fixed cost, so the larger the batch the less each episode pays (the default suite's
-#: grasp scenario, 100 seeds, every agent, one core: ~30% less CPU in one chunk than in four).
+#: grasp scenario, 100 seeds, every agent, one core: less CPU in one chunk than in four).
 SEEDS_PER_CHUNK = 100
 #: Fewest seeds per chunk where several workers share the work (see `make_chunks`).
 MIN_SEEDS_PER_CHUNK = 25
 
 #: Modules the forkserver imports once, so that each worker starts with them loaded: the
-#: episodes' (torch and Stable-Baselines3 for the trained models, ~1.5 s a worker otherwise, at
-#: its first chunk) and the report media's (not ``matplotlib.pyplot``: imported there before
-#: `capture_bench.evaluation.reporting.plots` selects its backend, it drew one figure in other
-#: bytes).
+#: episodes' (torch and Stable-Baselines3 for the trained models, a slow import in each worker
+#: otherwise, at its first chunk) and the report media's (not ``matplotlib.pyplot``: imported
+#: there before `capture_bench.evaluation.reporting.plots` selects its backend, it drew one
+#: figure in other bytes).
 #: The server imports them while the main process plans.
 PRELOAD = (
     "capture_bench.evaluation.running.backends",

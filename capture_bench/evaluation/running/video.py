@@ -30,7 +30,7 @@ from capture_bench.evaluation.running.backends import EpisodeTask, make_env, run
 from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.files import atomic_write, episode_file_name
 
-#: Frame size, (width, height) pixels: readable, and ~1 KB a frame in the GIF.
+#: Frame size, (width, height) pixels: readable, and small in the GIF.
 FRAME_SIZE = (320, 240)
 #: Most frames in a GIF; a longer episode shows every ceil(steps / MAX_FRAMES)-th step.
 MAX_FRAMES = 100

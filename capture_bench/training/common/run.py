@@ -84,10 +84,10 @@ from capture_bench.training.config.options import (
 from capture_bench.training.seeds import check_training_seed
 
 #: Memory one training environment holds (a pybullet world, the estimator, the recordings):
-#: measured ~30 MB per CaptureEnv on the 2-core machine; the check leaves a margin.
+#: above what a CaptureEnv was measured to hold, for a margin.
 ENV_MEMORY_BYTES = 40 * 2**20
-#: The same for one sub-env of the batched env, which shares one pybullet world: measured
-#: ~0.5 MB per sub-env beyond ~40 MB for the env itself (16 vs 128 sub-envs, 250 steps).
+#: The same for one sub-env of the batched env, which shares one pybullet world: above what a
+#: sub-env was measured to add beyond the env itself (16 against 128 sub-envs, 250 steps).
 BATCHED_ENV_MEMORY_BYTES = 2 * 2**20
 #: Share of the available memory a run may take: its environments (the count check), and its
 #: environments with its buffers, networks and update batch (the estimate,
