@@ -20,7 +20,7 @@ from capture_bench.engine.task import CaptureTask
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv, sub_env_infos
 from capture_bench.evaluation.running.rollout import run_episode
-from capture_bench.sim.kinematics import HOME, forward_kinematics, jacobian
+from capture_bench.sim.kinematics import HOME, arm_pose, forward_kinematics, jacobian
 from capture_bench.task.rewards import REWARD_TERMS
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.task.step_rule import BEFORE_TRACKS, ArmState, scalar_info
@@ -231,7 +231,7 @@ def _one_step(
     before, after = _side(x_t, 1.0), _side(x_t, 1.05)
     out = rule.step(
         state, slice(None), {name: before[name] for name in BEFORE_TRACKS}, after,
-        theta1[None], forward_kinematics(theta1)[None], np.array([False]), np.array([False]),
+        theta1[None], arm_pose(theta1[None]), np.array([False]), np.array([False]),
         lambda ask: np.zeros(1, dtype=bool), lambda j: _Still(x_t),
     )  # fmt: skip
     return out.reward.item(0), scalar_info(out.info)

@@ -179,7 +179,7 @@ class _Arm:
         theta = kinematics.HOME[None].copy()
         before = {name: self.before[name] for name in BEFORE_TRACKS}
         out = self.rule.step(
-            self.state, slice(None), before, after, theta, X_E[None], np.array([False]),
+            self.state, slice(None), before, after, theta, kinematics.arm_pose(theta), np.array([False]),
             np.array([False]), collides, trajectory,
         )  # fmt: skip
         self.before = after
@@ -298,19 +298,20 @@ def test_an_episode_gets_the_same_numbers_alone_or_in_a_batch(scenario, reward):
         request = env.description.action_to_increment(np.clip(actions, -1, 1))
         dt = _episode_rows(playing, k, ("dt",))["dt"]
         theta, clipped, saturated = limit_joint_increments(batch.theta[rows], request, dt, arm)
-        x_e = kinematics.forward_kinematics(theta)
+        pose = kinematics.arm_pose(theta)
+        x_e = pose.x_e
 
         def collides(ask, x_e=x_e):
             return ask & (x_e[:, 2] < 0.05)
 
         out = rule.step(
             batch, rows, _episode_rows(playing, k - 1, BEFORE_TRACKS), _episode_rows(playing, k),
-            theta, x_e, clipped, saturated, collides, lambda j, p=playing: p[j].plan.trajectory,
+            theta, pose, clipped, saturated, collides, lambda j, p=playing: p[j].plan.trajectory,
         )  # fmt: skip
         for j, i in enumerate(going):
             one = rule.step(
                 alone[i], slice(None), episodes[i].rows(k - 1, BEFORE_TRACKS), episodes[i].rows(k),
-                theta[j : j + 1], x_e[j : j + 1], clipped[j : j + 1], saturated[j : j + 1],
+                theta[j : j + 1], pose.take(slice(j, j + 1)), clipped[j : j + 1], saturated[j : j + 1],
                 lambda ask, j=j, x_e=x_e: ask & (x_e[j : j + 1, 2] < 0.05),
                 lambda _, e=episodes[i]: e.plan.trajectory,
             )  # fmt: skip

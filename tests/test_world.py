@@ -140,12 +140,12 @@ def test_arm_side_moves_by_the_limits_and_forward_kinematics():
         theta0 = rng.uniform(JOINT_LOWER, JOINT_UPPER, (40, 3))
         request = rng.uniform(-0.3, 0.3, (40, 3))
         dt = np.full(40, DT)
-        theta, x_e, clipped, saturated = arm_side.move(theta0, request, dt)
+        theta, pose, clipped, saturated = arm_side.move(theta0, request, dt)
         expected = limit_joint_increments(theta0, request, dt, ArmSpec())
         np.testing.assert_array_equal(theta, expected[0])
         np.testing.assert_array_equal(clipped, expected[1])
         np.testing.assert_array_equal(saturated, expected[2])
-        np.testing.assert_array_equal(x_e, forward_kinematics(theta))
+        np.testing.assert_array_equal(pose.x_e, forward_kinematics(theta))
         # Collisions: pybullet's answer on the rows asked, False elsewhere.
         # home, then the floor, base and self collisions of test_collision_poses, one not asked
         poses = np.array([HOME, _deg(0, 20, -20), _deg(0, 45, -83), _deg(0, 20, -95), HOME])

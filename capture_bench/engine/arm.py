@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from capture_bench.sim import kinematics
 from capture_bench.sim.collision_screen import clear_of_collisions
-from capture_bench.sim.kinematics import ArmSpec, FloatArray
+from capture_bench.sim.kinematics import ArmPose, ArmSpec, FloatArray
 from capture_bench.sim.world import World, limit_joint_increments
 
 __all__ = ["ArmSide"]
@@ -44,18 +44,18 @@ class ArmSide:
 
     def move(
         self, theta0: FloatArray, request: FloatArray, dt: FloatArray
-    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
+    ) -> tuple[FloatArray, ArmPose, NDArray[np.bool_], NDArray[np.bool_]]:
         """M arms at ``theta0`` (M, 3), rad, asked for the increments ``request`` (M, 3), rad,
         over steps of ``dt`` (M,), s.
 
         Returns:
-            ``(theta, x_e, clipped, saturated)``: the joint angles after the step (M, 3), rad,
-            within the rate and joint limits; the end effector X_E there (M, 3), metres; whether
-            a limit reduced the request (M,); whether some joint ran at its rate limit (M,)
-            (`limit_joint_increments`).
+            ``(theta, pose, clipped, saturated)``: the joint angles after the step (M, 3), rad,
+            within the rate and joint limits; the arm there (`ArmPose`: X_E, eq. 8, and the
+            trigonometry its velocity reuses); whether a limit reduced the request (M,); whether
+            some joint ran at its rate limit (M,) (`limit_joint_increments`).
         """
         theta, clipped, saturated = limit_joint_increments(theta0, request, dt, self.arm)
-        return theta, kinematics.forward_kinematics(theta), clipped, saturated
+        return theta, kinematics.arm_pose(theta), clipped, saturated
 
     def collides(self, theta: FloatArray, ask: NDArray[np.bool_]) -> NDArray[np.bool_]:
         """Whether each arm at ``theta`` (M, 3), rad, is in a collision of `World.collision`,

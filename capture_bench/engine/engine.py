@@ -86,7 +86,7 @@ class EpisodeEngine:
             k = self.steps[idx] + 1
             self.steps[idx] = k
         theta0 = self.state.theta[idx]
-        theta, x_e, clipped, saturated = self.arm.move(
+        theta, pose, clipped, saturated = self.arm.move(
             theta0, self.task.increments(actions), tracks["dt"][idx, k]
         )
         self.sides.advance(idx, k, ArmMotion(theta0, theta), tracks)
@@ -102,7 +102,7 @@ class EpisodeEngine:
             return episode.plan.trajectory
 
         return self.rule.step(
-            self.state, idx, before, after, theta, x_e, clipped, saturated, collides, trajectory
+            self.state, idx, before, after, theta, pose, clipped, saturated, collides, trajectory
         )
 
     def observe(self) -> Observation:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import cast
+from typing import NamedTuple, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -64,6 +64,40 @@ class ArmSpec:
     home: FloatArray = field(default_factory=lambda: HOME.copy())
 
 
+class ArmPose(NamedTuple):
+    """M poses of the arm as eq. 8 and its Jacobian use them: the sines and cosines of
+    theta_1, theta_2 and theta_2 + theta_3, r = L1 cos(theta_2) + L2 sin(theta_2 + theta_3) (the
+    end effector's distance from the base axis) and X_E, (M,) each and (M, 3), evaluated once
+    (`arm_pose`) for the position and the velocity of the same pose."""
+
+    cos1: FloatArray
+    sin1: FloatArray
+    cos2: FloatArray
+    sin2: FloatArray
+    cos23: FloatArray
+    sin23: FloatArray
+    r: FloatArray
+    x_e: FloatArray
+
+    def take(self, index: slice | NDArray[np.intp]) -> ArmPose:
+        """The poses ``index`` of these."""
+        return ArmPose(*(value[index] for value in self))
+
+
+def arm_pose(theta: ArrayLike) -> ArmPose:
+    """`ArmPose` of joint angles ``theta``, rad, shape (3,) or (M, 3) (X_E: eq. 8)."""
+    q = np.asarray(theta, dtype=float)
+    t1, t2, t23 = q[..., 0], q[..., 1], q[..., 1] + q[..., 2]
+    cos1, sin1, cos2, sin2 = np.cos(t1), np.sin(t1), np.cos(t2), np.sin(t2)
+    cos23, sin23 = np.cos(t23), np.sin(t23)
+    r = L1 * cos2 + L2 * sin23
+    out = np.empty(q.shape)
+    out[..., 0] = r * cos1
+    out[..., 1] = r * sin1
+    out[..., 2] = L1 * sin2 - L2 * cos23
+    return ArmPose(cos1, sin1, cos2, sin2, cos23, sin23, r, out)
+
+
 def forward_kinematics(theta: ArrayLike) -> FloatArray:
     """End-effector position X_E = f(Theta) (eq. 8).
 
@@ -73,14 +107,7 @@ def forward_kinematics(theta: ArrayLike) -> FloatArray:
     Returns:
         End-effector position in the global frame, metres, shape (3,) or (N, 3).
     """
-    q = np.asarray(theta, dtype=float)
-    t1, t2, t23 = q[..., 0], q[..., 1], q[..., 1] + q[..., 2]
-    r = L1 * np.cos(t2) + L2 * np.sin(t23)
-    out = np.empty(q.shape)
-    out[..., 0] = r * np.cos(t1)
-    out[..., 1] = r * np.sin(t1)
-    out[..., 2] = L1 * np.sin(t2) - L2 * np.cos(t23)
-    return out
+    return arm_pose(theta).x_e
 
 
 def elbow_position(theta: ArrayLike) -> FloatArray:

@@ -45,7 +45,7 @@ from numpy.typing import NDArray
 
 from capture_bench.sensing.estimator import STATUSES
 from capture_bench.sim import kinematics
-from capture_bench.sim.kinematics import L1, L2
+from capture_bench.sim.kinematics import L1, L2, ArmPose
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.task.capture import (
     ARC_RESOLUTION,
@@ -299,7 +299,7 @@ class StepRule:
         before: Mapping[str, NDArray],
         after: Mapping[str, NDArray],
         theta: FloatArray,
-        x_e: FloatArray,
+        pose: ArmPose,
         clipped: BoolArray,
         saturated: BoolArray,
         collides: Callable[[BoolArray], BoolArray],
@@ -314,13 +314,14 @@ class StepRule:
                 `BEFORE_TRACKS` name (more are ignored).
             after: the target side at the end of the step, (M, ...) arrays by
                 `capture_bench.task.recording.STEP_TRACKS` name.
-            theta, x_e: joint angles after the world's limits, rad, and X_E there, m, (M, 3).
+            theta, pose: joint angles after the world's limits, rad, (M, 3), and the arm there
+                (`ArmPose`: X_E and the trigonometry of eq. 8 and its Jacobian).
             clipped, saturated: the world's flags, (M,).
             collides: given which of the M to ask (M,) bool, whether each is in collision (the
                 world; asked only where the step did not capture).
             trajectory: the true trajectory of the j-th stepping episode (for the arc test).
         """
-        dt, time, x_t = after["dt"], after["time"], after["position"]
+        dt, time, x_t, x_e = after["dt"], after["time"], after["position"], pose.x_e
         # The state at the step's start (views of it where ``rows`` is a slice): written back
         # only once every use below has read it.
         theta0, x_e0, d_prev = state.theta[rows], state.x_e[rows], state.distance[rows]
@@ -355,7 +356,7 @@ class StepRule:
             failure[timeout] = TIMEOUT
 
         # the end-effector's instantaneous velocity relative to the capture point at the end
-        end_velocity = _relative_velocities(theta, applied, dt, after["velocity"])
+        end_velocity = _relative_velocities(pose, applied, dt, after["velocity"])
         # |X_E - X_T|, the step's length and the relative speed at its end: one norm
         lengths = row_norms(np.concatenate((d1, moved, end_velocity), axis=1))
         distance, relative_speed = lengths[:, 0], lengths[:, 2]
@@ -671,25 +672,22 @@ class StepRule:
 
 
 def _relative_velocities(
-    theta: FloatArray, applied: FloatArray, dt: FloatArray, target_velocity: FloatArray
+    pose: ArmPose, applied: FloatArray, dt: FloatArray, target_velocity: FloatArray
 ) -> FloatArray:
-    """``J(theta) applied / dt - Xdot_T`` of M steps' ends, m/s, (M, 3): the numbers of
-    `relative_velocities` at the joint rates ``applied / dt``
-    (to rounding), with `capture_bench.sim.kinematics.jacobian`'s entries multiplied out,
-    in half its numpy calls. Element by element: a row's floats do not depend on the others."""
-    t1, t2, t3 = theta[:, 0], theta[:, 1], theta[:, 2]
+    """``J(theta) applied / dt - Xdot_T`` of M steps' ends (their ``pose``), m/s, (M, 3): the
+    numbers of `relative_velocities` at the joint rates ``applied / dt`` (to rounding), with
+    `capture_bench.sim.kinematics.jacobian`'s entries multiplied out from the pose's sines and
+    cosines. Element by element: a row's floats do not depend on the others."""
     rates = applied / dt[:, None]
     w1, w2, w3 = rates[:, 0], rates[:, 1], rates[:, 2]
-    t23 = t2 + t3
-    c1, s1, c23, s23 = np.cos(t1), np.sin(t1), np.cos(t23), np.sin(t23)
-    r = L1 * np.cos(t2) + L2 * s23
-    forearm = L2 * c23
-    radial = (forearm - L1 * np.sin(t2)) * w2 + forearm * w3  # dr/dt
+    c1, s1, r = pose.cos1, pose.sin1, pose.r
+    forearm = L2 * pose.cos23
+    radial = (forearm - L1 * pose.sin2) * w2 + forearm * w3  # dr/dt
     around = r * w1
-    out = np.empty(theta.shape)
+    out = np.empty(applied.shape)
     out[:, 0] = radial * c1 - around * s1
     out[:, 1] = radial * s1 + around * c1
-    out[:, 2] = r * w2 + L2 * s23 * w3
+    out[:, 2] = r * w2 + L2 * pose.sin23 * w3
     out -= target_velocity
     return out
 
