@@ -3,6 +3,8 @@ side by side, seeded by SB3's rule across the parts; the spec names every or som
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -14,6 +16,7 @@ from capture_bench.training.common.mixture import (
     mixture_scenarios,
 )
 from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
+from capture_bench.training.config.settings import TrainingSettings
 
 
 def test_the_mixture_steps_as_its_parts_side_by_side():
@@ -136,9 +139,10 @@ def test_a_mixtures_curricula_move_on_each_scenario_they_apply_to():
     from capture_bench.training.common.build import mixture_curricula
 
     scenarios = mixture_scenarios("paper_eq20,grasp,tumbling")
-    hp = {"curriculum_hold": 0.0, "curriculum_tolerance": 0.05, "curriculum_steps": 10,
-          "curriculum_delay": 2}  # fmt: skip
-    found = mixture_curricula(hp, scenarios, [4, 4, 4])
+    settings = TrainingSettings(algo="ppo", n_envs=12, total_timesteps=100, curriculum_hold=0.0,
+                                curriculum_tolerance=0.05, curriculum_steps=10,
+                                curriculum_delay=2)  # fmt: skip
+    found = mixture_curricula(settings, scenarios, [4, 4, 4])
     holds = [kw for name, kw in found if name == "HoldCurriculum"]
     assert [(kw["label"], kw["indices"]) for kw in holds] == [
         ("grasp", [4, 5, 6, 7]),
@@ -212,19 +216,19 @@ def test_a_weighted_run_gives_each_scenario_its_share_and_grasps_curriculum_its_
     """paper_eq20+grasp weighted 1:2 on 6 sub-envs: paper_eq20's batched env has 2, grasp's 4, and the
     hold curriculum moves grasp's 4 (sub-envs 2-5) alone."""
     from capture_bench.training.common.build import build_venv, curriculum_callbacks
-    from capture_bench.training.config.hyperparameters import resolve_hyperparameters
     from capture_bench.training.config.options import TrainConfig
+    from capture_bench.training.config.settings import resolve_settings
 
-    hp, _, _ = resolve_hyperparameters("ppo", None, None, [
+    settings, _, _ = resolve_settings("ppo", None, None, [
         "n_envs=6", "mixture_weights={grasp: 2}", "curriculum_hold=0", "curriculum_steps=10",
         "curriculum_delay=0"])  # fmt: skip
     config = TrainConfig(algo="ppo", scenario="paper_eq20,grasp", n_envs=6, vec_env="batched")
-    venv = build_venv(config, {**hp, "residual": "none"})
+    venv = build_venv(config, dataclasses.replace(settings, residual="none"))
     try:
         mixture = venv.venv
         assert [part.num_envs for part in mixture.parts] == [2, 4]
         assert [p.venv.scenario.name for p in mixture.parts] == ["paper_eq20", "grasp"]
     finally:
         venv.close()
-    (hold,) = curriculum_callbacks(config, hp)
+    (hold,) = curriculum_callbacks(config, settings)
     assert (hold.label, hold.indices) == ("grasp", [2, 3, 4, 5])

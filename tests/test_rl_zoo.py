@@ -7,6 +7,7 @@ The tests that run the Zoo skip where ``rl_zoo3`` is not installed (the ``zoo`` 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import shutil
 import subprocess
@@ -22,12 +23,9 @@ import yaml
 import capture_bench
 from capture_bench.task.scenarios import ConfigError, list_scenarios, load_scenario
 from capture_bench.training.common.build import curriculum_callbacks, fill_curriculum_steps
-from capture_bench.training.config.hyperparameters import (
-    ALGORITHMS,
-    resolve_hyperparameters,
-    sb3_kwargs,
-)
+from capture_bench.training.config.hyperparameters import ALGORITHMS
 from capture_bench.training.config.options import TrainConfig
+from capture_bench.training.config.settings import TrainingSettings, resolve_settings
 from capture_bench.training.zoo.command import ZOO_DIR, main, zoo_entry, zoo_file, zoo_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,10 +33,9 @@ SCENARIO_OF = {load_scenario(name).env_id: name for name in list_scenarios()}
 SCHEDULES = ("learning_rate", "clip_range")
 
 
-def _resolved(algo: str, name: str) -> dict:
-    hp, _, _ = resolve_hyperparameters(algo, load_scenario(name))
-    fill_curriculum_steps(hp)
-    return hp
+def _resolved(algo: str, name: str) -> TrainingSettings:
+    settings, _, _ = resolve_settings(algo, load_scenario(name))
+    return fill_curriculum_steps(settings)
 
 
 def _at(schedule, progress: float) -> float:
@@ -84,9 +81,9 @@ def test_the_command_writes_the_files_and_check_names_a_stale_one(tmp_path, caps
     ],
 )
 def test_a_setting_no_zoo_entry_can_carry_is_refused_by_name(change, named):
-    hp = {**_resolved("ppo", "paper"), **change}
+    settings = dataclasses.replace(_resolved("ppo", "paper"), **change)
     with pytest.raises(ConfigError, match=named):
-        zoo_entry("ppo", hp, load_scenario("paper"), "my_ppo.yaml")
+        zoo_entry(settings, load_scenario("paper"), "my_ppo.yaml")
 
 
 @pytest.mark.parametrize("algo", ALGORITHMS)
@@ -109,8 +106,8 @@ def test_the_zoo_reads_each_entry_into_what_train_py_builds(algo, tmp_path):
         raw, saved = manager.read_hyperparameters()
         kwargs, env_wrapper, callbacks, _ = manager._preprocess_hyperparams(raw)
         kwargs = manager._preprocess_action_noise(kwargs, saved, actions)
-        hp = _resolved(algo, name)
-        ours = sb3_kwargs(hp, algo)
+        settings = _resolved(algo, name)
+        hp, ours = settings.to_mapping(), settings.sb3_kwargs()
         where = f"{algo} {env_id}"
         assert manager.n_envs == hp["n_envs"] and manager.n_timesteps == hp["total_timesteps"]
         assert manager.normalize == hp["normalize"], where
@@ -125,7 +122,7 @@ def test_the_zoo_reads_each_entry_into_what_train_py_builds(algo, tmp_path):
                 assert repr(kwargs[key]) == repr(value), where
             else:
                 assert kwargs[key] == value, f"{where}: {key}"
-        train_py = curriculum_callbacks(TrainConfig(algo=algo, scenario=name), hp)
+        train_py = curriculum_callbacks(TrainConfig(algo=algo, scenario=name), settings)
         assert [type(c) for c in callbacks] == [RolloutMetrics, *map(type, train_py)], where
         for zoo, built in zip(callbacks[1:], train_py):
             assert (zoo.start, zoo.steps, zoo.delay) == (built.start, built.steps, built.delay)
@@ -180,7 +177,7 @@ def test_the_zoo_trains_a_few_thousand_steps_with_the_shipped_file(tmp_path):
     saved = yaml.load((run / "CaptureBench-Paper-v1" / "config.yml").read_text(), _ZooConfigLoader)
     ours = yaml.safe_load(conf.read_text(encoding="utf-8"))[env_id]
     assert saved == {**ours, "n_envs": 16}
-    hp = _resolved("ppo", "paper")
+    hp = _resolved("ppo", "paper").to_mapping()
     model = PPO.load(run / "CaptureBench-Paper-v1.zip", device="cpu")  # the file it just wrote
     assert (model.n_steps, model.batch_size, model.n_epochs) == (64, 1024, 5)
     assert (model.n_steps, model.batch_size) == (hp["n_steps"], hp["batch_size"])

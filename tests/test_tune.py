@@ -276,7 +276,8 @@ def test_ctrl_c_stops_after_writing_what_finished(monkeypatch, tmp_path, capsys)
     from capture_bench.training.tune import trial as tune_trial
 
     def stand_in(trial: optuna.Trial, setup) -> float:
-        trial.set_user_attr("hyperparameters", tune_trial.trial_hyperparameters(trial, setup))
+        settings = tune_trial.trial_hyperparameters(trial, setup)
+        trial.set_user_attr("hyperparameters", settings.to_mapping())
         if trial.number == 1:
             raise KeyboardInterrupt
         return 0.5

@@ -40,6 +40,7 @@ from capture_bench.training.common.policy_export import (
     policy_metadata,
     recorded_wall_time,
 )
+from capture_bench.training.config.settings import TrainingSettings
 
 
 def curriculum_progress(step: int, steps: int, delay: int) -> float:
@@ -236,16 +237,16 @@ class Progress(BaseCallback):
 
     Args:
         config: the run's `TrainConfig`.
-        hp: its validated hyper-parameters.
+        settings: its validated hyper-parameters.
         target: total environment steps of the run.
         keep_best: write ``best/`` under ``config.run_dir`` (nothing where it is None).
     """
 
     def __init__(
-        self, config: Any, hp: dict[str, Any], target: int, *, keep_best: bool = True
+        self, config: Any, settings: TrainingSettings, target: int, *, keep_best: bool = True
     ) -> None:
         super().__init__()
-        self.config, self.hp, self.target = config, hp, target
+        self.config, self.settings, self.target = config, settings, target
         self.print_every = max(min(target // 20, 50_000), 1000)
         self._next_print = 0
         self._next_eval = 0
@@ -261,7 +262,7 @@ class Progress(BaseCallback):
 
     def _on_training_start(self) -> None:
         self._next_print = (self.num_timesteps // self.print_every + 1) * self.print_every
-        every = self.hp["eval_freq"]
+        every = self.settings.eval_freq
         self._next_eval = (self.num_timesteps // every + 1) * every if every else 0
         self._clock, self._clock_steps = time.perf_counter(), self.num_timesteps
         self._session_start = self._clock
@@ -271,7 +272,7 @@ class Progress(BaseCallback):
     def _on_step(self) -> bool:
         if self._next_eval and self.num_timesteps >= self._next_eval:
             self.evaluate()
-            every = self.hp["eval_freq"]
+            every = self.settings.eval_freq
             self._next_eval = (self.num_timesteps // every + 1) * every
         if self.num_timesteps >= self._next_print:
             self._print()
@@ -299,7 +300,6 @@ class Progress(BaseCallback):
         from capture_bench.envs.vector_env import CaptureVectorEnv
         from capture_bench.training.common.mixture import mixture_scenarios
         from capture_bench.training.common.validation_run import run_validation
-        from capture_bench.training.config.hyperparameters import image_size
 
         stats = model.get_vec_normalize_env()
         normalize = None if stats is None else stats.normalize_obs
@@ -307,24 +307,25 @@ class Progress(BaseCallback):
         episodes, seeds = [], []
         own: dict[str, dict[str, float]] = {}
         for scenario in scenarios:
-            chosen = list(scenario.validation_seeds[: self.hp["eval_episodes"]])
+            chosen = list(scenario.validation_seeds[: self.settings.eval_episodes])
             if scenario.name not in self._envs:
                 self._envs[scenario.name] = CaptureVectorEnv(
                     len(chosen),
                     scenario,
                     observation_source=self.config.observation_source,
-                    reward=self.hp["reward"],
-                    image_size=image_size(self.hp),
+                    reward=self.settings.reward,
+                    image_size=self.settings.pixel_size,
                 )
             env = self._envs[scenario.name]
             predictor: Any = model
             scaled = normalize
-            if self.hp["residual"] != "none":  # the base sees the raw observation
+            if self.settings.residual != "none":  # the base sees the raw observation
                 from capture_bench.agents.residual import ResidualAgent, make_base
 
                 learned = _Normalized(model, normalize)
-                base = make_base(self.hp["residual"], env.description)
-                predictor, scaled = ResidualAgent(base, learned, self.hp["residual_scale"]), None
+                base = make_base(self.settings.residual, env.description)
+                scale = self.settings.residual_scale
+                predictor, scaled = ResidualAgent(base, learned, scale), None
             played = run_validation(predictor, env, chosen, scaled)
             if len(scenarios) > 1:
                 own[scenario.name] = summarize(played)
@@ -363,7 +364,8 @@ class Progress(BaseCallback):
             )
             append_validation(self.run_dir, self.num_timesteps, wall, result)
             if self.best is not None:
-                metadata = policy_metadata(self.model, self.config, self.hp, wall, sb3_files=True)
+                config, settings = self.config, self.settings
+                metadata = policy_metadata(self.model, config, settings, wall, sb3_files=True)
                 if self.best.offer(self.model, result, seeds, metadata):
                     line += f"; best so far -> {self.best.directory}"
         print(line, flush=True)

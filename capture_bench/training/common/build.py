@@ -26,16 +26,11 @@ from capture_bench.training.common.mixture import (
     mixture_scenarios,
     mixture_shares,
 )
-from capture_bench.training.config.hyperparameters import (
-    CURRICULA,
-    OFF_POLICY,
-    algorithm_class,
-    image_size,
-    sb3_kwargs,
-)
+from capture_bench.training.config.hyperparameters import OFF_POLICY, algorithm_class
 from capture_bench.training.config.options import (
     TrainConfig,
 )
+from capture_bench.training.config.settings import TrainingSettings
 from capture_bench.training.seeds import TrainingSeeds
 
 #: torch's intra-op threads in training unless ``OMP_NUM_THREADS`` is set (torch then keeps the
@@ -51,7 +46,7 @@ def pixel_config(algo: str) -> Path:
     return CONFIG_DIR / "pixels" / f"{algo}.yaml"
 
 
-def check_observation(config: TrainConfig, hp: dict) -> None:
+def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
     """The policy fits what the agent observes: ``MultiInputPolicy`` (a CNN on the image beside
     the arm state) for ``pixels``, ``MlpPolicy`` for an estimate; pixels train on-policy (an
     off-policy replay buffer of 84 x 84 images would hold tens of GB), on one scenario, without a
@@ -70,30 +65,31 @@ def check_observation(config: TrainConfig, hp: dict) -> None:
 
     shipped = pixel_config(config.algo)
     hint = f" (--config {display_path(shipped)})" if pixels and shipped.is_file() else ""
-    if pixels and hp["policy"] != "MultiInputPolicy":
+    if pixels and settings.policy != "MultiInputPolicy":
         raise ConfigError(
-            f"{given}: the agent sees a Dict (image, state), which policy {hp['policy']} cannot "
+            f"{given}: the agent sees a Dict (image, state), which policy {settings.policy} cannot "
             f"read; use policy MultiInputPolicy with features_extractor combined{hint}"
         )
-    if not pixels and hp["policy"] == "MultiInputPolicy":
+    if not pixels and settings.policy == "MultiInputPolicy":
         seen = config.observation_source or "each scenario's estimate"
         raise ConfigError(
             f"policy MultiInputPolicy reads the pixel observation; train it with "
             f"--observation-source pixels, or use MlpPolicy for {seen}"
         )
     for key, bad in (("residual", "none"), ("normalize", False)):
-        if pixels and hp[key] != bad:
+        value = getattr(settings, key)
+        if pixels and value != bad:
             raise ConfigError(
-                f"{given}: {key} {hp[key]} is not available with pixels; set {key}: {bad}"
+                f"{given}: {key} {value} is not available with pixels; set {key}: {bad}"
             )
     if pixels:
         from capture_bench.sensing.workspace_image import check_image_size
 
         try:
-            check_image_size(image_size(hp), load_scenario(config.scenario).camera.model())
+            check_image_size(settings.pixel_size, load_scenario(config.scenario).camera.model())
         except ValueError as exc:
             raise ConfigError(f"key 'image_size': {exc}") from None
-    if "image_size" in hp and not pixels:
+    if settings.image_size is not None and not pixels:
         seen = config.observation_source or "each scenario's estimate"
         raise ConfigError(
             f"key 'image_size' sizes the pixel observation; train with --observation-source "
@@ -101,57 +97,59 @@ def check_observation(config: TrainConfig, hp: dict) -> None:
         )
 
 
-def shares_of(config: TrainConfig, hp: dict) -> list[int]:
+def shares_of(config: TrainConfig, settings: TrainingSettings) -> list[int]:
     """The sub-envs of each scenario of ``config``'s mixture, in its order
-    (`mixture_shares` of ``hp``'s ``mixture_weights``)."""
+    (`mixture_shares` of the settings' ``mixture_weights``)."""
     names = [s.name for s in mixture_scenarios(config.scenario)]
-    return mixture_shares(config.n_envs or hp["n_envs"], names, hp.get("mixture_weights"))
+    n_envs = config.n_envs or settings.n_envs
+    return mixture_shares(n_envs, names, settings.mixture_weights)
 
 
-def fill_curriculum_steps(hp: dict) -> None:
-    """Give a curriculum without ``curriculum_steps`` half the run's ``total_timesteps``."""
-    if any(key in hp for key in CURRICULA):
-        hp.setdefault("curriculum_steps", max(1, hp["total_timesteps"] // 2))
+def fill_curriculum_steps(settings: TrainingSettings) -> TrainingSettings:
+    """The settings, a curriculum without ``curriculum_steps`` given half the run's
+    ``total_timesteps`` (`TrainingSettings.with_curriculum_steps`)."""
+    return settings.with_curriculum_steps()
 
 
-def check_curricula(hp: dict, scenario: Any) -> None:
+def check_curricula(settings: TrainingSettings, scenario: Any) -> None:
     """A curriculum starts on the easy side of the scenario's rule and moves to it: a tolerance
     above its epsilon, a hold below its ``capture.hold``."""
     hold, eps = scenario.capture.hold, scenario.capture_tolerance
-    if "curriculum_hold" in hp and not hp["curriculum_hold"] < hold:
+    start_hold, start_tolerance = settings.curriculum_hold, settings.curriculum_tolerance
+    if start_hold is not None and not start_hold < hold:
         raise ConfigError(
-            f"curriculum_hold {hp['curriculum_hold']:g} s is not below {scenario.name}'s "
+            f"curriculum_hold {start_hold:g} s is not below {scenario.name}'s "
             f"capture.hold {hold:g} s; the curriculum grows the hold to it (e.g. "
             "--scenario grasp --set curriculum_hold=0)"
         )
-    if "curriculum_tolerance" in hp and not hp["curriculum_tolerance"] > eps:
+    if start_tolerance is not None and not start_tolerance > eps:
         raise ConfigError(
-            f"curriculum_tolerance {hp['curriculum_tolerance']:g} m is not above "
+            f"curriculum_tolerance {start_tolerance:g} m is not above "
             f"{scenario.name}'s capture tolerance {eps:g} m; the curriculum shrinks it to that"
         )
 
 
-def check_imitation(config: TrainConfig, hp: dict, scenarios: list[str]) -> None:
+def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: list[str]) -> None:
     """``imitate`` fits an actor-critic policy to a controller that reads the same observation,
     and leaves the learned policy alone: PPO or A2C, the estimate's observation, no residual and
     no VecNormalize (whose statistics the controller would not see); a controller per scenario
     names only ``scenarios`` (the run's) and gives each one."""
-    if "imitate" not in hp:
+    if settings.imitate is None:
         return
     from capture_bench.training.common.imitation import describe_teacher, teacher_names
 
-    teacher_names(hp["imitate"], scenarios)
-    teacher = describe_teacher(hp["imitate"])
+    teacher_names(settings.imitate, scenarios)
+    teacher = describe_teacher(settings.imitate)
     if config.algo not in ("ppo", "a2c"):
         raise ConfigError(
             f"imitate {teacher}: fits an actor-critic policy (ppo or a2c), not {config.algo}"
         )
-    if hp["residual"] != "none":
+    if settings.residual != "none":
         raise ConfigError(
-            f"imitate {teacher} with residual {hp['residual']}: a hybrid already acts through "
+            f"imitate {teacher} with residual {settings.residual}: a hybrid already acts through "
             "its controller; choose one"
         )
-    if hp["normalize"]:
+    if settings.normalize:
         raise ConfigError(
             f"imitate {teacher}: the controller reads the raw observation; set normalize: false"
         )
@@ -162,12 +160,12 @@ def check_imitation(config: TrainConfig, hp: dict, scenarios: list[str]) -> None
         )
 
 
-def check_shaping(hp: dict) -> None:
-    """``reward: shaped`` is potential-based only for the discount it assumes."""
+def check_shaping(reward: str, gamma: float) -> None:
+    """``reward: shaped`` is potential-based only for the discount it assumes (``gamma``:
+    `TrainingSettings.gamma`)."""
     from capture_bench.task.rewards import SHAPING_GAMMA
 
-    gamma = hp.get("gamma", 0.99)  # SB3's default for every algorithm
-    if hp["reward"] == "shaped" and gamma != SHAPING_GAMMA:
+    if reward == "shaped" and gamma != SHAPING_GAMMA:
         raise ConfigError(
             f"reward shaped is potential-based shaping for gamma {SHAPING_GAMMA} "
             f"(capture_bench/task/rewards.py), but gamma is {gamma}; set gamma={SHAPING_GAMMA} "
@@ -175,7 +173,7 @@ def check_shaping(hp: dict) -> None:
         )
 
 
-def make_env(config: TrainConfig, hp: dict, rank: int, subprocess: bool) -> Any:
+def make_env(config: TrainConfig, settings: TrainingSettings, rank: int, subprocess: bool) -> Any:
     """A thunk building environment ``rank``: CaptureEnv with training seeds only."""
 
     def thunk() -> Any:
@@ -188,17 +186,17 @@ def make_env(config: TrainConfig, hp: dict, rank: int, subprocess: bool) -> Any:
         env = CaptureEnv(
             scenario,
             observation_source=config.observation_source,
-            reward=hp["reward"],
-            image_size=image_size(hp),
+            reward=settings.reward,
+            image_size=settings.pixel_size,
         )
         return TrainingSeeds(env, scenario, seed=(config.seed or 0) * 1000 + rank)
 
     return thunk
 
 
-def build_venv(config: TrainConfig, hp: dict) -> Any:
+def build_venv(config: TrainConfig, settings: TrainingSettings) -> Any:
     """The training envs of ``config.vec_env`` in a ``VecMonitor`` (and ``VecNormalize`` where
-    ``hp["normalize"]``): ``batched`` (`
+    ``settings.normalize``): ``batched`` (`
     CaptureSB3VecEnv`, one process), or SB3's ``dummy`` / ``subproc`` vector envs of single
     ``CaptureEnv``s; all draw the same training-seed episodes."""
     from stable_baselines3.common.vec_env import (
@@ -213,10 +211,10 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
     if is_mixture(config.scenario):  # each scenario's share of the sub-envs, side by side
         from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
-        scenarios = mixture_scenarios(config.scenario)
+        scenarios, shares = mixture_scenarios(config.scenario), shares_of(config, settings)
         venv = MixtureVecEnv([
-            CaptureSB3VecEnv(share, sc, seed=(config.seed or 0) * 1000 + k, reward=hp["reward"])
-            for k, (sc, share) in enumerate(zip(scenarios, shares_of(config, hp), strict=True))
+            CaptureSB3VecEnv(share, sc, seed=(config.seed or 0) * 1000 + k, reward=settings.reward)
+            for k, (sc, share) in enumerate(zip(scenarios, shares, strict=True))
         ])  # fmt: skip
     elif config.vec_env == "batched":
         from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
@@ -226,23 +224,23 @@ def build_venv(config: TrainConfig, hp: dict) -> Any:
             config.scenario,
             seed=config.seed or 0,
             observation_source=config.observation_source,
-            reward=hp["reward"],
-            image_size=image_size(hp),
+            reward=settings.reward,
+            image_size=settings.pixel_size,
         )
     else:
         subprocess = config.vec_env == "subproc"
-        fns = [make_env(config, hp, i, subprocess) for i in range(n_envs)]
+        fns = [make_env(config, settings, i, subprocess) for i in range(n_envs)]
         venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
     venv = VecMonitor(venv)
-    if hp["residual"] != "none":  # a hybrid: the policy's action is a residual on the base
+    if settings.residual != "none":  # a hybrid: the policy's action is a residual on the base
         from capture_bench.engine.task import resolve_scenario
         from capture_bench.task.episode import describe_task
         from capture_bench.training.common.residual_vec_env import ResidualVecEnv
 
         description = describe_task(resolve_scenario(config.scenario, config.observation_source))
-        venv = ResidualVecEnv(venv, hp["residual"], hp["residual_scale"], description)
-    if hp["normalize"]:
-        venv = VecNormalize(venv, gamma=hp.get("gamma", 0.99))
+        venv = ResidualVecEnv(venv, settings.residual, settings.residual_scale, description)
+    if settings.normalize:
+        venv = VecNormalize(venv, gamma=settings.gamma)
     return venv
 
 
@@ -256,39 +254,42 @@ def set_torch_threads() -> int:
     return torch.get_num_threads()
 
 
-def build_model(config: TrainConfig, hp: dict, venv: Any, tensorboard_log: str | None) -> Any:
-    """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``hp`` (torch
+def build_model(
+    config: TrainConfig, settings: TrainingSettings, venv: Any, tensorboard_log: str | None
+) -> Any:
+    """The SB3 (or sb3-contrib) algorithm of ``config.algo`` on ``venv`` with ``settings`` (torch
     threads: `set_torch_threads`)."""
     set_torch_threads()
     algorithm = algorithm_class(config.algo)
     return algorithm(
-        hp["policy"], venv, seed=config.seed, device=config.device,
-        tensorboard_log=tensorboard_log, **sb3_kwargs(hp, config.algo),
+        settings.policy, venv, seed=config.seed, device=config.device,
+        tensorboard_log=tensorboard_log, **settings.sb3_kwargs(),
     )  # fmt: skip
 
 
-def curricula(hp: dict, scenario: Any) -> dict[str, dict[str, Any]]:
-    """The curricula ``hp`` asks for on ``scenario`` (training only), by the name of their
+def curricula(settings: TrainingSettings, scenario: Any) -> dict[str, dict[str, Any]]:
+    """The curricula ``settings`` asks for on ``scenario`` (training only), by the name of their
     callback in `capture_bench.training.callbacks`, with its keyword arguments:
     ``{"ToleranceCurriculum": {"start": m, "final": eps (m, 3 numbers), "steps": ..., "delay":
     ...}, "HoldCurriculum": {"start": s, "final": capture.hold (s), ...}}``; empty where it asks
-    for none. ``hp`` holds ``curriculum_steps`` (``prepare`` fills it in)."""
-    if not any(key in hp for key in CURRICULA):
+    for none. ``settings`` holds ``curriculum_steps`` (`fill_curriculum_steps`)."""
+    if not settings.has_curriculum:
         return {}
     from capture_bench.task.episode import describe_task
 
-    schedule = {"steps": hp["curriculum_steps"], "delay": hp["curriculum_delay"]}
+    schedule = {"steps": settings.curriculum_steps, "delay": settings.curriculum_delay}
     found: dict[str, dict[str, Any]] = {}
-    if "curriculum_tolerance" in hp:
+    if settings.curriculum_tolerance is not None:
         final = [float(x) for x in describe_task(scenario).capture_tolerance]
-        found["ToleranceCurriculum"] = {"start": hp["curriculum_tolerance"], "final": final}
-    if "curriculum_hold" in hp:
-        found["HoldCurriculum"] = {"start": hp["curriculum_hold"], "final": scenario.capture.hold}
+        found["ToleranceCurriculum"] = {"start": settings.curriculum_tolerance, "final": final}
+    if settings.curriculum_hold is not None:
+        final_hold = scenario.capture.hold
+        found["HoldCurriculum"] = {"start": settings.curriculum_hold, "final": final_hold}
     return {name: {**kwargs, **schedule} for name, kwargs in found.items()}
 
 
 def mixture_curricula(
-    hp: dict, scenarios: Sequence[Any], shares: Sequence[int]
+    settings: TrainingSettings, scenarios: Sequence[Any], shares: Sequence[int]
 ) -> list[tuple[str, dict[str, Any]]]:
     """A mixture's curricula, scenario by scenario: each of `curricula` on a scenario
     where it moves (a hold curriculum where ``curriculum_hold`` is below the scenario's
@@ -299,7 +300,7 @@ def mixture_curricula(
     out = []
     offsets = [0, *itertools.accumulate(shares)]
     for k, scenario in enumerate(scenarios):
-        for name, kwargs in curricula(hp, scenario).items():
+        for name, kwargs in curricula(settings, scenario).items():
             if name == "HoldCurriculum" and not kwargs["start"] < kwargs["final"]:
                 continue
             if name == "ToleranceCurriculum" and not kwargs["start"] > max(kwargs["final"]):
@@ -309,19 +310,20 @@ def mixture_curricula(
     return out
 
 
-def curriculum_callbacks(config: TrainConfig, hp: dict) -> list[Any]:
-    """The curricula ``hp`` asks for (training only: validation keeps the scenario's rule), as
+def curriculum_callbacks(config: TrainConfig, settings: TrainingSettings) -> list[Any]:
+    """The curricula ``settings`` asks for (training only: validation keeps the scenario's rule), as
     SB3 callbacks (`curricula`; on a mixture, one per scenario it moves on,
     `mixture_curricula`); none where it asks for none (a mixture's spec, which names no
     one scenario, is then never loaded)."""
-    if not any(key in hp for key in CURRICULA):
+    if not settings.has_curriculum:
         return []
     from capture_bench.training import callbacks
 
     if is_mixture(config.scenario):
-        found = mixture_curricula(hp, mixture_scenarios(config.scenario), shares_of(config, hp))
+        scenarios, shares = mixture_scenarios(config.scenario), shares_of(config, settings)
+        found = mixture_curricula(settings, scenarios, shares)
     else:
-        found = list(curricula(hp, load_scenario(config.scenario)).items())
+        found = list(curricula(settings, load_scenario(config.scenario)).items())
     return [getattr(callbacks, name)(**kwargs) for name, kwargs in found]
 
 

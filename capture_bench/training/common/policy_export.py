@@ -25,6 +25,7 @@ from typing import Any
 from capture_bench.files import atomic_write
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.training.config.options import command_line
+from capture_bench.training.config.settings import TrainingSettings
 
 BEST_DIR = "best"
 VALIDATION_FILE = "validation.json"
@@ -85,7 +86,7 @@ def recorded_wall_time(run_dir: Path) -> float:
 
 
 def policy_metadata(
-    model: Any, config: Any, hp: dict[str, Any], wall_time_s: float, sb3_files: bool
+    model: Any, config: Any, settings: TrainingSettings, wall_time_s: float, sb3_files: bool
 ) -> dict[str, Any]:
     """The provenance entries of ``metadata.json`` (the network's declaration is added by
     `capture_bench.agents.policy_file.save_policy`).
@@ -93,7 +94,7 @@ def policy_metadata(
     Args:
         model: the SB3 algorithm.
         config: the run's `TrainConfig`.
-        hp: its validated hyper-parameters.
+        settings: its validated hyper-parameters.
         wall_time_s: training time so far over all sessions of the run, s.
         sb3_files: the directory also holds SB3's ``model.zip`` (+ ``vecnormalize.pkl`` where
             observations are normalised), named in ``model`` and ``vecnormalize``.
@@ -111,7 +112,7 @@ def policy_metadata(
         "env_id": None if scenario is None else scenario.env_id,  # a mixture: one per scenario
         "model": "model.zip" if sb3_files else None,
         "observation_source": config.observation_source,
-        "reward": hp["reward"],
+        "reward": settings.reward,
         "vecnormalize": "vecnormalize.pkl" if sb3_files and normalized else None,
         "total_timesteps": steps,
         "seed": config.seed,
@@ -121,11 +122,11 @@ def policy_metadata(
         "steps_per_second": round(steps / wall_time_s, 1) if wall_time_s else None,
         **_code_state(config, git_state()),
         "packages": package_versions(),
-        "hyperparameters": hp,
+        "hyperparameters": settings.to_mapping(),
         "command": command_line(config),
         "residual": None
-        if hp["residual"] == "none"
-        else {"base": hp["residual"], "scale": hp["residual_scale"]},
+        if settings.residual == "none"
+        else {"base": settings.residual, "scale": settings.residual_scale},
     }
 
 

@@ -26,6 +26,7 @@ rounded total.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import sys
@@ -69,11 +70,6 @@ from capture_bench.training.config.hyperparameters import (
     OFF_POLICY,
     TRAINING_KEYS,
     algorithm_class,
-    memory_estimate,
-    planned_steps,
-    resolve_hyperparameters,
-    steps_per_update,
-    validate_hyperparameters,
 )
 from capture_bench.training.config.options import (
     FLAGS,
@@ -81,6 +77,7 @@ from capture_bench.training.config.options import (
     TrainConfig,
     parse_args,
 )
+from capture_bench.training.config.settings import TrainingSettings, resolve_settings
 from capture_bench.training.seeds import check_training_seed
 
 #: Memory one training environment holds (a pybullet world, the estimator, the recordings):
@@ -105,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     with RunLock() as lock:
         try:
             config, given = parse_args(argv)
-            config, hp, run_dir, checkpoint = prepare(config, given, lock)
+            config, settings, run_dir, checkpoint = prepare(config, given, lock)
         except (ConfigError, CheckpointError, OSError) as exc:  # OSError: a path unreadable
             return _error(exc)
         except SystemExit as exc:  # argparse: --help (0) or a bad option (2, already printed)
@@ -113,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         new = checkpoint is None and lock.found is not None  # a new run (not a resume)
         with sigterm_as_interrupt():
             try:
-                return train(config, hp, run_dir, checkpoint)
+                return train(config, settings, run_dir, checkpoint)
             except KeyboardInterrupt as exc:  # before learning started (imports, env start-up)
                 _discard_unstarted(lock, run_dir, new)
                 print("\ninterrupted before training started; nothing to save", file=sys.stderr)
@@ -192,7 +189,7 @@ def _read_run_config(run_dir: Path) -> tuple[dict, TrainConfig]:
 
 def prepare(
     config: TrainConfig, given: set[str], lock: RunLock | None = None
-) -> tuple[TrainConfig, dict, Path, Path | None]:
+) -> tuple[TrainConfig, TrainingSettings, Path, Path | None]:
     """Resolve and check the options before any work: the run's config, hyper-parameters,
     directory and resume checkpoint. Raises [`ConfigError`][capture_bench.ConfigError] naming what
     is wrong.
@@ -208,7 +205,7 @@ def prepare(
 
 def _prepare(
     config: TrainConfig, given: set[str], lock: RunLock
-) -> tuple[TrainConfig, dict, Path, Path | None]:
+) -> tuple[TrainConfig, TrainingSettings, Path, Path | None]:
     _check_device(config.device)
     if config.resume is not None:
         run_dir = Path(config.resume)
@@ -227,40 +224,40 @@ def _prepare(
         # the run is where it is now: a run moved (or copied to another machine) writes its
         # validations, best/ and final policy there, not where config.json says it started
         config.run_dir = str(run_dir)
-        hp = validate_hyperparameters(
+        settings = TrainingSettings.from_mapping(
             data["hyperparameters"], old.algo, str(run_dir / "config.json")
         )
         if config.total_timesteps is not None:
-            hp["total_timesteps"] = config.total_timesteps
-            _check_option_bounds(hp)
+            settings = dataclasses.replace(settings, total_timesteps=config.total_timesteps)
+            _check_option_bounds(settings.n_envs, settings.total_timesteps)
         if is_mixture(config.scenario):  # e.g. --vec-env dummy: a mixture trains batched
-            _check_mixture(config, hp, len(mixture_scenarios(config.scenario)))
-        _check_memory(config, hp, resume=True)
+            _check_mixture(config, settings, len(mixture_scenarios(config.scenario)))
+        _check_memory(config, settings, resume=True)
         found = list_checkpoints(run_dir / "checkpoints")
-        if not found and "imitate" in hp and not (run_dir / IMITATION_FILE).is_file():
+        if not found and settings.imitate is not None and not (run_dir / IMITATION_FILE).is_file():
             # stopped during its imitation, which is not checkpointed: it starts again
             check_writable(run_dir, "--resume")
-            return config, hp, run_dir, None
+            return config, settings, run_dir, None
         if not found:
             raise ConfigError(
                 f"{run_dir}: no complete checkpoint (checkpoints/step_<N>/) to resume"
             )
         done, checkpoint = found[-1]
         read_checkpoint(checkpoint)  # a corrupt newest checkpoint is an error here, not later
-        if hp["total_timesteps"] <= done and "total_timesteps" in given:
+        if settings.total_timesteps <= done and "total_timesteps" in given:
             raise ConfigError(
-                f"--total-timesteps {hp['total_timesteps']} is not more than the {done} steps "
+                f"--total-timesteps {settings.total_timesteps} is not more than the {done} steps "
                 f"{run_dir} has done; pass the new total, above {done}, to train it further"
             )
-        if hp["total_timesteps"] <= done:
+        if settings.total_timesteps <= done:
             raise ConfigError(
                 f"{run_dir}: the run is finished: it has done {done} steps of its total_timesteps "
-                f"{hp['total_timesteps']}; to train it further, pass a new total above {done}: "
+                f"{settings.total_timesteps}; to train it further, pass a new total above {done}: "
                 f"python train.py --resume {run_dir} --total-timesteps <steps>"
             )
         check_writable(run_dir, "--resume")
-        note_rounding(config.algo, hp, done)
-        return config, hp, run_dir, checkpoint
+        note_rounding(settings, done)
+        return config, settings, run_dir, checkpoint
 
     config.algo = config.algo.lower()
     scenarios = mixture_scenarios(config.scenario)  # one, or a mixture (``all``, a,b,c)
@@ -269,7 +266,7 @@ def _prepare(
     for key in ("total_timesteps", "n_envs"):
         if getattr(config, key) is not None and getattr(config, key) < 1:
             raise ConfigError(f"--{key.replace('_', '-')} must be >= 1, got {getattr(config, key)}")
-    hp, _, origin = resolve_hyperparameters(  # a mixture reads no scenario section
+    settings, _, origin = resolve_settings(  # a mixture reads no scenario section
         config.algo, None if mixed else scenario, config.config, config.overrides or ()
     )
     algorithm_class(config.algo)  # its package is installed (sb3-contrib for TQC)
@@ -277,27 +274,27 @@ def _prepare(
         config.seed = scenario.training_seeds.start
     for each in scenarios:
         check_training_seed(config.seed, each)
-    for key in ("total_timesteps", "n_envs", "reward"):  # the options win over the file
-        if getattr(config, key) is not None:
-            hp[key] = getattr(config, key)
-    check_shaping(hp)
-    fill_curriculum_steps(hp)  # after the options: half the budget they set
-    config.total_timesteps, config.n_envs = hp["total_timesteps"], hp["n_envs"]
+    options = ("total_timesteps", "n_envs", "reward")  # the options win over the file
+    chosen = {key: getattr(config, key) for key in options if getattr(config, key) is not None}
+    settings = dataclasses.replace(settings, **chosen)
+    check_shaping(settings.reward, settings.gamma)
+    settings = fill_curriculum_steps(settings)  # after the options: half the budget they set
+    config.total_timesteps, config.n_envs = settings.total_timesteps, settings.n_envs
     _check_env_count(config.n_envs, config.vec_env)
-    _check_option_bounds(hp)
+    _check_option_bounds(settings.n_envs, settings.total_timesteps)
     if mixed:
-        _check_mixture(config, hp, len(scenarios))
-    elif "mixture_weights" in hp:
+        _check_mixture(config, settings, len(scenarios))
+    elif settings.mixture_weights is not None:
         raise ConfigError(
             f"key 'mixture_weights' splits a mixture's sub-envs between its scenarios; train on "
             f"a mixture (--scenario all, or a,b,c), or drop it for {scenario.name}"
         )
     else:
         config.observation_source = config.observation_source or scenario.estimator.source
-        check_curricula(hp, scenario)
-    check_observation(config, hp)
-    check_imitation(config, hp, [s.name for s in scenarios])
-    kind = config.algo if hp["residual"] == "none" else f"{config.algo}-residual"
+        check_curricula(settings, scenario)
+    check_observation(config, settings)
+    check_imitation(config, settings, [s.name for s in scenarios])
+    kind = config.algo if settings.residual == "none" else f"{config.algo}-residual"
     name = mixture_name(config.scenario) if mixed else scenario.name
     if config.run_dir is None:
         default = Path(f"runs/{name}-{kind}-{config.seed}")
@@ -309,7 +306,7 @@ def _prepare(
         run_dir = Path(config.run_dir)
     _check_new_run_dir(run_dir)
     check_writable(run_dir, "--run-dir")
-    _check_memory(config, hp)
+    _check_memory(config, settings)
     config.run_dir = str(run_dir)
     created = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -323,18 +320,18 @@ def _prepare(
         raise
     lock.found = frozenset(entry.name for entry in run_dir.iterdir())
     lock.created = created
-    note_rounding(config.algo, hp)
+    note_rounding(settings)
     from capture_bench.provenance import git_state
 
     payload = {
         "config": vars(config) | {"resume": None},
-        "hyperparameters": hp,
+        "hyperparameters": settings.to_mapping(),
         "origin": origin,
         "git": git_state(),  # the code the run starts from (metadata.json's "git")
     }
-    atomic_write(run_dir / "hyperparameters.yaml", resolved_yaml(config, hp, origin).encode())
+    atomic_write(run_dir / "hyperparameters.yaml", resolved_yaml(config, settings, origin).encode())
     atomic_write(run_dir / "config.json", json.dumps(payload, indent=2).encode())
-    return config, hp, run_dir, None
+    return config, settings, run_dir, None
 
 
 def _check_new_run_dir(run_dir: Path) -> None:
@@ -355,7 +352,7 @@ def free_run_dir(default: Path) -> Path:
     return candidate
 
 
-def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
+def _check_mixture(config: TrainConfig, settings: TrainingSettings, count: int) -> None:
     """What a mixture of ``count`` scenarios needs: the batched env, sub-envs for every scenario
     (`mixture_shares`), and no setting that depends on one
     scenario's task."""
@@ -365,30 +362,33 @@ def _check_mixture(config: TrainConfig, hp: dict, count: int) -> None:
             f"{config.vec_env}"
         )
     try:
-        shares_of(config, hp)
+        shares_of(config, settings)
     except ConfigError as exc:
         raise ConfigError(f"--scenario {config.scenario}: {exc}") from None
-    if hp.get("residual", "none") != "none":
+    if settings.residual != "none":
         raise ConfigError(
             f"--scenario {config.scenario}: residual depends on one scenario's task; train it "
             "on a single scenario"
         )
     scenarios = mixture_scenarios(config.scenario)
-    found = {name for name, _ in mixture_curricula(hp, scenarios, [1] * count)}
+    found = {name for name, _ in mixture_curricula(settings, scenarios, [1] * count)}
     for key, name, rule in (
         ("curriculum_hold", "HoldCurriculum", "a longer capture.hold"),
         ("curriculum_tolerance", "ToleranceCurriculum", "a smaller capture tolerance"),
     ):
-        if key in hp and name not in found:
+        start = getattr(settings, key)
+        if start is not None and name not in found:
             raise ConfigError(
-                f"--scenario {config.scenario}: {key} {hp[key]:g} moves on no scenario of the "
+                f"--scenario {config.scenario}: {key} {start:g} moves on no scenario of the "
                 f"mixture (none asks {rule}); leave it out, or start it on the easy side of one "
                 "(e.g. curriculum_hold=0 with grasp in the mixture)"
             )
 
 
-def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any) -> dict[str, Any]:
-    """DAgger from ``hp["imitate"]`` on the run's training envs (``venv`` inside ``VecMonitor``,
+def imitate(
+    config: TrainConfig, settings: TrainingSettings, model: Any, venv: Any, progress: Any
+) -> dict[str, Any]:
+    """DAgger from ``settings.imitate`` on the run's training envs (``venv`` inside ``VecMonitor``,
     so the imitation's episodes stay out of the algorithm's statistics), the policy validated
     after each round where the run validates (``eval_freq``; ``progress``'s validation, nothing
     logged): `capture_bench.training.common.imitation.dagger`."""
@@ -397,21 +397,22 @@ def imitate(config: TrainConfig, hp: dict, model: Any, venv: Any, progress: Any)
     from capture_bench.training.common.imitation import dagger, make_teacher, teacher_names
 
     if is_mixture(config.scenario):
-        scenarios, shares = mixture_scenarios(config.scenario), shares_of(config, hp)
+        scenarios, shares = mixture_scenarios(config.scenario), shares_of(config, settings)
     else:
         scenarios = [resolve_scenario(config.scenario, config.observation_source)]
         shares = [venv.num_envs]
     descriptions = [describe_task(sc) for sc in scenarios]
-    names = teacher_names(hp["imitate"], [sc.name for sc in scenarios])
+    assert settings.imitate is not None and settings.imitation_rounds is not None
+    names = teacher_names(settings.imitate, [sc.name for sc in scenarios])
     teacher = make_teacher(names, descriptions, shares)
     raw = venv.venv  # inside VecMonitor (no VecNormalize: check_imitation)
-    validate = (lambda: progress.play(model)[0]) if hp["eval_freq"] else None
-    return dagger(model, raw, teacher, hp["imitation_rounds"], hp["imitation_steps"],
-                  hp["imitation_epochs"], config.seed or 0, validate=validate,
-                  floor=hp["imitation_floor"])  # fmt: skip
+    validate = (lambda: progress.play(model)[0]) if settings.eval_freq else None
+    return dagger(model, raw, teacher, settings.imitation_rounds, settings.imitation_steps,
+                  settings.imitation_epochs, config.seed or 0, validate=validate,
+                  floor=settings.imitation_floor)  # fmt: skip
 
 
-def resolved_yaml(config: TrainConfig, hp: dict, origin: dict) -> str:
+def resolved_yaml(config: TrainConfig, settings: TrainingSettings, origin: dict) -> str:
     """The run's resolved hyper-parameters as a YAML file that ``--config`` reads back."""
     import yaml
 
@@ -430,7 +431,7 @@ def resolved_yaml(config: TrainConfig, hp: dict, origin: dict) -> str:
         + "".join(f"#{line}\n" for line in layers)
         + f"# Train again with: python train.py --algo {config.algo} --config <this file>\n"
     )
-    return header + yaml.safe_dump(hp, sort_keys=False)
+    return header + yaml.safe_dump(settings.to_mapping(), sort_keys=False)
 
 
 def _check_device(device: str) -> None:
@@ -481,16 +482,16 @@ def _size(count: float) -> str:
     raise AssertionError("unreachable")
 
 
-def _check_option_bounds(hp: dict) -> None:
+def _check_option_bounds(n_envs: int, total_timesteps: int) -> None:
     """``--n-envs`` and ``--total-timesteps`` within the limits the hyper-parameter files have
     (`TRAINING_KEYS`)."""
-    for key in ("n_envs", "total_timesteps"):
+    for key, value in (("n_envs", n_envs), ("total_timesteps", total_timesteps)):
         high = int(TRAINING_KEYS[key].high)
-        if hp[key] > high:
-            raise ConfigError(f"--{key.replace('_', '-')} {hp[key]}: at most {high}")
+        if value > high:
+            raise ConfigError(f"--{key.replace('_', '-')} {value}: at most {high}")
 
 
-def _check_memory(config: TrainConfig, hp: dict, resume: bool = False) -> None:
+def _check_memory(config: TrainConfig, settings: TrainingSettings, resume: bool = False) -> None:
     """Refuse a run whose envs, buffers, networks and update batch
     (`memory_estimate`) need more than
     `MEMORY_SHARE` of the memory available, naming the keys of the largest part."""
@@ -498,8 +499,8 @@ def _check_memory(config: TrainConfig, hp: dict, resume: bool = False) -> None:
     if available is None:
         return
     batched = config.vec_env == "batched" or is_mixture(config.scenario)
-    envs = int(hp["n_envs"]) * (BATCHED_ENV_MEMORY_BYTES if batched else ENV_MEMORY_BYTES)
-    parts = memory_estimate(config.algo, hp, config.observation_source == PIXELS, resume)
+    envs = int(settings.n_envs) * (BATCHED_ENV_MEMORY_BYTES if batched else ENV_MEMORY_BYTES)
+    parts = settings.memory_estimate(config.observation_source == PIXELS, resume)
     total = envs + sum(size for _, _, size in parts)
     limit = available * MEMORY_SHARE
     if total <= limit:
@@ -527,34 +528,37 @@ def _check_env_count(n_envs: int, vec_env: str) -> None:
         )
 
 
-def note_rounding(algo: str, hp: dict, done: int = 0) -> None:
+def note_rounding(settings: TrainingSettings, done: int = 0) -> None:
     """Print a note where SB3 will run more steps than asked (`planned_steps`: whole rollouts, or
     whole steps of all envs) or learn
     nothing (an off-policy budget within ``learning_starts``)."""
-    total, unit = hp["total_timesteps"], steps_per_update(algo, hp)
+    algo = settings.algo
+    total, unit = settings.total_timesteps, settings.steps_per_update()
     if algo in OFF_POLICY:
-        starts = hp.get("learning_starts", 100)
+        starts = settings.algorithm.get("learning_starts", 100)
         if total <= starts:
             print(f"note: {total} steps is not more than learning_starts {starts}: "
                   "the policy will not be updated")  # fmt: skip
         why = f"train_freq x n_envs = {unit} steps at a time (all envs step together)"
     else:
         why = f"whole rollouts of n_steps x n_envs = {unit} steps"
-    end = planned_steps(algo, hp, done)
+    end = settings.planned_steps(done)
     if end != total:
         since = f" from step {done}" if done else ""
         print(f"note: {algo.upper()} trains in {why}: the budget of {total} steps{since} is "
               f"rounded up to {end}")  # fmt: skip
 
 
-def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None) -> int:
+def train(
+    config: TrainConfig, settings: TrainingSettings, run_dir: Path, checkpoint: Path | None
+) -> int:
     """Build the envs and the model (and restore the checkpoint), learn, and save the result."""
     from capture_bench.training.callbacks import Checkpointer, Progress, RolloutMetrics
 
     algo = config.algo
-    venv = build_venv(config, hp)
+    venv = build_venv(config, settings)
     tb = str(run_dir / "tb")
-    model = build_model(config, hp, venv, tb)
+    model = build_model(config, settings, venv, tb)
     seed_note = f"seed {config.seed}"
     if checkpoint is not None:
         try:
@@ -564,30 +568,32 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
             raise
         model.set_random_seed((config.seed or 0) + model.num_timesteps)  # fresh episode draws
         seed_note = f"resuming {checkpoint.name}"
-    target = planned_steps(algo, hp, model.num_timesteps)  # the step SB3 stops at
+    target = settings.planned_steps(model.num_timesteps)  # the step SB3 stops at
     source = config.observation_source or "each scenario's own estimate"
     envs = f"{config.n_envs} {config.vec_env} envs"
     if is_mixture(config.scenario):
         names = [s.name for s in mixture_scenarios(config.scenario)]
-        envs += " (" + ", ".join(f"{n} {k}" for n, k in zip(names, shares_of(config, hp))) + ")"
+        shares = shares_of(config, settings)
+        envs += " (" + ", ".join(f"{n} {k}" for n, k in zip(names, shares)) + ")"
     print(
         f"training {algo.upper()} on {config.scenario} ({source}), "
         f"{envs}, {seed_note}, {target} steps -> {run_dir}"
     )
     print(f"TensorBoard: tensorboard --logdir {tb}")
-    checkpointer = Checkpointer(run_dir / "checkpoints", hp["checkpoint_freq"], algo in OFF_POLICY)
-    progress = Progress(config, hp, target)
-    callbacks = [checkpointer, RolloutMetrics(), progress, *curriculum_callbacks(config, hp)]
+    checkpoints = run_dir / "checkpoints"
+    checkpointer = Checkpointer(checkpoints, settings.checkpoint_freq, algo in OFF_POLICY)
+    progress = Progress(config, settings, target)
+    callbacks = [checkpointer, RolloutMetrics(), progress, *curriculum_callbacks(config, settings)]
     start = time.perf_counter()
     status, imitating = 0, False
     try:
-        if "imitate" in hp:  # a resumed run's warm-up goes on frozen where it stopped
+        if settings.imitate is not None:  # a resumed run's warm-up goes on frozen where it stopped
             from capture_bench.training.common.imitation import FrozenActor
 
-            callbacks.append(FrozenActor(hp["imitation_warmup"]))
-        imitating = checkpoint is None and "imitate" in hp
+            callbacks.append(FrozenActor(settings.imitation_warmup))
+        imitating = checkpoint is None and settings.imitate is not None
         if imitating:
-            done = imitate(config, hp, model, venv, progress)
+            done = imitate(config, settings, model, venv, progress)
             atomic_write(run_dir / IMITATION_FILE, json.dumps(done, indent=2).encode())
             imitating = False
             progress.validate_at_start = True  # the imitated policy's validation, at step 0
@@ -616,7 +622,7 @@ def train(config: TrainConfig, hp: dict, run_dir: Path, checkpoint: Path | None)
     checkpointer.save(model)
     wall = time.perf_counter() - start
     total_wall = add_wall_time(run_dir, wall)
-    save_final(model, config, hp, run_dir, total_wall)
+    save_final(model, config, settings, run_dir, total_wall)
     print(f"done: {model.num_timesteps} steps in {wall:.0f} s; model: {run_dir / 'policy.pt'}")
     return 0
 
@@ -634,7 +640,7 @@ def add_wall_time(run_dir: Path, seconds: float) -> float:
 def save_final(
     model: Any,
     config: TrainConfig,
-    hp: dict,
+    settings: TrainingSettings,
     run_dir: Path,
     total_wall: float,
 ) -> None:
@@ -648,5 +654,5 @@ def save_final(
     )
 
     save_sb3_files(run_dir, model)
-    metadata = policy_metadata(model, config, hp, total_wall, sb3_files=True)
+    metadata = policy_metadata(model, config, settings, total_wall, sb3_files=True)
     export_policy(run_dir, model, metadata)

@@ -3,7 +3,9 @@
 An unknown key or a bad value raises [`ConfigError`][capture_bench.task.scenarios.ConfigError]
 naming the
 file, the key, the value and what is valid; `sb3_kwargs` turns a validated mapping into the
-SB3 algorithm's constructor arguments. No SB3 or torch import happens at module level.
+SB3 algorithm's constructor arguments. The training jobs pass the validated mapping on as
+[`TrainingSettings`][capture_bench.training.config.settings.TrainingSettings], whose helpers
+call the functions here. No SB3 or torch import happens at module level.
 """
 
 from __future__ import annotations

@@ -42,8 +42,8 @@ from capture_bench.training.config.hyperparameters import (
     ALGORITHMS,
     OFF_POLICY,
     SB3_N_STEPS,
-    resolve_hyperparameters,
 )
+from capture_bench.training.config.settings import resolve_settings
 from capture_bench.training.seeds import check_training_seed
 from capture_bench.training.tune.options import Setup, TuneConfig
 from capture_bench.training.tune.outputs import OUTPUT_FILES, redacted, write_outputs
@@ -97,9 +97,10 @@ def prepare(config: TuneConfig, given: set[str] | None = None) -> Setup:
     if config.algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {config.algo!r}; valid: {', '.join(ALGORITHMS)}")
     scenario = load_scenario(config.scenario)
-    base, base_path, _ = resolve_hyperparameters(config.algo, scenario, config.config)
-    check_shaping(base)
-    check_curricula(base, scenario)
+    settings, base_path, _ = resolve_settings(config.algo, scenario, config.config)
+    check_shaping(settings.reward, settings.gamma)
+    check_curricula(settings, scenario)
+    base = settings.to_mapping()
     if config.algo not in SAMPLERS:
         raise ConfigError(
             f"--algo {config.algo}: no search space for it in capture_bench/training/"

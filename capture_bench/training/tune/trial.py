@@ -7,6 +7,7 @@ Imports Stable-Baselines3 at module level: import this module only where trainin
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -21,12 +22,9 @@ from capture_bench.training.common.build import (
     close_envs,
     curriculum_callbacks,
 )
-from capture_bench.training.config.hyperparameters import (
-    CURRICULA,
-    planned_steps,
-    validate_hyperparameters,
-)
+from capture_bench.training.config.hyperparameters import CURRICULA
 from capture_bench.training.config.options import TrainConfig
+from capture_bench.training.config.settings import TrainingSettings
 from capture_bench.training.tune.options import Setup
 from capture_bench.training.tune.search_spaces import merge, sample
 
@@ -99,7 +97,7 @@ class TrialValidation(BaseCallback):
         return not self.pruned
 
 
-def trial_hyperparameters(trial: Any, setup: Setup) -> dict[str, Any]:
+def trial_hyperparameters(trial: Any, setup: Setup) -> TrainingSettings:
     """The ``trial``'s sample merged over the base hyper-parameters, with the tuning budget and
     validation schedule, validated like a config file. A curriculum without ``curriculum_steps``
     moves over half the budget, as in ``train.py``."""
@@ -114,7 +112,7 @@ def trial_hyperparameters(trial: Any, setup: Setup) -> dict[str, Any]:
         base.setdefault("curriculum_steps", max(1, setup.budget // 2))
     sampled = sample(trial, setup.config.algo, setup.budget, setup.keep)
     source = f"trial {trial.number} of study {setup.study_name!r}"
-    return validate_hyperparameters(merge(base, sampled), setup.config.algo, source)
+    return TrainingSettings.from_mapping(merge(base, sampled), setup.config.algo, source)
 
 
 def run_trial(trial: Any, setup: Setup) -> float:
@@ -124,9 +122,9 @@ def run_trial(trial: Any, setup: Setup) -> float:
         optuna.TrialPruned: the median pruner stopped it, or training diverged (SB3 raises
             ValueError on NaN actions, as the Zoo prunes those too).
     """
-    hp = trial_hyperparameters(trial, setup)
+    settings = trial_hyperparameters(trial, setup)
     for key, value in (
-        ("hyperparameters", hp),
+        ("hyperparameters", settings.to_mapping()),
         ("n_timesteps", setup.budget),
         ("eval_episodes", setup.eval_episodes),
     ):
@@ -135,23 +133,24 @@ def run_trial(trial: Any, setup: Setup) -> float:
         algo=setup.config.algo,
         scenario=setup.config.scenario,
         total_timesteps=setup.budget,
-        n_envs=hp["n_envs"],
+        n_envs=settings.n_envs,
         vec_env=setup.config.vec_env,
         seed=setup.config.seed,
         observation_source=setup.scenario.estimator.source,
     )
-    venv = build_venv(config, hp)
-    progress = Progress(config, {**hp, "eval_freq": 0}, planned_steps(setup.config.algo, hp))
+    venv = build_venv(config, settings)
+    unvalidated = dataclasses.replace(settings, eval_freq=0)  # TrialValidation validates
+    progress = Progress(config, unvalidated, settings.planned_steps())
     validation = TrialValidation(
         trial, progress, setup.every, setup.config.n_evaluations, setup.eval_episodes
     )
     interrupted = False
     try:
-        model = build_model(config, hp, venv, tensorboard_log=None)
+        model = build_model(config, settings, venv, tensorboard_log=None)
         # A logger that writes nothing: SB3's default makes an empty folder in the temp
         # directory for every trial.
         model.set_logger(Logger(None, []))
-        callbacks = [progress, validation, *curriculum_callbacks(config, hp)]
+        callbacks = [progress, validation, *curriculum_callbacks(config, settings)]
         model.learn(total_timesteps=setup.budget, callback=callbacks)
     except KeyboardInterrupt:  # Optuna records the trial as failed and re-raises it
         interrupted = True

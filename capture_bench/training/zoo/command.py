@@ -66,8 +66,8 @@ from capture_bench.training.config.hyperparameters import (
     ACTIVATIONS,
     ALGO_KEYS,
     ALGORITHMS,
-    resolve_hyperparameters,
 )
+from capture_bench.training.config.settings import TrainingSettings, resolve_settings
 
 PROG = "python -m capture_bench zoo-hyperparams"
 ZOO_DIR = CONFIG_DIR / "zoo"
@@ -124,53 +124,53 @@ def _expression(value: Any) -> str:
     return repr(value)
 
 
-def zoo_entry(algo: str, hp: dict[str, Any], scenario: Scenario, source: str) -> dict[str, Any]:
-    """One env ID's entry of the Zoo's file: ``hp`` (resolved for ``scenario``, read from
+def zoo_entry(settings: TrainingSettings, scenario: Scenario, source: str) -> dict[str, Any]:
+    """One env ID's entry of the Zoo's file: ``settings`` (resolved for ``scenario``, read from
     ``source``) in the Zoo's keys (module docstring).
 
     Raises:
-        ConfigError: ``hp`` holds a setting the Zoo's entry cannot carry.
+        ConfigError: ``settings`` holds a setting the Zoo's entry cannot carry.
     """
     from capture_bench.training import callbacks
     from capture_bench.training.seeds import TrainingSeeds
 
-    if hp["residual"] != "none":
+    if settings.residual != "none":
         raise ConfigError(
-            f"{source}: residual {hp['residual']!r} cannot go into an RL Zoo file: the policy "
+            f"{source}: residual {settings.residual!r} cannot go into an RL Zoo file: the policy "
             "acts through capture_bench's ResidualVecEnv, which needs the task's description, "
             "and the Zoo builds a vec env wrapper from keyword arguments only; train it with "
             "train.py, or set residual: none"
         )
-    if hp["policy"] != "MlpPolicy" or "image_size" in hp:
+    if settings.policy != "MlpPolicy" or settings.image_size is not None:
         raise ConfigError(
-            f"{source}: pixel observations (policy {hp['policy']}, image_size) cannot go into "
+            f"{source}: pixel observations (policy {settings.policy}, image_size) cannot go into "
             "an RL Zoo file: the Zoo builds its evaluation env without the file's env_kwargs, "
             "so it would see the estimate; train pixels with train.py"
         )
     entry: dict[str, Any] = {
-        "n_envs": hp["n_envs"],
-        "n_timesteps": hp["total_timesteps"],
-        "policy": hp["policy"],
-        "normalize": hp["normalize"],
+        "n_envs": settings.n_envs,
+        "n_timesteps": settings.total_timesteps,
+        "policy": settings.policy,
+        "normalize": settings.normalize,
         "env_wrapper": class_path(TrainingSeeds),
-        "env_kwargs": {"reward": hp["reward"]},
+        "env_kwargs": {"reward": settings.reward},
         "monitor_kwargs": MONITOR_KWARGS,
         "callback": [
             class_path(callbacks.RolloutMetrics),
             *(
                 {class_path(getattr(callbacks, name)): kwargs}
-                for name, kwargs in curricula(hp, scenario).items()
+                for name, kwargs in curricula(settings, scenario).items()
             ),
         ],
     }
-    for key, value in hp.items():
+    for key, value in settings.to_mapping().items():
         if key == "action_noise_std":
             if value:  # 0: no noise, as sb3_kwargs
                 entry |= {"noise_type": "normal", "noise_std": value}
-        elif key in ALGO_KEYS[algo]:
+        elif key in ALGO_KEYS[settings.algo]:
             entry[key] = value
-    if hp["policy_kwargs"]:
-        entry["policy_kwargs"] = policy_kwargs_expression(hp["policy_kwargs"])
+    if settings.policy_kwargs:
+        entry["policy_kwargs"] = policy_kwargs_expression(dict(settings.policy_kwargs))
     return entry
 
 
@@ -198,13 +198,13 @@ def zoo_file(algo: str) -> str:
     ]
     for name in list_scenarios():
         scenario = load_scenario(name)
-        hp, _, origin = resolve_hyperparameters(algo, scenario)
+        resolved, _, origin = resolve_settings(algo, scenario)
         source = ours + (f" (section {origin['section']})" if origin["section"] else "")
-        fill_curriculum_steps(hp)
-        check_shaping(hp)
-        check_curricula(hp, scenario)
-        entry = zoo_entry(algo, hp, scenario, source)
-        options = " ".join(f"{flag} {hp[key]}" for key, flag in ZOO_OPTIONS.items())
+        settings = fill_curriculum_steps(resolved)
+        check_shaping(settings.reward, settings.gamma)
+        check_curricula(settings, scenario)
+        entry = zoo_entry(settings, scenario, source)
+        options = " ".join(f"{flag} {getattr(settings, key)}" for key, flag in ZOO_OPTIONS.items())
         chunks.append(f"\n# {name}: {source}; as the Zoo's options: {options}\n")
         chunks.append(
             yaml.safe_dump(  # width: no line folded inside a policy_kwargs string
