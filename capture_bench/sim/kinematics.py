@@ -87,9 +87,11 @@ class ArmPose(NamedTuple):
 def arm_pose(theta: ArrayLike) -> ArmPose:
     """`ArmPose` of joint angles ``theta``, rad, shape (3,) or (M, 3) (X_E: eq. 8)."""
     q = np.asarray(theta, dtype=float)
-    t1, t2, t23 = q[..., 0], q[..., 1], q[..., 1] + q[..., 2]
-    cos1, sin1, cos2, sin2 = np.cos(t1), np.sin(t1), np.cos(t2), np.sin(t2)
-    cos23, sin23 = np.cos(t23), np.sin(t23)
+    angles = q.copy()  # theta_1, theta_2, theta_2 + theta_3: one sine and one cosine call
+    angles[..., 2] += q[..., 1]
+    cos, sin = np.cos(angles), np.sin(angles)
+    cos1, cos2, cos23 = cos[..., 0], cos[..., 1], cos[..., 2]
+    sin1, sin2, sin23 = sin[..., 0], sin[..., 1], sin[..., 2]
     r = L1 * cos2 + L2 * sin23
     out = np.empty(q.shape)
     out[..., 0] = r * cos1
