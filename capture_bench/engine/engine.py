@@ -124,11 +124,6 @@ class EpisodeEngine:
             self._imager, self.state, slice(None), position, rotation, dt
         )
 
-    def now(self, name: str) -> NDArray:
-        """Track ``name`` of every row at its current step, (N, ...)."""
-        rows, k = self._now()
-        return self.tracks[name][rows, k]
-
     def _now(self) -> tuple[Rows, Steps]:
         """Every row and its current step (for one row, a slice and a step: views)."""
         if self.n == 1:

@@ -32,7 +32,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench.engine.cache import EpisodeCache
+from capture_bench.engine.cache import EpisodeCache, EpisodeKey
 from capture_bench.engine.task import CaptureTask
 from capture_bench.engine.tracks import Tracks
 from capture_bench.sensing.estimator import TargetEstimator
@@ -40,6 +40,7 @@ from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, Filter
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
 from capture_bench.task.episode import draw_plans
 from capture_bench.task.recording import RecordedEpisode, estimate_errors, record_episodes
+from capture_bench.task.scenarios import Scenario
 from capture_bench.task.target_side import TargetSide
 
 FloatArray = NDArray[np.float64]
@@ -63,6 +64,10 @@ class EpisodeDraw(NamedTuple):
 
     seed: int | None
     rng: np.random.Generator
+
+    def key(self, scenario: Scenario) -> EpisodeKey | None:
+        """Where the episode of ``scenario`` is kept: (scenario, seed), None if unseeded."""
+        return None if self.seed is None else (scenario, self.seed)
 
 
 class ArmMotion(NamedTuple):
@@ -144,11 +149,12 @@ class RecordedSides:
         (one by one as the single env records them with ``reference``), and kept by seed; each
         bounded (with ``reference`` the bound is the plan's, kept by seed in the cache)."""
         task = self.task
+        keys = [draw.key(task.scenario) for draw in draws]
         found: list[RecordedEpisode | None] = []
-        for seed, rng in draws:
-            hit = None if seed is None else self.cache.recording((task.scenario, seed))
+        for key, draw in zip(keys, draws, strict=True):
+            hit = None if key is None else self.cache.recording(key)
             if hit is not None:
-                rng.bit_generator.state = hit[1]
+                draw.rng.bit_generator.state = hit[1]
             found.append(None if hit is None else hit[0])
         missing = [j for j, episode in enumerate(found) if episode is None]
         rngs = [draws[j].rng for j in missing]
@@ -167,15 +173,15 @@ class RecordedSides:
             )
         for j, episode in zip(missing, recorded, strict=True):
             found[j] = episode
-            seed, rng = draws[j]
-            if seed is not None:
-                self.cache.keep_recording((task.scenario, seed), episode, rng.bit_generator.state)
-        episodes = [episode for episode in found if episode is not None]
-        for episode, (seed, _) in zip(episodes, draws, strict=True):
+            if (key := keys[j]) is not None:
+                self.cache.keep_recording(key, episode, draws[j].rng.bit_generator.state)
+        episodes: list[RecordedEpisode | EpisodeDraw] = []
+        for key, episode in zip(keys, found, strict=True):
+            assert episode is not None  # found in the cache or recorded now
             if episode.bound is None:  # recorded as the single env records: kept by seed
-                key = None if seed is None else (task.scenario, seed)
                 episode.bound = self.cache.bound_of(key, episode.plan, task.description)
-        return list(episodes)
+            episodes.append(episode)
+        return episodes
 
     def _record_as_single_env(self, rngs: Sequence[np.random.Generator]) -> list[RecordedEpisode]:
         """The next episode of each generator recorded as ``CaptureEnv(reuse_target_side=True)``
@@ -215,9 +221,11 @@ class RecordedSides:
 
     def advance(self, rows: Rows, k: Steps, arm: ArmMotion, tracks: Tracks) -> None:
         """The live filter's rows (recorded rows are in the tracks already)."""
+        if self._ekf is None:
+            return
         if isinstance(rows, slice):
             rows, k = np.zeros(1, dtype=np.intp), np.array([k])
-        if self._ekf is not None and rows.size:
+        if rows.size:
             live = k >= self._live_from[rows]
             if live.any():
                 self._estimate(rows[live], k[live], tracks)
@@ -344,16 +352,16 @@ class RenderedSides(LiveSides):
         task = self.task
         for draw, episode in zip(prepared, episodes, strict=True):
             assert isinstance(draw, EpisodeDraw)
-            key = None if draw.seed is None else (task.scenario, draw.seed)
-            episode.bound = self.cache.bound_of(key, episode.plan, task.description)
+            episode.bound = self.cache.bound_of(
+                draw.key(task.scenario), episode.plan, task.description
+            )
         return episodes
 
     def _draw(self, i: int, draw: EpisodeDraw) -> TargetSide:
         assert self.camera is not None
         task = self.task
-        store = None
-        if self.keep_frames and draw.seed is not None:
-            store = self.cache.scene_frames((task.scenario, draw.seed))
+        key = draw.key(task.scenario)
+        store = None if key is None or not self.keep_frames else self.cache.scene_frames(key)
         return TargetSide.draw(
             task.scenario, self.camera, self.estimators[i], task.features, draw.rng, store
         )

@@ -337,8 +337,8 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
         super().reset(seed=seed)
         self._closed = False
         engine = self.engine
-        self._key = None if seed is None else (self.scenario, int(seed))
         draw = EpisodeDraw(None if seed is None else int(seed), self.np_random)
+        self._key = draw.key(self.scenario)
         info = scalar_info(engine.begin(_ROW, engine.prepare([draw])))
         self._time = 0.0
         episode = engine.episodes[0]
