@@ -1,4 +1,5 @@
-"""Microseconds per vision operation: camera capture, EKF predict+update, photogrammetry.
+"""Microseconds per vision operation: camera capture, the one-row estimator's step per source
+(`TargetEstimator(1).update`), its parts, photogrammetry.
 
 Usage::
 
@@ -17,14 +18,11 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
 from capture_bench.sensing import photogrammetry
 from capture_bench.sensing.camera import Camera, CameraModel
-from capture_bench.sensing.ekf import TargetEKF
 from capture_bench.sensing.estimator import TargetEstimator
-from capture_bench.sensing.lean_ekf import LeanExtendedKalmanFilter
-from capture_bench.sensing.photogrammetry import project_pose, projection_table, solve_pose
+from capture_bench.sensing.photogrammetry import project_poses, projection_table, solve_pose
 from capture_bench.sensing.sources import SOURCES
 from capture_bench.sim.rotations import euler_to_matrix
 
@@ -65,25 +63,21 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
     first = solve_pose(images[0], FEATURES, f)
     rows = []
 
-    def ekf_steps() -> int:
-        ekf = TargetEKF(FEATURES, f, cam.pixel_pitch)
-        ekf.initialise(first.pose)
-        for z in images[1:]:
-            ekf.predict(DT)
-            ekf.update(z)
-        return steps - 1
+    stack = np.array(images)[:, None]  # (steps, 1, N, 2): one row's frames
+    no_frame = np.full_like(stack[0], np.nan)
+    dt = np.full(1, DT)
 
     def ekf_predict_only() -> int:
-        ekf = TargetEKF(FEATURES, f, cam.pixel_pitch)
-        ekf.initialise(first.pose)
+        est = TargetEstimator(1, cam, FEATURES)
+        est.update(stack[0], dt)  # initialised by photogrammetry
         for _ in range(steps):
-            ekf.predict(DT)
+            est.update(no_frame, dt)
         return steps
 
     def h_and_jacobian() -> int:
-        x, table = first.pose.tolist(), projection_table(FEATURES, f)
+        x, table, one = first.pose[None], projection_table(FEATURES, f), np.ones(1, dtype=bool)
         for _ in range(steps):
-            project_pose(x, table)
+            project_poses(x, table, 0.0, one)
         return steps
 
     r_gt = euler_to_matrix([0.2, 0.1, -0.3])
@@ -96,23 +90,12 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
             sensor.capture(state, p, rng)
         return steps
 
-    def update_floor(filter_class: type) -> Callable[[], int]:
-        def run() -> int:
-            kf = filter_class(12, 8)
-            kf.x, kf.P, kf.R = np.zeros(12), np.eye(12), np.eye(8) * 1e-11
-            h_mat, hx, z = np.full((8, 12), 1e-3), np.zeros(8), np.zeros(8)
-            for _ in range(steps):
-                kf.update(z, lambda _x: h_mat, lambda _x: hx)
-            return steps
-
-        return run
-
     def estimator_steps(source: str) -> Callable[[], int]:
         def run() -> int:
-            est = TargetEstimator(cam, FEATURES, source=source)
-            zero = np.zeros(3)
-            for frame, p in zip(frames, pos, strict=True):
-                est.update(frame, DT, p, zero)
+            est = TargetEstimator(1, cam, FEATURES, source=source)
+            zero = np.zeros((1, 3))
+            for image, p in zip(stack, pos, strict=True):
+                est.update(image, dt, None, (p[None], zero))
             return steps
 
         return run
@@ -132,25 +115,15 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
     rows.append(
         ("Camera.capture (4 points, noise, 5% drop-out)", best_us(camera_captures, repeats))
     )
-    rows.append(("EKF predict + update (TargetEKF)", best_us(ekf_steps, repeats)))
-    rows.append(("  of which predict", best_us(ekf_predict_only, repeats)))
-    rows.append(("  of which h(X) and H (project_pose)", best_us(h_and_jacobian, repeats)))
-    rows.append(
-        (
-            "  LeanExtendedKalmanFilter.update alone (constant H, h)",
-            best_us(update_floor(LeanExtendedKalmanFilter), repeats),
-        )
-    )
-    rows.append(
-        (
-            "  filterpy's ExtendedKalmanFilter.update, same",
-            best_us(update_floor(ExtendedKalmanFilter), repeats),
-        )
-    )
     for source in SOURCES:
         rows.append(
-            (f"TargetEstimator.update, source={source}", best_us(estimator_steps(source), repeats))
+            (
+                f"TargetEstimator(1).update, source={source}",
+                best_us(estimator_steps(source), repeats),
+            )
         )
+    rows.append(("  ekf without a frame (predict only)", best_us(ekf_predict_only, repeats)))
+    rows.append(("  h(X) and H of one pose (project_poses)", best_us(h_and_jacobian, repeats)))
     rows.append(("solve_pose warm (previous solution)", best_us(photogrammetry_warm, repeats)))
     rows.append(("solve_pose cold (24 starts)", best_us(photogrammetry_cold, repeats)))
     return rows

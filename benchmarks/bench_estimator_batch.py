@@ -1,4 +1,4 @@
-"""Microseconds per env per update of BatchedTargetEstimator, against one TargetEstimator.
+"""Microseconds per env per update of TargetEstimator(n), for each n of ``--sizes``.
 
 Usage::
 
@@ -8,9 +8,11 @@ Usage::
 The scene is ``bench_estimator.py``'s: camera ~1.2 m from a target circling at 1.5 cm/s, 1 px noise,
 0.05 s period, every frame delivered; each env has its own noise seed. The first update (the cold
 photogrammetry that initialises every filter) is not timed: the figures are steady predict+update
-steps. Each figure is the best of ``--repeats`` timed runs of ``--steps`` updates (consecutive
-frames), divided by steps x envs. ``--clock cpu`` times the process's CPU time instead of the wall
-clock (steadier on a machine shared with other work; set ``OPENBLAS_NUM_THREADS=1`` for one core).
+steps. At n = 1 without a mask the estimator takes its one-row path; the row "with an active
+mask" times the same filter through the path of many rows. Each figure is the best of
+``--repeats`` timed runs of ``--steps`` updates (consecutive frames), divided by steps x envs.
+``--clock cpu`` times the process's CPU time instead of the wall clock (steadier on a machine
+shared with other work; set ``OPENBLAS_NUM_THREADS=1`` for one core).
 """
 
 from __future__ import annotations
@@ -27,7 +29,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_estimator import DT, FEATURES, make_frames  # noqa: E402
 
 from capture_bench.sensing.estimator import TargetEstimator  # noqa: E402
-from capture_bench.sensing.estimator_batch import BatchedTargetEstimator  # noqa: E402
 
 
 def measure(
@@ -42,33 +43,23 @@ def measure(
         images[:, i] = [f.image_points for f in frames]
     assert cam is not None and np.isfinite(images).all()
     rows = []
-
-    single = TargetEstimator(cam, FEATURES, source="ekf")
-    zero = np.zeros(3)
-    frames = make_frames(n_frames, seed)[1]
-    single.update(frames[0], DT, zero, zero)
-    best = float("inf")
-    for r in range(repeats):
-        t0 = clock()
-        for frame in frames[1 + r * steps : 1 + (r + 1) * steps]:
-            single.update(frame, DT, zero, zero)
-        best = min(best, (clock() - t0) / steps * 1e6)
-    rows.append(("TargetEstimator.update (one env, for reference)", best))
-
-    for n in sizes:
-        batch = BatchedTargetEstimator(n, cam, FEATURES)
+    runs = [(n, None, f"TargetEstimator(n).update, n = {n}, per env") for n in sizes]
+    runs = [(n, None, f"{name} (the one-row path)" if n == 1 else name) for n, _, name in runs]
+    runs.append((1, np.ones(1, dtype=bool), "TargetEstimator(1).update with an active mask"))
+    for n, active, name in runs:
+        estimator = TargetEstimator(n, cam, FEATURES)
         dt = np.full(n, DT)
         z = np.ascontiguousarray(images[:, :n])
-        out = batch.update(z[0], dt)  # cold photogrammetry: not timed
+        out = estimator.update(z[0], dt, active)  # cold photogrammetry: not timed
         assert out.valid.all()
         best = float("inf")
         for r in range(repeats):
             t0 = clock()
             for k in range(1 + r * steps, 1 + (r + 1) * steps):
-                out = batch.update(z[k], dt)
+                out = estimator.update(z[k], dt, active)
             best = min(best, (clock() - t0) / (steps * n) * 1e6)
         assert (out.status == 0).all()  # every env "ok" throughout
-        rows.append((f"BatchedTargetEstimator.update, n = {n}, per env", best))
+        rows.append((name, best))
     return rows
 
 

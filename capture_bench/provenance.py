@@ -21,7 +21,6 @@ PACKAGES = (
     "scipy",
     "gymnasium",
     "pybullet",
-    "filterpy",
     "stable-baselines3",
     "torch",
     "matplotlib",

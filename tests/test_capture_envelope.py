@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from references.relative_velocities_einsum import relative_velocities as einsum_velocities
 
 from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.evaluation.running.rollout import run_episode
-from capture_bench.sim.kinematics import forward_kinematics
+from capture_bench.sim.kinematics import JOINT_LOWER, JOINT_UPPER, arm_pose, forward_kinematics
 from capture_bench.task.capture import (
     VELOCITY_RESOLUTION,
     intersect,
@@ -40,8 +41,23 @@ def test_the_relative_velocity_along_an_arc_is_the_derivative_of_forward_kinemat
     # X_E(t0 + s dt) by forward kinematics, differentiated in time by central differences
     ahead, behind = (forward_kinematics(theta0 + (s + d) * delta) for d in (h, -h))
     finite = (ahead - behind) / (2 * h * dt) - xdot_t
-    exact = relative_velocities((theta0 + s * delta)[None], (delta / dt)[None], xdot_t[None])[0]
+    pose = arm_pose((theta0 + s * delta)[None])
+    exact = relative_velocities(pose, (delta / dt)[None], xdot_t[None])[0]
     np.testing.assert_allclose(exact, finite, atol=1e-7)
+
+
+def test_the_relative_velocity_is_the_jacobian_times_the_joint_rates_minus_the_target_velocity():
+    """The multiplied-out entries against the matrix product with eq. 9's Jacobian, over joint
+    angles inside and well outside the limits."""
+    rng = np.random.default_rng(7)
+    n = 2000
+    theta = rng.uniform(JOINT_LOWER - 1.0, JOINT_UPPER + 1.0, (n, 3))
+    rates = rng.uniform(-1.0, 1.0, (n, 3)) * rng.choice([1e-3, 0.4, 10.0], (n, 1))
+    xdot_t = rng.normal(0.0, 0.5, (n, 3))
+    ours = relative_velocities(arm_pose(theta), rates, xdot_t)
+    reference = einsum_velocities(theta, rates, xdot_t)
+    relative = np.abs(ours - reference).max(axis=1) / np.linalg.norm(reference, axis=1)
+    assert relative.max() < 1e-12
 
 
 @pytest.mark.parametrize("seed", range(50))
@@ -65,7 +81,9 @@ def test_slow_intervals_along_an_arc_match_a_brute_force(seed):
     s = np.linspace(0.0, 1.0, 4001)
     theta = theta0[None] + s[:, None] * delta[None]
     speed = np.linalg.norm(
-        relative_velocities(theta, np.tile(delta / dt, (s.size, 1)), target_velocity_at(s)),
+        relative_velocities(
+            arm_pose(theta), np.tile(delta / dt, (s.size, 1)), target_velocity_at(s)
+        ),
         axis=1,
     )
     v_max = float(np.quantile(speed, rng.uniform(0.2, 0.8)))

@@ -411,12 +411,16 @@ def test_making_and_resetting_an_env_prints_nothing():
 
 
 def test_nees_is_the_quadratic_form_by_solve_and_nan_without_positive_definite_covariance():
-    from capture_bench.sensing.estimator import normalised_error_squared
+    from capture_bench.task.recording import estimate_errors
 
     rng = np.random.default_rng(0)
-    for _ in range(50):
-        a = rng.normal(size=(6, 6))
-        cov, e = a @ a.T + 0.1 * np.eye(6), rng.normal(size=6)
-        expected = e @ np.linalg.solve(cov, e)
-        assert normalised_error_squared(e, cov) == pytest.approx(expected, rel=1e-9)
-    assert np.isnan(normalised_error_squared(np.ones(6), -np.eye(6)))
+    a = rng.normal(size=(50, 6, 6))
+    cov = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(6)
+    e = rng.normal(size=(50, 6))
+    cov[7] = -np.eye(6)  # not positive definite
+    zero, valid = np.zeros((50, 3)), np.ones(50, dtype=bool)
+    *_, nees = estimate_errors(e[:, :3], e[:, 3:], cov, valid, zero, zero)
+    expected = np.einsum("ki,ki->k", e, np.linalg.solve(cov, e[:, :, None])[:, :, 0])
+    keep = np.arange(50) != 7
+    np.testing.assert_allclose(nees[keep], expected[keep], rtol=1e-9)
+    assert np.isnan(nees[7])

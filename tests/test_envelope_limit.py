@@ -50,7 +50,7 @@ def _sampled_reach(goal, tolerance, lo, hi, n: int = 11) -> bool:
     """Some point of a grid of eq. 20's box (n per axis) has an IK solution in [lo, hi]."""
     g = np.linspace(-1.0, 1.0, n)
     points = goal + np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3) * tolerance
-    solutions = k.inverse_kinematics_batch(points)
+    solutions = k.inverse_kinematics(points)
     return bool(np.all((solutions >= lo) & (solutions <= hi), axis=2).any())
 
 

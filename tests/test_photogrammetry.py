@@ -147,6 +147,31 @@ def test_cold_solutions_are_memoised_by_exact_image():
     assert not np.array_equal(solve_pose(nudged, NON_COPLANAR, F).pose, fresh.pose)
 
 
+def test_primed_cold_solves_are_the_solves_of_each_image_alone():
+    """cold_solves keeps the batch's solution of each image; solve_pose then returns it,
+    equal to a fresh solve of that image alone (to rounding on any machine), and the memo
+    grows by the images not yet kept."""
+    from capture_bench.sensing import photogrammetry
+
+    rng = np.random.default_rng(30)
+    poses = [random_pose(rng)[0] for _ in range(4)]
+    images = np.stack(
+        [image_of(pose, NON_COPLANAR) + rng.normal(scale=PITCH, size=(4, 2)) for pose in poses]
+    )
+    photogrammetry.clear_solve_cache()
+    photogrammetry.cold_solves(images, NON_COPLANAR, F)
+    assert photogrammetry.solve_cache_size()[0] == 4
+    primed = [solve_pose(image, NON_COPLANAR, F) for image in images]
+    photogrammetry.cold_solves(images[:2], NON_COPLANAR, F)
+    assert photogrammetry.solve_cache_size()[0] == 4
+    photogrammetry.clear_solve_cache()
+    for image, kept, pose in zip(images, primed, poses, strict=True):
+        fresh = solve_pose(image, NON_COPLANAR, F)
+        np.testing.assert_allclose(kept.pose, fresh.pose, rtol=1e-9, atol=1e-12)
+        assert kept.converged == fresh.converged
+        assert kept.converged and np.linalg.norm(kept.pose[:3] - pose[:3]) < 0.05
+
+
 def test_shape_mismatch_raises():
     with pytest.raises(ValueError, match="image_points"):
         solve_pose(np.zeros((3, 2)), NON_COPLANAR, F)

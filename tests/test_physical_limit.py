@@ -26,7 +26,7 @@ ARGS = (k.HOME, k.JOINT_RATE_LIMITS, k.JOINT_LOWER, k.JOINT_UPPER, EPS)
 def brute_force_onset(traj, horizon, step=1e-3):
     """Earliest time on a fine grid with an exact IK solution inside the reachable box."""
     times = np.arange(0.0, horizon, step)
-    solutions = k.inverse_kinematics_batch(traj.position(times))
+    solutions = k.inverse_kinematics(traj.position(times))
     lo = np.maximum(k.JOINT_LOWER, k.HOME - np.outer(times, k.JOINT_RATE_LIMITS))[:, None]
     hi = np.minimum(k.JOINT_UPPER, k.HOME + np.outer(times, k.JOINT_RATE_LIMITS))[:, None]
     ok = np.all((solutions >= lo) & (solutions <= hi), axis=2).any(axis=1)
@@ -84,7 +84,8 @@ def test_nearest_in_box_against_a_brute_force_grid():
         axes = [np.linspace(lo[i], hi[i], 41) for i in range(3)]
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
         best = np.linalg.norm(k.forward_kinematics(grid) - goal, axis=1).min()
-        start = np.clip(k.inverse_kinematics(goal), lo, hi)
+        solutions = k.inverse_kinematics(goal)
+        start = np.clip(solutions[~np.isnan(solutions[:, 0])], lo, hi)
         q = nearest_in_box(
             start,
             np.tile(goal, (len(start), 1)),
@@ -245,7 +246,7 @@ def test_distance_lower_bound_never_exceeds_the_distance_to_a_dense_grid_of_the_
         nearest = np.linalg.norm(grid[None] - goals[:, None], axis=2).min(axis=1)
         bound = distance_lower_bound(
             goals,
-            k.inverse_kinematics_batch(goals),
+            k.inverse_kinematics(goals),
             np.tile(lo, (10, 1)),
             np.tile(hi, (10, 1)),
             np.inf,

@@ -18,10 +18,10 @@ from capture_bench.envs import capture_env
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.evaluation.reporting.aggregate import KNOWN_FAILURES
-from capture_bench.sensing.estimator import STATUSES, TargetEstimate
+from capture_bench.sensing.estimator import STATUSES
 from capture_bench.sim import kinematics
 from capture_bench.task.observation import encode_observation
-from capture_bench.task.recording import STEP_TRACKS, estimate_errors, estimate_errors_scalar
+from capture_bench.task.recording import STEP_TRACKS, estimate_errors
 from capture_bench.task.rewards import REWARD_MODES, REWARD_TERMS
 from capture_bench.task.step_rule import (
     BEFORE_TRACKS,
@@ -360,7 +360,9 @@ def test_the_observation_is_scaled_as_documented_and_a_batch_is_its_rows():
         )
 
 
-def test_estimate_errors_scalar_equals_the_batched_form():
+def test_estimate_errors_equal_the_scalar_reference_and_each_row_alone():
+    from references.scalar_estimator import TargetEstimate, estimate_errors_scalar
+
     rng = np.random.default_rng(3)
     n = 40
     pos, vel = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
@@ -376,6 +378,11 @@ def test_estimate_errors_scalar_equals_the_batched_form():
         estimate = TargetEstimate(pos[k], vel[k], covariance, bool(valid[k]), "ok")
         scalar = estimate_errors_scalar(estimate, true_pos[k], true_vel[k])
         np.testing.assert_allclose(scalar, [b[k] for b in batched], rtol=1e-12)
+        row = slice(k, k + 1)
+        alone = estimate_errors(
+            pos[row], vel[row], cov[row], valid[row], true_pos[row], true_vel[row]
+        )
+        np.testing.assert_array_equal([a[0] for a in alone], [b[k] for b in batched])
 
 
 def test_estimate_errors_against_hand_values_and_row_by_row():

@@ -1,98 +1,73 @@
-"""A target side recorded ahead (every step at once, many episodes together) is the one the
-live single env fills step by step: the same draws, the same numbers."""
+"""A live target side (`TargetSide`, a one-row estimator, filled step by step as the single env
+fills it) is the recording of the same generator ahead (`record_episodes`, every step at once,
+many episodes together): the same draws, the same numbers, every track, every row."""
 
 from __future__ import annotations
+
+from dataclasses import fields
 
 import numpy as np
 import pytest
 from gymnasium.utils import seeding
 
-from capture_bench.engine.task import scenario_camera
+from capture_bench.engine.task import CaptureTask
 from capture_bench.sensing import photogrammetry
 from capture_bench.sensing.estimator import TargetEstimator
-from capture_bench.task.recording import STEP_TRACKS
-from capture_bench.task.scenarios import list_scenarios, load_scenario
+from capture_bench.task.recording import RecordedEpisode, record_episodes
+from capture_bench.task.scenarios import list_scenarios
 from capture_bench.task.target_side import TargetSide
 
-FIELDS = (*STEP_TRACKS, "rotation", "images")  # every recorded track
-DISCRETE = ("visible", "estimate_valid", "estimator_status", "reachable")
+#: Every per-step track of a recording (not the plan, the bound or a continuation).
+TRACKS = tuple(
+    f.name for f in fields(RecordedEpisode) if f.name not in ("plan", "bound", "continuation")
+)
 
 
-def _sides(name: str, seeds: range) -> list[TargetSide]:
-    scenario = load_scenario(name)
-    camera, features = scenario_camera(scenario)
+def _live(task: CaptureTask, seeds: range, stretches: tuple[int, ...] = ()):
+    """Each seed drawn and filled before the next is drawn, as `LiveSides` draws them (one
+    one-row estimator, which each draw resets): filled through the steps ``stretches`` in turn,
+    then to the time limit. The episodes and the generators after them."""
+    sc = task.scenario
     estimator = TargetEstimator(
-        camera.model, features, source=scenario.estimator.source, **scenario.estimator_settings()
+        1, task.camera.model, task.features, source=sc.estimator.source, **sc.estimator_settings()
     )
-    return [
-        TargetSide.draw(scenario, camera, estimator, features, seeding.np_random(s)[0])
-        for s in seeds
-    ]
-
-
-def _step_by_step(name: str, seeds: range) -> list:
-    """Each seed drawn and filled before the next is drawn (they share the estimator, which a
-    draw resets), as the live single env plays them."""
-    out = []
+    episodes, rngs = [], []
     for seed in seeds:
-        (side,) = _sides(name, range(seed, seed + 1))
-        out.append(side.through(side.episode.time.size - 1))
-    return out
+        rng = seeding.np_random(seed)[0]
+        side = TargetSide.draw(sc, task.camera, estimator, task.features, rng)
+        for k in stretches:
+            side.through(k)
+            assert side.filled == k + 1
+        episodes.append(side.through(side.episode.time.size - 1))
+        assert side.complete
+        rngs.append(rng)
+    return episodes, rngs
 
 
 @pytest.mark.parametrize("name", list_scenarios())
-def test_recording_many_sides_equals_filling_each_step_by_step(name):
-    """Every field of every row, with the cold photogrammetry of the first frames solved as a
-    batch and then solved one by one. The true states and frames are bit for bit on any
-    machine; the estimates too where OpenBLAS rounds a stack of small solves as it rounds
-    each alone (this project's machines; to rounding elsewhere, see solve_pose_batch)."""
+def test_a_live_side_filled_step_by_step_is_the_recording_of_its_seed(name):
+    """Every track of every row bit for bit (true states, frames, estimates, errors, NEES,
+    reachability), with the cold photogrammetry solved one image at a time live and as a batch
+    in the recording; and each generator left in the same state."""
+    task = CaptureTask(name)
     seeds = range(2_000, 2_006)
     photogrammetry.clear_solve_cache()
-    expected = _step_by_step(name, seeds)
+    live, live_rngs = _live(task, seeds)
     photogrammetry.clear_solve_cache()
-    recorded = TargetSide.record_many(_sides(name, seeds))
-    for want, got in zip(expected, recorded, strict=True):
-        for field in FIELDS:
-            a, b = getattr(want, field), getattr(got, field)
-            if field in DISCRETE or field in ("time", "dt", "position", "velocity", "rotation"):
-                np.testing.assert_array_equal(b, a, err_msg=field)
-            else:
-                np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12, err_msg=field)
-    photogrammetry.clear_solve_cache()
-    (alone,) = [side.record_all() for side in _sides(name, range(2_000, 2_001))]
-    np.testing.assert_array_equal(alone.images, expected[0].images)
-    np.testing.assert_array_equal(alone.estimate_position, expected[0].estimate_position)
+    rngs = [seeding.np_random(s)[0] for s in seeds]
+    recorded = record_episodes(task.scenario, task.camera, task.features, task.description, rngs)
+    for want, got in zip(live, recorded, strict=True):
+        assert got.continuation is None and want.estimate_valid.any()
+        for track in TRACKS:
+            np.testing.assert_array_equal(getattr(got, track), getattr(want, track), track)
+    for a, b in zip(live_rngs, rngs, strict=True):
+        assert a.bit_generator.state == b.bit_generator.state
 
 
-def test_a_side_already_stepped_is_finished_step_by_step():
+def test_a_side_filled_in_stretches_is_the_side_filled_at_once():
     """A live side the env has filled part of keeps its rows and fills the rest in order."""
-    (full,) = _step_by_step("noisy", range(7, 8))
-    (side,) = _sides("noisy", range(7, 8))
-    side.through(5)
-    done = side.record_all()
-    for field in FIELDS:
-        np.testing.assert_array_equal(getattr(done, field), getattr(full, field), err_msg=field)
-
-
-def test_primed_cold_solves_are_the_solves_of_each_image_alone():
-    """cold_solves keeps the batch's solution of each image; solve_pose then returns it,
-    equal to a fresh solve of that image alone (to rounding on any machine), and the memo
-    grows by the images not yet kept."""
-    scenario = load_scenario("paper")
-    camera, features = scenario_camera(scenario)
-    sides = _sides("paper", range(30, 34))
-    for side in sides:
-        side._record_truth()
-    images = np.stack([side._first_frame() for side in sides])
-    f = camera.model.focal_length
-    photogrammetry.clear_solve_cache()
-    photogrammetry.cold_solves(images, features, f)
-    assert photogrammetry.solve_cache_size()[0] == 4
-    primed = [photogrammetry.solve_pose(image, features, f) for image in images]
-    photogrammetry.cold_solves(images[:2], features, f)
-    assert photogrammetry.solve_cache_size()[0] == 4
-    photogrammetry.clear_solve_cache()
-    for image, kept in zip(images, primed, strict=True):
-        fresh = photogrammetry.solve_pose(image, features, f)
-        np.testing.assert_allclose(kept.pose, fresh.pose, rtol=1e-9, atol=1e-12)
-        assert kept.converged == fresh.converged
+    task = CaptureTask("noisy")
+    (full,), _ = _live(task, range(7, 8))
+    (parts,), _ = _live(task, range(7, 8), stretches=(0, 5, 6, 30))
+    for track in TRACKS:
+        np.testing.assert_array_equal(getattr(parts, track), getattr(full, track), track)

@@ -294,8 +294,8 @@ def test_training_time_evaluation_uses_validation_seeds_only(tmp_path, monkeypat
 
 
 def test_a_batched_training_run_never_imports_filterpy(tmp_path):
-    """The batched env's estimator has the EKF's model but not filterpy's class, whose import
-    (scipy.stats with it, ~0.6 s) a training process would pay at start-up for nothing."""
+    """filterpy is the tests' reference filter only: a training process never imports it (nor
+    scipy.stats, which its import pulls in)."""
     import subprocess
     import sys
 

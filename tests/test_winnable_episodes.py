@@ -182,13 +182,11 @@ def test_the_single_env_plays_the_redrawn_episode_every_time(published, reuse_ta
     np.testing.assert_array_equal(sides[0].images[:1], sides[1].images[:1])
 
 
-@pytest.mark.parametrize("reference_target_side", [False, True])
-def test_the_vector_env_plays_the_single_envs_redrawn_episode_every_time(
-    published, reference_target_side
-):
-    """``CaptureVectorEnv.reset(seed=[...])`` twice, a redrawn seed and a kept one, recorded in a
-    batch or as the single env records: the kept plans, the single env's true states and
-    frames, the same bounds."""
+@pytest.mark.parametrize("shared_cache", [False, True])
+def test_the_vector_env_plays_the_single_envs_redrawn_episode_every_time(published, shared_cache):
+    """``CaptureVectorEnv.reset(seed=[...])`` twice, a redrawn seed and a kept one, in an env
+    with its own cache or a shared one: the kept plans, the single env's true states and frames,
+    the same bounds."""
     name, redrawn, unchanged = _redrawn_seed(published)
     draws = published[name]
     seeds = [redrawn, unchanged]
@@ -199,10 +197,8 @@ def test_the_vector_env_plays_the_single_envs_redrawn_episode_every_time(
         singles.append((env.recorded_episode, env.physical_limit()))
         env.close()
     for _ in range(2):
-        cache = EpisodeCache() if reference_target_side else None  # else its own, new
-        vec = CaptureVectorEnv(
-            2, name, reference_target_side=reference_target_side, episode_cache=cache
-        )
+        cache = EpisodeCache() if shared_cache else None  # else its own, new
+        vec = CaptureVectorEnv(2, name, episode_cache=cache)
         vec.reset(seed=seeds)
         for i, seed in enumerate(seeds):
             view = vec.sub_env(i)

@@ -182,7 +182,7 @@ class Oracle:
         or None."""
         arm = self.description.arm
         reach = arm.joint_rate_limits * min(dt, self.description.control_period)  # |action| <= 1
-        solutions = inverse_kinematics(goal)
+        solutions = _distinct_solutions(goal)
         if solutions.shape[0] == 0:
             return None
         ok = within_limits(solutions, arm.joint_lower, arm.joint_upper) & np.all(
@@ -224,7 +224,7 @@ class Oracle:
             lo = np.maximum(arm.joint_lower, arm.home - reach)
             hi = np.minimum(arm.joint_upper, arm.home + reach)
             goal = self._true_position(t_m)
-            starts = np.vstack((theta_star, inverse_kinematics(goal)))
+            starts = np.vstack((theta_star, _distinct_solutions(goal)))
             q = _nearest_in_box_about(starts, goal, LANDING_DEPTH * eps, eps, lo, hi)
             speed = APPROACH_SPEEDS[0] * float(self.v_max)
             misses = forward_kinematics(q) - goal
@@ -351,6 +351,14 @@ class Oracle:
         if episode_start is not None and bool(np.any(episode_start)):
             self.reset()
         return predict_each(self.act, observation), state
+
+
+def _distinct_solutions(goal: FloatArray) -> FloatArray:
+    """The distinct IK solutions of one point ``goal`` (3,), rad, (K, 3) with K in {0, 2, 4}:
+    `inverse_kinematics`'s without its NaN rows, rounded to 1e-15 rad, in lexicographic order
+    (the order ties between equally good solutions are broken in)."""
+    solutions = inverse_kinematics(goal)
+    return np.unique(np.round(solutions[~np.isnan(solutions[:, 0])], 15), axis=0)
 
 
 def _speed_bound(world: Any) -> float | None:

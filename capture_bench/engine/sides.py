@@ -11,8 +11,8 @@ fields). Three strategies:
   one batched filter, a row per episode, continues each recording from its first row
   (`LIVE_ESTIMATES_FROM`) one row per step played, so no filter runs past its episode's end;
   its numbers are the recording's of every row, bit for bit (a filter's rows do not depend on
-  the other rows of a call). ``reference=True`` records each episode as the single env does,
-  row by row with filterpy's filter (the stored references are those numbers).
+  the other rows of a call). With ``full_horizon`` (a cache shared between envs, as the
+  evaluation's) recordings estimate every row, so that a replay runs no filter.
 * `LiveSides`: each row computed when its step comes, drawing the camera's noise from the
   episode's generator then, as a plain gymnasium env does (the single env's default).
 * `RenderedSides`: the rendered camera's frames show the arm, so each row is computed when its
@@ -35,10 +35,8 @@ from numpy.typing import NDArray
 from capture_bench.engine.cache import EpisodeCache, EpisodeKey
 from capture_bench.engine.task import CaptureTask
 from capture_bench.engine.tracks import Tracks
-from capture_bench.sensing.estimator import TargetEstimator
-from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
+from capture_bench.sensing.estimator import FilterRows, TargetEstimator
 from capture_bench.sensing.scene_camera import RenderedSceneCamera, joint_path
-from capture_bench.task.episode import draw_plans
 from capture_bench.task.recording import RecordedEpisode, estimate_errors, record_episodes
 from capture_bench.task.scenarios import Scenario
 from capture_bench.task.target_side import TargetSide
@@ -53,8 +51,7 @@ Steps = NDArray[np.int64] | int
 #: 0's cold photogrammetry is batched over the recording's episodes); `RecordedSides`' own EKF
 #: continues each episode from there, one row per step played, so no filter runs past its
 #: episode's end (learned policies end most episodes long before the time limit the recording
-#: reaches). None: recordings estimate every row (the reference ``tests/test_vector_env.py``
-#: holds the live filter to, bit for bit).
+#: reaches).
 LIVE_ESTIMATES_FROM: int | None = 1
 
 
@@ -116,24 +113,20 @@ class RecordedSides:
         task: the task (scenario, camera, features, description).
         n: the number of rows.
         cache: where recordings of seeded episodes are kept and found again.
-        reference: record each episode as ``CaptureEnv`` does, row by row to the time limit
-            (filterpy's filter; the batched photogrammetry cold solves are the same).
+        full_horizon: recordings estimate every row to the time limit (where the cache is shared:
+            a replay then runs no filter); else the EKF continues each recording live, one row
+            per step played (`LIVE_ESTIMATES_FROM`). The same numbers either way.
     """
 
     ahead = True
 
-    def __init__(self, task: CaptureTask, n: int, cache: EpisodeCache, reference: bool) -> None:
+    def __init__(self, task: CaptureTask, n: int, cache: EpisodeCache, full_horizon: bool) -> None:
         sc = task.scenario
         self.task, self.cache = task, cache
-        self._reference: TargetEstimator | None = None
-        self._ekf: BatchedTargetEstimator | None = None
-        if reference:
-            self._reference = TargetEstimator(
-                task.camera.model, task.features, source=sc.estimator.source,
-                **sc.estimator_settings(),
-            )  # fmt: skip
-        elif sc.estimator.source == "ekf" and LIVE_ESTIMATES_FROM is not None:
-            self._ekf = BatchedTargetEstimator(
+        self._full_horizon = full_horizon
+        self._ekf: TargetEstimator | None = None
+        if sc.estimator.source == "ekf" and LIVE_ESTIMATES_FROM is not None:
+            self._ekf = TargetEstimator(
                 n, task.camera.model, task.features, **sc.estimator_settings()
             )
             self._images = np.full(
@@ -145,9 +138,8 @@ class RecordedSides:
 
     def prepare(self, draws: Sequence[EpisodeDraw]) -> list[RecordedEpisode | EpisodeDraw]:
         """The next episode of each draw: from the cache where its seed was recorded before (the
-        generator then set to its state after that recording), else recorded now, all together
-        (one by one as the single env records them with ``reference``), and kept by seed; each
-        bounded (with ``reference`` the bound is the plan's, kept by seed in the cache)."""
+        generator then set to its state after that recording), else recorded now, all together,
+        and kept by seed; each bounded."""
         task = self.task
         keys = [draw.key(task.scenario) for draw in draws]
         found: list[RecordedEpisode | None] = []
@@ -158,44 +150,25 @@ class RecordedSides:
             found.append(None if hit is None else hit[0])
         missing = [j for j, episode in enumerate(found) if episode is None]
         rngs = [draws[j].rng for j in missing]
-        if not missing:
-            recorded: list[RecordedEpisode] = []
-        elif self._reference is not None:
-            recorded = self._record_as_single_env(rngs)
-        else:
+        recorded: list[RecordedEpisode] = []
+        if missing:
             recorded = record_episodes(
                 task.scenario,
                 task.camera,
                 task.features,
                 task.description,
                 rngs,
-                estimated_steps=None if self._ekf is None else LIVE_ESTIMATES_FROM,
+                estimated_steps=None if self._full_horizon else LIVE_ESTIMATES_FROM,
             )
         for j, episode in zip(missing, recorded, strict=True):
             found[j] = episode
             if (key := keys[j]) is not None:
                 self.cache.keep_recording(key, episode, draws[j].rng.bit_generator.state)
         episodes: list[RecordedEpisode | EpisodeDraw] = []
-        for key, episode in zip(keys, found, strict=True):
+        for episode in found:
             assert episode is not None  # found in the cache or recorded now
-            if episode.bound is None:  # recorded as the single env records: kept by seed
-                episode.bound = self.cache.bound_of(key, episode.plan, task.description)
             episodes.append(episode)
         return episodes
-
-    def _record_as_single_env(self, rngs: Sequence[np.random.Generator]) -> list[RecordedEpisode]:
-        """The next episode of each generator recorded as ``CaptureEnv(reuse_target_side=True)``
-        records it (the same draws, the same code, bit for bit; the photogrammetry's cold
-        solves batched, `TargetSide.record_many`; the plans drawn together, `draw_plans`)."""
-        assert self._reference is not None
-        task = self.task
-        plans = draw_plans(task.scenario, task.camera.model, task.features, rngs)
-        return TargetSide.record_many(
-            [
-                TargetSide.live(plan, task.camera, self._reference, task.features, rng)
-                for plan, rng in zip(plans, rngs, strict=True)
-            ]
-        )
 
     def begin(
         self, rows: Sequence[int], prepared: Sequence[RecordedEpisode | EpisodeDraw], tracks: Tracks
@@ -204,7 +177,7 @@ class RecordedSides:
         episodes = []
         for i, episode in zip(rows, prepared, strict=True):
             assert isinstance(episode, RecordedEpisode)  # prepared ahead
-            if self._ekf is None:  # every row recorded: read in place where one row
+            if episode.continuation is None:  # every row recorded: read in place where one row
                 tracks.share(i, episode)
             else:  # the live filter writes the rows past the recording's
                 tracks.load(i, episode)
@@ -214,7 +187,8 @@ class RecordedSides:
                 self._live_from[i] = episode.continuation.step
                 filters.append((i, episode.continuation.filter))
             episodes.append(episode)
-        if filters and self._ekf is not None:
+        if filters:
+            assert self._ekf is not None  # only the EKF's recordings stop short
             filter_rows, states = zip(*filters, strict=True)
             self._ekf.restore(list(filter_rows), FilterRows.stack(list(states)))
         return episodes
@@ -238,13 +212,16 @@ class RecordedSides:
         ekf = self._ekf
         assert ekf is not None
         n = self._images.shape[0]
-        images = np.full((n, *self._images.shape[2:]), np.nan)
-        images[idx] = self._images[idx, k]
-        dt = np.zeros(n)
-        dt[idx] = tracks["dt"][idx, k]
-        active = np.zeros(n, dtype=bool)
-        active[idx] = True
-        out = ekf.update(images, dt, active)
+        if n == 1:  # the one row: no mask (the estimator's one-row path)
+            out = ekf.update(self._images[:, k[0]], tracks["dt"][:, k[0]])
+        else:
+            images = np.full((n, *self._images.shape[2:]), np.nan)
+            images[idx] = self._images[idx, k]
+            dt = np.zeros(n)
+            dt[idx] = tracks["dt"][idx, k]
+            active = np.zeros(n, dtype=bool)
+            active[idx] = True
+            out = ekf.update(images, dt, active)
         position, velocity, valid = out.position[idx], out.velocity[idx], out.valid[idx]
         tracks["estimate_position"][idx, k] = position
         tracks["estimate_velocity"][idx, k] = velocity
@@ -267,7 +244,7 @@ class RecordedSides:
 
 class LiveSides:
     """Target sides computed row by row as steps come, each row a live
-    `capture_bench.task.target_side.TargetSide` with its own estimator (filterpy's) and camera
+    `capture_bench.task.target_side.TargetSide` with its own one-row estimator and camera
     state, drawing the camera's noise from its episode's generator step by step, as a plain
     gymnasium env does. Nothing is kept: the episode's bound is left to be asked for."""
 
@@ -276,14 +253,15 @@ class LiveSides:
     def __init__(self, task: CaptureTask, n: int) -> None:
         sc = task.scenario
         self.task = task
-        #: Each row's estimator (filterpy's; reset at each episode's start).
+        #: Each row's estimator (one row; reset at each episode's start).
         self.estimators = [
             TargetEstimator(
+                1,
                 task.camera.model,
                 task.features,
                 source=sc.estimator.source,
                 **sc.estimator_settings(),
-            )  # fmt: skip
+            )
             for _ in range(n)
         ]
         self.sides: list[TargetSide | None] = [None] * n
@@ -389,13 +367,13 @@ def _row_steps(rows: Rows, k: Steps) -> list[tuple[int, int]]:
 
 
 def target_sides(
-    task: CaptureTask, n: int, cache: EpisodeCache, *, recorded: bool = True, reference: bool
+    task: CaptureTask, n: int, cache: EpisodeCache, *, recorded: bool = True, full_horizon: bool
 ) -> TargetSides:
     """The target sides of ``n`` rows of ``task``: rendered where the scenario's camera renders
     (the target-only frames kept in the cache if ``recorded``), else recorded ahead if
-    ``recorded`` (``reference``: as the single env records), else live."""
+    ``recorded`` (``full_horizon``: `RecordedSides`' own), else live."""
     if task.scenario.camera.mode == "rendered":
         return RenderedSides(task, n, cache, keep_frames=recorded)
     if recorded:
-        return RecordedSides(task, n, cache, reference)
+        return RecordedSides(task, n, cache, full_horizon)
     return LiveSides(task, n)

@@ -317,7 +317,11 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
         if self._engine is None:
             task = self.task
             sides = target_sides(
-                task, 1, self.episode_cache, recorded=self.reuse_target_side, reference=True
+                task,
+                1,
+                self.episode_cache,
+                recorded=self.reuse_target_side,
+                full_horizon=self.episode_cache is not DEFAULT_EPISODE_CACHE,
             )
             arm = ArmSide(task.features, task.description.arm, render_mode=self.render_mode)
             self._engine = EpisodeEngine(task, 1, sides, arm)

@@ -4,8 +4,8 @@
 ``vector_entry_point``). Sub-env i behaves as ``CaptureEnv(scenario, reuse_target_side=True)``
 seeded like gymnasium's ``SyncVectorEnv`` seeds its i-th env, with next-step autoreset (or none,
 ``autoreset_mode=AutoresetMode.DISABLED``): the same episodes, the same observations, rewards and
-``info`` (tests compare them, to rounding: the single env's filter is filterpy's, this env's the
-batched one, and the single env computes X_E with ``math``).
+``info``, bit for bit (both step an `capture_bench.engine.engine.EpisodeEngine`, and a row's numbers
+do not depend on the other rows).
 
 What it is: seeds, autoreset and gymnasium's vector ``info`` around one
 `capture_bench.engine.engine.EpisodeEngine` of N rows, which holds the episodes and steps them
@@ -60,7 +60,7 @@ FloatArray = NDArray[np.float64]
 RECORD_AHEAD = 2  # episodes recorded ahead per sub-env (batches of ~num_envs episodes)
 #: With seed sources, each sub-env's queue is topped up to ``ceil(RECORD_BATCH / num_envs)``
 #: episodes (at least ``RECORD_AHEAD``), so that a batch holds ~``RECORD_BATCH / 2`` episodes or
-#: more even with few sub-envs: the batched EKF's cost per episode-step falls with the batch
+#: more even with few sub-envs: the estimator's cost per episode-step falls with the batch
 #: (``benchmarks/bench_estimator_batch.py``; figures in docs/speed.md). Memory: each queued
 #: recorded episode's arrays, a row per step.
 RECORD_BATCH = 64
@@ -97,18 +97,12 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``AutoresetMode.DISABLED``
             (or their values, ``"NextStep"``, ``"Disabled"``); ``metadata["autoreset_mode"]``
             says which.
-        reference_target_side: record each episode's target side as ``CaptureEnv`` does, row
-            by row to the time limit (its camera frame by frame, its estimator: filterpy's EKF),
-            instead of all episodes at once with the batched filter. The episodes are then the
-            single env's bit for bit in everything the target side gives (estimates, errors,
-            NEES; the batched filter's differ from filterpy's in the last bits); recording costs
-            more (``benchmarks/bench_reset.py``, ``recorded``) but is done once per seed
-            (`episode_cache`), which is what the leaderboard wants: every agent on the same
-            seeds.
-        episode_cache: with ``reference_target_side``, where recordings of seeded episodes are
-            kept by (scenario, seed) and found again: the recordings are the single env's, so
-            a ``CaptureEnv`` given the same cache replays them too, and this env replays the
-            ones it recorded (default: the env's own, the latest ``max(16, 2 * num_envs)``).
+        episode_cache: where recordings of seeded episodes are kept by (scenario, seed) and
+            found again; a cache given here is shared (with other envs, ``CaptureEnv`` too, as
+            the evaluation shares one between its envs): its recordings then estimate every
+            row to the time limit, so that a replay runs no filter. Default: the env's own, the
+            latest ``max(16, 2 * num_envs)``, whose recordings the env's own filter continues
+            one row per step played. The episodes are the same either way.
 
     Spaces, rewards, termination and ``info`` are ``CaptureEnv``'s (see its docstring), batched;
     see the module docstring for the format of ``info``. Autoreset, as gymnasium's
@@ -148,7 +142,6 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         reuse_target_side: bool = True,
         render_mode: str | None = None,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-        reference_target_side: bool = False,
         episode_cache: EpisodeCache | None = None,
         image_size: tuple[int, int] | None = None,
     ) -> None:
@@ -169,7 +162,6 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self.task = task = CaptureTask(
             scenario, observation_source=observation_source, reward=reward, image_size=image_size
         )  # checks ``observation_source``, ``reward`` and ``image_size``
-        sc = task.scenario
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
         self.render_mode = None
@@ -178,12 +170,6 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self.single_action_space = task.single_action_space
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
-        rendered = sc.camera.mode == "rendered"
-        if episode_cache is not None and not (reference_target_side or rendered):
-            raise ValueError(
-                "episode_cache is shared only with reference_target_side=True (recordings a "
-                "CaptureEnv can replay) or a rendered camera; without it the env keeps its own"
-            )
         #: Recordings of seeded episodes by (scenario, seed), replayed when a seed comes again.
         self.episode_cache = (
             EpisodeCache(max_episodes=max(16, 2 * n), max_limits=0)
@@ -196,7 +182,7 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self._engine: EpisodeEngine | None = EpisodeEngine(
             task,
             n,
-            target_sides(task, n, self.episode_cache, reference=reference_target_side),
+            target_sides(task, n, self.episode_cache, full_horizon=episode_cache is not None),
             ArmSide(task.features, task.description.arm),
         )
         self._rngs: list[np.random.Generator | None] = [None] * n

@@ -121,10 +121,9 @@ def elbow_position(theta: ArrayLike) -> FloatArray:
 
 
 def jacobian(theta: ArrayLike) -> FloatArray:
-    """Analytic Jacobian J = df/dTheta (eq. 9), shape (3, 3) or (N, 3, 3), metres per radian."""
+    """Analytic Jacobian J = df/dTheta (eq. 9), metres per radian: shape (..., 3, 3) for joint
+    angles of shape (..., 3), so (3, 3) for one joint vector (3,)."""
     q = np.asarray(theta, dtype=float)
-    if q.shape == (3,):
-        return _jacobian_point(*q.tolist())
     t1, t2, t3 = q[..., 0], q[..., 1], q[..., 2]
     c1, s1 = np.cos(t1), np.sin(t1)
     r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
@@ -145,62 +144,12 @@ def jacobian(theta: ArrayLike) -> FloatArray:
     return out
 
 
-def _jacobian_point(t1: float, t2: float, t3: float) -> FloatArray:
-    """`jacobian` for one joint vector with ``math`` (controllers call it every step)."""
-    c1, s1 = math.cos(t1), math.sin(t1)
-    c23, s23 = math.cos(t2 + t3), math.sin(t2 + t3)
-    r = L1 * math.cos(t2) + L2 * s23
-    dr2 = -L1 * math.sin(t2) + L2 * c23
-    dr3 = L2 * c23
-    return np.array(
-        ((-r * s1, dr2 * c1, dr3 * c1), (r * c1, dr2 * s1, dr3 * s1), (0.0, r, L2 * s23))
-    )
-
-
 def jacobian_determinant(theta: ArrayLike) -> FloatArray:
     """det J = l1 l2 r cos(theta3) (closed form), m^3; zero at r = 0 or theta3 = +-90 deg."""
     q = np.asarray(theta, dtype=float)
     t2, t3 = q[..., 1], q[..., 2]
     r = L1 * np.cos(t2) + L2 * np.sin(t2 + t3)
     return L1 * L2 * r * np.cos(t3)
-
-
-def inverse_kinematics(position: ArrayLike) -> FloatArray:
-    """Every closed-form solution of f(Theta) = X for one point.
-
-    There are up to four: joint 1 facing the point (r > 0) or facing away (r < 0), each with two
-    elbow solutions. Angles are wrapped to (-pi, pi]. No joint limits are applied; use
-    `within_limits` to filter.
-
-    Args:
-        position: target point in the global frame, metres, shape (3,).
-
-    Returns:
-        Solutions, rad, shape (K, 3) with K in {0, 2, 4} (0 when the point is out of reach).
-    """
-    x, y, z = np.asarray(position, dtype=float)
-    rho = float(np.hypot(x, y))
-    base = float(np.arctan2(y, x))
-    solutions = []
-    for sign_r, t1 in ((1.0, base), (-1.0, base + np.pi)):
-        r = sign_r * rho
-        # Planar 2-link problem. Expanding sin/cos(theta2 + theta3):
-        #   r = (l1 + l2 s3) c2 + l2 c3 s2 = a c2 + b s2
-        #   z = (l1 + l2 s3) s2 - l2 c3 c2 = a s2 - b c2
-        # so r^2 + z^2 = a^2 + b^2 = l1^2 + l2^2 + 2 l1 l2 s3.
-        s3 = (r * r + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
-        if abs(s3) > 1.0 + 1e-12:
-            continue
-        s3 = float(np.clip(s3, -1.0, 1.0))
-        c3_abs = float(np.sqrt(1.0 - s3 * s3))
-        for c3 in (c3_abs, -c3_abs):
-            t3 = np.arctan2(s3, c3)
-            a, b = L1 + L2 * s3, L2 * c3
-            t2 = np.arctan2(a * z + b * r, a * r - b * z)
-            solutions.append([_wrap(t1), _wrap(t2), _wrap(t3)])
-    if not solutions:
-        return np.zeros((0, 3))
-    return np.unique(np.round(np.array(solutions), 15), axis=0)
 
 
 def within_limits(
@@ -214,29 +163,31 @@ def within_limits(
     return np.all((q >= np.asarray(lower) - tol) & (q <= np.asarray(upper) + tol), axis=-1)
 
 
-def _wrap(angle: float) -> float:
-    """Wrap an angle to (-pi, pi]."""
-    wrapped = (angle + np.pi) % (2.0 * np.pi) - np.pi
-    return float(np.pi if wrapped == -np.pi else wrapped)
+def inverse_kinematics(positions: ArrayLike) -> FloatArray:
+    """Every closed-form solution of f(Theta) = X, for each point X.
 
-
-def inverse_kinematics_batch(positions: ArrayLike) -> FloatArray:
-    """All four closed-form solutions for a batch of points, NaN where there is none.
-
-    The same maths as `inverse_kinematics`, vectorised (used by the physical-limit bound).
+    There are up to four: joint 1 facing the point (r > 0) or facing away (r < 0), each with two
+    elbow solutions (equal where the point is on the edge of the reach, sin(theta3) = +-1).
+    Angles are wrapped to [-pi, pi). No joint limits are applied; use `within_limits` to filter.
 
     Args:
-        positions: points in the global frame, metres, shape (N, 3).
+        positions: points in the global frame, metres, shape (..., 3); one point (3,) is the
+            case of no leading axes.
 
     Returns:
-        Solutions, rad, shape (N, 4, 3), ordered (facing, elbow +), (facing, elbow -),
+        Solutions, rad, shape (..., 4, 3), ordered (facing, elbow +), (facing, elbow -),
         (away, elbow +), (away, elbow -); rows of NaN where the point is out of reach.
     """
-    p = np.asarray(positions, dtype=float).reshape(-1, 3)
+    positions = np.asarray(positions, dtype=float)
+    p = positions.reshape(-1, 3)
     rho = np.hypot(p[:, 0], p[:, 1])
     base = np.arctan2(p[:, 1], p[:, 0])
     z = p[:, 2]
     out = np.full((p.shape[0], 4, 3), np.nan)
+    # Planar 2-link problem. Expanding sin/cos(theta2 + theta3):
+    #   r = (l1 + l2 s3) c2 + l2 c3 s2 = a c2 + b s2
+    #   z = (l1 + l2 s3) s2 - l2 c3 c2 = a s2 - b c2
+    # so r^2 + z^2 = a^2 + b^2 = l1^2 + l2^2 + 2 l1 l2 s3.
     s3 = (rho * rho + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
     ok = np.abs(s3) <= 1.0 + 1e-12
     s3 = np.clip(s3, -1.0, 1.0)
@@ -250,7 +201,7 @@ def inverse_kinematics_batch(positions: ArrayLike) -> FloatArray:
             sol = np.stack([t1, t2, np.arctan2(s3, c3)], axis=-1)
             out[:, column] = np.where(ok[:, None], _wrap_array(sol), np.nan)
             column += 1
-    return out
+    return out.reshape(positions.shape[:-1] + (4, 3))
 
 
 def reachable(
@@ -260,7 +211,7 @@ def reachable(
 
     Scalar ``math`` version of `inverse_kinematics` (it runs every env step). Only the
     solutions with joint 1 facing the point (r > 0) are tried: inside the default limits r > 0
-    always (see module docstring); for other limits (``lower``/``upper`` given) the batch IK
+    always (see module docstring); for other limits (``lower``/``upper`` given) `reachable_batch`
     gives the full answer.
     """
     x, y, z = (float(c) for c in cast("Iterable[float]", position))
@@ -291,7 +242,8 @@ def reachable_batch(
     (default: the published ones)."""
     lower = JOINT_LOWER if lower is None else lower
     upper = JOINT_UPPER if upper is None else upper
-    return np.any(within_limits(inverse_kinematics_batch(positions), lower, upper), axis=1)
+    points = np.asarray(positions, dtype=float).reshape(-1, 3)
+    return np.any(within_limits(inverse_kinematics(points), lower, upper), axis=1)
 
 
 def reachable_points(positions: FloatArray) -> NDArray[np.bool_]:

@@ -42,7 +42,7 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.sim.kinematics import L1, L2, forward_kinematics, jacobian
+from capture_bench.sim.kinematics import L1, L2, ArmPose, arm_pose, forward_kinematics
 
 FloatArray = NDArray[np.float64]
 Intervals = list[tuple[float, float]]
@@ -254,17 +254,30 @@ def row_norms(v: FloatArray) -> FloatArray:
 
 
 def relative_velocities(
-    theta: FloatArray, joint_rates: FloatArray, target_velocity: FloatArray
+    pose: ArmPose, joint_rates: FloatArray, target_velocity: FloatArray
 ) -> FloatArray:
     """The end-effector's instantaneous velocity relative to the capture point,
-    ``J(theta) theta_dot - Xdot_T`` (eq. 9's Jacobian), m/s, (K, 3).
+    ``J(theta) theta_dot - Xdot_T``, m/s, (K, 3), with eq. 9's Jacobian's entries multiplied out
+    from the pose's sines and cosines. Element by element: a row's floats do not depend on the
+    others.
 
     Args:
-        theta: joint angles, rad, (K, 3).
-        joint_rates: joint rates, rad/s, (K, 3) (a step's ``delta_theta / dt`` on each row).
+        pose: the arm at K joint vectors theta, `capture_bench.sim.kinematics.arm_pose`.
+        joint_rates: joint rates theta_dot, rad/s, (K, 3) (a step's ``delta_theta / dt`` on
+            each row).
         target_velocity: Xdot_T at the same instants, global, m/s, (K, 3).
     """
-    return np.einsum("kij,kj->ki", jacobian(theta), joint_rates) - target_velocity
+    w1, w2, w3 = joint_rates[:, 0], joint_rates[:, 1], joint_rates[:, 2]
+    c1, s1, r = pose.cos1, pose.sin1, pose.r
+    forearm = L2 * pose.cos23
+    radial = (forearm - L1 * pose.sin2) * w2 + forearm * w3  # dr/dt
+    around = r * w1
+    out = np.empty(joint_rates.shape)
+    out[:, 0] = radial * c1 - around * s1
+    out[:, 1] = radial * s1 + around * c1
+    out[:, 2] = r * w2 + L2 * pose.sin23 * w3
+    out -= target_velocity
+    return out
 
 
 def slow_intervals(v0: FloatArray, v1: FloatArray, v_max: float) -> tuple[FloatArray, FloatArray]:
@@ -332,7 +345,7 @@ def slow_intervals_along_arc(
     s = np.linspace(0.0, 1.0, pieces + 1)
     theta = np.asarray(theta0, dtype=float)[None] + s[:, None] * delta[None]
     rates = np.broadcast_to(delta / dt, theta.shape)
-    v = relative_velocities(theta, rates, target_velocity_at(s))
+    v = relative_velocities(arm_pose(theta), rates, target_velocity_at(s))
     los, his = slow_intervals(v[:-1], v[1:], v_max)
     out: Intervals = []
     joins = -1  # the piece a slow stretch reaching its last piece's end goes on into
@@ -378,7 +391,7 @@ def speeds_between(
     s = np.concatenate(([lo], grid[(grid > lo) & (grid < hi)], [hi]))
     theta = np.asarray(theta0, dtype=float)[None] + s[:, None] * delta[None]
     rates = np.broadcast_to(delta / dt, theta.shape)
-    return row_norms(relative_velocities(theta, rates, target_velocity_at(s)))
+    return row_norms(relative_velocities(arm_pose(theta), rates, target_velocity_at(s)))
 
 
 def intersect(

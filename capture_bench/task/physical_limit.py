@@ -81,7 +81,7 @@ from capture_bench.sim.kinematics import (
     L1,
     L2,
     forward_kinematics,
-    inverse_kinematics_batch,
+    inverse_kinematics,
     jacobian,
 )
 
@@ -176,7 +176,7 @@ def _box_solutions(
     its box (N, 4), rad: the largest excess over the joints, <= 0 inside, NaN where none."""
     box_lo = np.maximum(lower, theta0 - np.outer(times, joint_rate_limits))  # (N, 3)
     box_hi = np.minimum(upper, theta0 + np.outer(times, joint_rate_limits))
-    solutions = inverse_kinematics_batch(targets)  # (N, 4, 3), NaN where none
+    solutions = inverse_kinematics(targets)  # (N, 4, 3), NaN where none
     per_joint = np.maximum(box_lo[:, None] - solutions, solutions - box_hi[:, None])  # (N, 4, 3)
     excess = np.maximum(np.maximum(per_joint[..., 0], per_joint[..., 1]), per_joint[..., 2])
     return box_lo, box_hi, solutions, excess

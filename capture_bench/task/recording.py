@@ -13,28 +13,21 @@ the estimator sees only the frames. So an episode's target side can be computed 
 horizon at reset, and the target sides of many episodes can be computed together: the true states
 and the camera vectorised over time
 (`capture_sequence`), the EKF over episodes
-(`BatchedTargetEstimator`), the bound over episodes
+(`TargetEstimator`, a row per episode), the bound over episodes
 (`episode_bounds`). Each episode draws from its own generator
 exactly what ``CaptureEnv(reuse_target_side=True)`` draws, in the same order.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from capture_bench.sensing.camera import Camera, Frame
-from capture_bench.sensing.estimator import (
-    STATUSES,
-    TargetEstimate,
-    TargetEstimator,
-    normalised_error_squared,
-)
-from capture_bench.sensing.estimator_batch import BatchedTargetEstimator, FilterRows
+from capture_bench.sensing.camera import Camera
+from capture_bench.sensing.estimator import FilterRows, TargetEstimator
 from capture_bench.sim import kinematics
 from capture_bench.task.episode import EpisodePlan, draw_plans, episode_bounds
 from capture_bench.task.observation import TaskDescription
@@ -43,7 +36,6 @@ from capture_bench.task.scenarios import Scenario
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-STATUS_OK = STATUSES.index("ok")
 
 
 @dataclass(eq=False)
@@ -101,7 +93,7 @@ class EstimatorContinuation:
     """Where a recording's estimates stop short of its time limit, and how to go on: rows 0 ..
     ``step`` - 1 of the estimate tracks hold the EKF's output (later rows hold no estimate, and
     their errors are NaN), and ``filter`` is the EKF's state after row ``step`` - 1
-    (`BatchedTargetEstimator.restore` continues it bit for bit, with the frames
+    (`TargetEstimator.restore` continues it bit for bit, with the frames
     ``images[step:]`` and periods ``dt[step:]``)."""
 
     step: int
@@ -148,10 +140,10 @@ def record_episodes(
         rngs: one generator per episode; each advances exactly as ``CaptureEnv`` with
             ``reuse_target_side`` advances it in ``reset``.
         estimated_steps: with the EKF source, run the EKF for the first ``estimated_steps``
-            rows only (>= 1; the batched cold photogrammetry of the first frames is there) and
-            give each episode its `EstimatorContinuation`, for a consumer that runs the
-            rest of the filter only as far as the episode is played (``CaptureVectorEnv``).
-            None: every row. The other sources always estimate every row.
+            rows only (>= 1; the cold photogrammetry of the first frames is there) and give each
+            episode its `EstimatorContinuation`, for a consumer that runs the rest of the
+            filter only as far as the episode is played (``CaptureVectorEnv``). None: every
+            row. The other sources always estimate every row.
     """
     if estimated_steps is not None and estimated_steps < 1:
         raise ValueError(f"estimated_steps must be None or >= 1, got {estimated_steps}")
@@ -159,19 +151,7 @@ def record_episodes(
     truths = [
         record_truth(plan, camera, features, rng) for plan, rng in zip(plans, rngs, strict=True)
     ]
-    source = scenario.estimator.source
-    continuations: list[EstimatorContinuation | None] = [None] * len(truths)
-    if source == "ekf":
-        estimates, continuations = _estimate_ekf(
-            scenario, camera, features, truths, estimated_steps
-        )
-    elif source == "photogrammetry":
-        estimator = TargetEstimator(
-            camera.model, features, source=source, **scenario.estimator_settings()
-        )
-        estimates = [_estimate_one_by_one(estimator, t) for t in truths]
-    else:
-        estimates = [_estimate_truth(t) for t in truths]
+    estimates, continuations = _estimate(scenario, camera, features, truths, estimated_steps)
     bounds = episode_bounds([t.plan for t in truths], description)
     return [
         _finish(truth, estimate, bound, continuation)
@@ -202,75 +182,55 @@ def record_truth(
     return EpisodeTruth(plan, time, dt, position, velocity, rotation, images, visible)
 
 
-def _estimate_ekf(
+def _estimate(
     scenario: Scenario,
     camera: Camera,
     features: FloatArray,
     truths: Sequence[EpisodeTruth],
     estimated_steps: int | None,
 ) -> tuple[list[_Estimates], list[EstimatorContinuation | None]]:
-    """The EKF over all episodes together, step by step (episodes of different lengths stop
-    taking part after their last step), through their last row or only the first
-    ``estimated_steps`` rows (then with each episode's continuation where it has more)."""
+    """One estimator over all episodes together, a row each, step by step (episodes of
+    different lengths stop taking part after their last step), through their last row or, with
+    the EKF source, only the first ``estimated_steps`` rows (then with each episode's
+    continuation where it has more)."""
     n = len(truths)
-    batch = BatchedTargetEstimator(n, camera.model, features, **scenario.estimator_settings())
+    source = scenario.estimator.source
+    estimator = TargetEstimator(
+        n, camera.model, features, source=source, **scenario.estimator_settings()
+    )
     lengths = np.array([t.time.size for t in truths])
     n_steps = int(lengths.max())
     images = np.full((n_steps, n, features.shape[0], 2), np.nan)
     dt = np.full((n_steps, n), scenario.control.period)
+    true_position, true_velocity = np.zeros((2, n_steps, n, 3))
     for i, t in enumerate(truths):
         images[: t.time.size, i] = t.images
         dt[: t.time.size, i] = t.dt
+        true_position[: t.time.size, i] = t.position
+        true_velocity[: t.time.size, i] = t.velocity
     position = np.full((n, n_steps, 3), np.nan)
     velocity = np.full((n, n_steps, 3), np.nan)
     covariance = np.full((n, n_steps, 6, 6), np.nan)
     valid = np.zeros((n, n_steps), dtype=bool)
     status = np.zeros((n, n_steps), dtype=np.int8)
-    stop = n_steps if estimated_steps is None else min(estimated_steps, n_steps)
+    stop = n_steps
+    if estimated_steps is not None and source == "ekf":
+        stop = min(estimated_steps, n_steps)
     for k in range(stop):
-        out = batch.update(images[k], dt[k], lengths > k)
+        truth = (true_position[k], true_velocity[k])
+        out = estimator.update(images[k], dt[k], lengths > k, truth)
         position[:, k], velocity[:, k] = out.position, out.velocity
         covariance[:, k] = out.covariance
         valid[:, k], status[:, k] = out.valid, out.status
     continuations: list[EstimatorContinuation | None] = [None] * n
     if stop < n_steps:
         for i in np.flatnonzero(lengths > stop).tolist():
-            continuations[i] = EstimatorContinuation(stop, batch.snapshot([i]))
+            continuations[i] = EstimatorContinuation(stop, estimator.snapshot([i]))
     estimates = [
         (position[i, :m], velocity[i, :m], covariance[i, :m], valid[i, :m], status[i, :m])
         for i, m in enumerate(lengths.tolist())
     ]
     return estimates, continuations
-
-
-def _estimate_one_by_one(estimator: TargetEstimator, truth: EpisodeTruth) -> _Estimates:
-    """A single-episode estimator stepped through the episode's frames (photogrammetry)."""
-    estimator.reset()
-    n = truth.time.size
-    position, velocity = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
-    covariance = np.full((n, 6, 6), np.nan)
-    valid, status = np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int8)
-    for k in range(n):
-        image = truth.images[k]
-        frame = None if np.isnan(image).any() else Frame(image)
-        e = estimator.update(frame, float(truth.dt[k]), truth.position[k], truth.velocity[k])
-        position[k], velocity[k], valid[k] = e.position, e.velocity, e.valid
-        status[k] = STATUSES.index(e.status)
-        if e.covariance is not None:
-            covariance[k] = e.covariance
-    return position, velocity, covariance, valid, status
-
-
-def _estimate_truth(truth: EpisodeTruth) -> _Estimates:
-    """The truth source: the true state, always valid and "ok", no covariance."""
-    n = truth.time.size
-    return (
-        truth.position.copy(),
-        truth.velocity.copy(),
-        np.full((n, 6, 6), np.nan),
-        np.ones(n, dtype=bool),
-        np.full(n, STATUS_OK, dtype=np.int8),
-    )
 
 
 def _finish(
@@ -309,7 +269,7 @@ def estimate_errors(
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """``(|X^_T - X_T|, |Xdot^_T - Xdot_T|, NEES)`` of T estimates, (T,) each, NaN where the
     estimate is not valid (the NEES also where it has no covariance, or P is not positive
-    definite).
+    definite). A row's numbers do not depend on the other rows.
 
     Args:
         position, velocity: estimates, global, m and m/s, (T, 3).
@@ -317,23 +277,27 @@ def estimate_errors(
         valid: (T,) which estimates hold values.
         true_position, true_velocity: X_T and its rate, (T, 3).
     """
-    position_error = np.linalg.norm(position - true_position, axis=1)
-    velocity_error = np.linalg.norm(velocity - true_velocity, axis=1)
-    position_error[~valid] = velocity_error[~valid] = np.nan
-    error = np.concatenate([position - true_position, velocity - true_velocity], axis=1)
+    error = np.concatenate((position - true_position, velocity - true_velocity), axis=1)
+    norms = np.sqrt(np.add.reduce((error * error).reshape(-1, 2, 3), axis=2))  # (T, 2)
+    has_nees = valid & np.isfinite(covariance.sum(axis=(1, 2)))
+    if has_nees.all():
+        try:  # e^T P^-1 e through one batched Cholesky factorisation
+            return norms[:, 0], norms[:, 1], _nees(covariance, error)
+        except np.linalg.LinAlgError:
+            pass
+    norms[~valid] = np.nan
     nees = np.full(valid.size, np.nan)
-    rows = np.flatnonzero(valid & np.isfinite(covariance).all(axis=(1, 2)))
-    try:  # e^T P^-1 e through one batched Cholesky factorisation
+    rows = np.flatnonzero(has_nees)
+    try:
         nees[rows] = _nees(covariance[rows], error[rows])
     except np.linalg.LinAlgError:
-        # Some P not positive definite: NaN there, and the same arithmetic row by row elsewhere
-        # (a row's NEES does not depend on which rows share the call: live and recorded agree).
+        # Some P not positive definite: NaN there, the same arithmetic row by row elsewhere.
         for k in rows.tolist():
             try:
                 nees[k] = _nees(covariance[k : k + 1], error[k : k + 1])[0]
             except np.linalg.LinAlgError:
                 pass
-    return position_error, velocity_error, nees
+    return norms[:, 0], norms[:, 1], nees
 
 
 def _nees(covariance: FloatArray, error: FloatArray) -> FloatArray:
@@ -342,30 +306,3 @@ def _nees(covariance: FloatArray, error: FloatArray) -> FloatArray:
     chol = np.linalg.cholesky(covariance)
     w = np.linalg.solve(chol, error[:, :, None])[:, :, 0]
     return np.einsum("ij,ij->i", w, w)
-
-
-def estimate_errors_scalar(
-    estimate: TargetEstimate, true_position: FloatArray, true_velocity: FloatArray
-) -> tuple[float, float, float]:
-    """`estimate_errors` of one estimate, in scalar ``math`` and LAPACK: the live single
-    env's, every step (``TargetSide``). ``tests/test_step_rule.py`` checks it equals the batched
-    form to rounding.
-
-    Kept because it matters to the single env's speed: at one row, numpy's batched linear
-    algebra is mostly per-call overhead, which this scalar form avoids, and the single env runs
-    it every step. ``taskset -c 0 python -m timeit -s "import numpy as np; from
-    capture_bench.task.recording import estimate_errors as f; a = np.ones((1, 3));
-    c = np.eye(6)[None]; v = np.ones(1, bool); z = 0 * a" "f(a, a, c, v, z, z)"`` times the
-    batched form (and the same for this function); ``taskset -c 0 python
-    benchmarks/bench_env.py --scenarios paper --sources ekf`` times the single env with this
-    function (the table "The single env and its parts" of ``docs/speed.md``).
-    """
-    if not estimate.valid:
-        return math.nan, math.nan, math.nan
-    pos_err = math.dist(estimate.position.tolist(), true_position.tolist())
-    vel_err = math.dist(estimate.velocity.tolist(), true_velocity.tolist())
-    nees = math.nan
-    if estimate.covariance is not None:
-        e = np.concatenate([estimate.position - true_position, estimate.velocity - true_velocity])
-        nees = normalised_error_squared(e, estimate.covariance)
-    return pos_err, vel_err, nees

@@ -287,7 +287,7 @@ class Scenario:
 
     def estimator_settings(self) -> dict[str, float]:
         """What the estimator assumes (pixel noise, process noise), as the keyword arguments of
-        ``TargetEstimator`` and ``BatchedTargetEstimator``. The pixel noise is ``noise_px``
+        ``TargetEstimator``. The pixel noise is ``noise_px``
         with the analytic camera, and the detector's measured centroid error with the rendered
         one (``RENDERED_DETECTION_SIGMA_PX``; the EKF floors it at ``NOISE_FLOOR_PX``)."""
         rendered = self.camera.mode == "rendered"

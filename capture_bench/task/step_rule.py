@@ -45,7 +45,7 @@ from numpy.typing import NDArray
 
 from capture_bench.sensing.estimator import STATUSES
 from capture_bench.sim import kinematics
-from capture_bench.sim.kinematics import L1, L2, ArmPose
+from capture_bench.sim.kinematics import ArmPose
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.task.capture import (
     ARC_RESOLUTION,
@@ -56,6 +56,7 @@ from capture_bench.task.capture import (
     inside_intervals,
     inside_intervals_along_arcs,
     intersect,
+    relative_velocities,
     row_norms,
     slow_intervals_along_arc,
     speeds_between,
@@ -356,7 +357,7 @@ class StepRule:
             failure[timeout] = TIMEOUT
 
         # the end-effector's instantaneous velocity relative to the capture point at the end
-        end_velocity = _relative_velocities(pose, applied, dt, after["velocity"])
+        end_velocity = relative_velocities(pose, applied / dt[:, None], after["velocity"])
         # |X_E - X_T|, the step's length and the relative speed at its end: one norm
         lengths = row_norms(np.concatenate((d1, moved, end_velocity), axis=1))
         distance, relative_speed = lengths[:, 0], lengths[:, 2]
@@ -669,27 +670,6 @@ class StepRule:
             now["dt"],
             self.control_period,
         )
-
-
-def _relative_velocities(
-    pose: ArmPose, applied: FloatArray, dt: FloatArray, target_velocity: FloatArray
-) -> FloatArray:
-    """``J(theta) applied / dt - Xdot_T`` of M steps' ends (their ``pose``), m/s, (M, 3): the
-    numbers of `relative_velocities` at the joint rates ``applied / dt`` (to rounding), with
-    `capture_bench.sim.kinematics.jacobian`'s entries multiplied out from the pose's sines and
-    cosines. Element by element: a row's floats do not depend on the others."""
-    rates = applied / dt[:, None]
-    w1, w2, w3 = rates[:, 0], rates[:, 1], rates[:, 2]
-    c1, s1, r = pose.cos1, pose.sin1, pose.r
-    forearm = L2 * pose.cos23
-    radial = (forearm - L1 * pose.sin2) * w2 + forearm * w3  # dr/dt
-    around = r * w1
-    out = np.empty(applied.shape)
-    out[:, 0] = radial * c1 - around * s1
-    out[:, 1] = radial * s1 + around * c1
-    out[:, 2] = r * w2 + L2 * pose.sin23 * w3
-    out -= target_velocity
-    return out
 
 
 def _nans(m: int) -> FloatArray:

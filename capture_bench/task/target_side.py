@@ -7,21 +7,17 @@ on the agent's actions: after ``reset(seed=s)`` it is a function of the scenario
 index (the control periods, the trajectory, the camera's noise and drop-outs all come from the
 seeded generator, in an order no action changes).
 
-`TargetSide` holds it as one `RecordedEpisode`:
-
-* live (`TargetSide.live`): step k's row is computed when the step asks for it
-  (`TargetSide.through`), drawing the camera's noise from the episode's generator then, step by
-  step, as a plain gymnasium env would (a row of `capture_bench.engine.sides.LiveSides`);
-* recorded (`TargetSide.record_many`): every row to the time limit at once, in the same order
-  of draws (`capture_bench.engine.sides.RecordedSides`' recording as the single env records).
-
-`RecordedSides` otherwise records episodes in batches
-(`capture_bench.task.recording.record_episodes`), the same record type.
+`TargetSide` holds it as one `RecordedEpisode` filled live: step k's row is computed when the
+step asks for it (`TargetSide.through`), drawing the camera's noise from the episode's generator
+then, step by step, as a plain gymnasium env would (a row of
+`capture_bench.engine.sides.LiveSides`). Recorded ahead, the same rows come from
+`capture_bench.task.recording.record_episodes`, bit for bit (the same draws in the same order, an
+estimator row's numbers whatever the batch).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -29,13 +25,12 @@ from numpy.typing import NDArray
 
 from capture_bench.sensing.camera import Camera, CameraEpisode, CameraModel, Frame
 from capture_bench.sensing.detector import Detections
-from capture_bench.sensing.estimator import STATUSES, TargetEstimator
-from capture_bench.sensing.photogrammetry import cold_solves
+from capture_bench.sensing.estimator import TargetEstimator
 from capture_bench.sensing.rendered_sensor import SceneEpisode
 from capture_bench.sim import kinematics
 from capture_bench.sim.target_motion import TargetTrajectory
 from capture_bench.task.episode import EpisodePlan
-from capture_bench.task.recording import RecordedEpisode, estimate_errors_scalar, record_truth
+from capture_bench.task.recording import RecordedEpisode, estimate_errors
 from capture_bench.task.scenarios import Scenario
 
 FloatArray = NDArray[np.float64]
@@ -73,7 +68,8 @@ class SceneCamera(Protocol):
 
 class _Sensors(NamedTuple):
     """What a live side computes its rows with: the camera and its episode state, the
-    estimator, the feature points (target frame, m, (N, 3)) and the episode's generator."""
+    estimator (one row), the feature points (target frame, m, (N, 3)) and the episode's
+    generator."""
 
     camera: Camera | SceneCamera
     episode: CameraEpisode | SceneEpisode
@@ -155,13 +151,6 @@ class TargetSide:
         return cls(episode, 0, _Sensors(camera, state, estimator, features, rng))
 
     @property
-    def needs_arm(self) -> bool:
-        """Whether the rows depend on the arm (a scene camera): the env then sets
-        `arm_at` before asking for each step's row, and the side cannot be recorded
-        ahead of the steps."""
-        return self._sensors is not None and not isinstance(self._sensors.camera, Camera)
-
-    @property
     def camera_episode(self) -> CameraEpisode | SceneEpisode | None:
         """A live side's camera state (its latest capture's flags and, for a scene camera,
         detections); None for a side recorded or replayed."""
@@ -178,80 +167,6 @@ class TargetSide:
         while self.filled <= k:
             self._fill_next()
         return self.episode
-
-    def record_all(self) -> RecordedEpisode:
-        """Every row to the time limit (a live side computes them now; its sensors are dropped):
-        `record_many` of this side. Not for a side whose rows depend on the arm
-        (`needs_arm`): ``RuntimeError``."""
-        (episode,) = TargetSide.record_many([self])
-        return episode
-
-    @staticmethod
-    def record_many(sides: Sequence[TargetSide]) -> list[RecordedEpisode]:
-        """Every row of each side to the time limit (each side with its own generator; they may
-        share a camera and an estimator; their sensors are dropped), bit for bit as
-        `_fill_next` fills them: the true states and frames of every side with none
-        filled yet, then the photogrammetry's cold solves of the frames their estimators start
-        from, all at once (`cold_solves`), then
-        each one's estimates; a side already part filled goes on step by step. Not for a side
-        whose rows depend on the arm (`needs_arm`): ``RuntimeError``."""
-        if any(side.needs_arm for side in sides):
-            raise RuntimeError(
-                "a rendered camera's frames show the arm, so its target side cannot be recorded "
-                "ahead of the steps"
-            )
-        fresh = [side for side in sides if side.filled == 0 and side._sensors is not None]
-        for side in fresh:
-            side._record_truth()
-        starts = [image for side in fresh if (image := side._first_frame()) is not None]
-        if starts:
-            sensors = fresh[0]._sensors
-            assert sensors is not None
-            cold_solves(np.stack(starts), sensors.features, sensors.camera.model.focal_length)
-        for side in fresh:
-            side._record_estimates()
-        episodes = []
-        for side in sides:
-            episodes.append(side.through(side.episode.time.size - 1))
-            side._sensors = None
-        return episodes
-
-    def _record_truth(self) -> None:
-        """The true states, frames and reachability of every row of a side with none filled,
-        as `_fill_next` computes and draws them one by one, bit for bit
-        (`record_truth`)."""
-        assert self._sensors is not None
-        camera, _, _, features, rng = self._sensors
-        assert isinstance(camera, Camera)  # record_many refuses a scene camera's side
-        ep = self.episode
-        truth = record_truth(ep.plan, camera, features, rng)
-        ep.position[:], ep.velocity[:], ep.rotation[:] = (
-            truth.position,
-            truth.velocity,
-            truth.rotation,
-        )
-        ep.images[:], ep.visible[:] = truth.images, truth.visible
-        ep.reachable[:] = kinematics.reachable_points(truth.position)
-
-    def _first_frame(self) -> FloatArray | None:
-        """The first frame delivered (after `_record_truth`), which a photogrammetry or
-        EKF estimator starts from, or None (no frame, or the truth source)."""
-        if self.episode.plan.scenario.estimator.source == "truth":
-            return None
-        framed = np.flatnonzero(np.isfinite(self.episode.images).all(axis=(1, 2)))
-        return self.episode.images[framed[0]] if framed.size else None
-
-    def _record_estimates(self) -> None:
-        """Every row's estimate after `_record_truth`: the estimator (reset) row by row."""
-        assert self._sensors is not None
-        estimator = self._sensors.estimator
-        estimator.reset()
-        ep = self.episode
-        framed = np.isfinite(ep.images).all(axis=(1, 2)).tolist()
-        for k, has_frame in enumerate(framed):
-            frame = Frame(ep.images[k]) if has_frame else None
-            self._estimate_row(k, estimator, frame, ep.position[k], ep.velocity[k])
-        self.filled = ep.time.size
 
     def _fill_next(self) -> None:
         """Row ``filled``: the true state at its time, the camera's frame (none with the truth
@@ -277,25 +192,19 @@ class TargetSide:
             ep.images[k] = frame.image_points
         ep.visible[k] = state.last_visible
         ep.reachable[k] = kinematics.reachable(x_t)
-        self._estimate_row(k, estimator, frame, x_t, v_t)
+        self._estimate_row(k, estimator, x_t, v_t)
         self.filled = k + 1
 
     def _estimate_row(
-        self,
-        k: int,
-        estimator: TargetEstimator,
-        frame: Frame | None,
-        x_t: FloatArray,
-        v_t: FloatArray,
+        self, k: int, estimator: TargetEstimator, x_t: FloatArray, v_t: FloatArray
     ) -> None:
-        """Row k's estimate (the estimator's update with the frame delivered then) and its
-        errors."""
+        """Row k's estimate (the one-row estimator's update with the frame delivered then, NaN
+        where none) and its errors."""
         ep = self.episode
-        est = estimator.update(frame, float(ep.dt[k]), x_t, v_t)
-        ep.estimate_valid[k] = est.valid
-        if est.valid:
-            ep.estimate_position[k], ep.estimate_velocity[k] = est.position, est.velocity
-        ep.estimator_status[k] = STATUSES.index(est.status)
-        ep.position_error[k], ep.velocity_error[k], ep.nees[k] = estimate_errors_scalar(
-            est, x_t, v_t
-        )
+        truth = (x_t[None], v_t[None])
+        out = estimator.update(ep.images[k : k + 1], ep.dt[k : k + 1], None, truth)
+        ep.estimate_valid[k] = out.valid[0]
+        ep.estimate_position[k], ep.estimate_velocity[k] = out.position[0], out.velocity[0]
+        ep.estimator_status[k] = out.status[0]
+        errors = estimate_errors(out.position, out.velocity, out.covariance, out.valid, *truth)
+        ep.position_error[k], ep.velocity_error[k], ep.nees[k] = (e[0] for e in errors)

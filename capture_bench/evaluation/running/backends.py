@@ -146,8 +146,8 @@ def _env(scenario: str, spec: AgentSpec) -> Any:
 def _vector_env(scenario: str, n: int, spec: AgentSpec) -> Any:
     """This process's batched env of ``n`` sub-envs of ``scenario`` for ``spec``'s observation,
     autoreset off (cached for the process's life, as the single envs are). It records each
-    seed's target side as the single env does (``reference_target_side``), once: the chunk's
-    other agents replay it."""
+    seed's target side once, to the time limit, in the process's cache, which the single envs
+    share: the chunk's other agents replay it."""
     options = spec.env_options()
     key = f"{scenario}#{n}{options}"
     if key not in _ENVS:
@@ -160,7 +160,6 @@ def _vector_env(scenario: str, n: int, spec: AgentSpec) -> Any:
             n,
             load_scenario(scenario),
             autoreset_mode=AutoresetMode.DISABLED,
-            reference_target_side=True,
             episode_cache=_RECORDINGS,
             **options,
         )
