@@ -114,7 +114,7 @@ def test_an_env_given_its_own_episode_cache_keeps_recordings_there_and_clear_emp
         episode, _state = cache.recording(key)
         assert env.unwrapped.recorded_episode is episode
         limit = env.unwrapped.physical_limit()
-        assert cache.limit(key) is limit
+        assert episode.bound is limit  # kept with the recording
         cache.clear()
         assert cache.recorded_keys() == [] and cache.limit(key) is None
         env.reset(seed=4)  # recorded again: the same episode, a new object

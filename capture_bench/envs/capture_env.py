@@ -321,7 +321,7 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
                 1,
                 self.episode_cache,
                 recorded=self.reuse_target_side,
-                full_horizon=self.episode_cache is not DEFAULT_EPISODE_CACHE,
+                full_horizon=True,  # the whole episode recorded at reset (see the docstring)
             )
             arm = ArmSide(task.features, task.description.arm, render_mode=self.render_mode)
             self._engine = EpisodeEngine(task, 1, sides, arm)
