@@ -22,7 +22,7 @@ import numpy as np
 from capture_bench.sensing import photogrammetry
 from capture_bench.sensing.camera import Camera, CameraModel
 from capture_bench.sensing.estimator import TargetEstimator
-from capture_bench.sensing.photogrammetry import project_poses, projection_table, solve_pose
+from capture_bench.sensing.photogrammetry import project_poses, projection_table, solve_poses
 from capture_bench.sensing.sources import SOURCES
 from capture_bench.sim.rotations import euler_to_matrix
 
@@ -60,7 +60,7 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
     cam, frames, pos = make_frames(steps, seed)
     images = [f.image_points for f in frames]
     f = cam.focal_length
-    first = solve_pose(images[0], FEATURES, f)
+    (first,) = solve_poses(np.asarray(images[0])[None], FEATURES, f)
     rows = []
 
     stack = np.array(images)[:, None]  # (steps, 1, N, 2): one row's frames
@@ -103,13 +103,13 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
     def photogrammetry_warm() -> int:
         guess = first.pose
         for z in images:
-            guess = solve_pose(z, FEATURES, f, initial_guess=guess).pose
+            guess = solve_poses(np.asarray(z)[None], FEATURES, f, guess[None])[0].pose
         return steps
 
     def photogrammetry_cold() -> int:
         for z in images[:cold]:
             photogrammetry.clear_solve_cache()  # time the solve, not the memo of its result
-            solve_pose(z, FEATURES, f)
+            solve_poses(np.asarray(z)[None], FEATURES, f)
         return cold
 
     rows.append(
@@ -124,8 +124,8 @@ def measure(steps: int, cold: int, repeats: int, seed: int) -> list[tuple[str, f
         )
     rows.append(("  ekf without a frame (predict only)", best_us(ekf_predict_only, repeats)))
     rows.append(("  h(X) and H of one pose (project_poses)", best_us(h_and_jacobian, repeats)))
-    rows.append(("solve_pose warm (previous solution)", best_us(photogrammetry_warm, repeats)))
-    rows.append(("solve_pose cold (24 starts)", best_us(photogrammetry_cold, repeats)))
+    rows.append(("solve_poses warm (previous solution)", best_us(photogrammetry_warm, repeats)))
+    rows.append(("solve_poses cold (24 starts)", best_us(photogrammetry_cold, repeats)))
     return rows
 
 

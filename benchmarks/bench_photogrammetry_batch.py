@@ -1,4 +1,4 @@
-"""Milliseconds per image of cold photogrammetry: solve_pose (24 starts) vs solve_pose_batch.
+"""Milliseconds per image of cold photogrammetry (24 starts): solve_poses of one image vs many.
 
 Usage::
 
@@ -6,8 +6,8 @@ Usage::
 
 The images are of random poses (target 0.8-1.6 m away, any orientation) with 1 px noise. Each
 figure is the best of ``--repeats`` timed runs over all ``--images`` (the least disturbed by
-other processes), divided by the number of images; the single-image solve clears its memo of
-cold solutions before each call. Set ``OPENBLAS_NUM_THREADS=1`` to time one core.
+other processes), divided by the number of images; every call clears the memo of cold
+solutions first. Set ``OPENBLAS_NUM_THREADS=1`` to time one core.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from capture_bench.sensing import photogrammetry
-from capture_bench.sensing.photogrammetry import solve_pose, solve_pose_batch
+from capture_bench.sensing.photogrammetry import solve_poses
 from capture_bench.sim.rotations import euler_to_matrix, matrix_to_euler
 
 FEATURES = np.array([(0, 0, 0), (0.1, 0, 0), (0, 0.1, 0), (0, 0, 0.05)], dtype=float)
@@ -68,18 +68,21 @@ def measure(count: int, repeats: int, seed: int) -> list[tuple[str, float]]:
     def single() -> None:
         for z in images:
             photogrammetry.clear_solve_cache()  # time the solve, not the memo of its result
-            solve_pose(z, FEATURES, FOCAL_LENGTH)
+            solve_poses(z[None], FEATURES, FOCAL_LENGTH)
 
     def batched(m: int) -> Callable[[], None]:
         def run() -> None:
             for start in range(0, count, m):
-                solve_pose_batch(images[start : start + m], FEATURES, FOCAL_LENGTH)
+                photogrammetry.clear_solve_cache()
+                solve_poses(images[start : start + m], FEATURES, FOCAL_LENGTH)
 
         return run
 
-    rows = [("solve_pose cold (24 starts), one image a call", best_ms(single, count, repeats))]
+    rows = [("solve_poses cold (24 starts), one image a call", best_ms(single, count, repeats))]
     for m in (16, 64):
-        rows.append((f"solve_pose_batch, M = {m}", best_ms(batched(m), count, repeats)))
+        rows.append(
+            (f"solve_poses cold, M = {m} images a call", best_ms(batched(m), count, repeats))
+        )
     return rows
 
 

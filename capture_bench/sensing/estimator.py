@@ -67,10 +67,10 @@ from capture_bench.sensing.ekf import (
     wrap_angle,
 )
 from capture_bench.sensing.photogrammetry import (
-    cold_solves,
+    PoseSolution,
     project_poses,
     projection_table,
-    solve_pose,
+    solve_poses,
 )
 from capture_bench.sensing.sources import SOURCES
 
@@ -388,15 +388,11 @@ class TargetEstimator:
         return self._estimates(act)
 
     def cold_solve(self, images: FloatArray) -> tuple[FloatArray, BoolArray]:
-        """Cold photogrammetry (no initial guess, memoised: `cold_solves`) of m images (m, N, 2),
+        """Cold photogrammetry (no initial guess, memoised: `solve_poses`) of m images (m, N, 2),
         metres: poses (m, 6) in the camera frame (metres, radians) and which are accepted (m,)."""
-        solutions = cold_solves(images, self.feature_points, self.camera_model.focal_length)
+        solutions = solve_poses(images, self.feature_points, self.camera_model.focal_length)
         poses = np.array([s.pose for s in solutions]).reshape(-1, 6)
-        accepted = [
-            bool(solution_accepted(s.converged, s.residual_rms, self.max_residual))
-            for s in solutions
-        ]
-        return poses, np.array(accepted, dtype=bool)
+        return poses, self._accepted(solutions)
 
     # -- the EKF ------------------------------------------------------------------------------
     def _update_one(self, z: FloatArray, dt: FloatArray) -> Estimates:
@@ -551,20 +547,11 @@ class TargetEstimator:
         cold when that is rejected: a warm start may sit in a wrong local minimum), the velocity
         by finite difference over the time since that solution; without an accepted solution the
         last one is held ("predicting")."""
-        f = self.camera_model.focal_length
+        poses = self._accepted_poses(np.flatnonzero(active & complete), z)
         for i in np.flatnonzero(active).tolist():
             self._elapsed[i] += dt[i]
             held = bool(self.initialised[i])
-            pose = None
-            if complete[i]:
-                guess = self.x[i, :6].copy() if held else None
-                sol = solve_pose(z[i], self.feature_points, f, guess)
-                if guess is not None and not solution_accepted(
-                    sol.converged, sol.residual_rms, self.max_residual
-                ):
-                    sol = solve_pose(z[i], self.feature_points, f, None)
-                if solution_accepted(sol.converged, sol.residual_rms, self.max_residual):
-                    pose = sol.pose
+            pose = poses.get(i)
             if pose is None:
                 self._status[i] = PREDICTING if held else INITIALISING
                 continue
@@ -574,6 +561,30 @@ class TargetEstimator:
             self._elapsed[i] = 0.0
             self.initialised[i] = True
             self._status[i] = OK
+
+    def _accepted_poses(self, rows: NDArray[np.int_], z: FloatArray) -> dict[int, FloatArray]:
+        """The accepted photogrammetry of the frames of ``rows`` (complete), by row: warm from
+        the rows' last solutions (cold where a row has none), all in one solve; a rejected warm
+        solution retried cold (a warm start may sit in a wrong local minimum), all in one."""
+        if rows.size == 0:
+            return {}
+        f = self.camera_model.focal_length
+        held = self.initialised[rows]
+        guesses = np.where(held[:, None], self.x[rows, :6], np.nan)
+        solutions = solve_poses(z[rows], self.feature_points, f, guesses)
+        retry = np.flatnonzero(held & ~self._accepted(solutions))
+        if retry.size:
+            again = solve_poses(z[rows[retry]], self.feature_points, f)
+            for j, solution in zip(retry.tolist(), again, strict=True):
+                solutions[j] = solution
+        ok = self._accepted(solutions)
+        return {int(i): s.pose for i, s, good in zip(rows, solutions, ok, strict=True) if good}
+
+    def _accepted(self, solutions: list[PoseSolution]) -> BoolArray:
+        """Which solutions the acceptance rule keeps (converged, plausible residual)."""
+        converged = np.array([s.converged for s in solutions], dtype=bool)
+        rms = np.array([s.residual_rms for s in solutions], dtype=float)
+        return np.asarray(solution_accepted(converged, rms, self.max_residual), dtype=bool)
 
     def _truth(self, active: BoolArray, truth: tuple[ArrayLike, ArrayLike] | None) -> Estimates:
         """The true state, valid and "ok", no covariance, on the active rows."""

@@ -19,7 +19,7 @@ points and the Jacobian follow by the quotient rule. One matrix product serves a
 The functions here are pure; the projection table is shared with the EKF (its measurement model
 h and Jacobian H, eq. 6).
 
-The single-image solve, the batched cold multi-start and the damped
+The solver of many images (warm and cold), the batched cold multi-start and the damped
 Levenberg-Marquardt rounds share the projection table and every helper; split, each half would
 import the other's internals.
 """
@@ -274,7 +274,7 @@ def pose_projection(
 
 @dataclass
 class PoseSolution:
-    """Result of `solve_pose`.
+    """One image's result of `solve_poses`.
 
     Attributes:
         pose: (x_To, y_To, z_To, theta_x, theta_y, theta_z) of the target frame in the camera
@@ -612,49 +612,97 @@ def _canonical(pose: FloatArray) -> FloatArray:
     return out
 
 
-def solve_pose(
-    image_points: ArrayLike,
+def _checked_inputs(
+    images: ArrayLike, feature_points: ArrayLike, guesses: ArrayLike | None
+) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """images (M, N, 2), feature points (N, 3) and guesses (M, 6) or None as float arrays."""
+    uv = np.asarray(images, dtype=float)
+    pts = np.asarray(feature_points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or uv.ndim != 3 or uv.shape[1:] != (pts.shape[0], 2):
+        raise ValueError(
+            f"need images (M, N, 2) and feature_points (N, 3); got images of shape {uv.shape} "
+            f"for feature points of shape {pts.shape}"
+        )
+    if guesses is None:
+        return uv, pts, None
+    starts = np.asarray(guesses, dtype=float)
+    if starts.shape != (uv.shape[0], 6):
+        raise ValueError(f"need guesses (M, 6) for {uv.shape[0]} images; got {starts.shape}")
+    return uv, pts, starts
+
+
+def _solve_warm(
+    uv: FloatArray,
+    pts: FloatArray,
+    focal_length: float,
+    starts: FloatArray,
+    max_iterations: int,
+    tol: float,
+) -> list[PoseSolution | None]:
+    """Levenberg-Marquardt of K images (K, N, 2) from one start each (K, 6), all in one call,
+    each image its own solve (bit for bit its result alone): the converged solutions with a
+    finite residual (canonical angles), None for the others."""
+    k, n_eq = uv.shape[0], uv.shape[1] * uv.shape[2]
+    table = projection_table(pts, focal_length)
+    z = uv.transpose(0, 2, 1)  # (K, 2, N): the x_m row, then the z_m row
+    if k == 1:  # one solve: one image for its start
+        z_arg, solves = z[0], None
+    else:
+        z_arg, solves = z, np.arange(k)
+    poses, conv, its, cost = levenberg_marquardt(z_arg, table, starts, max_iterations, tol, solves)
+    out: list[PoseSolution | None] = []
+    for j in range(k):
+        rms = math.sqrt(cost[j] / n_eq)
+        ok = conv[j] and math.isfinite(rms)
+        out.append(PoseSolution(_canonical(poses[j]), True, int(its[j]), rms) if ok else None)
+    return out
+
+
+def solve_poses(
+    images: ArrayLike,
     feature_points: ArrayLike,
     focal_length: float,
-    initial_guess: ArrayLike | None = None,
+    guesses: ArrayLike | None = None,
     max_iterations: int = 50,
     tol: float = 1e-10,
-) -> PoseSolution:
-    """Pose of the target in the camera frame from one image (eqs. 1-2, iterative least squares).
+) -> list[PoseSolution]:
+    """Pose of the target in the camera frame from each of M images (eqs. 1-2, iterative least
+    squares); each image's solution is bit for bit its solution in a call with that image alone.
+
+    An image with a guess is solved by Levenberg-Marquardt from it (warm start; all of them in
+    one call, each its own solve); one whose warm start does not converge, and one without a
+    guess, by the cold multi-start: from each of the 24 cube rotations with its exact
+    least-squares translation, keeping the converged solution of least residual (all of them
+    in one call). The cold solutions are memoised by the exact inputs (`clear_solve_cache`).
 
     Args:
-        image_points: measured ``[x_m, z_m]`` of the feature points, metres, shape (N, 2), N >= 3.
-        feature_points: the same points in the target frame, metres, shape (N, 3).
+        images: measured ``[x_m, z_m]`` of the feature points per image, metres, (M, N, 2).
+        feature_points: the same points in the target frame, metres, shape (N, 3), N >= 3.
         focal_length: f, metres.
-        initial_guess: pose (6,) to start from (warm start). If that start does not converge the
-            solver falls back to the multi-start below. None: start from each of the 24 cube
-            rotations with its exact least-squares translation and keep the converged solution
-            of least residual.
+        guesses: pose (M, 6) to start each image from, a row of NaN for an image without one;
+            None: every image cold.
         max_iterations: Gauss-Newton iterations per start.
         tol: convergence when the largest step component <= tol * (1 + max |pose|).
 
     Returns:
-        The `PoseSolution` (the best start, converged or not).
+        M new `PoseSolution` (each the best start, converged or not), the caller's to change.
     """
-    uv = np.asarray(image_points, dtype=float)
-    pts = np.asarray(feature_points, dtype=float)
-    if pts.ndim != 2 or pts.shape[1] != 3 or uv.size != 2 * pts.shape[0]:
-        raise ValueError(
-            f"need image_points (N, 2) and feature_points (N, 3); got {uv.size} image values "
-            f"for feature points of shape {pts.shape}"
-        )
-    uv = uv.reshape(-1, 2)
-    z = uv.T  # (2, N): the x_m row, then the z_m row
-    table = projection_table(pts, focal_length)
-    n_eq = uv.size
-    if initial_guess is not None:
-        start = np.asarray(initial_guess, dtype=float).reshape(1, 6)
-        pose, conv, its, cost = levenberg_marquardt(z, table, start, max_iterations, tol)
-        rms = math.sqrt(cost[0] / n_eq)
-        if conv[0] and math.isfinite(rms):
-            return PoseSolution(_canonical(pose[0]), True, int(its[0]), rms)
-    (cold,) = cold_solves(uv[None], pts, focal_length, max_iterations, tol)
-    return dataclasses.replace(cold, pose=cold.pose.copy())  # the kept one stays untouched
+    uv, pts, starts = _checked_inputs(images, feature_points, guesses)
+    f = float(focal_length)
+    solutions: list[PoseSolution | None] = [None] * uv.shape[0]
+    if starts is not None:
+        warm = np.flatnonzero(~np.isnan(starts).all(axis=1))
+        if warm.size:
+            found = _solve_warm(uv[warm], pts, f, starts[warm], max_iterations, tol)
+            for i, solution in zip(warm.tolist(), found, strict=True):
+                solutions[i] = solution
+    cold = [i for i, solution in enumerate(solutions) if solution is None]
+    if cold:
+        kept = _cold_solves(uv[cold], pts, f, max_iterations, tol)
+        for i, solution in zip(cold, kept, strict=True):
+            # the kept one stays untouched
+            solutions[i] = dataclasses.replace(solution, pose=solution.pose.copy())
+    return [solution for solution in solutions if solution is not None]
 
 
 # The multi-start is the costliest solve (24 starts: ``benchmarks/bench_photogrammetry_batch.py``,
@@ -674,24 +722,17 @@ def _keep_cold(key: _ColdKey, solution: PoseSolution) -> None:
         _COLD_SOLVES.popitem(last=False)
 
 
-def cold_solves(
-    images: ArrayLike,
-    feature_points: ArrayLike,
-    focal_length: float,
-    max_iterations: int = 50,
-    tol: float = 1e-10,
+def _cold_solves(
+    uv: FloatArray, pts: FloatArray, focal_length: float, max_iterations: int, tol: float
 ) -> list[PoseSolution]:
-    """The cold multi-start of `solve_pose` (no initial guess) of each of M images
-    (M, N, 2), memoised: the images not kept yet are solved at once (`solve_pose_batch`,
-    each image's result bit for bit its result alone) and kept. A caller that knows the frames
-    its estimators will start from (a recording of many episodes) solves them here first and
-    pays far less an image than one solve a call (``benchmarks/bench_photogrammetry_batch.py``;
-    the table "The batched cold photogrammetry" of ``docs/speed.md``); the
-    estimators' `solve_pose` then finds them. The solutions returned are the kept ones:
-    copy before changing them."""
-    uv = np.asarray(images, dtype=float)
-    pts = np.asarray(feature_points, dtype=float)
-    n, f = pts.shape[0], float(focal_length)
+    """The cold multi-start of each of M images (M, N, 2), memoised: the images not kept yet
+    are solved at once (`_multi_start`, each image's result bit for bit its result alone) and
+    kept. A caller that knows the frames its estimators will start from (a recording of many
+    episodes) solves them with `solve_poses` first and pays far less an image than one solve a
+    call (``benchmarks/bench_photogrammetry_batch.py``; the table "The batched cold
+    photogrammetry" of ``docs/speed.md``); the estimators' solves then find them. The solutions
+    returned are the kept ones: copy before changing them."""
+    n, f = pts.shape[0], focal_length
     keys = [(image.tobytes(), pts.tobytes(), n, f, max_iterations, tol) for image in uv]
     found: list[PoseSolution | None] = [_COLD_SOLVES.get(key) for key in keys]
     for key, kept in zip(keys, found, strict=True):
@@ -699,7 +740,7 @@ def cold_solves(
             _COLD_SOLVES.move_to_end(key)
     todo = [i for i, kept in enumerate(found) if kept is None]
     if todo:
-        poses, conv, its, rms = solve_pose_batch(uv[todo], pts, f, max_iterations, tol)
+        poses, conv, its, rms = _multi_start(uv[todo], pts, f, max_iterations, tol)
         for j, i in enumerate(todo):
             found[i] = PoseSolution(poses[j].copy(), bool(conv[j]), int(its[j]), float(rms[j]))
             _keep_cold(keys[i], found[i])
@@ -707,7 +748,7 @@ def cold_solves(
 
 
 def clear_solve_cache() -> None:
-    """Forget the memoised cold solves of `solve_pose` (the multi-start without an initial
+    """Forget the memoised cold solves of `solve_poses` (the multi-start without an initial
     guess), so the next one is solved afresh (to time the solve itself, or to check that a
     memoised solution equals a fresh one). The projection tables stay memoised."""
     _COLD_SOLVES.clear()
@@ -756,40 +797,3 @@ def _multi_start(
     rows = np.arange(m) * N_STARTS + best
     out = np.array([_canonical(pose) for pose in poses[rows]]).reshape(m, 6)
     return out, conv.reshape(-1)[rows], its[rows], rms_all.reshape(-1)[rows]
-
-
-def solve_pose_batch(
-    images: ArrayLike,
-    feature_points: ArrayLike,
-    focal_length: float,
-    max_iterations: int = 50,
-    tol: float = 1e-10,
-) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.int_], FloatArray]:
-    """Cold `solve_pose` (no initial guess) of M images at once, bit for bit image by image.
-
-    The 24 starts of every image run as one vectorised Levenberg-Marquardt, which spreads numpy's
-    per-call cost over all the images: ``solve_pose_batch(images, ...)[0][m]`` equals
-    ``solve_pose(images[m], ...).pose`` exactly, and likewise the other fields. Nothing is cached.
-
-    Args:
-        images: measured ``[x_m, z_m]`` of the feature points per image, metres, (M, N, 2).
-        feature_points: the points in the target frame, metres, shape (N, 3), N >= 3.
-        focal_length: f, metres.
-        max_iterations: Gauss-Newton iterations per start.
-        tol: convergence when the largest step component <= tol * (1 + max |pose|).
-
-    Returns:
-        ``poses`` (M, 6) (x_To, y_To, z_To, theta_x, theta_y, theta_z), theta_y in
-        [-pi/2, pi/2]; ``converged`` (M,) bool; ``iterations`` (M,) int; ``residual_rms`` (M,),
-        metres: the fields of each image's `PoseSolution`.
-    """
-    uv = np.asarray(images, dtype=float)
-    pts = np.asarray(feature_points, dtype=float)
-    if pts.ndim != 2 or pts.shape[1] != 3 or uv.ndim != 3 or uv.shape[1:] != (pts.shape[0], 2):
-        raise ValueError(
-            f"need images (M, N, 2) and feature_points (N, 3); got images of shape {uv.shape} "
-            f"for feature points of shape {pts.shape}"
-        )
-    if uv.shape[0] == 0:
-        return np.empty((0, 6)), np.empty(0, dtype=bool), np.empty(0, dtype=int), np.empty(0)
-    return _multi_start(uv, pts, float(focal_length), max_iterations, tol)

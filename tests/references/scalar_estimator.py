@@ -41,7 +41,7 @@ from capture_bench.sensing.photogrammetry import (
     PoseSolution,
     project_pose,
     projection_table,
-    solve_pose,
+    solve_poses,
 )
 from capture_bench.sensing.sources import SOURCES
 
@@ -409,11 +409,12 @@ class TargetEstimator:
             The accepted `PoseSolution` (pose in the camera frame), or None.
         """
         f = self.camera_model.focal_length
-        sol = solve_pose(image, self.feature_points, f, guess)
+        first = None if guess is None else guess[None]
+        sol = solve_poses(image[None], self.feature_points, f, first)[0]
         if guess is not None and not solution_accepted(
             sol.converged, sol.residual_rms, self.max_residual
         ):
-            sol = solve_pose(image, self.feature_points, f, None)
+            sol = solve_poses(image[None], self.feature_points, f, None)[0]
         if solution_accepted(sol.converged, sol.residual_rms, self.max_residual):
             return sol
         return None
