@@ -19,7 +19,7 @@ from capture_bench.agents import make_agent
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.sim.collision_screen import clear_of_collisions
-from capture_bench.sim.kinematics import reachable, reachable_points
+from capture_bench.sim.kinematics import reachable
 from capture_bench.sim.target_motion import FEATURE_POINTS
 from capture_bench.sim.world import World, limit_joint_increments
 
@@ -170,10 +170,14 @@ def test_seeding_reset_mask_and_autoreset_contract():
         env.step(np.zeros((3, 3)))
 
 
-def test_reachability_of_many_points_equals_one_by_one():
+def test_reachability_of_many_points_equals_one_by_one_and_the_scalar_reference():
+    from references.scalar_kinematics import reachable as scalar_reachable
+
     points = np.random.default_rng(3).uniform(-1.0, 1.0, (5000, 3))
-    reach = reachable_points(points)
-    assert reach.tolist() == [reachable(p) for p in points] and 200 < reach.sum() < 4800
+    reach = reachable(points)
+    assert reach.tolist() == [bool(reachable(p)) for p in points] and 200 < reach.sum() < 4800
+    assert reach.tolist() == [scalar_reachable(p) for p in points]
+    assert reachable(points.reshape(50, 100, 3)).tolist() == reach.reshape(50, 100).tolist()
 
 
 def test_joint_limits_and_collision_screen_agree_with_the_world():

@@ -19,10 +19,8 @@ Angles are radians, lengths metres.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import NamedTuple, cast
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -41,8 +39,6 @@ JOINT_LOWER = np.radians([-170.0, 20.0, -70.0])
 JOINT_UPPER = np.radians([170.0, 100.0, 60.0])
 
 FloatArray = NDArray[np.float64]
-_LOWER_TUPLE = tuple(float(v) for v in JOINT_LOWER)
-_UPPER_TUPLE = tuple(float(v) for v in JOINT_UPPER)
 
 
 @dataclass(frozen=True)
@@ -205,58 +201,28 @@ def inverse_kinematics(positions: ArrayLike) -> FloatArray:
 
 
 def reachable(
-    position: ArrayLike, lower: ArrayLike | None = None, upper: ArrayLike | None = None
-) -> bool:
-    """Whether a point (global, m, shape (3,)) has an IK solution inside the joint limits.
-
-    Scalar ``math`` version of `inverse_kinematics` (it runs every env step). Only the
-    solutions with joint 1 facing the point (r > 0) are tried: inside the default limits r > 0
-    always (see module docstring); for other limits (``lower``/``upper`` given) `reachable_batch`
-    gives the full answer.
-    """
-    x, y, z = (float(c) for c in cast("Iterable[float]", position))
-    if lower is not None or upper is not None:
-        return bool(reachable_batch(np.array([[x, y, z]]), lower, upper)[0])
-    lo, hi = _LOWER_TUPLE, _UPPER_TUPLE
-    t1 = math.atan2(y, x)
-    if not lo[0] <= t1 <= hi[0]:
-        return False
-    r = math.hypot(x, y)
-    s3 = (r * r + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
-    if abs(s3) > 1.0:
-        return False
-    c3_abs = math.sqrt(1.0 - s3 * s3)
-    for c3 in (c3_abs, -c3_abs):
-        a, b = L1 + L2 * s3, L2 * c3
-        t2 = math.atan2(a * z + b * r, a * r - b * z)
-        t3 = math.atan2(s3, c3)
-        if lo[1] <= t2 <= hi[1] and lo[2] <= t3 <= hi[2]:
-            return True
-    return False
-
-
-def reachable_batch(
     positions: ArrayLike, lower: ArrayLike | None = None, upper: ArrayLike | None = None
 ) -> NDArray[np.bool_]:
-    """`reachable` for a batch of points (N, 3), global, m -> (N,) bool; any joint limits
-    (default: the published ones)."""
-    lower = JOINT_LOWER if lower is None else lower
-    upper = JOINT_UPPER if upper is None else upper
-    points = np.asarray(positions, dtype=float).reshape(-1, 3)
-    return np.any(within_limits(inverse_kinematics(points), lower, upper), axis=1)
+    """Whether points (global, m, shape (..., 3)) have an IK solution inside the joint limits:
+    (...,) bool.
 
-
-def reachable_points(positions: FloatArray) -> NDArray[np.bool_]:
-    """`reachable` with the published joint limits for M points (M, 3) -> (M,), the same
-    formulas vectorised (joint 1 facing the point, both elbow solutions)."""
+    With the published limits (``lower``, ``upper`` None) only the solutions with joint 1 facing
+    the point (r > 0) are tried, both elbows: inside those limits r > 0 always (see the module
+    docstring). Other limits: every solution of `inverse_kinematics`.
+    """
+    p = np.asarray(positions, dtype=float)
+    if lower is not None or upper is not None:
+        lower = JOINT_LOWER if lower is None else lower
+        upper = JOINT_UPPER if upper is None else upper
+        return np.any(within_limits(inverse_kinematics(p), lower, upper), axis=-1)
     lo, hi = JOINT_LOWER, JOINT_UPPER
-    x, y, z = positions[:, 0], positions[:, 1], positions[:, 2]
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
     t1 = np.arctan2(y, x)
     r = np.hypot(x, y)
     s3 = (r * r + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
     inside = np.abs(s3) <= 1.0
     c3_abs = np.sqrt(np.where(inside, 1.0 - s3 * s3, 0.0))
-    ok = np.zeros(positions.shape[0], dtype=bool)
+    ok = np.zeros(p.shape[:-1], dtype=bool)
     for c3 in (c3_abs, -c3_abs):
         a, b = L1 + L2 * s3, L2 * c3
         t2 = np.arctan2(a * z + b * r, a * r - b * z)

@@ -159,13 +159,14 @@ class EpisodePlan:
         if not math.isfinite(t_end):
             return False
         limit = self.scenario.lost_after + TIME_SLACK
-        time = out_for = 0.0
-        for dt in self.periods.tolist():
-            time += dt
-            if time >= t_end:
-                return False
-            reach = kinematics.reachable(self.trajectory.state(time)[0])
-            out_for = 0.0 if reach else out_for + dt
+        times = np.cumsum(self.periods)  # t_j, the same sums as the steps' times
+        played = int(np.searchsorted(times, t_end, side="left"))  # the steps ending before t_end
+        if played == 0:
+            return False
+        reach = kinematics.reachable(self.trajectory.states(times[:played])[0])
+        out_for = 0.0
+        for dt, inside in zip(self.periods[:played].tolist(), reach.tolist(), strict=True):
+            out_for = 0.0 if inside else out_for + dt
             if out_for > limit:
                 return True
         return False

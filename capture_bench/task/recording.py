@@ -250,7 +250,7 @@ def _finish(
         estimate_velocity=velocity,
         estimate_valid=valid,
         estimator_status=status,
-        reachable=kinematics.reachable_points(truth.position),
+        reachable=kinematics.reachable(truth.position),
         position_error=position_error,
         velocity_error=velocity_error,
         nees=nees,

@@ -1,13 +1,15 @@
-"""Inverse kinematics one point at a time in Python floats, written out separately from
-`capture_bench.sim.kinematics.inverse_kinematics`: the reference its solutions must equal (as
-sets, to rounding). Angles are wrapped to (-pi, pi] here, so a solution on the wrap (an angle of
-pi) appears as pi here and as -pi there."""
+"""Inverse kinematics and reachability one point at a time in Python floats, written out
+separately from `capture_bench.sim.kinematics.inverse_kinematics` and `reachable`: the references
+they must equal (solutions as sets, to rounding; reachability exactly). Angles are wrapped to
+(-pi, pi] here, so a solution on the wrap (an angle of pi) appears as pi here and as -pi there."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from capture_bench.sim.kinematics import L1, L2
+from capture_bench.sim.kinematics import JOINT_LOWER, JOINT_UPPER, L1, L2
 
 
 def inverse_kinematics(position) -> np.ndarray:
@@ -42,3 +44,25 @@ def _wrap(angle: float) -> float:
     """An angle wrapped to (-pi, pi]."""
     wrapped = (angle + np.pi) % (2.0 * np.pi) - np.pi
     return float(np.pi if wrapped == -np.pi else wrapped)
+
+
+def reachable(position) -> bool:
+    """Whether one point (global, m, (3,)) has an IK solution inside the published joint limits,
+    in ``math``: joint 1 facing the point (r > 0), both elbows."""
+    x, y, z = (float(c) for c in position)
+    lo, hi = JOINT_LOWER.tolist(), JOINT_UPPER.tolist()
+    t1 = math.atan2(y, x)
+    if not lo[0] <= t1 <= hi[0]:
+        return False
+    r = math.hypot(x, y)
+    s3 = (r * r + z * z - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
+    if abs(s3) > 1.0:
+        return False
+    c3_abs = math.sqrt(1.0 - s3 * s3)
+    for c3 in (c3_abs, -c3_abs):
+        a, b = L1 + L2 * s3, L2 * c3
+        t2 = math.atan2(a * z + b * r, a * r - b * z)
+        t3 = math.atan2(s3, c3)
+        if lo[1] <= t2 <= hi[1] and lo[2] <= t3 <= hi[2]:
+            return True
+    return False
