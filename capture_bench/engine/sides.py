@@ -11,8 +11,9 @@ fields). Three strategies:
   one batched filter, a row per episode, continues each recording from its first row
   (`LIVE_ESTIMATES_FROM`) one row per step played, so no filter runs past its episode's end;
   its numbers are the recording's of every row, bit for bit (a filter's rows do not depend on
-  the other rows of a call). With ``full_horizon`` (a cache shared between envs, as the
-  evaluation's) recordings estimate every row, so that a replay runs no filter.
+  the other rows of a call). With ``full_horizon`` (the single env's recordings, and a vector
+  env's whose cache is shared, as the evaluation's) recordings estimate every row, so that a
+  replay runs no filter.
 * `LiveSides`: each row computed when its step comes, drawing the camera's noise from the
   episode's generator then, as a plain gymnasium env does (the single env's default).
 * `RenderedSides`: the rendered camera's frames show the arm, so each row is computed when its
