@@ -202,12 +202,14 @@ def _estimate(
     n_steps = int(lengths.max())
     images = np.full((n_steps, n, features.shape[0], 2), np.nan)
     dt = np.full((n_steps, n), scenario.control.period)
-    true_position, true_velocity = np.zeros((2, n_steps, n, 3))
     for i, t in enumerate(truths):
         images[: t.time.size, i] = t.images
         dt[: t.time.size, i] = t.dt
-        true_position[: t.time.size, i] = t.position
-        true_velocity[: t.time.size, i] = t.velocity
+    true_states = None  # what the truth source reports, (T, n, 3) each
+    if source == "truth":
+        true_states = np.zeros((2, n_steps, n, 3))
+        for i, t in enumerate(truths):
+            true_states[:, : t.time.size, i] = t.position, t.velocity
     position = np.full((n, n_steps, 3), np.nan)
     velocity = np.full((n, n_steps, 3), np.nan)
     covariance = np.full((n, n_steps, 6, 6), np.nan)
@@ -217,7 +219,7 @@ def _estimate(
     if estimated_steps is not None and source == "ekf":
         stop = min(estimated_steps, n_steps)
     for k in range(stop):
-        truth = (true_position[k], true_velocity[k])
+        truth = None if true_states is None else (true_states[0, k], true_states[1, k])
         out = estimator.update(images[k], dt[k], lengths > k, truth)
         position[:, k], velocity[:, k] = out.position, out.velocity
         covariance[:, k] = out.covariance
