@@ -8,8 +8,7 @@ Usage::
 The scene is ``bench_estimator.py``'s: camera ~1.2 m from a target circling at 1.5 cm/s, 1 px noise,
 0.05 s period, every frame delivered; each env has its own noise seed. The first update (the cold
 photogrammetry that initialises every filter) is not timed: the figures are steady predict+update
-steps. At n = 1 without a mask the estimator takes its one-row path; the row "with an active
-mask" times the same filter through the path of many rows. Each figure is the best of
+steps. At n = 1 the estimator takes its one-row path. Each figure is the best of
 ``--repeats`` timed runs of ``--steps`` updates (consecutive frames), divided by steps x envs.
 ``--clock cpu`` times the process's CPU time instead of the wall clock (steadier on a machine
 shared with other work; set ``OPENBLAS_NUM_THREADS=1`` for one core).
@@ -43,20 +42,20 @@ def measure(
         images[:, i] = [f.image_points for f in frames]
     assert cam is not None and np.isfinite(images).all()
     rows = []
-    runs = [(n, None, f"TargetEstimator(n).update, n = {n}, per env") for n in sizes]
-    runs = [(n, None, f"{name} (the one-row path)" if n == 1 else name) for n, _, name in runs]
-    runs.append((1, np.ones(1, dtype=bool), "TargetEstimator(1).update with an active mask"))
-    for n, active, name in runs:
+    for n in sizes:
+        name = f"TargetEstimator(n).update, n = {n}, per env"
+        if n == 1:
+            name += " (the one-row path)"
         estimator = TargetEstimator(n, cam, FEATURES)
         dt = np.full(n, DT)
         z = np.ascontiguousarray(images[:, :n])
-        out = estimator.update(z[0], dt, active)  # cold photogrammetry: not timed
+        out = estimator.update(z[0], dt)  # cold photogrammetry: not timed
         assert out.valid.all()
         best = float("inf")
         for r in range(repeats):
             t0 = clock()
             for k in range(1 + r * steps, 1 + (r + 1) * steps):
-                out = estimator.update(z[k], dt, active)
+                out = estimator.update(z[k], dt)
             best = min(best, (clock() - t0) / (steps * n) * 1e6)
         assert (out.status == 0).all()  # every env "ok" throughout
         rows.append((name, best))

@@ -434,7 +434,8 @@ def _assert_filters_equal(a: TargetEstimator, i: int, b: TargetEstimator, j: int
 
 def test_a_row_is_the_same_in_a_batch_of_any_size():
     """Each row's estimates and filter, step after step, are bitwise the same in a batch of 16,
-    in a batch of 3 and alone (n = 1 through the masked path), with drop-outs and latency."""
+    in a batch of 3 and alone (n = 1, given a mask: the one-row path), with drop-outs and
+    latency."""
     n, steps = 16, 50
     seq = Sequences("noisy", n, steps, seed=4)
     big, _ = seq.estimators(n)
@@ -455,7 +456,7 @@ def test_a_row_is_the_same_in_a_batch_of_any_size():
 
 @pytest.mark.parametrize("rule", ["update", "predict"])
 def test_the_one_row_path_is_a_row_of_a_batch_bit_for_bit(rule, monkeypatch):
-    """n = 1 with no mask takes `_update_one`; it gives each row the numbers the row has in a
+    """n = 1 whose row steps takes `_update_one`; it gives each row the numbers the row has in a
     batch of 6, bit for bit, through partial frames, lost frames and each divergence rule (the
     NIS, a non-finite covariance, S not positive definite, a prior behind the lens, frames no
     pose explains)."""

@@ -213,16 +213,13 @@ class RecordedSides:
         ekf = self._ekf
         assert ekf is not None
         n = self._images.shape[0]
-        if n == 1:  # the one row: no mask (the estimator's one-row path)
-            out = ekf.update(self._images[:, k[0]], tracks["dt"][:, k[0]])
-        else:
-            images = np.full((n, *self._images.shape[2:]), np.nan)
-            images[idx] = self._images[idx, k]
-            dt = np.zeros(n)
-            dt[idx] = tracks["dt"][idx, k]
-            active = np.zeros(n, dtype=bool)
-            active[idx] = True
-            out = ekf.update(images, dt, active)
+        images = np.full((n, *self._images.shape[2:]), np.nan)
+        images[idx] = self._images[idx, k]
+        dt = np.zeros(n)
+        dt[idx] = tracks["dt"][idx, k]
+        active = np.zeros(n, dtype=bool)
+        active[idx] = True
+        out = ekf.update(images, dt, active)
         position, velocity, valid = out.position[idx], out.velocity[idx], out.valid[idx]
         tracks["estimate_position"][idx, k] = position
         tracks["estimate_velocity"][idx, k] = velocity

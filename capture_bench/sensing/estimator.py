@@ -277,7 +277,6 @@ class TargetEstimator:
         self._status = np.full(self.n, INITIALISING, dtype=np.int8)
         self._row = np.arange(self.n)
         self._all = np.ones(self.n, dtype=bool)
-        self._alone = np.ones(self.n, dtype=bool)  # every pose by its own product (`_update`)
 
     # -- public -------------------------------------------------------------------------------
     def reset(self, which: ArrayLike | None = None) -> None:
@@ -354,11 +353,11 @@ class TargetEstimator:
         dts = np.asarray(dt, dtype=float)
         if dts.shape != (n,):
             dts = np.broadcast_to(dts, (n,))
-        if n == 1 and active is None and self.source == "ekf":
-            return self._update_one(z, dts)
         act = self._all if active is None else np.asarray(active, dtype=bool)
         if act.shape != (n,):
             raise ValueError(f"active must have shape {(n,)}, got {act.shape}")
+        if n == 1 and act[0] and self.source == "ekf":
+            return self._update_one(z, dts)
         if (dts < 0).any() and (dts[act] < 0).any():
             raise ValueError(f"dt must be >= 0, got {dts[act].min()}")
         if self.source == "truth":
@@ -496,7 +495,7 @@ class TargetEstimator:
         m, n_z = x.shape[0], 2 * images.shape[1]
         # h(X) and J at the prior (eq. 6), each pose by its own matrix-vector product: a filter's
         # numbers do not depend on which other filters update this step.
-        rj, depth = project_poses(x[:, :6], self._table, 0.0, self._alone[:m])
+        rj, depth = project_poses(x[:, :6], self._table, 0.0, self._all[:m])  # each pose alone
         h = rj[:, 0].transpose(0, 2, 1).reshape(m, n_z)  # (x_m1, z_m1, x_m2, ...)
         jac = rj[:, 1:].transpose(0, 3, 2, 1).reshape(m, n_z, 6)  # J = dh/dq: H = [J, 0]
         y = images.reshape(m, n_z) - h  # innovation z - h(X)
