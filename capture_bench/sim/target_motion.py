@@ -18,7 +18,6 @@ Translations:
 
 from __future__ import annotations
 
-import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -49,12 +48,8 @@ class LinearDrift:
         tt = np.asarray(t, dtype=float)[..., None]
         return np.broadcast_to(self.velocity, tt.shape[:-1] + (3,)).copy()
 
-    def at(self, t: float) -> tuple[FloatArray, FloatArray]:
-        """(c(t), cdot(t)) for one time, s -> (3,), (3,); the fast path used every env step."""
-        return self.start + self.velocity * t, self.velocity
-
     def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """`at` of each time (T,) -> (T, 3), (T, 3), bit for bit."""
+        """(c(t), cdot(t)) at each time (T,), s -> (T, 3), (T, 3)."""
         return self.start + self.velocity * t[:, None], np.tile(self.velocity, (t.size, 1))
 
 
@@ -77,16 +72,9 @@ class CircularPath:
         a = self.phase + self.angular_speed * np.asarray(t, dtype=float)[..., None]
         return self.radius * self.angular_speed * (-np.sin(a) * self.u + np.cos(a) * self.v)
 
-    def at(self, t: float) -> tuple[FloatArray, FloatArray]:
-        """(c(t), cdot(t)) for one time, s -> (3,), (3,)."""
-        a = self.phase + self.angular_speed * t
-        c, s = math.cos(a), math.sin(a)
-        w = self.radius * self.angular_speed
-        return self.centre + self.radius * (c * self.u + s * self.v), w * (c * self.v - s * self.u)
-
     def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """`at` of each time (T,) -> (T, 3), (T, 3), bit for bit (``math``'s sine and
-        cosine, which numpy's may differ from in the last bit)."""
+        """(c(t), cdot(t)) at each time (T,), s -> (T, 3), (T, 3), with ``math``'s sine and
+        cosine (numpy's may differ in the last bit from one array length to another)."""
         a = (self.phase + self.angular_speed * t).tolist()
         c = np.array([math.cos(x) for x in a])[:, None]
         s = np.array([math.sin(x) for x in a])[:, None]
@@ -131,16 +119,8 @@ class Evasive:
         k, h = self._segment(t)
         return self._knots[1][k] + self.accelerations[k] * h
 
-    def at(self, t: float) -> tuple[FloatArray, FloatArray]:
-        """(c(t), cdot(t)) for one time, s -> (3,), (3,)."""
-        k = max(bisect.bisect_right(self._times, t) - 1, 0)
-        h = t - self._times[k]
-        p, v = self._knots
-        a = self.accelerations[k]
-        return p[k] + v[k] * h + (0.5 * h * h) * a, v[k] + a * h
-
     def at_times(self, t: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """`at` of each time (T,) -> (T, 3), (T, 3), bit for bit."""
+        """(c(t), cdot(t)) at each time (T,), s -> (T, 3), (T, 3)."""
         k = np.maximum(np.searchsorted(self.switch_times, t, side="right") - 1, 0)
         h = (t - np.asarray(self._times)[k])[:, None]
         p, v = self._knots
@@ -173,7 +153,7 @@ class TargetTrajectory:
     _r0: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        # Constants of the per-step fast path (`state`): Rodrigues' K and K^2, R0 r.
+        # Constants of `states`: Rodrigues' K and K^2, R0 r.
         k = np.asarray(self.spin_axis, dtype=float)
         k = k / np.linalg.norm(k)
         kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
@@ -181,36 +161,18 @@ class TargetTrajectory:
         object.__setattr__(self, "_kx2", kx @ kx)
         object.__setattr__(self, "_r0", self.initial_rotation @ self.capture_offset)
 
-    def state(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Everything the env needs at one time t (s): X_T (3,), Xdot_T (3,), R(t) (3, 3).
-
-        The same quantities as `position`, `velocity` and `rotation` (tests
-        check they agree), computed together for speed.
-        """
-        c, c_dot = self.translation.at(t)
-        if self.spin_rate == 0.0:
-            return c + self._r0, c_dot, self.initial_rotation
-        a = self.spin_rate * t
-        spin = _EYE3 + math.sin(a) * self._kx + (1.0 - math.cos(a)) * self._kx2
-        offset = spin @ self._r0
-        # omega x offset with omega = rate * axis:  rate * (K @ offset)
-        return (
-            c + offset,
-            c_dot + self.spin_rate * (self._kx @ offset),
-            spin @ self.initial_rotation,
-        )
-
     def states(
         self, t: FloatArray, points_target: FloatArray | None = None
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray | None]:
-        """`state` at each time (T,), bit for bit: X_T (T, 3), Xdot_T (T, 3), R(t)
+        """Everything the env needs at each time (T,): X_T (T, 3), Xdot_T (T, 3), R(t)
         (T, 3, 3), and with ``points_target`` (N, 3) those points in the global frame at each
         time, ``X_T + points_target @ R(t).T`` (T, N, 3) (None without).
 
-        Every time at once, by the same operations in the same order: ``math``'s sine and
-        cosine (numpy's may differ in the last bit), the element-wise arithmetic over every time,
-        and each small matrix product as a stack, which numpy computes one matrix at a time with
-        the very BLAS call `state` makes for that time (``tests/test_target_motion.py``).
+        The same quantities as `position`, `velocity` and `rotation` (to rounding: tests check
+        they agree), with ``math``'s sine and cosine and each small matrix product as a stack,
+        which numpy computes one matrix at a time: a time's numbers do not depend on the other
+        times asked for, and ``points`` is, bit for bit, ``X_T + points_target @ R(t).T`` of
+        that time's rows (what a live camera is given).
         """
         tt = np.asarray(t, dtype=float).reshape(-1)
         c, c_dot = self.translation.at_times(tt)
@@ -235,7 +197,7 @@ class TargetTrajectory:
         return position, velocity, rotation, points
 
     def rotations(self, t: FloatArray) -> FloatArray:
-        """R(t) for times (N,) -> (N, 3, 3): `state`'s rotation, vectorised over t."""
+        """R(t) for times (N,) -> (N, 3, 3): `states`' rotation, to rounding."""
         tt = np.asarray(t, dtype=float)
         if self.spin_rate == 0.0:
             return np.broadcast_to(self.initial_rotation, (*tt.shape, 3, 3)).copy()

@@ -120,27 +120,30 @@ class TargetSide:
         rng: np.random.Generator,
         target_only: dict[int, Detections] | None = None,
     ) -> TargetSide:
-        """The episode of ``plan`` with nothing computed yet: a new episode of the camera (a
+        """The episode of ``plan`` with its true states and reachability at every step time
+        (`TargetTrajectory.states`, what the step-by-step `TargetTrajectory.state` gives, bit for
+        bit) and nothing of the camera's side computed yet: a new episode of the camera (a
         scene camera's reading and keeping the target-only frames in ``target_only``, see
         `SceneCamera.reset`), the estimator reset, and each row, when asked for, drawing its
         frame's noise from ``rng``."""
         time, dt = plan.step_times()
         n, m = time.size, features.shape[0]
+        position, velocity, rotation, _ = plan.trajectory.states(time)
         nan3 = np.full((n, 3), np.nan)
         episode = RecordedEpisode(
             plan=plan,
             time=time,
             dt=dt,
-            position=nan3.copy(),
-            velocity=nan3.copy(),
-            rotation=np.full((n, 3, 3), np.nan),
+            position=position,
+            velocity=velocity,
+            rotation=rotation,
             images=np.full((n, m, 2), np.nan),
             visible=np.zeros(n, dtype=bool),
             estimate_position=nan3.copy(),
             estimate_velocity=nan3,
             estimate_valid=np.zeros(n, dtype=bool),
             estimator_status=np.zeros(n, dtype=np.int8),
-            reachable=np.zeros(n, dtype=bool),
+            reachable=kinematics.reachable(position),
             position_error=np.full(n, np.nan),
             velocity_error=np.full(n, np.nan),
             nees=np.full(n, np.nan),
@@ -169,14 +172,14 @@ class TargetSide:
         return self.episode
 
     def _fill_next(self) -> None:
-        """Row ``filled``: the true state at its time, the camera's frame (none with the truth
+        """Row ``filled``: the camera's frame of the true state at its time (none with the truth
         source, whose env never calls the camera), the estimator's update, its errors."""
         if self._sensors is None or self.complete:
             raise IndexError(f"step {self.filled} is past the episode's time limit")
         camera, state, estimator, features, rng = self._sensors
         ep, k = self.episode, self.filled
         time = float(ep.time[k])
-        x_t, v_t, rotation = ep.plan.trajectory.state(time)
+        x_t, v_t, rotation = ep.position[k], ep.velocity[k], ep.rotation[k]
         if ep.plan.scenario.estimator.source == "truth":
             frame = None
         elif isinstance(camera, Camera):
@@ -187,11 +190,9 @@ class TargetSide:
                 raise RuntimeError("a scene camera's row needs the arm: set arm_at first")
             assert isinstance(state, SceneEpisode)
             frame = camera.capture_scene(state, k, time, ep.plan.trajectory, self.arm_at, rng)
-        ep.position[k], ep.velocity[k], ep.rotation[k] = x_t, v_t, rotation
         if frame is not None:
             ep.images[k] = frame.image_points
         ep.visible[k] = state.last_visible
-        ep.reachable[k] = kinematics.reachable(x_t)
         self._estimate_row(k, estimator, x_t, v_t)
         self.filled = k + 1
 
