@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -147,6 +148,51 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
             raise AgentSpecError(f"agent {spec!r}: module {module_name!r} has no class {attr!r}")
         return AgentSpec(spec, spec, "python", spec, bool(getattr(factory, "privileged", False)))
     raise AgentSpecError(f"unknown agent {spec!r}; {_valid_specs()}")
+
+
+#: The folder of a model's training seeds' policies, ``<model>/seeds/<seed>/`` (the model card's
+#: ``seeds`` entry names them; ``capture_bench.training.train.model_card.ship_seeds`` writes it).
+SEEDS_DIR = "seeds"
+
+
+@dataclass(frozen=True)
+class TrainingSeeds:
+    """The training seeds of a model shipped from several (its card's ``seeds``).
+
+    Attributes:
+        trained: every training seed, increasing.
+        shipped: the seed whose policy is the model's own.
+        specs: the agent spec (its policy's directory) of every other seed, by seed.
+    """
+
+    trained: tuple[int, ...]
+    shipped: int
+    specs: dict[int, str]
+
+
+def training_seeds(spec: AgentSpec) -> TrainingSeeds | None:
+    """The training seeds of ``spec``'s model, None where its card names none (or it is no
+    model). Raises `AgentSpecError` where the card names a seed whose policy is missing."""
+    if spec.kind != "model":
+        return None
+    meta_file = Path(spec.target) / "metadata.json"
+    if not meta_file.is_file():
+        return None
+    from capture_bench.agents.sb3_policy import find_metadata_file
+
+    seeds = json.loads(meta_file.read_text()).get("model_card", {}).get("seeds")
+    if not seeds:
+        return None
+    trained = tuple(sorted(int(s) for s in seeds["trained"]))
+    shipped = int(seeds["shipped"])
+    specs = {s: str(Path(spec.target) / SEEDS_DIR / str(s)) for s in trained if s != shipped}
+    missing = [p for p in specs.values() if find_metadata_file(Path(p)) is None]
+    if shipped not in trained or missing:
+        raise AgentSpecError(
+            f"agent {spec.spec!r}: its card names training seeds {list(trained)}, shipped "
+            f"{shipped}, but " + (f"{missing[0]} holds no policy" if missing else "not that one")
+        )
+    return TrainingSeeds(trained, shipped, specs)
 
 
 def _model_kind(directory: Path) -> tuple[str, tuple[int, int] | None]:
