@@ -22,12 +22,12 @@ from capture_bench.rliable_stats import aggregate_estimates
 MODELS = Path(__file__).parents[1] / "models"
 #: Three "training seeds" of one model: shipped policies standing in for them (the evaluation
 #: reads the card and the folders only), seed 1 the one shipped.
-SEED_POLICIES = {0: "ppo-grasp", 1: "ppo-paper", 2: "sac-paper"}
+SEED_POLICIES = {0: "ppo-paper", 1: "sac-grasp", 2: "dagger-all"}
 SHIPPED = 1
 
 
 def _seeded_model(root: Path) -> Path:
-    """``root/seeded``: ``ppo-paper`` shipped as seed 1 of three, the others in ``seeds/``."""
+    """``root/seeded``: ``sac-grasp`` shipped as seed 1 of three, the others in ``seeds/``."""
     model = root / "seeded"
     for seed, name in SEED_POLICIES.items():
         folder = model / "seeds" / str(seed)
@@ -47,12 +47,12 @@ def _seeded_model(root: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory, evaluated):
-    """incremental_ik, the seeded model and its seed 0's policy as an agent of its own, on two
-    scenarios x 3 seeds, serial."""
+    """incremental_ik, the seeded model and its seed 2's policy as an agent of its own, on two
+    scenarios x 4 seeds, serial."""
     root = tmp_path_factory.mktemp("seeded")
     model = _seeded_model(root)
-    agents = f"incremental_ik,{model},{model / 'seeds' / '0'}"
-    argv = ["--agents", agents, "--scenarios", "paper,grasp", "--episodes", "3", "--workers", "1"]
+    agents = f"incremental_ik,{model},{model / 'seeds' / '2'}"
+    argv = ["--agents", agents, "--scenarios", "paper,grasp", "--episodes", "4", "--workers", "1"]
     return evaluated(argv, root / "out")
 
 
@@ -68,14 +68,15 @@ def test_every_seed_plays_the_rows_episodes_and_its_iqm_is_rliables(report):
     seeds = data.training_seeds["seeded"]
     assert seeds.seeds == [0, 1, 2] and seeds.shipped == SHIPPED
     assert seeds.scenarios == ["paper", "grasp"] and seeds.scores.shape == (3, 2)
-    # the shipped seed's row is the agent's own episodes; seed 0's, its policy played alone
+    # the shipped seed's row is the agent's own episodes; seed 2's, its policy played alone
     assert seeds.scores[1].tolist() == _scenario_means(data.records, "seeded", seeds.scenarios)
-    assert seeds.scores[0].tolist() == _scenario_means(data.records, "0", seeds.scenarios)
+    assert seeds.scores[2].tolist() == _scenario_means(data.records, "2", seeds.scenarios)
+    assert seeds.scores[2].min() > 0  # a policy that captures: the check compares scores
     want = aggregate_estimates({"m": seeds.scores})["m"]["iqm"]
     assert seeds.iqm == want and want.low <= want.value <= want.high
     # nothing else of the seeds enters the leaderboard: its records are its agents' alone
-    assert {r.agent for r in data.records} == {"incremental_ik", "seeded", "0"}
-    assert set(data.training_seeds) == {"seeded"}  # seed 0's policy alone is an unseeded model
+    assert {r.agent for r in data.records} == {"incremental_ik", "seeded", "2"}
+    assert set(data.training_seeds) == {"seeded"}  # seed 2's policy alone is an unseeded model
 
 
 def test_results_json_and_the_markdown_carry_the_seed_interval_and_each_seeds_score(report):
@@ -110,3 +111,15 @@ def test_a_report_without_training_seeds_has_neither_column_nor_section(report):
     text = markdown(plain)
     assert training_seeds.COLUMN not in text and f"## {training_seeds.TITLE}" not in text
     assert scenario_notes(plain) == NOTES and training_seeds.ROW_POLICY not in text
+
+
+def test_a_card_naming_a_seed_without_its_policy_is_refused_before_any_episode(tmp_path, capsys):
+    from capture_bench.evaluation.cli import main
+
+    model = _seeded_model(tmp_path)
+    shutil.rmtree(model / "seeds" / "2")
+    argv = ["--agents", str(model), "--scenarios", "paper", "--episodes", "1", "--workers", "1"]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "training seeds [0, 1, 2]" in err and "holds no policy" in err, err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())

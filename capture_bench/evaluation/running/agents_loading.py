@@ -175,16 +175,27 @@ def training_seeds(spec: AgentSpec) -> TrainingSeeds | None:
     model). Raises `AgentSpecError` where the card names a seed whose policy is missing."""
     if spec.kind != "model":
         return None
-    meta_file = Path(spec.target) / "metadata.json"
-    if not meta_file.is_file():
-        return None
-    from capture_bench.agents.sb3_policy import find_metadata_file
+    from capture_bench.agents.sb3_policy import MAX_METADATA_BYTES, find_metadata_file
 
-    seeds = json.loads(meta_file.read_text()).get("model_card", {}).get("seeds")
+    meta_file = Path(spec.target) / "metadata.json"
+    try:
+        if meta_file.stat().st_size > MAX_METADATA_BYTES:
+            return None  # refused unread by check_agent
+        data = json.loads(meta_file.read_text())
+    except (OSError, ValueError):
+        return None  # none, or unreadable: check_agent names it
+    card = data.get("model_card") if isinstance(data, dict) else None
+    seeds = card.get("seeds") if isinstance(card, dict) else None
     if not seeds:
         return None
-    trained = tuple(sorted(int(s) for s in seeds["trained"]))
-    shipped = int(seeds["shipped"])
+    try:
+        trained = tuple(sorted(int(s) for s in seeds["trained"]))
+        shipped = int(seeds["shipped"])
+    except (KeyError, TypeError, ValueError):
+        raise AgentSpecError(
+            f"agent {spec.spec!r}: {meta_file}: model_card.seeds needs 'trained' (the training "
+            "seeds) and 'shipped' (one of them)"
+        ) from None
     specs = {s: str(Path(spec.target) / SEEDS_DIR / str(s)) for s in trained if s != shipped}
     missing = [p for p in specs.values() if find_metadata_file(Path(p)) is None]
     if shipped not in trained or missing:
