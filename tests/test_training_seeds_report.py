@@ -90,6 +90,8 @@ def test_results_json_and_the_markdown_carry_the_seed_interval_and_each_seeds_sc
     section = results[training_seeds.KEY]["agents"]["seeded"]
     assert section["seeds"] == [0, 1, 2] and section["shipped"] == SHIPPED
     assert list(section["per_seed"]) == ["0", "1", "2"] and len(section["scores"]) == 3
+    hashes = results["provenance"]["config_hashes"]["models"]["seeded"]["training_seeds"]
+    assert sorted(hashes) == ["0", "2"] and all("policy.pt" in h for h in hashes.values())
     text = (folder / "leaderboard.md").read_text()
     ranking = text[text.index("## Overall ranking") :].split("\n\n")[1].splitlines()
     assert ranking[0].endswith(f"| {training_seeds.COLUMN} |")

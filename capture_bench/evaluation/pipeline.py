@@ -276,13 +276,13 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         raise AgentSpecError(f"two agent specs are both named {duplicate!r} in the report")
     _check_reference(loaded, suite, labels)
     seeded = {s.label: found for s in specs if (found := training_seeds(s)) is not None}
-    seed_specs = [
-        resolve_agent(path, trust_model=spec.trust_model)
+    seed_specs = {  # (agent label, training seed) -> that seed's policy
+        (spec.label, seed): resolve_agent(path, trust_model=spec.trust_model)
         for spec in specs
         if spec.label in seeded
-        for path in seeded[spec.label].specs.values()
-    ]
-    to_check = [s for s in specs if s.kind != "builtin"] + seed_specs
+        for seed, path in seeded[spec.label].specs.items()
+    }
+    to_check = [s for s in specs if s.kind != "builtin"] + list(seed_specs.values())
     if to_check:
         for name in scenarios:
             envs: dict[str, Any] = {}  # each spec checked in the env it plays in
@@ -303,7 +303,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     ]
     seed_tasks = [
         EpisodeTask(spec.spec, name, seed, spec.trust_model)
-        for spec in seed_specs
+        for spec in seed_specs.values()
         for name in scenarios
         for seed in seeds[name]
     ]
@@ -312,6 +312,9 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         "scenarios": {n: file_sha256(scenario_file(n)) for n in scenarios},
         "models": {s.label: _model_provenance(s) for s in specs if s.kind == "model"},
     }
+    for (label, seed), spec in seed_specs.items():  # each training seed's policy files
+        found = hashes["models"][label].setdefault("training_seeds", {})
+        found[str(seed)] = _model_provenance(spec)["sha256"]
     if config.video is not None and not 1 <= config.video_episodes <= suite.episodes:
         raise EvaluationError(
             f"--video-episodes {config.video_episodes}: expected a whole number from 1 to the "
