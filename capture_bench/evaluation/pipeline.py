@@ -18,6 +18,7 @@ from capture_bench import rliable_stats
 from capture_bench.agents.sb3_policy import PolicyLoadError, read_metadata
 from capture_bench.evaluation.errors import AgentSpecError, EvaluationError, SuiteError
 from capture_bench.evaluation.reporting import reproduction
+from capture_bench.evaluation.reporting import training_seeds as seed_report
 from capture_bench.evaluation.reporting.aggregate import (
     RankingRow,
     Summary,
@@ -35,9 +36,11 @@ from capture_bench.evaluation.reporting.reproduction import is_inside
 from capture_bench.evaluation.reporting.watch import choose_episodes
 from capture_bench.evaluation.running.agents_loading import (
     AgentSpec,
+    TrainingSeeds,
     check_agent,
     expand_specs,
     resolve_agent,
+    training_seeds,
 )
 from capture_bench.evaluation.running.backends import (
     BACKENDS,
@@ -153,7 +156,11 @@ def usable_cpus() -> int:
 
 @dataclass(frozen=True)
 class Plan:
-    """A validated evaluation: the suite as narrowed, agents, scenarios, seeds, tasks."""
+    """A validated evaluation: the suite as narrowed, agents, scenarios, seeds, tasks.
+
+    ``tasks`` are the leaderboard's episodes; ``training_seeds`` (by agent label) the agents
+    whose model was shipped from several training seeds, and ``seed_tasks`` the episodes of
+    their other seeds' policies: the same scenarios and episode seeds as the agent's own."""
 
     suite: Suite
     agents: list[AgentSpec]
@@ -162,6 +169,8 @@ class Plan:
     tasks: list[EpisodeTask] = field(repr=False)
     config_hashes: dict[str, Any] = field(repr=False)
     seed_set: str = "evaluation"
+    training_seeds: dict[str, TrainingSeeds] = field(default_factory=dict)
+    seed_tasks: list[EpisodeTask] = field(default_factory=list, repr=False)
 
     @property
     def report_name(self) -> str:
@@ -266,7 +275,14 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     if duplicate:
         raise AgentSpecError(f"two agent specs are both named {duplicate!r} in the report")
     _check_reference(loaded, suite, labels)
-    to_check = [s for s in specs if s.kind != "builtin"]
+    seeded = {s.label: found for s in specs if (found := training_seeds(s)) is not None}
+    seed_specs = {  # (agent label, training seed) -> that seed's policy
+        (spec.label, seed): resolve_agent(path, trust_model=spec.trust_model)
+        for spec in specs
+        if spec.label in seeded
+        for seed, path in seeded[spec.label].specs.items()
+    }
+    to_check = [s for s in specs if s.kind != "builtin"] + list(seed_specs.values())
     if to_check:
         for name in scenarios:
             envs: dict[str, Any] = {}  # each spec checked in the env it plays in
@@ -285,11 +301,20 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         for name in scenarios
         for seed in seeds[name]
     ]
+    seed_tasks = [
+        EpisodeTask(spec.spec, name, seed, spec.trust_model)
+        for spec in seed_specs.values()
+        for name in scenarios
+        for seed in seeds[name]
+    ]
     hashes: dict[str, Any] = {
         "suite": {"file": display_path(suite.path), "sha256": suite.sha256},
         "scenarios": {n: file_sha256(scenario_file(n)) for n in scenarios},
         "models": {s.label: _model_provenance(s) for s in specs if s.kind == "model"},
     }
+    for (label, seed), spec in seed_specs.items():  # each training seed's policy files
+        found = hashes["models"][label].setdefault("training_seeds", {})
+        found[str(seed)] = _model_provenance(spec)["sha256"]
     if config.video is not None and not 1 <= config.video_episodes <= suite.episodes:
         raise EvaluationError(
             f"--video-episodes {config.video_episodes}: expected a whole number from 1 to the "
@@ -303,7 +328,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         check_writable(config.episode_plots, "--episode-plots")
     if config.video is not None:
         check_writable(config.video, "--video")
-    return Plan(suite, specs, scenarios, seeds, tasks, hashes, config.seed_set)
+    return Plan(suite, specs, scenarios, seeds, tasks, hashes, config.seed_set, seeded, seed_tasks)
 
 
 def _check_published_folder(config: EvaluationConfig, suite: Suite, report_name: str) -> None:
@@ -370,6 +395,11 @@ def _provenance(
                 "spec": display_path(Path(s.target)) if s.kind == "model" else s.spec,
                 "kind": s.kind,
                 "privileged": s.privileged,
+                **(
+                    {"training_seeds": {"trained": list(seeded.trained), "shipped": seeded.shipped}}
+                    if (seeded := plan.training_seeds.get(s.label))
+                    else {}
+                ),
             }
             for s in plan.agents
         ],
@@ -474,6 +504,22 @@ def summarise_in_pool(
     return [s for s in summaries if s is not None]
 
 
+def training_seed_scores(
+    plan: Plan, records: Sequence[EpisodeRecord], seed_records: Sequence[EpisodeRecord]
+) -> dict[str, seed_report.SeedScores]:
+    """Per agent with training seeds, its scores over them (`seed_report.compute`): the
+    shipped seed's episodes are the agent's ``records``, each other seed's its records among
+    ``seed_records`` (in ``plan.seed_tasks`` order)."""
+    out = {}
+    for label, seeds in plan.training_seeds.items():
+        by_seed = {seeds.shipped: [r for r in records if r.agent == label]}
+        for seed, spec in seeds.specs.items():
+            played = zip(plan.seed_tasks, seed_records, strict=True)
+            by_seed[seed] = [r for task, r in played if task.agent == spec]
+        out[label] = seed_report.compute(by_seed, seeds.shipped)
+    return out
+
+
 def run_evaluation(
     plan: Plan,
     config: EvaluationConfig,
@@ -490,9 +536,11 @@ def run_evaluation(
     """
     start = time.perf_counter()
     backend, workers = config.resolved_backend(), config.resolved_workers()
-    records: list[EpisodeRecord] = run_tasks(
-        plan.tasks, backend, workers, config.ray_address, progress
+    played = run_tasks(
+        [*plan.tasks, *plan.seed_tasks], backend, workers, config.ray_address, progress
     )
+    records: list[EpisodeRecord] = played[: len(plan.tasks)]
+    seed_scores = training_seed_scores(plan, records, played[len(plan.tasks) :])
     summaries = summarise_in_pool(
         records, plan.suite.reference, workers if backend == "process" else 1
     )
@@ -510,6 +558,7 @@ def run_evaluation(
         ranking=ranking,
         provenance={},
         videos=[],
+        training_seeds=seed_scores,
     )
     watched_keys, requested_keys, jobs = video_jobs(plan, config, records, ranking)
     videos, drawn = make_report_media(

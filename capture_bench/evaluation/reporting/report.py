@@ -23,7 +23,7 @@ import shutil
 import tempfile
 import threading
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -33,6 +33,7 @@ from capture_bench.evaluation.reporting import (
     plots,
     rliable_report,
     summary,
+    training_seeds,
     vision,
     watch,
 )
@@ -77,6 +78,9 @@ class ReportData:
         provenance: JSON-ready provenance (git, hashes, versions, seeds, timing).
         videos: the episodes to watch (`capture_bench.evaluation.reporting.watch`), in display
             order.
+        training_seeds: per agent of a model shipped from several training seeds, its scores
+            over them (`capture_bench.evaluation.reporting.training_seeds`); empty where no
+            agent has any, and the report is then without the section and the column.
     """
 
     suite: str
@@ -88,6 +92,7 @@ class ReportData:
     ranking: Sequence[RankingRow]
     provenance: dict[str, Any]
     videos: Sequence[EpisodeVideo] = ()
+    training_seeds: dict[str, training_seeds.SeedScores] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.records and any(r.rank is not None and r.rank_low is None for r in self.ranking):
@@ -199,6 +204,23 @@ def ranking_cells(r: RankingRow) -> list[str]:
         _fmt(r.mean_relative_speed_median * 1e3, 0),
         str(r.scenarios),
     ]
+
+
+def ranking_table(data: ReportData) -> tuple[list[str], list[list[str]]]:
+    """The overall ranking's header and rows (`RANKING_HEADER`, `ranking_cells`), with the
+    column of the training seeds' IQM (`training_seeds.COLUMN`) where an agent has seeds."""
+    header, rows = list(RANKING_HEADER), [ranking_cells(r) for r in data.ranking]
+    if data.training_seeds:
+        header.append(training_seeds.COLUMN)
+        for r, row in zip(data.ranking, rows):
+            row.append(training_seeds.ranking_cell(data.training_seeds, r.agent))
+    return header, rows
+
+
+def scenario_notes(data: ReportData) -> str:
+    """The text before the per-scenario tables (`NOTES`), saying which policy a learned row
+    plays where an agent has training seeds."""
+    return NOTES + (f" {training_seeds.ROW_POLICY}" if data.training_seeds else "")
 
 
 RANKING_HEADER = (
@@ -764,9 +786,18 @@ def html_page(
         rliable_body.append(_html_table(rliable_report.HEADER, rliable_rows(data, stats)))
         rliable_body.append(_figure(data, rliable_report.FIGURE, images))
     sections.append(_Section("rliable", rliable_report.TITLE, rliable_body))
-    taken = {"ranking", "summary", "watch", "rliable", "scenarios", "outcomes", "provenance"}
+    if data.training_seeds:
+        seeds = data.training_seeds
+        body = [
+            f"<h2>{esc(training_seeds.TITLE)}</h2>",
+            f"<p>{esc(training_seeds.text(seeds))}</p>",
+            _html_table(training_seeds.HEADER, training_seeds.rows(seeds)),
+        ]
+        sections.append(_Section("seeds", training_seeds.TITLE, body))
+    taken = {"ranking", "summary", "watch", "rliable", "seeds", "scenarios", "outcomes",
+             "provenance"}  # fmt: skip
     scenario_links = []
-    scenario_body = [f"<h2>{SCENARIOS_TITLE}</h2>", f"<p>{esc(NOTES)}</p>"]
+    scenario_body = [f"<h2>{SCENARIOS_TITLE}</h2>", f"<p>{esc(scenario_notes(data))}</p>"]
     for scenario in _scenarios(data):
         anchor = _anchor("scenario-", scenario, taken)
         scenario_links.append((anchor, scenario))
@@ -817,7 +848,7 @@ def _ranking_html(data: ReportData, images: dict[str, bytes]) -> list[str]:
     esc = html.escape
     parts = [
         "<h2>Overall ranking</h2>",
-        _html_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
+        _html_table(*ranking_table(data)),
         _figure(data, "summary_ranking.png", images),
         f"<p>{esc(summary_text(data))}</p>",
         f"<p>{esc(RANKING_RULE)}</p>",
@@ -859,7 +890,7 @@ def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
         "",
         "## Overall ranking",
         "",
-        *_md_table(RANKING_HEADER, [ranking_cells(r) for r in data.ranking]),
+        *_md_table(*ranking_table(data)),
         "",
         *_md_figure(data, "summary_ranking.png"),
         summary_text(data),
@@ -882,7 +913,8 @@ def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
         rows = rliable_rows(data, stats)
         lines += [rliable_report.text(stats), "", *_md_table(rliable_report.HEADER, rows), ""]
         lines += _md_figure(data, rliable_report.FIGURE)
-    lines += [f"## {SCENARIOS_TITLE}", "", NOTES]
+    lines += seeds_markdown(data)
+    lines += [f"## {SCENARIOS_TITLE}", "", scenario_notes(data)]
     for scenario in _scenarios(data):
         cells = scenario_summaries(data, scenario)
         lines += ["", f"## {scenario}", ""]
@@ -900,6 +932,15 @@ def markdown(data: ReportData, rliable: RliableNumbers | None = None) -> str:
         lines.append("")
     lines += ["## Provenance", "", provenance_text(data.provenance), "", REPRODUCIBILITY, ""]
     return "\n".join(lines)
+
+
+def seeds_markdown(data: ReportData) -> list[str]:
+    """The section "Training seeds" in Markdown; nothing where no agent has training seeds."""
+    seeds = data.training_seeds
+    if not seeds:
+        return []
+    table = _md_table(training_seeds.HEADER, training_seeds.rows(seeds))
+    return [f"## {training_seeds.TITLE}", "", training_seeds.text(seeds), "", *table, ""]
 
 
 def _write_csv(path: Path, columns: Sequence[str], rows: list[dict[str, Any]]) -> None:
@@ -953,15 +994,26 @@ def _write_all(data: ReportData, directory: Path, images: dict[str, bytes] | Non
         "command": data.command,
         "reference": data.reference,
         "ranking_rule": RANKING_RULE,
-        "ranking": [r.__dict__ for r in data.ranking],
+        "ranking": [_ranking_entry(data, r) for r in data.ranking],
         "results": rows,
         "provenance": data.provenance,
     }
     payload[rliable_report.KEY] = rliable_report.payload(*rliable)
     for section in paired_sections(data):  # only where the report holds what they compare
         payload[section.key] = section.rows()
+    if data.training_seeds:
+        payload[training_seeds.KEY] = training_seeds.payload(data.training_seeds)
     text = json.dumps(_sanitise(payload), indent=2, default=str, allow_nan=False)
     (directory / "results.json").write_text(text + "\n")
+
+
+def _ranking_entry(data: ReportData, row: RankingRow) -> dict[str, Any]:
+    """A ranking row in ``results.json``: its fields, and an agent's seed IQM with its interval
+    where it has training seeds."""
+    seeds = data.training_seeds.get(row.agent)
+    if seeds is None:
+        return row.__dict__
+    return {**row.__dict__, training_seeds.RANKING_KEY: seeds.iqm.as_dict()}
 
 
 def _sanitise(o: Any) -> Any:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -147,6 +148,62 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
             raise AgentSpecError(f"agent {spec!r}: module {module_name!r} has no class {attr!r}")
         return AgentSpec(spec, spec, "python", spec, bool(getattr(factory, "privileged", False)))
     raise AgentSpecError(f"unknown agent {spec!r}; {_valid_specs()}")
+
+
+#: The folder of a model's training seeds' policies, ``<model>/seeds/<seed>/`` (the model card's
+#: ``seeds`` entry names them; ``capture_bench.training.train.model_card.ship_seeds`` writes it).
+SEEDS_DIR = "seeds"
+
+
+@dataclass(frozen=True)
+class TrainingSeeds:
+    """The training seeds of a model shipped from several (its card's ``seeds``).
+
+    Attributes:
+        trained: every training seed, increasing.
+        shipped: the seed whose policy is the model's own.
+        specs: the agent spec (its policy's directory) of every other seed, by seed.
+    """
+
+    trained: tuple[int, ...]
+    shipped: int
+    specs: dict[int, str]
+
+
+def training_seeds(spec: AgentSpec) -> TrainingSeeds | None:
+    """The training seeds of ``spec``'s model, None where its card names none (or it is no
+    model). Raises `AgentSpecError` where the card names a seed whose policy is missing."""
+    if spec.kind != "model":
+        return None
+    from capture_bench.agents.sb3_policy import MAX_METADATA_BYTES, find_metadata_file
+
+    meta_file = Path(spec.target) / "metadata.json"
+    try:
+        if meta_file.stat().st_size > MAX_METADATA_BYTES:
+            return None  # refused unread by check_agent
+        data = json.loads(meta_file.read_text())
+    except (OSError, ValueError):
+        return None  # none, or unreadable: check_agent names it
+    card = data.get("model_card") if isinstance(data, dict) else None
+    seeds = card.get("seeds") if isinstance(card, dict) else None
+    if not seeds:
+        return None
+    try:
+        trained = tuple(sorted(int(s) for s in seeds["trained"]))
+        shipped = int(seeds["shipped"])
+    except (KeyError, TypeError, ValueError):
+        raise AgentSpecError(
+            f"agent {spec.spec!r}: {meta_file}: model_card.seeds needs 'trained' (the training "
+            "seeds) and 'shipped' (one of them)"
+        ) from None
+    specs = {s: str(Path(spec.target) / SEEDS_DIR / str(s)) for s in trained if s != shipped}
+    missing = [p for p in specs.values() if find_metadata_file(Path(p)) is None]
+    if shipped not in trained or missing:
+        raise AgentSpecError(
+            f"agent {spec.spec!r}: its card names training seeds {list(trained)}, shipped "
+            f"{shipped}, but " + (f"{missing[0]} holds no policy" if missing else "not that one")
+        )
+    return TrainingSeeds(trained, shipped, specs)
 
 
 def _model_kind(directory: Path) -> tuple[str, tuple[int, int] | None]:

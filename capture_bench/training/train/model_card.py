@@ -10,6 +10,13 @@ evaluation seed) and writes the model card: the ``model_card`` entry of ``metada
 and what it achieved on validation, episode by episode, so that ``tests/test_model_cards.py``
 can replay a few episodes and check the card. ``evaluate.py`` then picks the model up in the
 default leaderboard (``models/*``).
+
+``python -m capture_bench.training.train.model_card RUN0 RUN1 RUN2 --name NAME`` ships runs that
+differ only in their training seed as one model (`ship_seeds`): each seed's policy is validated
+the same way and copied to ``models/NAME/seeds/<seed>/``, the seed of the median validation score
+ships as above, and the card's ``seeds`` entry and the README's "Training seeds" section name the
+seeds, the one shipped and each one's validation. Runs that differ in anything else, or repeat a
+seed, are refused before anything is written.
 """
 
 from __future__ import annotations
@@ -17,9 +24,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import shutil
 import statistics
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +41,11 @@ from capture_bench.training.common.policy_export import BEST_DIR, IMITATION_FILE
 CARD_FIELDS = ("command", "total_timesteps", "wall_time_s", "hardware", "training_seed",
                "scenarios", "actions", "validation", "policy")  # fmt: skip
 COPIED = ("policy.pt", "metadata.json", "model.zip")
+#: What `ship_seeds` copies of each training seed's run, to ``seeds/<seed>/``.
+SEED_COPIED = ("policy.pt", "metadata.json")
+SEEDS_DIR = "seeds"
+#: How `ship_seeds` chooses the seed that ships.
+SELECTION = "median validation score (validation seeds)"
 
 
 #: Validation episodes are played in batches of this many seeds, in order. A policy's float32
@@ -93,6 +107,10 @@ def replay_agrees(recorded: list[dict[str, Any]], replayed: list[dict[str, Any]]
     return problems
 
 
+#: What `validate_policy` keeps of the summary of a scenario's episodes.
+VALIDATION_SUMMARY = ("capture_rate", "median_ratio_to_limit", "median_capture_time", "mean_score")
+
+
 def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[str, Any]:
     """The policy in ``model_dir`` on ``seeds`` of ``scenario``, as train.py validates: one
     deterministic episode per seed in the batched env, `CARD_BATCH` seeds at a time;
@@ -124,15 +142,36 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
             }
             for seed, e in zip(seeds, played)
         ],  # fmt: skip
-        **{k: summary[k] for k in ("capture_rate", "median_ratio_to_limit", "median_capture_time")},
+        **{k: summary[k] for k in VALIDATION_SUMMARY},
     }
 
 
-def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Path:
-    """Copy the run to ``models/<name>/`` with its model card; return the directory."""
-    from capture_bench.provenance import machine
-    from capture_bench.training.common.mixture import mixture_scenarios
+@dataclass(frozen=True)
+class Run:
+    """A finished run (or its ``best/``) as shipping reads it.
 
+    Attributes:
+        directory: the policy's directory (the run's, or its ``best/``).
+        meta: its ``metadata.json``.
+        config: the run's ``config.json`` (``config``, ``hyperparameters``, ...).
+        config_file: where ``config`` was read.
+        best: `_best_validation` of ``best/`` (its step and seeds), None for the final policy.
+    """
+
+    directory: Path
+    meta: dict[str, Any]
+    config: dict[str, Any]
+    config_file: Path
+    best: dict[str, Any] | None
+
+    @property
+    def seed(self) -> int:
+        """The training seed."""
+        return int(self.meta.get("seed", self.config["config"].get("seed")))
+
+
+def read_run(run_dir: Path) -> Run:
+    """The run in ``run_dir`` (a finished run or its ``best/``); `ConfigError` if it is none."""
     run_dir = Path(run_dir)
     meta_file = run_dir / "metadata.json"
     if not meta_file.is_file() or not (run_dir / "policy.pt").is_file():
@@ -144,28 +183,198 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
     config_file = (run_dir.parent if best else run_dir) / "config.json"
     if not config_file.is_file():
         raise ConfigError(f"{config_file}: missing; ship a run directory or its {BEST_DIR}/")
-    config = json.loads(config_file.read_text())["config"]
+    config = json.loads(config_file.read_text())
+    return Run(run_dir, meta, config, config_file, best)
+
+
+def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Path:
+    """Copy the run to ``models/<name>/`` with its model card; return the directory."""
+    run = read_run(run_dir)
+    target, tmp = _staging(name, out)
+    _copy(run.directory, tmp, COPIED)
+    validation = _validate(tmp, _scenarios(run), episodes)
+    _finish(tmp, target, name, run.meta, _card(run, validation))
+    return target
+
+
+def ship_seeds(run_dirs: list[Path], name: str, episodes: int, out: Path | None = None) -> Path:
+    """Ship runs that differ only in their training seed as one model: each run's policy is
+    validated (`validate_policy`, on validation seeds only) and copied to ``seeds/<seed>/``,
+    and the run of the median validation score (`median_seed`) ships as `ship` ships one run,
+    its card naming every seed (``model_card["seeds"]``); return the directory.
+
+    Raises:
+        ConfigError: a directory that is no run, runs that differ in more than the seed
+            (`seed_difference`), or a seed given twice; nothing is written.
+    """
+    runs = [read_run(d) for d in run_dirs]
+    problem = seed_difference(runs)
+    if problem:
+        raise ConfigError(problem)
+    target, tmp = _staging(name, out)
+    try:
+        _ship_seeds(runs, tmp, target, name, episodes)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return target
+
+
+def _ship_seeds(runs: list[Run], tmp: Path, target: Path, name: str, episodes: int) -> None:
+    scenarios = _scenarios(runs[0])
+    validations = {}
+    for run in runs:
+        copy = tmp / SEEDS_DIR / str(run.seed)
+        copy.mkdir(parents=True)
+        _copy(run.directory, copy, SEED_COPIED)
+        validations[run.seed] = _validate(copy, scenarios, episodes)
+    scores = {seed: validation_score(v) for seed, v in validations.items()}
+    shipped = median_seed(scores)
+    run = next(r for r in runs if r.seed == shipped)
+    _copy(run.directory, tmp, COPIED)
+    card = _card(run, validations[shipped])
+    card["seeds"] = {
+        "trained": sorted(scores),
+        "shipped": shipped,
+        "selection": SELECTION,
+        "scores": {str(seed): scores[seed] for seed in sorted(scores)},
+        "validation": {
+            str(seed): {scenario: _summary(v) for scenario, v in validations[seed].items()}
+            for seed in sorted(validations)
+        },
+    }
+    _finish(tmp, target, name, run.meta, card)
+
+
+def validation_score(validation: dict[str, dict[str, Any]]) -> float:
+    """The mean per-episode score (`capture_bench.task.score.episode_score`) over every
+    validation episode of every scenario of a `_validate` result."""
+    total = sum(v["mean_score"] * len(v["episodes"]) for v in validation.values())
+    return total / sum(len(v["episodes"]) for v in validation.values())
+
+
+def median_seed(scores: dict[int, float]) -> int:
+    """The seed whose score is the median of ``scores`` ({seed: score}; the lower middle one
+    of an even count), the lowest such seed where several have it."""
+    values = sorted(scores.values())
+    middle = values[(len(values) - 1) // 2]
+    return min(seed for seed, value in scores.items() if value == middle)
+
+
+def seed_difference(runs: list[Run]) -> str | None:
+    """Why ``runs`` cannot ship as the training seeds of one model (one line), None if they
+    can: fewer than two, a seed given twice, or a setting other than the seed that differs
+    (`_settings`: the first one, with each run's value)."""
+    if len(runs) < 2:
+        return "several training seeds need at least two runs"
+    seeds = [run.seed for run in runs]
+    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
+    if repeated:
+        where = ", ".join(str(r.directory) for r in runs if r.seed in repeated)
+        return f"runs repeat training seed {repeated[0]} ({where}); each seed ships once"
+    settings = [_settings(run) for run in runs]
+    keys = list(dict.fromkeys(k for s in settings for k in s))
+    differ = [k for k in keys if any(s.get(k) != settings[0].get(k) for s in settings)]
+    if not differ:
+        return None
+    first = differ[0]
+    values = ", ".join(f"{s.get(first)!r} in {r.directory}" for s, r in zip(settings, runs))
+    more = f" (and {len(differ) - 1} more)" if len(differ) > 1 else ""
+    return f"runs differ in more than the seed: {first}: {values}{more}"
+
+
+def _settings(run: Run) -> dict[str, Any]:
+    """What must be the same in every seed of a model, flat: the run's configuration but its
+    seed and folder, its hyper-parameters, the metadata naming its algorithm, scenario,
+    observation source, reward and residual, its command but ``--seed``/``--run-dir``, and
+    which policy of the run (final or best validation)."""
+    config = {k: v for k, v in run.config["config"].items() if k not in ("seed", "run_dir")}
+    flat = _flat("hyper-parameter ", run.config.get("hyperparameters", {}))
+    flat |= {f"{k}": run.meta.get(k) for k in SAME_METADATA}
+    flat |= _flat("config ", config)
+    flat["command"] = _command_but_seed(run.meta.get("command") or "")
+    flat["policy"] = "best validation" if run.best else "final"
+    return flat
+
+
+#: Metadata fields every seed of a model shares.
+SAME_METADATA = ("algorithm", "scenario", "observation_source", "reward", "residual")
+#: Command-line options of train.py that may differ between the seeds of a model.
+SEED_OPTIONS = ("--seed", "--run-dir")
+
+
+def _flat(prefix: str, value: Any) -> dict[str, Any]:
+    """``value`` flat: each leaf under its dotted path after ``prefix``."""
+    if not isinstance(value, dict):
+        return {prefix.rstrip("."): value}
+    out: dict[str, Any] = {}
+    for key, item in value.items():
+        out |= _flat(f"{prefix}{key}.", item)
+    return out
+
+
+def _command_but_seed(command: str) -> str:
+    words, kept = shlex.split(command), []
+    skip = False
+    for word in words:
+        if skip:
+            skip = False
+        elif word in SEED_OPTIONS:
+            skip = True
+        elif not word.startswith(tuple(f"{o}=" for o in SEED_OPTIONS)):
+            kept.append(word)
+    return shlex.join(kept)
+
+
+def _staging(name: str, out: Path | None) -> tuple[Path, Path]:
+    """``(models/<name>, its empty temporary sibling)``; `ConfigError` if the model exists."""
     target = (out or models_dir()) / name
     if target.exists():
         raise ConfigError(f"{target}: already exists; remove it or choose another --name")
     tmp = target.with_name(f".tmp-{name}")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    for file in COPIED:
-        if (run_dir / file).is_file():
-            shutil.copy2(run_dir / file, tmp / file)
-    scenarios = [s.name for s in mixture_scenarios(config["scenario"])]
-    validation = {}
-    for scenario in scenarios:
-        seeds = list(load_scenario(scenario).validation_seeds[:episodes])
-        validation[scenario] = validate_policy(tmp, scenario, seeds)
+    return target, tmp
+
+
+def _copy(source: Path, dest: Path, files: tuple[str, ...]) -> None:
+    for file in files:
+        if (source / file).is_file():
+            shutil.copy2(source / file, dest / file)
+
+
+def _scenarios(run: Run) -> list[str]:
+    from capture_bench.training.common.mixture import mixture_scenarios
+
+    return [s.name for s in mixture_scenarios(run.config["config"]["scenario"])]
+
+
+def _validate(model_dir: Path, scenarios: list[str], episodes: int) -> dict[str, Any]:
+    """`validate_policy` on the first ``episodes`` validation seeds of each scenario."""
+    return {
+        scenario: validate_policy(
+            model_dir, scenario, list(load_scenario(scenario).validation_seeds[:episodes])
+        )
+        for scenario in scenarios
+    }
+
+
+def _summary(validation: dict[str, Any]) -> dict[str, Any]:
+    """A scenario's validation without its episodes."""
+    return {k: v for k, v in validation.items() if k != "episodes"}
+
+
+def _card(run: Run, validation: dict[str, Any]) -> dict[str, Any]:
+    from capture_bench.provenance import machine
+
+    meta, best = run.meta, run.best
     card = {
         "command": meta.get("command"),
         "total_timesteps": meta.get("total_timesteps"),
         "wall_time_s": meta.get("wall_time_s"),
         "hardware": machine(),
         "training_seed": meta.get("seed"),
-        "scenarios": scenarios,
+        "scenarios": list(validation),
         "actions": meta.get("actions", "deterministic"),
         "validation": validation,
         # which of the run's policies: its last, or its best periodic validation (step, seeds)
@@ -175,7 +384,7 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
             else {"kind": "final"}
         ),
     }
-    imitation_file = config_file.parent / IMITATION_FILE
+    imitation_file = run.config_file.parent / IMITATION_FILE
     if imitation_file.is_file():  # DAgger before the algorithm (training/imitation.py)
         from capture_bench.training.common.imitation import describe_teacher
 
@@ -183,11 +392,15 @@ def ship(run_dir: Path, name: str, episodes: int, out: Path | None = None) -> Pa
             "teacher": describe_teacher(meta.get("hyperparameters", {}).get("imitate", "")),
             **json.loads(imitation_file.read_text()),
         }
-    meta["model_card"] = card
+    return card
+
+
+def _finish(tmp: Path, target: Path, name: str, meta: dict[str, Any], card: dict[str, Any]):
+    """Write the card into ``tmp`` (``metadata.json``, ``README.md``) and rename it ``target``."""
+    meta = {**meta, "model_card": card}
     atomic_write(tmp / "metadata.json", json.dumps(meta, indent=2).encode())
     atomic_write(tmp / "README.md", _readme(name, meta, card).encode())
     tmp.rename(target)
-    return target
 
 
 #: The README section that `revalidate` writes (and rewrites).
@@ -347,14 +560,52 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
         + " The leaderboard's figures on the published evaluation seeds are in "
         "`reports/published/default`.",
         "",
+        *(_seeds_section(card["seeds"]) if "seeds" in card else []),
     ])  # fmt: skip
+
+
+#: The README section of a model shipped from several training seeds (`ship_seeds`).
+SEEDS_HEADING = "## Training seeds"
+
+
+def _seeds_section(seeds: dict[str, Any]) -> list[str]:
+    """The README's section on a model's training seeds: which ones, which ships and why, and
+    each one's validation."""
+    trained = ", ".join(map(str, seeds["trained"]))
+    rows = [
+        f"| {seed}{' (shipped)' if seed == seeds['shipped'] else ''} | "
+        f"{seeds['scores'][str(seed)]:.3f} | {scenario} | {v['capture_rate']:.2f} | "
+        f"{_ratio(v['median_ratio_to_limit'])} |"
+        for seed in seeds["trained"]
+        for scenario, v in seeds["validation"][str(seed)].items()
+    ]
+    return [
+        SEEDS_HEADING,
+        "",
+        f"Trained with {len(seeds['trained'])} seeds, {trained}, by the same command but for "
+        f"`--seed` and `--run-dir`. The policy shipped is seed {seeds['shipped']}'s: the "
+        "median of the seeds' validation scores (the mean per-episode score over the validation "
+        "seeds above, physical limit / capture time for a capture and 0 for a failure; the "
+        "lower seed where two have the median), so nothing is chosen on a published seed. Each "
+        "seed's policy is in `seeds/<seed>/`; the leaderboard plays every one on its episodes "
+        "and reports their IQM with its interval beside the shipped policy's row.",
+        "",
+        "| seed | validation score | scenario | capture rate | median ratio to the physical "
+        "limit |",
+        "|---|---|---|---|---|",
+        *rows,
+        "",
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m capture_bench.training.train.model_card",
                                      description=__doc__.splitlines()[0])  # fmt: skip
     parser.add_argument(
-        "run_dir", help="a finished run (or its best/); with --revalidate, models/<name>"
+        "run_dir",
+        nargs="+",
+        help="a finished run (or its best/); several: the same run with other training seeds, "
+        "shipped as one model (ship_seeds); with --revalidate, models/<name>",
     )
     parser.add_argument("--name", help="models/<name>/ (required unless --revalidate)")
     parser.add_argument(
@@ -366,7 +617,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=20, help="validation seeds per scenario")
     args = parser.parse_args(argv)
     if args.revalidate:
-        model = Path(args.run_dir)
+        if len(args.run_dir) != 1:
+            print("model_card: error: --revalidate takes one model directory", file=sys.stderr)
+            return 2
+        model = Path(args.run_dir[0])
         if not (model / "metadata.json").is_file():
             print(
                 f"model_card: error: {model}: no metadata.json (a shipped model)", file=sys.stderr
@@ -379,7 +633,12 @@ def main(argv: list[str] | None = None) -> int:
         print("model_card: error: --name is required to ship a run", file=sys.stderr)
         return 2
     try:
-        target = ship(Path(args.run_dir), args.name, args.episodes)
+        runs = [Path(d) for d in args.run_dir]
+        target = (
+            ship(runs[0], args.name, args.episodes)
+            if len(runs) == 1
+            else ship_seeds(runs, args.name, args.episodes)
+        )
     except ConfigError as exc:
         print(f"model_card: error: {exc}", file=sys.stderr)
         return 2
