@@ -112,3 +112,14 @@ def test_episode_start_forgets_the_plan():
     assert agent.plans[0] is not None and not agent.plans[0].fallback
     agent.predict(obs, episode_start=np.array([True]))
     assert agent.planned == 2
+
+
+def test_joints_that_jumped_further_than_a_step_mean_a_new_plan():
+    """A new episode in an auto-resetting env: the arm is back home, which no action does."""
+    agent = PlannedIntercept(TaskDescription())
+    target = forward_kinematics(HOME + [0.4, -0.3, 0.3])
+    agent.predict(observe(HOME, target, [0.01, 0.0, 0.0]))
+    assert agent.planned == 1
+    away = HOME + [0.3, -0.2, 0.2]  # further than one step of every joint
+    agent.predict(observe(away, target, [0.01, 0.0, 0.0]))
+    assert agent.planned == 2

@@ -9,26 +9,40 @@ does, but on the trajectory the estimate implies instead of the true one:
   It never reads the environment.
 * **What it assumes**: the capture point moves at the estimated velocity from the estimated
   position, ``X_T(tau) = X^_T + Xdot^_T tau`` (a `LinearDrift` from now, tau in s from the current
-  step), and every step lasts the nominal t_s.
+  step: `LinearDrift`'s position and velocity, a `TargetTrajectory` without spin or offset), and
+  every step lasts the nominal t_s.
 
 On that trajectory, with time counted from the current step and the reachable box about the
 current joint angles, it takes the physical limit's arrival and entry into the envelope
 (`physical_limits`, `held_arrivals`), and the oracle's landing (full rate to ``theta_m`` by the
-step end ``t_m``) and approach-and-track steps (`EnvelopePlan`). It plans again when
+step end ``t_m``: `EnvelopePlan.landing`, over ``candidates`` step ends) and approach-and-track
+steps (`EnvelopePlan.track_step`, on the newest estimate's trajectory at every step after the
+landing). Its approach is slower and its landing deeper into eq. 20's box than the oracle's
+(``approach_speeds``, ``landing_depth``): the estimate's velocity error adds to the relative
+speed the envelope bounds, and its position error moves the box.
 
-* the estimate's trajectory has moved: the capture point it predicts at the landing differs from
-  the planned one by more than ``replan_fraction`` of epsilon in some component;
-* the arm is not where its last action put it (another agent acted, or a new episode began);
-* the landing is spent and the relative position is further than ``track_range`` from the
-  capture point.
+A plan is kept, and checked at every step:
 
-After the landing each step is `EnvelopePlan.track_step` on the newest estimate's trajectory.
+* the joints moved further than any action moves them in one step (a new episode began), or the
+  landing is spent and the end-effector is further than ``track_range`` from X^_T: it plans
+  again;
+* ``theta_m`` is out of reach by ``t_m`` (another agent acted, or a step was short): the landing
+  pose is adjusted (`EnvelopePlan.landing_pose` for where the estimate puts the capture point at
+  ``t_m``, else one step later), and where neither lands inside eq. 20's box shrunk to
+  ``ADJUST_DEPTH`` it plans again;
+* the estimate now puts the capture point at ``t_m`` more than ``replan_fraction`` of epsilon
+  from where the plan did: within ``NEAR_LANDING`` s of the landing the pose is adjusted for the
+  same ``t_m`` (else it plans again); further away it plans again, at most every
+  ``replan_steps`` steps (a new ``t_m`` matters there: early estimates can be far off).
+
 With no valid estimate (the observation then carries X_E as the target and zero velocity) or no
 capture within ``horizon``, it takes the paper's incremental IK step (eqs. 13-19, capped), as
-``incremental_ik`` does.
+``incremental_ik`` does, and tries to plan again after ``replan_steps`` steps.
 
 The plan of a row is kept between calls: ``predict`` with ``episode_start`` true, or ``reset``,
-forgets it, and a batch of N observations keeps N plans (row i is episode i).
+forgets it, and a batch of N observations keeps N plans (row i is episode i). A row whose
+observation has not changed since the last call (an ended episode's, in a batch) gets the same
+action again. It is therefore not a function of the observation alone (not a residual base).
 """
 
 from __future__ import annotations
@@ -44,7 +58,7 @@ from capture_bench.agents.base import AnalyticController, safe_action
 from capture_bench.agents.envelope_plan import EnvelopePlan
 from capture_bench.agents.incremental_ik import incremental_steps
 from capture_bench.sim.kinematics import forward_kinematics
-from capture_bench.sim.target_motion import LinearDrift, TargetTrajectory
+from capture_bench.sim.target_motion import LinearDrift
 from capture_bench.task.observation import OBSERVATION_SIZE, TaskDescription
 from capture_bench.task.physical_limit import physical_limits
 from capture_bench.task.scenarios import CaptureConfig
@@ -73,15 +87,15 @@ NEAR_LANDING = 0.25
 ADJUST_DEPTH = 0.8
 #: Relative distance beyond which a spent landing is planned again, m.
 TRACK_RANGE = 0.03
-#: Joint angles further than this from where the last action put them mean someone else acted.
-MOVED = 1e-6  # rad
+#: Slack of the reach tests, rad.
+SLACK = 1e-6
 
 
 @dataclass
 class _RowPlan:
     """One row's plan: the landing (``t_m`` s after the plan, ``theta_m``) and where the estimate
     put the capture point then (``goal``), the time and steps since the plan (or its last
-    adjustment), the joint angles the last action asked for, and the last observation and
+    adjustment), the joint angles before the last action, and the last observation and
     action; ``fallback``: no capture found, the incremental IK step until it plans again."""
 
     t_m: float
@@ -89,7 +103,7 @@ class _RowPlan:
     goal: FloatArray
     elapsed: float = 0.0
     steps: int = 0
-    expected: FloatArray | None = None
+    before: FloatArray | None = None
     observation: NDArray | None = None
     action: FloatArray | None = None
     fallback: bool = False
@@ -208,9 +222,12 @@ class PlannedIntercept(AnalyticController):
             plan.steps += 1
             if self._lost(plan, theta, position):
                 plan = None
-            elif self._goal_moved(plan, position, velocity):
-                near = plan.t_m - plan.elapsed <= NEAR_LANDING
-                plan = self._adjusted(plan, theta, position, velocity) if near else None
+            elif self._late(plan, theta):
+                plan = self._adjusted(plan, theta, position, velocity, steps=2)
+            elif self._goal_moved(plan, position, velocity, near=True):
+                plan = self._adjusted(plan, theta, position, velocity, steps=1)
+            elif self._goal_moved(plan, position, velocity, near=False):
+                plan = None
         if plan is not None and plan.fallback and plan.steps >= self.replan_steps:
             plan = None  # try again
         if plan is None:
@@ -225,55 +242,76 @@ class PlannedIntercept(AnalyticController):
         else:  # approach and track on the newest estimate
             q = self._envelope(position, velocity).track_step(theta, 0.0, t_s)
             move = np.clip((q - theta) / scale, -1.0, 1.0)
-        plan.expected = theta + move * scale
+        plan.before = theta
         return move
 
     def _lost(self, plan: _RowPlan, theta: FloatArray, position: FloatArray) -> bool:
-        """Whether ``plan`` must be made again: the arm is not where the last action put it, or
-        the landing is spent and the end-effector is further than ``track_range`` from X^_T."""
-        if plan.expected is not None and np.any(np.abs(theta - plan.expected) > MOVED):
+        """Whether ``plan`` must be made again: the joints moved further than one step can move
+        them (a new episode began), or the landing is spent and the end-effector is further
+        than ``track_range`` from X^_T."""
+        step = self.description.arm.joint_rate_limits * self.description.control_period
+        if plan.before is not None and np.any(np.abs(theta - plan.before) > step + SLACK):
             return True
         if plan.fallback or plan.t_m - plan.elapsed > -1e-9:
             return False
         return bool(np.linalg.norm(forward_kinematics(theta) - position) > self.track_range)
 
-    def _goal_moved(self, plan: _RowPlan, position: FloatArray, velocity: FloatArray) -> bool:
-        """Whether the landing is to come and the estimate now puts the capture point at ``t_m``
-        more than ``replan_fraction`` of epsilon from ``goal`` in some component (asked every
-        ``replan_steps`` steps until ``NEAR_LANDING`` s before the landing, then every step)."""
+    def _late(self, plan: _RowPlan, theta: FloatArray) -> bool:
+        """Whether the landing is to come and ``theta_m`` is out of reach by ``t_m`` (another
+        agent acted, or a step was short)."""
         remaining = plan.t_m - plan.elapsed
         if plan.fallback or remaining <= -1e-9:
             return False
-        if remaining > NEAR_LANDING and plan.steps < self.replan_steps:
+        reach = self.description.arm.joint_rate_limits * max(remaining, 0.0)
+        return bool(np.any(np.abs(plan.theta_m - theta) > reach + SLACK))
+
+    def _goal_moved(
+        self, plan: _RowPlan, position: FloatArray, velocity: FloatArray, near: bool
+    ) -> bool:
+        """Whether the landing is to come, within ``NEAR_LANDING`` s (``near``) or further
+        (asked every ``replan_steps`` steps), and the estimate now puts the capture point at
+        ``t_m`` more than ``replan_fraction`` of epsilon from ``goal`` in some component."""
+        remaining = plan.t_m - plan.elapsed
+        if plan.fallback or remaining <= -1e-9 or near != (remaining <= NEAR_LANDING):
+            return False
+        if not near and plan.steps < self.replan_steps:
             return False
         eps = self.description.capture_tolerance
         now = position + velocity * remaining
         return bool(np.any(np.abs(now - plan.goal) > self.replan_fraction * eps))
 
     def _adjusted(
-        self, plan: _RowPlan, theta: FloatArray, position: FloatArray, velocity: FloatArray
+        self,
+        plan: _RowPlan,
+        theta: FloatArray,
+        position: FloatArray,
+        velocity: FloatArray,
+        steps: int,
     ) -> _RowPlan | None:
-        """The same landing time, the landing pose for where the estimate now puts the capture
-        point then (`EnvelopePlan.landing_pose` in the box reachable by then), or None where
-        that pose is outside eq. 20's box about it shrunk to ``ADJUST_DEPTH``."""
-        remaining = plan.t_m - plan.elapsed
+        """The landing at ``t_m`` or, with ``steps`` 2, where that fails one step later: the
+        landing pose for where the estimate now puts the capture point then
+        (`EnvelopePlan.landing_pose` in the box reachable by then), the first inside eq. 20's
+        box about it shrunk to ``ADJUST_DEPTH``; None where none is."""
         arm, eps = self.description.arm, self.description.capture_tolerance
-        goal = position + velocity * remaining
-        reach = arm.joint_rate_limits * remaining
-        lo = np.maximum(arm.joint_lower, theta - reach)
-        hi = np.minimum(arm.joint_upper, theta + reach)
-        theta_m = self._envelope(position, velocity).landing_pose(goal, plan.theta_m, lo, hi)
-        if np.any(np.abs(forward_kinematics(theta_m) - goal) > ADJUST_DEPTH * eps):
-            return None
-        return _RowPlan(remaining, theta_m, goal, expected=plan.expected)
+        envelope = self._envelope(position, velocity)
+        for later in self.description.control_period * np.arange(steps):
+            remaining = max(plan.t_m - plan.elapsed, 0.0) + later
+            goal = position + velocity * remaining
+            reach = arm.joint_rate_limits * remaining
+            lo = np.maximum(arm.joint_lower, theta - reach)
+            hi = np.minimum(arm.joint_upper, theta + reach)
+            theta_m = envelope.landing_pose(goal, plan.theta_m, lo, hi)
+            if np.all(np.abs(forward_kinematics(theta_m) - goal) <= ADJUST_DEPTH * eps):
+                return _RowPlan(remaining, theta_m, goal, before=plan.before)
+        return None
 
     def _envelope(self, position: FloatArray, velocity: FloatArray) -> EnvelopePlan:
         """`EnvelopePlan` on the estimate's trajectory, time from now."""
-        trajectory = TargetTrajectory(LinearDrift(position.copy(), velocity.copy()))
+        drift = LinearDrift(position.copy(), velocity.copy())  # the capture point itself
         return EnvelopePlan(
             self.description,
-            trajectory.position,
-            trajectory.velocity,
+            drift.position,
+            drift.velocity_at,
             self.v_max,
             self.hold,
             self.approach_speeds,
