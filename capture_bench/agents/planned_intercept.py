@@ -207,9 +207,9 @@ class PlannedIntercept(AnalyticController):
                 assert plan is not None
                 plan.observation, plan.action = rows[i], step
         if fallback:
-            rows = np.array(fallback)
-            step = incremental_steps(theta[rows], position[rows], velocity[rows], self.description)
-            actions[rows] = self.description.increment_to_action(step.increment)
+            idx = np.array(fallback)
+            step = incremental_steps(theta[idx], position[idx], velocity[idx], self.description)
+            actions[idx] = self.description.increment_to_action(step.increment)
         return safe_action(actions)
 
     def _act_row(
