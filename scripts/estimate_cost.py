@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-DEFAULT_AGENTS = ("incremental_ik", "dls", "pure_pursuit", "joint_intercept")
+DEFAULT_AGENTS = ("incremental_ik", "dls", "pure_pursuit", "joint_intercept", "planned_intercept")
 
 
 def measure(

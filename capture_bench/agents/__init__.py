@@ -27,6 +27,7 @@ from capture_bench.agents.baselines import (
 )
 from capture_bench.agents.incremental_ik import FOLLOW_THROUGH, IncrementalIK, incremental_steps
 from capture_bench.agents.oracle import Oracle
+from capture_bench.agents.planned_intercept import PlannedIntercept
 from capture_bench.agents.protocol import Agent
 
 AgentFactory = Callable[..., Agent]
@@ -56,6 +57,7 @@ AGENTS: dict[str, AgentFactory] = {
     "joint_intercept": _public(JointIntercept),
     "joint_intercept_uncapped": _public(JointIntercept, cap=False),
     "dls": _public(DampedLeastSquares),
+    "planned_intercept": _public(PlannedIntercept),
     "random": _public(RandomAgent),
     "hold": _public(Hold),
     "oracle": _oracle,
@@ -78,6 +80,10 @@ environment itself (privileged, ranked apart).
 - `joint_intercept_uncapped`: the same at full rate, sweeping through that pose (``cap=False``).
 - `dls`: [`DampedLeastSquares`][capture_bench.agents.baselines.DampedLeastSquares], damped least
   squares resolved rate, feed-forward + P.
+- `planned_intercept`:
+  [`PlannedIntercept`][capture_bench.agents.planned_intercept.PlannedIntercept], the oracle's
+  landing and tracking on the estimate's constant-velocity trajectory, planned again as the
+  estimate moves.
 - `random`: [`RandomAgent`][capture_bench.agents.baselines.RandomAgent], uniform random actions
   (seeded).
 - `hold`: [`Hold`][capture_bench.agents.baselines.Hold], zero action.
@@ -118,6 +124,7 @@ __all__ = [
     "IncrementalIK",
     "Intercept",
     "Oracle",
+    "PlannedIntercept",
     "PurePursuit",
     "RandomAgent",
     "incremental_steps",

@@ -25,7 +25,8 @@ Plan, per episode, under the capture envelope (a scenario with ``capture.v_max``
    earlier, the slow approach enters it within the next step. Of the ``LANDING_CANDIDATES`` step
    ends from the last one before t_e it keeps the one whose capture completes first, simulated
    with the rule's own tests (eq. 20's box and the speed bound along each step's arc,
-   `held_capture`).
+   `held_capture`). Steps 2 and 3 are `EnvelopePlan`'s
+   (``capture_bench/agents/envelope_plan.py``), given the true trajectory.
 3. *Approach and track.* Each step ends the end-effector on ``X_T(t + dt)`` plus a relative
    position that moves at ``0.99 v_max`` straight to eq. 20's box shrunk to ``APPROACH_DEPTH``,
    then to the capture point: the exact one-step IK solution (within the joint limits), or where
@@ -70,31 +71,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from capture_bench.agents.base import predict_each, safe_action
+from capture_bench.agents.envelope_plan import EnvelopePlan, one_step_solution
 from capture_bench.agents.incremental_ik import incremental_steps
-from capture_bench.sim.kinematics import forward_kinematics, inverse_kinematics, within_limits
-from capture_bench.task.capture import (
-    held_capture,
-    inside_intervals,
-    inside_intervals_along_arc,
-    intersect,
-    slow_intervals_along_arc,
-)
 from capture_bench.task.observation import TaskDescription, decode_observation
 from capture_bench.task.physical_limit import held_arrivals, nearest_in_box
 
 FloatArray = NDArray[np.float64]
-#: The relative speeds of the slow approach, as fractions of ``v_max``, the fastest first.
-APPROACH_SPEEDS = (0.99, 0.9, 0.6, 0.3, 0.0)
-#: The approach aims at the nearest point of eq. 20's box shrunk to this fraction of epsilon.
-APPROACH_DEPTH = 0.5
-#: The landing point is the reachable point nearest eq. 20's box shrunk to this fraction.
-LANDING_DEPTH = 0.98
-#: Alternate projections between the reachable set and a box.
-PROJECTIONS = 4
-#: Step ends tried as the landing, from the last one before the entry.
-LANDING_CANDIDATES = 6
-#: Steps simulated after the hold's length before a landing counts as not capturing.
-SIMULATED_STEPS = 6
 
 
 class Oracle:
@@ -179,20 +161,8 @@ class Oracle:
         self, theta: NDArray, goal: NDArray, dt: float
     ) -> NDArray[np.float64] | None:
         """An IK solution of ``goal`` within joint limits and one step of ``dt`` s of ``theta``,
-        or None."""
-        arm = self.description.arm
-        reach = arm.joint_rate_limits * min(dt, self.description.control_period)  # |action| <= 1
-        solutions = _distinct_solutions(goal)
-        if solutions.shape[0] == 0:
-            return None
-        ok = within_limits(solutions, arm.joint_lower, arm.joint_upper) & np.all(
-            np.abs(solutions - theta) <= reach * (1.0 - 1e-9), axis=1
-        )
-        if not np.any(ok):
-            return None
-        candidates = solutions[ok]
-        scaled = (candidates - theta) / reach
-        return candidates[int(np.argmin(np.max(np.abs(scaled), axis=1)))]
+        or None (`one_step_solution`)."""
+        return one_step_solution(self.description, theta, goal, dt)
 
     def _nearest_in_one_step(
         self, theta: NDArray, goal: NDArray, dt: float, start: NDArray
@@ -205,96 +175,28 @@ class Oracle:
         hi = np.minimum(arm.joint_upper, theta + reach)
         return nearest_in_box(start[None], goal[None], lo[None], hi[None])[0]
 
+    def _envelope_plan(self) -> EnvelopePlan:
+        """The landing and tracking of `EnvelopePlan` on the true trajectory (privileged)."""
+        trajectory = self.world.plan.trajectory
+        return EnvelopePlan(
+            self.description, trajectory.position, trajectory.velocity, self.v_max, self.hold
+        )
+
     def _landing(self, entry: float, theta_star: FloatArray) -> tuple[float, FloatArray] | None:
         """Under a speed bound: the step end ``t_m`` and the joint vector ``theta_m`` the arm
-        goes to at full rate, after which the approach and the tracking complete the capture
-        the earliest (see the module docstring); None if none of them captures."""
+        goes to at full rate from home, after which the approach and the tracking complete the
+        capture the earliest (`EnvelopePlan.landing` over the episode's own step ends); None if
+        none of them captures."""
         plan = self.world.plan
-        arm = self.description.arm
-        eps = self.description.capture_tolerance
         times, _ = plan.step_times()
         travel = plan.travel_time(times) if plan.scenario.control.period_jitter else times
-        best: tuple[float, float, FloatArray] | None = None  # (capture, t_m, theta_m)
-        first = max(int(np.searchsorted(times, entry)) - 1, 0)  # the last step end before
-        for m in range(first, min(first + LANDING_CANDIDATES, times.size - 1)):
-            t_m = float(times[m])
-            if best is not None and t_m + self.hold >= best[0]:
-                break
-            reach = arm.joint_rate_limits * travel[m]
-            lo = np.maximum(arm.joint_lower, arm.home - reach)
-            hi = np.minimum(arm.joint_upper, arm.home + reach)
-            goal = self._true_position(t_m)
-            starts = np.vstack((theta_star, _distinct_solutions(goal)))
-            q = _nearest_in_box_about(starts, goal, LANDING_DEPTH * eps, eps, lo, hi)
-            speed = APPROACH_SPEEDS[0] * float(self.v_max)
-            misses = forward_kinematics(q) - goal
-            theta_m = q[int(np.argmin([_approach_time(miss, eps, speed) for miss in misses]))]
-            done = self._simulate(m, theta_m, times)
-            if best is None or done < best[0]:
-                best = (done, t_m, theta_m)
-        if best is None or not np.isfinite(best[0]):
-            return None
-        return best[1], best[2]
-
-    def _simulate(self, m: int, theta_m: FloatArray, times: FloatArray) -> float:
-        """When the capture completes if the arm is at ``theta_m`` at step end ``times[m]`` and
-        then takes `_track_step` every step (eq. 20's box and the speed bound along each
-        step's arc, held for ``hold``, as the env tests them); inf if not within
-        ``SIMULATED_STEPS`` steps after the hold."""
-        eps = self.description.capture_tolerance
-        trajectory = self.world.plan.trajectory
-        theta, since = theta_m, np.nan
-        last = min(
-            times.size - 1,
-            m + SIMULATED_STEPS + int(np.ceil(self.hold / self.description.control_period)),
+        return self._envelope_plan().landing(
+            entry, theta_star, self.description.arm.home, times, travel
         )
-        for j in range(m, last):
-            t, dt = float(times[j]), float(times[j + 1] - times[j])
-            q = self._track_step(theta, t, dt)
-            inside = inside_intervals_along_arc(
-                theta, q - theta, lambda f, t=t, dt=dt: trajectory.position(t + f * dt), eps
-            )
-            slow = slow_intervals_along_arc(
-                theta,
-                q - theta,
-                dt,
-                lambda f, t=t, dt=dt: trajectory.velocity(t + f * dt),
-                self.v_max,
-            )
-            done, since = held_capture(intersect(inside, slow), since, t, dt, self.hold)
-            if done is not None:
-                return done
-            theta = q
-        return np.inf
 
     def _track_step(self, theta: FloatArray, t: float, dt: float) -> FloatArray:
-        """The joint vector at the end of a step of the approach and the tracking: the end-effector
-        ends ``X_T(t + dt)`` plus the relative position moved along the approach (`_advance`)
-        at ``APPROACH_SPEEDS`` of ``v_max``, the first of them at which the step's instantaneous
-        relative speed stays within ``v_max`` (the exact one-step IK solution; where none is within
-        one step, the reachable point nearest eq. 20's box)."""
-        trajectory = self.world.plan.trajectory
-        eps = self.description.capture_tolerance
-        here, ahead = self._true_position(t), self._true_position(t + dt)
-        miss = forward_kinematics(theta) - here
-        q = theta
-        for fraction in APPROACH_SPEEDS:
-            aim = _advance(miss, eps, fraction * float(self.v_max) * dt)
-            solution = self._one_step_solution(theta, ahead + aim, dt)
-            if solution is None:
-                arm = self.description.arm
-                reach = arm.joint_rate_limits * min(dt, self.description.control_period)
-                lo = np.maximum(arm.joint_lower, theta - reach * (1.0 - 1e-9))
-                hi = np.minimum(arm.joint_upper, theta + reach * (1.0 - 1e-9))
-                start = nearest_in_box(theta[None], (ahead + aim)[None], lo[None], hi[None])
-                solution = _nearest_in_box_about(start, ahead, APPROACH_DEPTH * eps, eps, lo, hi)[0]
-            q = solution
-            slow = slow_intervals_along_arc(
-                theta, q - theta, dt, lambda f: trajectory.velocity(t + f * dt), self.v_max
-            )
-            if slow == [(0.0, 1.0)]:
-                break
-        return q
+        """One step of the approach and the tracking (`EnvelopePlan.track_step`)."""
+        return self._envelope_plan().track_step(theta, t, dt)
 
     def _envelope_action(self, theta: FloatArray, t: float, dt: float) -> NDArray[np.float32]:
         """Under a speed bound: full rate to ``theta_m`` by ``t_m``, then `_track_step`."""
@@ -353,71 +255,9 @@ class Oracle:
         return predict_each(self.act, observation), state
 
 
-def _distinct_solutions(goal: FloatArray) -> FloatArray:
-    """The distinct IK solutions of one point ``goal`` (3,), rad, (K, 3) with K in {0, 2, 4}:
-    `inverse_kinematics`'s without its NaN rows, rounded to 1e-15 rad, in lexicographic order
-    (the order ties between equally good solutions are broken in)."""
-    solutions = inverse_kinematics(goal)
-    return np.unique(np.round(solutions[~np.isnan(solutions[:, 0])], 15), axis=0)
-
-
 def _speed_bound(world: Any) -> float | None:
     """The scenario's ``capture.v_max`` (m/s; None: no speed bound, or a world without a plan)."""
     plan = getattr(world, "plan", None)
     capture = getattr(getattr(plan, "scenario", None), "capture", None)
     v_max = getattr(capture, "v_max", None)
     return None if v_max is None else float(v_max)
-
-
-def _approach_time(miss: FloatArray, eps: FloatArray, speed: float) -> float:
-    """How long the approach from the relative position ``miss`` (X_E - X_T, m) takes to enter
-    eq. 20's box at ``speed`` (m/s) (`_advance`'s straight line), s."""
-    if np.all(np.abs(miss) < eps):
-        return 0.0
-    inner = np.clip(miss, -APPROACH_DEPTH * eps, APPROACH_DEPTH * eps)
-    lo, _ = inside_intervals(miss[None], inner[None], eps)
-    return float(lo[0]) * float(np.linalg.norm(inner - miss)) / speed if lo[0] == lo[0] else np.inf
-
-
-def _advance(miss: FloatArray, eps: FloatArray, step: float) -> FloatArray:
-    """The relative position ``step`` m further along the approach from ``miss`` (X_E - X_T, m):
-    straight to the nearest point of eq. 20's box shrunk to APPROACH_DEPTH, then straight to the
-    capture point."""
-    inner = np.clip(miss, -APPROACH_DEPTH * eps, APPROACH_DEPTH * eps)
-    here = miss
-    for aim in (inner, np.zeros(3)):
-        gap = aim - here
-        length = float(np.linalg.norm(gap))
-        if length > step:
-            return here + gap * (step / length)
-        here, step = aim, step - length
-    return here
-
-
-def _nearest_in_box_about(
-    starts: FloatArray,
-    point: FloatArray,
-    half: FloatArray,
-    eps: FloatArray,
-    lo: FloatArray,
-    hi: FloatArray,
-) -> FloatArray:
-    """From each of ``starts`` (K, 3), a joint vector in the box [lo, hi] whose end-effector is
-    near the box of half-widths ``half`` about ``point``, (K, 3): of the alternate projections'
-    result (the point of that box nearest the end-effector, then the joint vector nearest that
-    point) and the joint vector nearest the corner of eq. 20's box (``eps``, shrunk to
-    ``LANDING_DEPTH``) on the end-effector's side (where the reachable set's edge is flat, the
-    point of eq. 20's box deepest into it: reachable if any point of the box is), the one
-    whose largest component of the miss, over ``eps``, is least."""
-    k = starts.shape[0]
-    points, lo_k, hi_k = np.tile(point, (k, 1)), np.tile(lo, (k, 1)), np.tile(hi, (k, 1))
-    q = nearest_in_box(starts, points, lo_k, hi_k)
-    for _ in range(PROJECTIONS):
-        q = nearest_in_box(
-            q, points + np.clip(forward_kinematics(q) - points, -half, half), lo_k, hi_k
-        )
-    miss = forward_kinematics(q) - points
-    corner = nearest_in_box(q, points + LANDING_DEPTH * eps * np.sign(miss), lo_k, hi_k)
-    depth = np.max(np.abs(miss) / eps, axis=1)
-    corner_depth = np.max(np.abs(forward_kinematics(corner) - points) / eps, axis=1)
-    return np.where((corner_depth < depth)[:, None], corner, q)
