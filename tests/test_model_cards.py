@@ -11,6 +11,7 @@ import pytest
 
 import train
 from capture_bench.provenance import reproduction_key
+from capture_bench.task.scenarios import load_scenario
 from capture_bench.training.train.model_card import (
     CARD_BATCH,
     CARD_FIELDS,
@@ -91,6 +92,30 @@ def test_the_other_cpu_check_passes_on_this_machine_too(model_dir):
     bit for bit, so it must agree)."""
     card = json.loads((model_dir / "metadata.json").read_text())["model_card"]
     _check_replay(model_dir, card, count=CARD_BATCH, exact=False)
+
+
+SEEDED = [
+    p for p in CARDED if "seeds" in json.loads((p / "metadata.json").read_text())["model_card"]
+]
+
+
+@pytest.mark.parametrize("model_dir", SEEDED, ids=lambda p: p.name)
+def test_a_card_of_several_seeds_names_three_the_shipped_one_and_its_policy(model_dir):
+    """A row trained with several seeds: three of them, each one's policy under seeds/, the
+    shipped one the model's own policy and named in the README, chosen on validation seeds."""
+    card = json.loads((model_dir / "metadata.json").read_text())["model_card"]
+    seeds = card["seeds"]
+    assert len(seeds["trained"]) == 3 and seeds["shipped"] in seeds["trained"]
+    for seed in seeds["trained"]:
+        assert (model_dir / "seeds" / str(seed) / "policy.pt").is_file()
+    shipped = model_dir / "seeds" / str(seeds["shipped"]) / "policy.pt"
+    assert shipped.read_bytes() == (model_dir / "policy.pt").read_bytes()
+    readme = (model_dir / "README.md").read_text()
+    assert f"| {seeds['shipped']} (shipped) |" in readme
+    assert "validation" in seeds["selection"]
+    for scenario, validation in card["validation"].items():
+        published = set(load_scenario(scenario).evaluation_seeds)
+        assert published.isdisjoint(e["seed"] for e in validation["episodes"])
 
 
 def test_every_shipped_model_has_a_card():
