@@ -275,3 +275,27 @@ def test_the_card_of_an_imitated_policy_says_what_it_imitated_and_counts_every_s
     assert "started by imitating `incremental_ik_uncapped`" in readme
     assert f"environment steps: {256 + 128:,} (256 of them the algorithm's)" in readme
     assert "the critic alone learned: the policy is the imitation's" in readme
+
+
+def test_planned_intercept_teaches_with_a_plan_per_training_env_and_captures_when_followed():
+    """``imitate: planned_intercept`` is a teacher (not a residual base): following its labels on
+    training envs, each row's plan kept between the calls as that env's episodes come, captures
+    under the envelope, as the agent does when it plays an episode itself."""
+    from capture_bench.agents.residual import RESIDUAL_BASES, TEACHERS
+    from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
+
+    assert "planned_intercept" in TEACHERS and "planned_intercept" not in RESIDUAL_BASES
+    teacher = make_teacher(["planned_intercept"], [describe_task(load_scenario("paper"))], [4])
+    venv = CaptureSB3VecEnv(4, "paper", seed=0)
+    captured = ended = 0
+    try:
+        obs = venv.reset()
+        while ended < 8:
+            obs, _, dones, infos = venv.step(teacher(obs))
+            for done, info in zip(dones, infos, strict=True):
+                if done:
+                    ended += 1
+                    captured += bool(info["is_success"])
+    finally:
+        venv.close()
+    assert captured == ended, f"{captured} of {ended} captured"

@@ -48,7 +48,7 @@ def test_a_zero_residual_is_the_base_controller_and_batches_agree():
         )
     finally:
         env.close()
-    with pytest.raises(ValueError, match="residual base 'oracle'"):
+    with pytest.raises(ValueError, match="analytic controller 'oracle'"):
         make_base("oracle", env.description)
 
 

@@ -33,14 +33,21 @@ RESIDUAL_BASES = (
     "joint_intercept_uncapped",
     "dls",
 )
+#: The analytic controllers an imitation may learn from (``imitate``): the residual bases, and
+#: ``planned_intercept``, which keeps each row's plan between calls, so that it labels a row's
+#: observations only as that row's episodes come, in order (as a run's training envs give them).
+TEACHERS = (*RESIDUAL_BASES, "planned_intercept")
 
 
-def make_base(name: str, description: TaskDescription) -> Any:
-    """The analytic controller ``name`` of `RESIDUAL_BASES`, built from ``description``."""
+def make_base(
+    name: str, description: TaskDescription, allowed: tuple[str, ...] = RESIDUAL_BASES
+) -> Any:
+    """The analytic controller ``name`` of ``allowed`` (`RESIDUAL_BASES`, or `TEACHERS`), built
+    from ``description``."""
     from capture_bench.agents import make_agent
 
-    if name not in RESIDUAL_BASES:
-        raise ValueError(f"residual base {name!r}; valid: {', '.join(RESIDUAL_BASES)}")
+    if name not in allowed:
+        raise ValueError(f"analytic controller {name!r}; valid: {', '.join(allowed)}")
     return make_agent(name, SimpleNamespace(unwrapped=SimpleNamespace(description=description)))
 
 

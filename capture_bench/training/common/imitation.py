@@ -1,10 +1,10 @@
 """Imitation before reinforcement: DAgger (Ross, Gordon & Bagnell 2011) from an analytic
 controller, then the run's own algorithm goes on from the imitated policy.
 
-With ``imitate: <controller>`` (one of `RESIDUAL_BASES`:
-deterministic, acting from the observation alone; in a mixture, also a controller per scenario,
-``{default: <controller>, <scenario>: <controller>}``: `teacher_names`), a new run first
-plays ``imitation_rounds`` rounds of ``imitation_steps`` environment steps on its own training
+With ``imitate: <controller>`` (one of `TEACHERS`: deterministic, built from the task's
+public description; in a mixture, also a controller per scenario,
+``{default: <controller>, <scenario>: <controller>}``: `teacher_names`), a new run first plays
+``imitation_rounds`` rounds of ``imitation_steps`` environment steps on its own training
 envs (training seeds only). Every visited observation is labelled with the controller's action
 (the teacher's, built from each scenario's public description, so a mixture's sub-envs each get
 their scenario's); round 0 follows the teacher, the later rounds follow the policy being trained
@@ -83,9 +83,9 @@ def make_teacher(
     """The controllers for the training envs: the first ``shares[0]`` rows act with controller
     ``names[0]`` built from ``descriptions[0]``, the next ``shares[1]`` with ``names[1]`` from
     ``descriptions[1]``, and so on (one scenario: one name and description, all rows)."""
-    from capture_bench.agents.residual import make_base
+    from capture_bench.agents.residual import TEACHERS, make_base
 
-    controllers = [make_base(n, d) for n, d in zip(names, descriptions, strict=True)]
+    controllers = [make_base(n, d, TEACHERS) for n, d in zip(names, descriptions, strict=True)]
     bounds = np.cumsum([0, *shares])
 
     def act(observations: np.ndarray) -> np.ndarray:

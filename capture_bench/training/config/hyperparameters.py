@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 
 from capture_bench.agents.algorithms import ALGORITHMS
-from capture_bench.agents.residual import RESIDUAL_BASES
+from capture_bench.agents.residual import RESIDUAL_BASES, TEACHERS
 from capture_bench.task.observation import OBSERVATION_SIZE, STATE_SIZE
 from capture_bench.task.rewards import REWARD_MODES
 from capture_bench.task.scenarios import CONFIG_DIR, Scenario
@@ -98,7 +98,7 @@ TRAINING_KEYS = {
     # <controller>}),
     # imitation_rounds rounds of imitation_steps environment steps, imitation_epochs passes of the
     # fit after each; then imitation_warmup steps of the algorithm train the critic alone
-    "imitate": Rule("choice_per_name", choices=RESIDUAL_BASES),
+    "imitate": Rule("choice_per_name", choices=TEACHERS),
     "imitation_rounds": Rule("int", 1, MAX_IMITATION_ROUNDS),
     "imitation_steps": Rule("int", 1, MAX_IMITATION_STEPS),
     "imitation_epochs": POS_INT,
