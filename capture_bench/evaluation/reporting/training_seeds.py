@@ -114,7 +114,9 @@ def text(seeds: Mapping[str, SeedScores]) -> str:
         "IQM is rliable's IQM of the (training seeds x scenarios) matrix (with three seeds or "
         "fewer on one scenario, their mean), its interval the 95% stratified bootstrap over the "
         f"seeds within each scenario ({first.reps} resamples, numpy seed {first.seed}); few "
-        "seeds make wide intervals."
+        "seeds make wide intervals. The IQM leaves out the quarter of lowest and the quarter of "
+        "highest (seed, scenario) scores, a hard scenario's among them, so it may lie above "
+        "every seed's mean over the scenarios."
     )
 
 
