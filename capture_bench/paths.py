@@ -22,6 +22,10 @@ from pathlib import Path
 
 CONFIGS_ENV = "CAPTURE_BENCH_CONFIGS"
 MODELS_ENV = "CAPTURE_BENCH_MODELS"
+#: The folder of a model's training seeds' policies, ``<model>/seeds/<seed>/`` (the model card's
+#: ``seeds`` entry names them): what `capture_bench.training.train.model_card` writes and the
+#: evaluation reads.
+SEEDS_DIR = "seeds"
 PACKAGE_DIR = Path(__file__).resolve().parent
 BUNDLED_DIR = PACKAGE_DIR / "_data"  # exists only in an installed wheel
 CHECKOUT_DIR = PACKAGE_DIR.parent

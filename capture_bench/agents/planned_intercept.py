@@ -164,17 +164,14 @@ class PlannedIntercept(AnalyticController):
         episode_start: NDArray | None = None,
         deterministic: bool = True,
     ) -> tuple[NDArray[np.float32], Any]:
-        """SB3-style predict, one observation (16,) or a batch (N, 16); the rows whose
-        ``episode_start`` is true forget their plans first."""
-        obs = np.asarray(observation)
+        """`AnalyticController.predict`, the rows whose ``episode_start`` is true forgetting
+        their plans first."""
         if episode_start is not None:
             starts = np.asarray(episode_start, dtype=bool).reshape(-1)
             for i in np.flatnonzero(starts).tolist():
                 if i < len(self.plans):
                     self.plans[i] = None
-        if obs.ndim == 2:
-            return self.act_batch(obs), state
-        return self.act_batch(obs[None])[0], state
+        return super().predict(observation, state, episode_start, deterministic)
 
     def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
         """Actions for N observations, (N, 16) -> (N, 3), float32, in [-1, 1]; row i keeps

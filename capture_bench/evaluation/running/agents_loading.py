@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.evaluation.errors import AgentSpecError
-from capture_bench.paths import models_dir
+from capture_bench.paths import SEEDS_DIR, models_dir
 
 MODELS_DIR = models_dir()  # models/: see capture_bench.paths
 MODELS_GLOB = "models/*"
@@ -148,11 +148,6 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
             raise AgentSpecError(f"agent {spec!r}: module {module_name!r} has no class {attr!r}")
         return AgentSpec(spec, spec, "python", spec, bool(getattr(factory, "privileged", False)))
     raise AgentSpecError(f"unknown agent {spec!r}; {_valid_specs()}")
-
-
-#: The folder of a model's training seeds' policies, ``<model>/seeds/<seed>/`` (the model card's
-#: ``seeds`` entry names them; ``capture_bench.training.train.model_card.ship_seeds`` writes it).
-SEEDS_DIR = "seeds"
 
 
 @dataclass(frozen=True)

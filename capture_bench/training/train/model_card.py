@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.files import atomic_write
-from capture_bench.paths import models_dir
+from capture_bench.paths import SEEDS_DIR, models_dir
 from capture_bench.task.scenarios import ConfigError, load_scenario
 from capture_bench.training.common.policy_export import BEST_DIR, IMITATION_FILE, VALIDATION_FILE
 
@@ -43,7 +43,6 @@ CARD_FIELDS = ("command", "total_timesteps", "wall_time_s", "hardware", "trainin
 COPIED = ("policy.pt", "metadata.json", "model.zip")
 #: What `ship_seeds` copies of each training seed's run, to ``seeds/<seed>/``.
 SEED_COPIED = ("policy.pt", "metadata.json")
-SEEDS_DIR = "seeds"
 #: How `ship_seeds` chooses the seed that ships.
 SELECTION = "median validation score (validation seeds)"
 
