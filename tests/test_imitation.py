@@ -29,15 +29,19 @@ TINY = ["n_envs=4", "total_timesteps=256", "n_steps=32", "batch_size=64", "eval_
         "eval_episodes=2", "checkpoint_freq=0", "policy_kwargs.net_arch=[16]"]  # fmt: skip
 
 
-def _model(n_envs: int, scenario: str = "paper", **kwargs):
-    from stable_baselines3 import PPO
+def _model(n_envs: int, scenario: str = "paper", algo: str = "ppo", **kwargs):
+    from stable_baselines3 import PPO, SAC
 
     from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
     venv = CaptureSB3VecEnv(n_envs, scenario, seed=0)
     policy_kwargs = {"net_arch": [32, 32], "log_std_init": -2.0}
-    model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=2, seed=0,
-                policy_kwargs=policy_kwargs, device="cpu", **kwargs)  # fmt: skip
+    if algo == "sac":  # gSDE, as configs/algos/sac.yaml's paper section
+        model = SAC("MlpPolicy", venv, learning_starts=32, batch_size=64, use_sde=True, seed=0,
+                    policy_kwargs=policy_kwargs, device="cpu", **kwargs)  # fmt: skip
+    else:
+        model = PPO("MlpPolicy", venv, n_steps=32, batch_size=64, n_epochs=2, seed=0,
+                    policy_kwargs=policy_kwargs, device="cpu", **kwargs)  # fmt: skip
     return model, venv
 
 
@@ -97,12 +101,15 @@ def test_a_teacher_mapping_that_misses_the_runs_scenarios_is_refused(mapping, ex
         teacher_names(mapping, ["paper", "grasp"])
 
 
-def test_dagger_labels_with_the_teacher_and_the_fit_brings_the_policy_to_it():
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_dagger_labels_with_the_teacher_and_the_fit_brings_the_policy_to_it(algo):
     """After DAgger on paper, the policy's deterministic actions on states neither has seen are
-    closer (by half) to incremental_ik's than the untrained policy's were."""
+    closer (by half) to incremental_ik's than the untrained policy's were: PPO's mean, and SAC's
+    squashed action (the fit's targets scaled to its [-1, 1], its ``predict`` back to the env's
+    units)."""
     from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
-    model, venv = _model(16)
+    model, venv = _model(16, algo=algo)
     teacher = make_teacher(["incremental_ik"], [describe_task(load_scenario("paper"))], [16])
     probe = CaptureSB3VecEnv(16, "paper", seed=7)
     try:
@@ -146,18 +153,23 @@ def test_the_relative_fit_weighs_a_small_step_as_much_as_a_full_one():
     np.testing.assert_allclose(wide, 1.0, rtol=1e-2)
 
 
-def test_the_warm_up_trains_the_critic_alone():
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_the_warm_up_trains_the_critic_alone(algo):
+    """PPO's value head, SAC's Q-networks learn while the actor stays as imitated; the actor
+    learns once the warm-up is over."""
     import torch
 
-    model, venv = _model(4)
+    model, venv = _model(4, algo=algo)
+    critic_net = model.policy.critic if algo == "sac" else model.policy.value_net
     try:
+        assert not set(map(id, actor_parameters(model.policy))) & set(
+            map(id, critic_net.parameters())
+        )
         actor = [p.detach().clone() for p in actor_parameters(model.policy)]
-        critic = [p.detach().clone() for p in model.policy.value_net.parameters()]
+        critic = [p.detach().clone() for p in critic_net.parameters()]
         model.learn(256, callback=FrozenActor(10_000))
         assert all(torch.equal(a, p) for a, p in zip(actor, actor_parameters(model.policy)))
-        assert not all(
-            torch.equal(a, p) for a, p in zip(critic, model.policy.value_net.parameters())
-        )
+        assert not all(torch.equal(a, p) for a, p in zip(critic, critic_net.parameters()))
         assert all(p.requires_grad for p in actor_parameters(model.policy))  # let go at the end
         model.learn(256, callback=FrozenActor(0), reset_num_timesteps=False)
         assert not all(torch.equal(a, p) for a, p in zip(actor, actor_parameters(model.policy)))
@@ -187,7 +199,7 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
-        (["--algo", "sac", "--set", "imitate=dls"], "fits an actor-critic policy (ppo or a2c)"),
+        (["--algo", "td3", "--set", "imitate=dls"], "fits the policy of ppo, a2c, sac, tqc"),
         (["--set", "imitation_steps=10"], "needs imitate"),
         (["--set", "imitate=dls", "--set", "imitation_floor=-1"], "expected a number in [0, 10]"),
         (["--set", "imitate=oracle"], "expected one of incremental_ik"),

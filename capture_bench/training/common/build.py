@@ -130,19 +130,20 @@ def check_curricula(settings: TrainingSettings, scenario: Any) -> None:
 
 
 def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: list[str]) -> None:
-    """``imitate`` fits an actor-critic policy to a controller that reads the same observation,
-    and leaves the learned policy alone: PPO or A2C, the estimate's observation, no residual and
+    """``imitate`` fits a policy to a controller that reads the same observation, and leaves the
+    learned policy alone: `IMITATORS` (PPO, A2C: the mean; SAC, TQC: the actor's deterministic
+    action), the estimate's observation, no residual and
     no VecNormalize (whose statistics the controller would not see); a controller per scenario
     names only ``scenarios`` (the run's) and gives each one."""
     if settings.imitate is None:
         return
-    from capture_bench.training.common.imitation import describe_teacher, teacher_names
+    from capture_bench.training.common.imitation import IMITATORS, describe_teacher, teacher_names
 
     teacher_names(settings.imitate, scenarios)
     teacher = describe_teacher(settings.imitate)
-    if config.algo not in ("ppo", "a2c"):
+    if config.algo not in IMITATORS:
         raise ConfigError(
-            f"imitate {teacher}: fits an actor-critic policy (ppo or a2c), not {config.algo}"
+            f"imitate {teacher}: fits the policy of {', '.join(IMITATORS)}, not {config.algo}"
         )
     if settings.residual != "none":
         raise ConfigError(

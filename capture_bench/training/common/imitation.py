@@ -13,11 +13,15 @@ DAgger's point. After each round the policy's mean action is fitted to the label
 so far (mean squared error, Adam, ``imitation_epochs`` passes; with ``imitation_floor`` > 0 each
 label's error is taken relative to the teacher's action above that floor,
 `label_weights`). The policy then acts alone: nothing of the controller is left in it,
-unlike a residual (`capture_bench.training.common.residual_vec_env`).
+unlike a residual (`capture_bench.training.common.residual_vec_env`). The fit sets an
+actor-critic's mean action (PPO, A2C) or an off-policy actor's deterministic action (SAC, TQC: the
+``tanh`` of its mean, against the controller's action scaled to [-1, 1]), `IMITATORS`.
 
 ``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
 (`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
-before its advantages move the actor.
+before its advantages move the actor (off-policy: before its Q-values move the actor; the
+replay buffer starts empty, and SB3's first ``learning_starts`` steps act at random unless
+``use_sde_at_warmup`` lets the gSDE policy act).
 """
 
 from __future__ import annotations
@@ -29,6 +33,10 @@ from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
+
+#: The algorithms whose policy the fit can set: an actor-critic's mean (PPO, A2C), an off-policy
+#: actor's deterministic squashed action (SAC, TQC).
+IMITATORS = ("ppo", "a2c", "sac", "tqc")
 
 #: Adam's learning rate and minibatch size for the imitation fit.
 IMITATION_LR = 1e-3
@@ -99,8 +107,27 @@ def make_teacher(
 
 
 def mean_actions(policy: Any, observations: Any) -> Any:
-    """The policy's mean (deterministic, before clipping) actions, a torch tensor with grad."""
+    """The policy's deterministic actions in its own action space, a torch tensor with grad: an
+    actor-critic's mean (before clipping, in the env's units); an off-policy actor's squashed
+    action (SAC's and TQC's ``tanh`` of the mean, in [-1, 1]: `policy_targets`)."""
+    if _has_actor(policy):
+        return policy.actor(observations, deterministic=True)
     return policy.get_distribution(observations).distribution.mean
+
+
+def policy_targets(policy: Any, actions: np.ndarray) -> np.ndarray:
+    """The controller's ``actions`` (the env's units) where `mean_actions` puts the policy's:
+    unchanged for an actor-critic; clipped to the action space and scaled to [-1, 1] for a policy
+    that squashes its output (SB3's ``scale_action``, which its ``predict`` undoes)."""
+    if not policy.squash_output:
+        return actions
+    space = policy.action_space
+    return policy.scale_action(np.clip(actions, space.low, space.high)).astype(np.float32)
+
+
+def _has_actor(policy: Any) -> bool:
+    """Whether ``policy`` acts through an actor network of its own (SAC, TQC)."""
+    return getattr(policy, "actor", None) is not None
 
 
 def label_weights(targets: np.ndarray, floor: float) -> np.ndarray | None:
@@ -131,7 +158,7 @@ def fit(
     optimizer = torch.optim.Adam(params, lr=IMITATION_LR)
     rng = np.random.default_rng(seed)
     x = torch.as_tensor(observations, dtype=torch.float32, device=policy.device)
-    y = torch.as_tensor(targets, dtype=torch.float32, device=policy.device)
+    y = torch.as_tensor(policy_targets(policy, targets), dtype=torch.float32, device=policy.device)
     weights = label_weights(targets, floor)
     w = None if weights is None else torch.as_tensor(weights[:, None], device=policy.device)
     policy.set_training_mode(True)
@@ -154,9 +181,12 @@ def fit(
 def actor_parameters(policy: Any) -> list[Any]:
     """The parameters that shape the policy's action and not the critic's value: the actor's
     layers, the action head, the log std, and the features extractor where the actor has its own
-    (SB3's ``share_features_extractor=False``) or it is shared with the critic."""
+    (SB3's ``share_features_extractor=False``) or it is shared with the critic; an off-policy
+    policy's actor network whole (SAC's and TQC's own features extractor included)."""
     import torch
 
+    if _has_actor(policy):
+        return list(policy.actor.parameters())
     extractor = getattr(policy, "pi_features_extractor", policy.features_extractor)
     found = [
         *extractor.parameters(),
