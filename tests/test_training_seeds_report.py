@@ -21,8 +21,9 @@ from capture_bench.rliable_stats import aggregate_estimates
 
 MODELS = Path(__file__).parents[1] / "models"
 #: Three "training seeds" of one model: shipped policies standing in for them (the evaluation
-#: reads the card and the folders only), seed 1 the one shipped.
-SEED_POLICIES = {0: "ppo-paper", 1: "sac-grasp", 2: "dagger-all"}
+#: reads the card and the folders only), seed 1 the one shipped; seed 2 a seed's own folder of
+#: ``dagger-dls-all`` (a policy that captures, with no card of several seeds).
+SEED_POLICIES = {0: "ppo-paper", 1: "sac-grasp", 2: "dagger-dls-all/seeds/0"}
 SHIPPED = 1
 
 

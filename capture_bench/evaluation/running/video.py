@@ -64,8 +64,8 @@ class EpisodeVideo:
         return episode_file_name(r.agent, r.scenario, r.seed, ".gif")
 
     def caption(self) -> str:
-        """Agent, scenario, seed and outcome: ``ppo-all · paper · seed 1000000 · captured at
-        1.69 s``."""
+        """Agent, scenario, seed and outcome:
+        ``dagger-dls-all · paper · seed 1000000 · captured at 1.45 s``."""
         r = self.record
         return f"{r.agent} · {r.scenario} · seed {r.seed} · {outcome_text(r)}"
 
