@@ -123,3 +123,21 @@ def test_joints_that_jumped_further_than_a_step_mean_a_new_plan():
     away = HOME + [0.3, -0.2, 0.2]  # further than one step of every joint
     agent.predict(observe(away, target, [0.01, 0.0, 0.0]))
     assert agent.planned == 2
+
+
+def test_without_kept_plans_the_action_is_a_function_of_the_observation(paper_env):
+    """keep_plans=False: on every state of an episode (driven by the planning agent), the action
+    is a new agent's first action on that state alone; the planning agent's differs somewhere."""
+    fresh = PlannedIntercept(paper_env.unwrapped.description, keep_plans=False)
+    kept = PlannedIntercept(paper_env.unwrapped.description)
+    observation, _ = paper_env.reset(seed=PAPER.validation_seeds[0])
+    differ = 0
+    for step in range(40):
+        action, _ = kept.predict(observation, episode_start=np.array([step == 0]))
+        alone, _ = PlannedIntercept(paper_env.unwrapped.description).predict(observation)
+        assert np.array_equal(fresh.predict(observation)[0], alone)
+        differ += not np.array_equal(action, alone)
+        observation, _, terminated, truncated, _ = paper_env.step(action)
+        if terminated or truncated:
+            break
+    assert differ > 0

@@ -42,7 +42,8 @@ capture within ``horizon``, it takes the paper's incremental IK step (eqs. 13-19
 The plan of a row is kept between calls: ``predict`` with ``episode_start`` true, or ``reset``,
 forgets it, and a batch of N observations keeps N plans (row i is episode i). A row whose
 observation has not changed since the last call (an ended episode's, in a batch) gets the same
-action again. It is therefore not a function of the observation alone (not a residual base).
+action again. It is therefore not a function of the observation alone (not a residual base),
+unless built with ``keep_plans=False``, which plans every row from scratch at every call.
 """
 
 from __future__ import annotations
@@ -126,6 +127,9 @@ class PlannedIntercept(AnalyticController):
         approach_speeds: the approach's relative speeds, fractions of ``v_max``.
         landing_depth: the landing aims at eq. 20's box shrunk to this fraction of epsilon.
         candidates: how many step ends the landing tries (`EnvelopePlan.landing`).
+        keep_plans: False plans every row from scratch at every call, so that the action is a
+            function of the observation alone (a teacher's labels on states another policy
+            visits, at several times the cost per step).
     """
 
     def __init__(
@@ -140,8 +144,10 @@ class PlannedIntercept(AnalyticController):
         approach_speeds: tuple[float, ...] = APPROACH_SPEEDS,
         landing_depth: float = LANDING_DEPTH,
         candidates: int = LANDING_CANDIDATES,
+        keep_plans: bool = True,
     ) -> None:
         super().__init__(description)
+        self.keep_plans = bool(keep_plans)
         self.v_max, self.hold, self.horizon = float(v_max), float(hold), float(horizon)
         self.replan_fraction, self.track_range = float(replan_fraction), float(track_range)
         self.approach_speeds = tuple(approach_speeds)
@@ -179,7 +185,7 @@ class PlannedIntercept(AnalyticController):
         rows = np.asarray(observations).reshape(-1, OBSERVATION_SIZE)
         obs = self.decode(rows)
         n = obs.joint_angles.shape[0]
-        if len(self.plans) != n:
+        if len(self.plans) != n or not self.keep_plans:
             self.plans = [None] * n
         actions = np.zeros((n, 3))
         theta, position, velocity = obs.joint_angles, obs.target_position, obs.target_velocity
