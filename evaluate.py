@@ -2,7 +2,7 @@
 
     python evaluate.py                       # default suite: every scenario, 100 seeds, all agents
     python evaluate.py --suite quick         # smoke run
-    python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper --episodes 20
+    python evaluate.py --agents incremental_ik models/dagger-dls-paper --scenarios paper
     python evaluate.py --help                # every option; python -m capture_bench list
 
 The same command is installed as ``capture-bench-evaluate``. Everything it does is in

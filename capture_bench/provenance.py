@@ -61,7 +61,8 @@ def package_versions(names: tuple[str, ...] = PACKAGES) -> dict[str, str | None]
 
 def display_path(path: Path) -> str:
     """``path`` relative to the checkout where it lies inside it (``configs/suites/default.yaml``,
-    ``models/ppo-paper``), so that a committed report names no machine's folders; else absolute."""
+    ``models/dagger-dls-paper``), so that a committed report names no machine's folders; else
+    absolute."""
     resolved = Path(path).resolve()
     try:
         return resolved.relative_to(CHECKOUT_DIR).as_posix()

@@ -137,7 +137,7 @@ def _display_name(row: RankingRow) -> str:
 
 def _agent_rows(results: dict[str, Any], names: Sequence[str]) -> list[RankingRow]:
     """The ranking rows of ``names`` in that order; a name matches an agent's label or the label
-    without its parenthesised kind (``ppo-residual-grasp`` for ``ppo-residual-grasp (hybrid)``)."""
+    without its parenthesised kind (``<name>`` for ``<name> (hybrid)`` or ``<name> (pixels)``)."""
     rows = _ranking(results)
     chosen = []
     for name in names:

@@ -217,13 +217,39 @@ def _observations(per_scenario: int = 200) -> np.ndarray:
     return np.concatenate(out)
 
 
-@pytest.mark.parametrize("name", ["ppo-paper", "sac-paper", "ppo-residual-grasp"])
-def test_a_models_batch_of_rows_equals_each_row_alone(name):
+#: Runs of the kinds no shipped model is (a SAC policy, gSDE as on paper; a PPO residual on
+#: incremental_ik, a hybrid): train.py's configs, their networks as shipped, a few steps each.
+TINY_RUNS = {
+    "sac": ["--algo", "sac", "--set", "n_envs=2", "--set", "total_timesteps=64",
+            "--set", "learning_starts=32", "--set", "batch_size=32", "--set", "buffer_size=1000"],
+    "residual": ["--algo", "ppo", "--set", "residual=incremental_ik", "--set", "n_envs=2",
+                 "--set", "total_timesteps=64", "--set", "n_steps=32", "--set", "batch_size=32",
+                 "--set", "n_epochs=1"],
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def tiny_runs(tmp_path_factory) -> Path:
+    """``TINY_RUNS``' run directories, trained on paper, without validation or checkpoints."""
+    import train
+
+    root = tmp_path_factory.mktemp("tiny_runs")
+    quiet = ["--set", "eval_freq=0", "--set", "checkpoint_freq=0", "--device", "cpu"]
+    for name, argv in TINY_RUNS.items():
+        assert train.main([*argv, *quiet, "--run-dir", str(root / name)]) == 0
+    return root
+
+
+@pytest.mark.parametrize("name", ["models/dagger-dls-paper", "models/dagger-dls-all", *TINY_RUNS])
+def test_a_models_batch_of_rows_equals_each_row_alone(name, request):
     """``predict_rows`` (one forward pass, row-exact layers) against ``predict`` on each
-    observation alone, bit for bit: what lets the evaluation batch a model's episodes."""
+    observation alone, bit for bit: what lets the evaluation batch a model's episodes. The
+    shipped PPO models, and a SAC policy and a hybrid trained here."""
     from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
 
-    agent = build_agent(resolve_agent(f"models/{name}"), CaptureEnv("paper"), 0)
+    if name in TINY_RUNS:
+        name = str(request.getfixturevalue("tiny_runs") / name)
+    agent = build_agent(resolve_agent(name), CaptureEnv("paper"), 0)
     obs = _observations()
     alone = np.stack([agent.predict(row)[0] for row in obs])
     np.testing.assert_array_equal(agent.predict_rows(obs), alone)
@@ -257,7 +283,7 @@ def test_a_model_without_row_exact_layers_acts_row_by_row(monkeypatch):
 
     monkeypatch.setattr(row_exact, "row_exact_forward", lambda layer: None)
     monkeypatch.setattr(row_exact, "_LAYERS", weakref.WeakKeyDictionary())
-    agent = build_agent(resolve_agent("models/ppo-paper"), CaptureEnv("paper"), 0)
+    agent = build_agent(resolve_agent("models/dagger-dls-paper"), CaptureEnv("paper"), 0)
     obs = _observations(40)
     alone = np.stack([agent.predict(row)[0] for row in obs])
     one_by_one = []

@@ -199,15 +199,19 @@ def test_a_curriculum_run_saved_before_curriculum_delay_resumes(tmp_path):
     assert json.loads((run_dir / "metadata.json").read_text())["total_timesteps"] == 128
 
 
-def test_the_plain_grasp_command_resolves_to_the_shipped_ppo_grasp_hyperparameters():
-    """``python train.py --algo ppo --scenario grasp`` reads ppo.yaml's grasp section: the
-    hyper-parameters models/ppo-grasp was trained with (its card's command spells them out)."""
-    import json
+def test_the_plain_grasp_command_resolves_to_ppo_yamls_grasp_section():
+    """``python train.py --algo ppo --scenario grasp`` reads ppo.yaml's grasp section over its
+    top level: the hold and tolerance curricula, the hyper-parameters a PPO run on grasp starts
+    from."""
     from pathlib import Path
+
+    import yaml
 
     from capture_bench.training.config.hyperparameters import resolve_hyperparameters
 
     hp, _, origin = resolve_hyperparameters("ppo", load_scenario("grasp"), None, ())
-    card = Path(__file__).parents[1] / "models" / "ppo-grasp" / "metadata.json"
-    assert origin["section"] == "grasp"
-    assert hp == json.loads(card.read_text())["hyperparameters"]
+    plain, _, _ = resolve_hyperparameters("ppo", load_scenario("paper"), None, ())
+    config = Path(__file__).parents[1] / "configs" / "algos" / "ppo.yaml"
+    grasp = yaml.safe_load(config.read_text())["grasp"]
+    assert origin["section"] == "grasp" and grasp["curriculum_hold"] == 0.0
+    assert hp == {**plain, **grasp}

@@ -396,4 +396,4 @@ def test_help_teaches_the_valid_agents_scenarios_suites_algorithms_and_examples(
     assert "examples:" in out and "python evaluate.py --agents" in out
     for name in [*builtin_names(), *list_scenarios(), *list_suites(), *ALGORITHMS]:
         assert name in out, name
-    assert "models/ppo-paper" in out
+    assert "models/dagger-dls-paper" in out

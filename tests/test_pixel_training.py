@@ -150,7 +150,7 @@ def test_a_pixel_model_in_an_estimate_env_and_the_reverse_are_one_line(pixel_run
         assert "pixels" in text and "observation_source='pixels'" in text
         assert len(text.splitlines()) == 1
         with pytest.raises(PolicyLoadError) as caught:
-            load_sb3_policy("models/ppo-paper", pixels)
+            load_sb3_policy("models/dagger-dls-paper", pixels)
         assert "estimate" in str(caught.value) and len(str(caught.value).splitlines()) == 1
     finally:
         estimate.close()
@@ -202,9 +202,9 @@ def test_models_glob_leaves_pixel_models_to_be_named(pixel_run, tmp_path):
     from capture_bench.evaluation.running.agents_loading import expand_specs
 
     shutil.copytree(pixel_run, tmp_path / "px", ignore=shutil.ignore_patterns("checkpoints", "tb"))
-    shutil.copytree("models/ppo-paper", tmp_path / "ppo-paper")
+    shutil.copytree("models/dagger-dls-paper", tmp_path / "dagger-dls-paper")
     found = expand_specs(["incremental_ik", "models/*"], tmp_path)
-    assert found == ["incremental_ik", str(tmp_path / "ppo-paper")]
+    assert found == ["incremental_ik", str(tmp_path / "dagger-dls-paper")]
     assert expand_specs([str(tmp_path / "px")], tmp_path) == [str(tmp_path / "px")]
 
 

@@ -260,7 +260,7 @@ def test_a_policy_loaded_to_act_builds_no_torch_optimiser():
     code = (
         "import sys, numpy as np\n"
         "from capture_bench.agents.sb3_policy import load_policy, read_metadata\n"
-        "loaded = load_policy(read_metadata('models/ppo-paper'))\n"
+        "loaded = load_policy(read_metadata('models/dagger-dls-paper'))\n"
         "action, _ = loaded.policy.predict(np.zeros(16, np.float32), deterministic=True)\n"
         "assert action.shape == (3,), action.shape\n"
         "print('torch._dynamo' in sys.modules)\n"

@@ -215,7 +215,7 @@ def test_deterministic_predict_shortcut_equals_sb3_predict(algorithm):
     env = CaptureEnv("paper")
     try:
         if algorithm == "shipped PPO":  # the original SB3 file (ours, so trusted)
-            zip_file = Path(__file__).parents[1] / "models" / "ppo-paper" / "model.zip"
+            zip_file = Path(__file__).parents[1] / "models" / "dagger-dls-paper" / "model.zip"
             model = stable_baselines3.PPO.load(zip_file, device="cpu")
         else:
             name, _, variant = algorithm.partition(" ")

@@ -22,7 +22,7 @@ import train
 from capture_bench.training.common import run as train_run
 
 ROOT = Path(__file__).parents[1]
-MODEL = ROOT / "models" / "ppo-paper"
+MODEL = ROOT / "models" / "dagger-dls-paper"
 TINY = TINY_PPO
 
 

@@ -23,12 +23,12 @@ MODELS = Path(__file__).parents[1] / "models"
 #: Three "training seeds" of one model: shipped policies standing in for them (the evaluation
 #: reads the card and the folders only), seed 1 the one shipped; seed 2 a seed's own folder of
 #: ``dagger-dls-all`` (a policy that captures, with no card of several seeds).
-SEED_POLICIES = {0: "ppo-paper", 1: "sac-grasp", 2: "dagger-dls-all/seeds/0"}
+SEED_POLICIES = {0: "dagger-dls-paper/seeds/0", 1: "dagger-dls-paper", 2: "dagger-dls-all/seeds/0"}
 SHIPPED = 1
 
 
 def _seeded_model(root: Path) -> Path:
-    """``root/seeded``: ``sac-grasp`` shipped as seed 1 of three, the others in ``seeds/``."""
+    """``root/seeded``: ``dagger-dls-paper`` shipped as seed 1 of three, the others in ``seeds/``."""
     model = root / "seeded"
     for seed, name in SEED_POLICIES.items():
         folder = model / "seeds" / str(seed)

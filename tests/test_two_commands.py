@@ -17,7 +17,7 @@ ROOT = Path(__file__).parents[1]
 #: The default suite made small enough for a test: the same file, fewer agents and episodes.
 SMALL_DEFAULT = """\
 description: the default suite, small
-agents: [incremental_ik, random, models/ppo-paper]
+agents: [incremental_ik, random, models/dagger-dls-paper]
 scenarios: all
 episodes: 2
 reference: incremental_ik

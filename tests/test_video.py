@@ -57,14 +57,14 @@ def test_video_writes_a_playable_gif_of_a_quick_episode(tmp_path):
 def watched(tmp_path_factory, evaluated):
     """The reference, a shipped trained model and hold on paper, 3 seeds; the ReportData and the
     report folder."""
-    argv = ["--agents", "incremental_ik,models/ppo-paper,hold", "--scenarios", "paper"]
+    argv = ["--agents", "incremental_ik,models/dagger-dls-paper,hold", "--scenarios", "paper"]
     return evaluated([*argv, "--episodes", "3", "--workers", "1"], tmp_path_factory.mktemp("w"))
 
 
 def test_the_report_shows_the_reference_and_the_best_trained_model_on_one_seed(watched):
     data, folder = watched
     videos = data.videos
-    assert [v.record.agent for v in videos] == ["incremental_ik", "ppo-paper"]
+    assert [v.record.agent for v in videos] == ["incremental_ik", "dagger-dls-paper"]
     reference = [r for r in data.records if r.agent == "incremental_ik"]
     first_capture = next(r.seed for r in reference if r.captured)
     assert {v.record.seed for v in videos} == {first_capture}
@@ -89,7 +89,7 @@ def test_two_workers_record_the_same_videos_and_draw_the_same_figures(watched, e
     import sys
 
     data, _ = watched
-    argv = ["--agents", "incremental_ik,models/ppo-paper,hold", "--scenarios", "paper"]
+    argv = ["--agents", "incremental_ik,models/dagger-dls-paper,hold", "--scenarios", "paper"]
     argv += ["--episodes", "3"]
     pooled, pooled_folder = evaluated([*argv, "--workers", "2"], tmp_path / "pooled")
     assert pooled.provenance["backend"] == {"name": "process", "workers": 2}

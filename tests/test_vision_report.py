@@ -210,5 +210,5 @@ def test_the_vision_suite_pairs_each_scenario_with_its_rendered_twin():
     ]
     assert suite.episodes == 50 and suite.reference == "incremental_ik" and suite.videos
     models = [a for a in suite.agents if a.startswith("models/")]
-    assert models == ["models/ppo-paper", "models/ppo-grasp"]
+    assert models == ["models/dagger-dls-paper", "models/dagger-dls-all"]
     assert all((ROOT / m / "metadata.json").is_file() for m in models)

@@ -2,7 +2,7 @@
 
     python evaluate.py                       # default suite: every scenario, 100 seeds, all agents
     python evaluate.py --suite quick         # smoke run
-    python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper --episodes 20
+    python evaluate.py --agents incremental_ik models/dagger-dls-paper --scenarios paper
     python evaluate.py --scenarios path/to/my_scenario.yaml --suite quick
     python evaluate.py --workers 1           # serially, in this process (default: every CPU)
     python evaluate.py --suite quick --video videos/   # also a GIF of each agent's first episode
@@ -99,10 +99,10 @@ def _epilog() -> str:
         "  python evaluate.py                                   # default suite, vs the published",
         "  python evaluate.py --publish                         # rewrite reports/published/",
         "  python evaluate.py --suite quick                     # a smoke run",
-        "  python evaluate.py --agents incremental_ik models/ppo-paper --scenarios paper",
+        "  python evaluate.py --agents incremental_ik models/dagger-dls-paper --scenarios paper",
         "  python evaluate.py --agents runs/paper-ppo-0/best --episodes 20 --workers 2",
         "  python evaluate.py --agents my_agents:MyController   # your own class",
-        "  python evaluate.py --agents models/ppo-paper --scenarios paper --episodes 5 \\",
+        "  python evaluate.py --agents models/dagger-dls-paper --scenarios paper --episodes 5 \\",
         "      --video videos/ --video-episodes 2               # GIFs of the first 2 episodes",
         "  python evaluate.py --merge reports/custom-a reports/custom-b   # merge finished reports",
         "",
