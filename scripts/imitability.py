@@ -1,7 +1,7 @@
 """How well can a policy network imitate a controller? Each teacher drives training episodes,
 its actions on the states it visits are the labels, and a network of the shipped policies' shape
-(16 -> 128 -> 128 -> 3, tanh) is fitted to them; the table gives the held-out mean squared error
-beside the labels' variance, and the labelling cost.
+(16 -> 128 -> 128 -> 3, tanh; ``--hidden`` for others) is fitted to them; the table gives the
+held-out mean squared error beside the labels' variance, and the labelling cost.
 
     python scripts/imitability.py                                   # paper: dls and both plans
     python scripts/imitability.py --teachers dls incremental_ik --steps 300
@@ -61,8 +61,11 @@ def labels(name: str, scenario: str, envs: int, steps: int, seed: int):
     return np.concatenate(xs), np.concatenate(ys), time.perf_counter() - start
 
 
-def fit_error(x: np.ndarray, y: np.ndarray, epochs: int, seed: int) -> tuple[float, float]:
-    """(train, held-out) mean squared error of the network fitted to ``y`` on ``x``."""
+def fit_error(
+    x: np.ndarray, y: np.ndarray, epochs: int, seed: int, hidden: Sequence[int] = (128, 128)
+) -> tuple[float, float]:
+    """(train, held-out) mean squared error of a tanh network with ``hidden`` layers fitted to
+    ``y`` on ``x``."""
     import torch
 
     torch.manual_seed(seed)
@@ -70,11 +73,12 @@ def fit_error(x: np.ndarray, y: np.ndarray, epochs: int, seed: int) -> tuple[flo
     cut = int(0.8 * len(x))
     xt, yt = torch.as_tensor(x), torch.as_tensor(y)
     train, test = torch.as_tensor(order[:cut]), torch.as_tensor(order[cut:])
-    net = torch.nn.Sequential(
-        torch.nn.Linear(x.shape[1], 128), torch.nn.Tanh(),
-        torch.nn.Linear(128, 128), torch.nn.Tanh(),
-        torch.nn.Linear(128, y.shape[1]),
-    )  # fmt: skip
+    layers: list[torch.nn.Module] = []
+    width = x.shape[1]
+    for size in hidden:
+        layers += [torch.nn.Linear(width, size), torch.nn.Tanh()]
+        width = size
+    net = torch.nn.Sequential(*layers, torch.nn.Linear(width, y.shape[1]))
     optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
     for _ in range(epochs):
         shuffled = train[torch.randperm(len(train))]
@@ -104,17 +108,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=150, help="steps of the envs together")
     parser.add_argument("--epochs", type=int, default=300)
     parser.add_argument("--seed", type=int, default=12345, help="the training seeds' draw")
+    parser.add_argument(
+        "--hidden", type=int, nargs="+", default=[128, 128], help="the network's hidden layers"
+    )
     args = parser.parse_args(argv)
     print(
         f"{args.scenario}: {args.envs} training episodes x {args.steps} steps per teacher; "
-        f"fit {args.epochs} epochs\n"
+        f"fit {args.epochs} epochs, hidden layers {args.hidden}\n"
         "| teacher | rows | label variance | fit MSE (train) | fit MSE (held out) "
         "| ms per label |\n"
         "|---|---|---|---|---|---|"
     )
     for name in args.teachers:
         x, y, seconds = labels(name, args.scenario, args.envs, args.steps, args.seed)
-        train, test = fit_error(x, y, args.epochs, 0)
+        train, test = fit_error(x, y, args.epochs, 0, args.hidden)
         print(
             f"| {name} | {len(x)} | {float(np.mean(np.var(y, axis=0))):.3f} | {train:.4f} | "
             f"{test:.4f} | {1000 * seconds / len(x):.2f} |",

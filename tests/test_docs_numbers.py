@@ -13,7 +13,9 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-#: Pages that quote the published report or the model cards, so must hold generated blocks.
+#: Pages that quote the published report or the model cards, so must hold generated blocks. The
+#: records of the v0 experiments (docs/results/generalist.md, sac_paper.md, grasp.md) quote the
+#: report their retired models were judged by, as it was, and name it: no block.
 QUOTING = (
     "README.md",
     "docs/index.md",
@@ -21,9 +23,7 @@ QUOTING = (
     "docs/speed.md",
     "docs/results/leaderboard.md",
     "docs/results/models.md",
-    "docs/results/generalist.md",
-    "docs/results/sac_paper.md",
-    "docs/results/grasp.md",
+    "docs/results/envelope_rows.md",
 )
 #: A commit hash: a word of 7 to 40 hexadecimal digits with a digit and a letter in it (a seed or
 #: a count has no letter; an English word has no digit).
