@@ -28,16 +28,14 @@ FRESH = ":fresh"
 def make_teacher(name: str, scenario: str):
     """The controller ``name`` (a `TEACHERS` name, or ``planned_intercept:fresh``)."""
     from capture_bench.agents.planned_intercept import PlannedIntercept
-    from capture_bench.agents.residual import make_base
+    from capture_bench.agents.residual import TEACHERS, make_base
     from capture_bench.task.episode import describe_task
     from capture_bench.task.scenarios import load_scenario
 
     description = describe_task(load_scenario(scenario))
     if name == "planned_intercept" + FRESH:
         return PlannedIntercept(description, keep_plans=False)
-    if name == "planned_intercept":
-        return PlannedIntercept(description)
-    return make_base(name, description)
+    return make_base(name, description, TEACHERS)
 
 
 def labels(name: str, scenario: str, envs: int, steps: int, seed: int):
