@@ -192,6 +192,29 @@ def _existing(path: Path | None) -> Path | None:
     return path if path is not None and path.is_file() else None
 
 
+def read_metadata_file(meta_file: Path) -> Any:
+    """A metadata file's content, parsed (JSON, or YAML by its suffix), unchecked.
+
+    Raises:
+        PolicyLoadError: the file is larger than `MAX_METADATA_BYTES` (refused before reading
+            it), unreadable or not JSON/YAML.
+    """
+    try:
+        size = meta_file.stat().st_size
+        if size > MAX_METADATA_BYTES:
+            raise PolicyLoadError(
+                f"{meta_file}: {size / 2**20:.1f} MiB, more than the {MAX_METADATA_BYTES >> 20} "
+                "MiB a metadata file may hold; refused before reading it"
+            )
+        text = meta_file.read_text()
+        return json.loads(text) if meta_file.suffix == ".json" else yaml.safe_load(text)
+    except PolicyLoadError:
+        raise
+    except (OSError, ValueError, yaml.YAMLError) as exc:
+        reason = " ".join(str(exc).split())
+        raise PolicyLoadError(f"{meta_file}: unreadable metadata ({reason})") from None
+
+
 def read_metadata(directory: str | Path) -> ModelMetadata:
     """Read and validate a model directory's metadata (see module docstring); reads no model.
 
@@ -208,20 +231,7 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
             f"{directory}: no metadata file; expected one of {', '.join(METADATA_FILES)} "
             f"naming the algorithm ({', '.join(ALGORITHMS)})"
         )
-    try:
-        size = meta_file.stat().st_size
-        if size > MAX_METADATA_BYTES:
-            raise PolicyLoadError(
-                f"{meta_file}: {size / 2**20:.1f} MiB, more than the {MAX_METADATA_BYTES >> 20} "
-                "MiB a metadata file may hold; refused before reading it"
-            )
-        text = meta_file.read_text()
-        data = json.loads(text) if meta_file.suffix == ".json" else yaml.safe_load(text)
-    except PolicyLoadError:
-        raise
-    except (OSError, ValueError, yaml.YAMLError) as exc:
-        reason = " ".join(str(exc).split())
-        raise PolicyLoadError(f"{meta_file}: unreadable metadata ({reason})") from None
+    data = read_metadata_file(meta_file)
     if not isinstance(data, dict):
         raise PolicyLoadError(f"{meta_file}: expected a mapping with key 'algorithm'")
     algorithm = str(data.get("algorithm", data.get("algo", ""))).upper()

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import importlib
 import inspect
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -170,15 +169,19 @@ def training_seeds(spec: AgentSpec) -> TrainingSeeds | None:
     model). Raises `AgentSpecError` where the card names a seed whose policy is missing."""
     if spec.kind != "model":
         return None
-    from capture_bench.agents.sb3_policy import MAX_METADATA_BYTES, find_metadata_file
+    from capture_bench.agents.sb3_policy import (
+        PolicyLoadError,
+        find_metadata_file,
+        read_metadata_file,
+    )
 
-    meta_file = Path(spec.target) / "metadata.json"
+    meta_file = find_metadata_file(Path(spec.target))
+    if meta_file is None:
+        return None  # check_agent names it
     try:
-        if meta_file.stat().st_size > MAX_METADATA_BYTES:
-            return None  # refused unread by check_agent
-        data = json.loads(meta_file.read_text())
-    except (OSError, ValueError):
-        return None  # none, or unreadable: check_agent names it
+        data = read_metadata_file(meta_file)
+    except PolicyLoadError:
+        return None  # too large or unreadable: check_agent names it
     card = data.get("model_card") if isinstance(data, dict) else None
     seeds = card.get("seeds") if isinstance(card, dict) else None
     if not seeds:
