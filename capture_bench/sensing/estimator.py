@@ -10,7 +10,8 @@ the same alone or in any batch. Three sources, chosen by name:
   covariance); afterwards each step is predict(dt) then update with the frame (a missing frame is
   a predict-only step). A frame in which some feature points were not found (the rendered
   camera's; NaN rows) updates a running filter with the points seen, or is a predict-only step
-  with ``partial_frames="predict"``; it never initialises (photogrammetry needs every point).
+  with ``partial_frames="predict"``. By default it never initialises (photogrammetry needs every
+  point); with ``min_init_markers=3`` a frame of exactly three points may (see below).
 * ``"photogrammetry"`` (raw-measurement ablation): the per-frame pose, warm-started from the
   previous solution; velocity by finite difference of consecutive solutions over the time between
   them (zero after the first solution); no covariance. Without a frame the last solution is held.
@@ -32,6 +33,23 @@ step on which it cannot reports status ``"diverged"`` with ``valid = False``.
 
 Invalid estimates (``"initialising"``, ``"diverged"``) carry NaN position and velocity: the caller
 must check ``valid``.
+
+Three-point initialisation (``min_init_markers=3``; the default 4 leaves all of the above as it
+is). A row without a running filter whose frame is not complete but shows three or more points:
+
+* if the row holds candidate poses from an earlier three-point frame, each is scored by its image
+  residual against this frame's seen points (`capture_bench.sensing.p3p.candidate_residuals`,
+  the pose held: the filter starts with zero rates). When exactly one is within the acceptance
+  residual (`p3p.pick_candidate`), it is refined by Levenberg-Marquardt on this frame's points
+  (`p3p.refine_pose`) and, accepted, initialises the filter as a photogrammetry solution would;
+* otherwise, a frame of exactly three points replaces the candidates by its own P3P solutions
+  (`p3p.three_point_poses`, those with every point beyond the lens), and a single solution
+  initialises the filter at once.
+
+Held candidates are the same for the same points seen, so a later frame tells them apart only
+when it shows a point the candidates' frame did not (a complete frame initialises by
+photogrammetry first). A complete frame, a ``reset`` and an initialisation drop the candidates;
+`FilterRows` carries them.
 
 The filter (eqs. 3-7), with its state in blocks ``X = (q, q_dot)``, ``q = (x, y, z, theta_x,
 theta_y, theta_z)`` the pose in the camera frame (the paper orders the same 12 numbers ``(x, x_dot,
@@ -65,6 +83,13 @@ from capture_bench.sensing.ekf import (
     default_initial_covariance,
     measurement_sigma,
     wrap_angle,
+)
+from capture_bench.sensing.p3p import (
+    MAX_CANDIDATES,
+    candidate_residuals,
+    pick_candidate,
+    refine_pose,
+    three_point_poses,
 )
 from capture_bench.sensing.photogrammetry import (
     PoseSolution,
@@ -163,6 +188,8 @@ class FilterRows:
         initialised, diverged: (m,) flags; high_nis, reinitialisations: (m,) counters;
         status: (m,) int8 index into `STATUSES`; elapsed: (m,) s since the last accepted
         photogrammetry solution (the photogrammetry source's).
+        candidates: (m, MAX_CANDIDATES, 6) the held three-point candidate poses, NaN rows for
+            none (see the module docstring); None: none held (filled with NaN).
     """
 
     x: FloatArray
@@ -173,6 +200,11 @@ class FilterRows:
     reinitialisations: NDArray[np.int64]
     status: NDArray[np.int8]
     elapsed: FloatArray
+    candidates: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        if self.candidates is None:
+            self.candidates = np.full((len(self.x), MAX_CANDIDATES, 6), np.nan)
 
     @classmethod
     def stack(cls, parts: list[FilterRows]) -> FilterRows:
@@ -217,7 +249,12 @@ class TargetEstimator:
         partial_frames: what the ``"ekf"`` source does with a frame in which some feature points
             were not found (NaN rows; the rendered camera's): ``"update"`` (default) corrects a
             running filter with the points seen, ``"predict"`` treats the frame as lost (a
-            predict-only step). Either way such a frame cannot initialise the filter.
+            predict-only step). Either way such a frame cannot initialise the filter unless
+            ``min_init_markers`` allows it.
+        min_init_markers: fewest feature points of a frame that may initialise the ``"ekf"``
+            source's filter: the number of feature points (the default, 4: photogrammetry of
+            complete frames only) or 3 (also three-point initialisation, see the module
+            docstring).
 
     Attributes:
         x: (n, 12) states in block order ``(q, q_dot)`` (see the module docstring), camera frame
@@ -241,6 +278,7 @@ class TargetEstimator:
         sigma_acceleration: float = 0.01,
         sigma_angular_acceleration: float = 0.01,
         partial_frames: str = "update",
+        min_init_markers: int = 4,
     ) -> None:
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n}")
@@ -255,6 +293,15 @@ class TargetEstimator:
         self.partial_frames = partial_frames
         self.camera_model = camera_model
         self.feature_points = np.array(feature_points, dtype=float).reshape(-1, 3)
+        n_points = self.feature_points.shape[0]
+        if min_init_markers not in (3, n_points):
+            raise ValueError(
+                f"min_init_markers must be 3 or the number of feature points ({n_points}), "
+                f"got {min_init_markers}"
+            )
+        self.min_init_markers = int(min_init_markers)
+        # Per row: the candidate poses of its latest three-point frame, NaN rows for none.
+        self._candidates = np.full((self.n, MAX_CANDIDATES, 6), np.nan)
         self.noise_px = float(noise_px)
         self.max_residual = acceptance_residual(camera_model, self.noise_px)  # image plane, m
         self._table = projection_table(self.feature_points, camera_model.focal_length)
@@ -290,6 +337,7 @@ class TargetEstimator:
         self.reinitialisations[rows] = 0
         self._elapsed[rows] = 0.0
         self._status[rows] = INITIALISING
+        self._candidates[rows] = np.nan
 
     def snapshot(self, rows: ArrayLike) -> FilterRows:
         """The state of the rows ``rows`` (indices), a copy (`FilterRows`)."""
@@ -303,6 +351,7 @@ class TargetEstimator:
             self.reinitialisations[idx],
             self._status[idx],
             self._elapsed[idx],
+            self._candidates[idx],
         )
 
     def restore(self, rows: ArrayLike, state: FilterRows) -> None:
@@ -315,6 +364,7 @@ class TargetEstimator:
         self.reinitialisations[idx] = state.reinitialisations
         self._status[idx] = state.status
         self._elapsed[idx] = state.elapsed
+        self._candidates[idx] = state.candidates
 
     @property
     def state(self) -> FloatArray:
@@ -384,6 +434,8 @@ class TargetEstimator:
             self.diverged |= fails
             self._status[starting] = np.where(self.diverged[starting], DIVERGED, INITIALISING)
             self._try_initialise(starting & complete, z)
+            if self.min_init_markers < n_points:
+                self._try_three_point(starting & ~complete, z)
         return self._estimates(act)
 
     def cold_solve(self, images: FloatArray) -> tuple[FloatArray, BoolArray]:
@@ -430,6 +482,8 @@ class TargetEstimator:
             self._status[0] = DIVERGED if diverged else INITIALISING
             if complete:
                 self._try_initialise(self._all, z)
+            elif self.min_init_markers < self.feature_points.shape[0]:
+                self._try_three_point(self._all, z)
         return self._estimates(self._all)
 
     def _step_filters(
@@ -529,6 +583,12 @@ class TargetEstimator:
         idx, poses = idx[accepted], poses[accepted]
         if idx.size == 0:
             return
+        self._start_filters(idx, poses)
+
+    def _start_filters(self, idx: NDArray[np.intp], poses: FloatArray) -> None:
+        """Start the filters of rows ``idx`` at poses (m, 6), zero rates, the prior covariance."""
+        if self.min_init_markers < self.feature_points.shape[0]:
+            self._candidates[idx] = np.nan
         self.x[idx] = 0.0
         self.x[idx, :6] = poses  # rates zero
         self.P[idx] = self._p0
@@ -537,6 +597,39 @@ class TargetEstimator:
         self.diverged[idx] = False
         self.high_nis[idx] = 0
         self._status[idx] = OK
+
+    def _try_three_point(self, which: BoolArray, z: FloatArray) -> None:
+        """Three-point initialisation of the rows ``which`` (no running filter, frame not
+        complete; see the module docstring): pick among held candidates with this frame, else
+        take this frame's P3P candidates, starting the filter where one is left."""
+        seen = np.isfinite(z).all(axis=2)  # (n, N)
+        rows = np.flatnonzero(which & (seen.sum(axis=1) >= 3))
+        f = self.camera_model.focal_length
+        for i in rows.tolist():
+            pose = self._picked_candidate(i, z[i])
+            if pose is None and np.count_nonzero(seen[i]) == 3:
+                candidates = three_point_poses(z[i][seen[i]], self.feature_points[seen[i]], f)
+                self._candidates[i] = np.nan
+                self._candidates[i, : candidates.shape[0]] = candidates
+                if candidates.shape[0] == 1:
+                    pose = candidates[0]
+            if pose is not None:
+                self._start_filters(np.array([i]), pose[None])
+
+    def _picked_candidate(self, i: int, image: FloatArray) -> FloatArray | None:
+        """Row i's held candidate that this frame (N, 2, NaN where not seen) singles out, refined
+        on the frame and accepted; None when there is none."""
+        held = self._candidates[i]
+        held = held[np.isfinite(held[:, 0])]
+        if held.shape[0] == 0:
+            return None
+        f = self.camera_model.focal_length
+        residuals = candidate_residuals(held, image, self.feature_points, f)
+        k = pick_candidate(residuals, self.max_residual)
+        if k is None:
+            return None
+        pose, converged, rms = refine_pose(held[k], image, self.feature_points, f)
+        return pose if converged and rms <= self.max_residual else None
 
     # -- the ablations ------------------------------------------------------------------------
     def _photogrammetry(
