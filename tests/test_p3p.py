@@ -13,6 +13,7 @@ from capture_bench.sensing.camera import CameraModel
 from capture_bench.sensing.estimator import STATUSES, TargetEstimator
 from capture_bench.sensing.p3p import (
     candidate_residuals,
+    consensus_candidate,
     pick_candidate,
     refine_pose,
     three_point_poses,
@@ -130,6 +131,44 @@ def test_same_three_points_do_not_tell_candidates_apart() -> None:
     residuals = candidate_residuals(candidates, nxt, points, F)
     np.testing.assert_allclose(residuals, residuals[0], rtol=1e-9)
     assert pick_candidate(residuals, np.inf) is None
+
+
+PRIOR_SD = np.array([0.05] * 3 + [0.2] * 3)  # the filter's prior standard deviations of the pose
+
+
+def test_consensus_candidate() -> None:
+    base = np.array([0.0, 1.0, 0.0, 0.1, 0.2, 3.1])
+    near = base + [0.01, -0.02, 0.0, 0.1, -0.1, 0.0]
+    near[5] -= 2.0 * np.pi  # 3.1 - 2 pi: the same angle wrapped
+    mid = 0.5 * (base + near)
+    mid[5] = base[5]
+    assert consensus_candidate(base[None], PRIOR_SD) == 0
+    assert consensus_candidate(np.stack([base, near]), PRIOR_SD) == 0  # a tie: the first
+    assert consensus_candidate(np.stack([base, mid, near]), PRIOR_SD) == 1  # the medoid
+    far = base + [0.0, 0.0, 0.0, 0.0, 0.3, 0.0]
+    assert consensus_candidate(np.stack([base, far]), PRIOR_SD) is None
+    # far is within the spread of mid, base is not within it of far: mid is the only centre
+    mid_far = base + [0.0, 0.0, 0.0, 0.0, 0.15, 0.0]
+    assert consensus_candidate(np.stack([base, mid_far, far]), PRIOR_SD) == 1
+
+
+# A pose whose P3P candidates from points 0, 1 and 3 lie within PRIOR_SD of each other
+# (found by search; about 1 in 1600 random poses has agreeing candidates).
+AGREEING_POSE = np.array([-0.083, 0.989, 0.06, 0.164, -0.812, -0.134])
+
+
+def test_estimator_starts_at_once_when_candidates_agree() -> None:
+    points = FEATURE_POINTS["non_coplanar"]
+    uv = image(AGREEING_POSE, points)
+    candidates = three_point_poses(uv[[0, 1, 3]], points[[0, 1, 3]], F)
+    assert candidates.shape[0] == 2 and consensus_candidate(candidates, PRIOR_SD) == 0
+    default, three = estimator(1), estimator(1, min_init_markers=3)
+    assert default.update(without(uv, 2)[None], 0.05).status_names() == ["initialising"]
+    assert three.update(without(uv, 2)[None], 0.05).status_names() == ["ok"]
+    np.testing.assert_array_equal(three.x[0, :6], candidates[0])
+    for _ in range(5):  # complete frames: the filter runs on, photogrammetry is not asked
+        assert three.update(uv[None], 0.05).status_names() == ["ok"]
+    assert np.abs(three.x[0, :3] - AGREEING_POSE[:3]).max() < 1e-6
 
 
 CAMERA = CameraModel(position=np.zeros(3), rotation=np.eye(3), focal_length=F, pixel_pitch=PITCH)

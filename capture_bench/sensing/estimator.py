@@ -43,8 +43,12 @@ is). A row without a running filter whose frame is not complete but shows three 
   residual (`p3p.pick_candidate`), it is refined by Levenberg-Marquardt on this frame's points
   (`p3p.refine_pose`) and, accepted, initialises the filter as a photogrammetry solution would;
 * otherwise, a frame of exactly three points replaces the candidates by its own P3P solutions
-  (`p3p.three_point_poses`, those with every point beyond the lens), and a single solution
-  initialises the filter at once.
+  (`p3p.three_point_poses`, those with every point beyond the lens). A single solution
+  initialises the filter at once, and so do solutions that all lie within the filter's prior
+  standard deviations (0.05 m, 0.2 rad: `ekf.default_initial_covariance`) of one of them
+  (`p3p.consensus_candidate`): the filter starts from that one, the others being no farther
+  than the prior already allows. A wrong start of this kind shows as a large NIS once a fourth
+  point is seen, and a diverged filter re-initialises from that complete frame.
 
 Held candidates are the same for the same points seen, so a later frame tells them apart only
 when it shows a point the candidates' frame did not (a complete frame initialises by
@@ -87,6 +91,7 @@ from capture_bench.sensing.ekf import (
 from capture_bench.sensing.p3p import (
     MAX_CANDIDATES,
     candidate_residuals,
+    consensus_candidate,
     pick_candidate,
     refine_pose,
     three_point_poses,
@@ -312,6 +317,7 @@ class TargetEstimator:
         q = np.array([sigma_acceleration**2] * 3 + [sigma_angular_acceleration**2] * 3)
         self._bqb_factor = _BQB_FACTOR * np.repeat(q, 4)
         self._p0 = default_initial_covariance()[np.ix_(BLOCK_ORDER, BLOCK_ORDER)]
+        self._prior_sd = np.sqrt(np.diag(self._p0)[:6])  # of the pose: three-point consensus
         m = state_to_global(camera_model.rotation)[:, BLOCK_ORDER]  # (6, 12), eqs. 11-12
         self._to_global, self._to_global_t = m, np.ascontiguousarray(m.T)
         self.x = np.zeros((self.n, 12))
@@ -601,7 +607,7 @@ class TargetEstimator:
     def _try_three_point(self, which: BoolArray, z: FloatArray) -> None:
         """Three-point initialisation of the rows ``which`` (no running filter, frame not
         complete; see the module docstring): pick among held candidates with this frame, else
-        take this frame's P3P candidates, starting the filter where one is left."""
+        take this frame's P3P candidates, starting the filter from a pick or a consensus."""
         seen = np.isfinite(z).all(axis=2)  # (n, N)
         rows = np.flatnonzero(which & (seen.sum(axis=1) >= 3))
         f = self.camera_model.focal_length
@@ -611,8 +617,9 @@ class TargetEstimator:
                 candidates = three_point_poses(z[i][seen[i]], self.feature_points[seen[i]], f)
                 self._candidates[i] = np.nan
                 self._candidates[i, : candidates.shape[0]] = candidates
-                if candidates.shape[0] == 1:
-                    pose = candidates[0]
+                if candidates.shape[0]:
+                    k = consensus_candidate(candidates, self._prior_sd)
+                    pose = None if k is None else candidates[k]
             if pose is not None:
                 self._start_filters(np.array([i]), pose[None])
 

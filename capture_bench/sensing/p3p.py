@@ -5,7 +5,9 @@ equations of four points. Three points give six equations for the six unknowns, 
 pose up to at most four solutions (the paper, section 2: three points suffice in theory).
 `three_point_poses` finds them with OpenCV's closed-form P3P; `candidate_residuals` scores each
 candidate against another frame's points, and `pick_candidate` keeps the one candidate that
-frame leaves consistent, if there is exactly one.
+frame leaves consistent, if there is exactly one. `consensus_candidate` is the prior's way out
+when no frame has told them apart: candidates that all lie within a given spread of one of them
+(the filter's prior standard deviations) are one estimate as far as the filter is concerned.
 
 The camera of eq. 2 and OpenCV's pinhole: the camera frame's origin is the centre of the image
 plane, its y-axis points toward the scene and the lens sits at ``y = f``; eq. 2 is
@@ -121,6 +123,30 @@ def pick_candidate(residuals: ArrayLike, max_residual: float) -> int | None:
     candidate or more than one is (the frame does not tell them apart)."""
     consistent = np.flatnonzero(np.asarray(residuals, dtype=float) <= max_residual)
     return int(consistent[0]) if consistent.size == 1 else None
+
+
+def consensus_candidate(candidates: ArrayLike, spread: ArrayLike) -> int | None:
+    """The candidate that every candidate lies within ``spread`` of, component by component;
+    None when there is none.
+
+    Args:
+        candidates: (K, 6) poses, camera frame, metres and radians, K >= 1.
+        spread: (6,) largest difference allowed per coordinate, metres and radians (angle
+            differences wrapped to [-pi, pi)).
+
+    Returns:
+        Among the candidates within ``spread`` of all the others, the one of least total
+        normalised distance to them (the first on a tie); None when none is.
+    """
+    c = np.asarray(candidates, dtype=float).reshape(-1, 6)
+    d = c[:, None, :] - c[None, :, :]  # (K, K, 6)
+    d[:, :, 3:] = (d[:, :, 3:] + math.pi) % (2.0 * math.pi) - math.pi
+    scaled = np.abs(d) / np.asarray(spread, dtype=float)
+    within = (scaled <= 1.0).all(axis=(1, 2))
+    if not within.any():
+        return None
+    total = np.where(within, scaled.sum(axis=(1, 2)), np.inf)
+    return int(np.argmin(total))
 
 
 def refine_pose(
