@@ -26,8 +26,9 @@ PITCH = 3.75e-6
 NOISE_PX = 1.0
 MAX_RESIDUAL = 5.0 * NOISE_PX * PITCH  # the estimator's acceptance residual at 1 px
 # Three points carry no redundancy: at 1 px the picked three-point position error (RMS over
-# poses 0.8-1.6 m away) is 1.2-2.2 times the four-point solve's on the same frames for the
-# non-coplanar points (seed 1, 150 poses); the bound leaves room for other draws.
+# poses 0.8-1.6 m away) is 1.1-2.2 times the four-point solve's (about 8 mm) on the same frames
+# for the non-coplanar points, by hidden point (seed 1, 150 poses); the bound leaves room for
+# other draws.
 THREE_POINT_ERROR_RATIO = 3.0
 
 
@@ -81,8 +82,9 @@ def test_three_point_error_within_bound_of_four_point() -> None:
     against the four-point solve of the same frames, per hidden point."""
     points = FEATURE_POINTS["non_coplanar"]
     rng = np.random.default_rng(1)
-    four, three = [], [[] for _ in range(4)]
-    for _ in range(150):
+    four = []
+    three: list[dict[int, float]] = [{} for _ in range(4)]  # frame -> error, per hidden point
+    for frame in range(150):
         pose = random_pose(rng)
         uv = image(pose, points)
         z = uv + rng.normal(size=(4, 2)) * NOISE_PX * PITCH
@@ -93,11 +95,12 @@ def test_three_point_error_within_bound_of_four_point() -> None:
             candidates = three_point_poses(z[keep], points[keep], F)
             k = pick_candidate(candidate_residuals(candidates, z_next, points, F), MAX_RESIDUAL)
             if k is not None:
-                three[hidden].append(np.linalg.norm(candidates[k, :3] - pose[:3]))
-    rms_four = np.sqrt(np.mean(np.square(four)))
+                three[hidden][frame] = float(np.linalg.norm(candidates[k, :3] - pose[:3]))
     for errors in three:
         assert len(errors) >= 120  # the fourth point tells the candidates apart in most frames
-        assert np.sqrt(np.mean(np.square(errors))) <= THREE_POINT_ERROR_RATIO * rms_four
+        rms_three = np.sqrt(np.mean(np.square(list(errors.values()))))
+        rms_four = np.sqrt(np.mean(np.square([four[i] for i in errors])))
+        assert rms_three <= THREE_POINT_ERROR_RATIO * rms_four
 
 
 def moving_poses(steps: int) -> np.ndarray:
