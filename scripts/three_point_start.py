@@ -1,10 +1,10 @@
 """When the filter starts with and without three-point initialisation, on validation seeds.
 
-Runs one agent on a scenario's validation seeds twice, in the single env: with the estimator as
-shipped, and with ``min_init_markers=3`` added to the scenario's estimator settings (there is no
-scenario key for it yet, so this script patches ``Scenario.estimator_settings``). Prints, per
-seed and setting, the first step with a valid estimate, the steps whose frame showed exactly
-three points before it, the outcome and the position error of the first valid estimate.
+Runs one agent on a scenario's validation seeds twice, in the single env: with photogrammetry
+starts only (``min_init_markers=4``) and with three-point starts (``min_init_markers=3``),
+whatever the scenario file says (the script patches ``Scenario.estimator_settings``). Prints, per
+seed and setting, the first step with a valid estimate, the position error of that estimate and
+the outcome.
 
     python scripts/three_point_start.py --scenario paper_rendered --agent incremental_ik --seeds 10
 """

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from capture_bench.agents.acquisition import Acquisition
 from capture_bench.task.observation import (
     OBSERVATION_SIZE,
     Observation,
@@ -55,9 +56,14 @@ class AnalyticController:
     """
 
     privileged = False
+    #: Whether ``predict`` acquires (`capture_bench.agents.acquisition`) where the task has an
+    #: acquisition yaw; the baselines that do not track (hold, random) do not.
+    acquires = True
 
     def __init__(self, description: TaskDescription) -> None:
         self.description = description
+        use = self.acquires and description.acquisition_yaw is not None
+        self.acquisition = Acquisition(description) if use else None
 
     @property
     def batched(self) -> bool:
@@ -90,12 +96,17 @@ class AnalyticController:
         episode_start: NDArray | None = None,
         deterministic: bool = True,
     ) -> tuple[NDArray[np.float32], Any]:
-        """SB3-style predict, observation (16,) or (N, 16): ``(action, state)``, state unchanged."""
+        """SB3-style predict, observation (16,) or (N, 16): ``(action, state)``, state unchanged;
+        with acquisition (the task's ``acquisition_yaw``) the rows that have never had an
+        estimate swing joint 1 clear of the camera's line of sight instead."""
         obs = np.asarray(observation)
-        if obs.ndim == 2:
-            return self.act_batch(obs), state
-        return self.act(obs), state
+        action = self.act_batch(obs) if obs.ndim == 2 else self.act(obs)
+        if self.acquisition is not None:
+            action = self.acquisition.apply(obs, action, episode_start)
+        return action, state
 
     def reset(self) -> None:
-        """Start of an episode (of every row of a batch); the analytic controllers keep no
-        episode state."""
+        """Start of an episode (of every row of a batch): only acquisition keeps episode state
+        here; subclasses that keep their own call this too."""
+        if self.acquisition is not None:
+            self.acquisition.reset()

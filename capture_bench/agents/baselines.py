@@ -166,6 +166,7 @@ class Intercept(AnalyticController):
 
     def reset(self) -> None:
         """Forget the last interception time."""
+        super().reset()
         self.last_tau = None
 
 
@@ -290,6 +291,8 @@ class RandomAgent(AnalyticController):
         seed: seed of the generator.
     """
 
+    acquires = False
+
     def __init__(self, description: TaskDescription, seed: int = 0) -> None:
         super().__init__(description)
         self.rng = np.random.default_rng(seed)
@@ -302,6 +305,8 @@ class RandomAgent(AnalyticController):
 
 class Hold(AnalyticController):
     """Zero action: the arm stays at home. Captures only a target that comes to the end-effector."""
+
+    acquires = False
 
     def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
         """The zero action for each of N observations, shape (N, 3), float32."""

@@ -252,4 +252,5 @@ class IncrementalIK(AnalyticController):
 
     def reset(self) -> None:
         """Forget the last step's diagnostics."""
+        super().reset()
         self.last_step = None

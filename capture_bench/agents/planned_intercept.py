@@ -60,7 +60,7 @@ from capture_bench.agents.envelope_plan import EnvelopePlan
 from capture_bench.agents.incremental_ik import incremental_steps
 from capture_bench.sim.kinematics import forward_kinematics
 from capture_bench.sim.target_motion import LinearDrift
-from capture_bench.task.observation import OBSERVATION_SIZE, TaskDescription
+from capture_bench.task.observation import OBSERVATION_SIZE, TaskDescription, estimate_seen
 from capture_bench.task.physical_limit import physical_limits
 from capture_bench.task.scenarios import CaptureConfig
 
@@ -161,6 +161,7 @@ class PlannedIntercept(AnalyticController):
 
     def reset(self) -> None:
         """Forget every row's plan."""
+        super().reset()
         self.plans = []
 
     def predict(
@@ -189,7 +190,7 @@ class PlannedIntercept(AnalyticController):
             self.plans = [None] * n
         actions = np.zeros((n, 3))
         theta, position, velocity = obs.joint_angles, obs.target_position, obs.target_velocity
-        valid = ~(np.all(position == obs.ee_position, axis=1) & np.all(velocity == 0.0, axis=1))
+        valid = estimate_seen(obs)
         period = np.broadcast_to(np.asarray(obs.last_period, dtype=float), (n,))
         fallback = []
         for i in range(n):

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from capture_bench.agents.base import safe_action
-from capture_bench.task.observation import TaskDescription
+from capture_bench.task.observation import OBSERVATION_SIZE, TaskDescription
 
 #: The analytic controllers a residual may sit on: deterministic, acting from the observation
 #: alone (built from the task's public description).
@@ -83,7 +83,7 @@ class ResidualAgent:
         deterministic: bool = True,
     ) -> tuple[NDArray[np.float32], Any]:
         """SB3-style predict, one observation (16,) or a batch (N, 16)."""
-        base, _ = self.base.predict(observation)
+        base, _ = self.base.predict(observation, episode_start=episode_start)
         residual, state = self.learned.predict(
             observation, state=state, episode_start=episode_start, deterministic=deterministic
         )
@@ -91,9 +91,9 @@ class ResidualAgent:
 
     def predict_rows(self, observations: NDArray) -> NDArray[np.float32]:
         """The deterministic action of each of N observations, (N, 16) -> (N, 3), each row
-        what ``predict`` gives that observation alone: the base's batch (its rows are computed
-        as alone) plus the learned part's ``predict_rows``."""
-        base, _ = self.base.predict(observations)
+        what ``predict`` gives that observation alone (without acquisition): the base's batch
+        (its rows are computed as alone) plus the learned part's ``predict_rows``."""
+        base = self.base.act_batch(np.asarray(observations).reshape(-1, OBSERVATION_SIZE))
         return combine(base, self.learned.predict_rows(observations), self.scale)
 
     def reset(self) -> None:

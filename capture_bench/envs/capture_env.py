@@ -112,8 +112,10 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
     | 12–14 | predicted relative vector X̂_T + Ẋ̂_T t_s − X_E | m    | 0.5 m   |
     | 15    | last real control period dt                   | s    | t_s     |
 
-    While the estimator has no estimate yet (e.g. during camera latency), the target entries
-    repeat the end-effector position with zero velocity.
+    While the estimator has no estimate yet (e.g. during camera latency, or while the arm hides
+    the markers), the target entries repeat the end-effector position with zero velocity; with
+    the rendered camera ``description.acquisition_yaw`` says where joint 1 clears the line of
+    sight (`capture_bench.agents.acquisition`).
 
     With ``observation_source="pixels"`` the agent sees no estimate but
     ``Dict(image=Box(0, 255, (3, H, W), uint8), state=Box(-10, 10, (7,), float32))``:

@@ -44,11 +44,14 @@ is). A row without a running filter whose frame is not complete but shows three 
   (`p3p.refine_pose`) and, accepted, initialises the filter as a photogrammetry solution would;
 * otherwise, a frame of exactly three points replaces the candidates by its own P3P solutions
   (`p3p.three_point_poses`, those with every point beyond the lens). A single solution
-  initialises the filter at once, and so do solutions that all lie within the filter's prior
-  standard deviations (0.05 m, 0.2 rad: `ekf.default_initial_covariance`) of one of them
-  (`p3p.consensus_candidate`): the filter starts from that one, the others being no farther
-  than the prior already allows. A wrong start of this kind shows as a large NIS once a fourth
-  point is seen, and a diverged filter re-initialises from that complete frame.
+  initialises the filter at once, and so do solutions whose capture points all lie within the
+  filter's prior position standard deviation (0.05 m per axis: `ekf.default_initial_covariance`)
+  of one of them (`p3p.consensus_candidate`): the filter starts from that one, whatever their
+  attitudes. The capture point is what the controllers need, and P3P's solutions mostly differ
+  in attitude: a target whose attitude is drawn at random cannot be told apart by a prior on
+  it (the two solutions of a three-point frame of ``grasp_rendered``'s validation seeds lie 5 to
+  31 mm apart, their attitudes 1-20 degrees). A wrong attitude shows as a large NIS once a
+  fourth point is seen, and a diverged filter re-initialises from that complete frame.
 
 Held candidates are the same for the same points seen, so a later frame tells them apart only
 when it shows a point the candidates' frame did not (a complete frame initialises by
@@ -317,7 +320,8 @@ class TargetEstimator:
         q = np.array([sigma_acceleration**2] * 3 + [sigma_angular_acceleration**2] * 3)
         self._bqb_factor = _BQB_FACTOR * np.repeat(q, 4)
         self._p0 = default_initial_covariance()[np.ix_(BLOCK_ORDER, BLOCK_ORDER)]
-        self._prior_sd = np.sqrt(np.diag(self._p0)[:6])  # of the pose: three-point consensus
+        # Three-point consensus: the prior's position standard deviations; the attitude free.
+        self._consensus_spread = np.concatenate([np.sqrt(np.diag(self._p0)[:3]), [np.inf] * 3])
         m = state_to_global(camera_model.rotation)[:, BLOCK_ORDER]  # (6, 12), eqs. 11-12
         self._to_global, self._to_global_t = m, np.ascontiguousarray(m.T)
         self.x = np.zeros((self.n, 12))
@@ -618,7 +622,7 @@ class TargetEstimator:
                 self._candidates[i] = np.nan
                 self._candidates[i, : candidates.shape[0]] = candidates
                 if candidates.shape[0]:
-                    k = consensus_candidate(candidates, self._prior_sd)
+                    k = consensus_candidate(candidates, self._consensus_spread)
                     pose = None if k is None else candidates[k]
             if pose is not None:
                 self._start_filters(np.array([i]), pose[None])

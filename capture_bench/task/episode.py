@@ -173,13 +173,26 @@ class EpisodePlan:
 
 
 def describe_task(scenario: Scenario) -> TaskDescription:
-    """What an env of ``scenario`` publishes for agents: the arm, t_s and epsilon (3,); also the
-    task the physical limit of a drawn plan is computed for."""
+    """What an env of ``scenario`` publishes for agents: the arm, t_s and epsilon (3,), and with
+    the rendered camera (which the arm can hide) the acquisition yaw; also the task the physical
+    limit of a drawn plan is computed for."""
+    arm = kinematics.ArmSpec()
     return TaskDescription(
-        arm=kinematics.ArmSpec(),
+        arm=arm,
         control_period=scenario.control.period,
         capture_tolerance=np.full(3, scenario.capture_tolerance),
+        acquisition_yaw=acquisition_yaw(scenario, arm)
+        if scenario.camera.mode == "rendered"
+        else None,
     )
+
+
+def acquisition_yaw(scenario: Scenario, arm: kinematics.ArmSpec) -> float:
+    """The joint-1 angle that points the arm along the camera's horizontal line of sight, away
+    from the camera (within joint 1's limits), rad: the arm's smallest profile in the image."""
+    sight = np.subtract(scenario.camera.look_at, scenario.camera.position)
+    yaw = float(np.arctan2(sight[1], sight[0]))
+    return float(np.clip(yaw, arm.joint_lower[0], arm.joint_upper[0]))
 
 
 def _same_task(a: TaskDescription, b: TaskDescription) -> bool:

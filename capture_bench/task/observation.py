@@ -73,11 +73,15 @@ class TaskDescription:
         arm: the arm's constants (link lengths, joint rate and position limits, home).
         control_period: nominal control period t_s, s.
         capture_tolerance: epsilon of eq. 20, m, shape (3,).
+        acquisition_yaw: where the camera can be hidden by the arm, the joint-1 angle that
+            points the arm along the camera's horizontal line of sight, away from it, rad
+            (`capture_bench.agents.acquisition`); None where the arm never hides the camera.
     """
 
     arm: ArmSpec = field(default_factory=ArmSpec)
     control_period: float = 0.05
     capture_tolerance: NDArray[np.float64] = field(default_factory=lambda: np.full(3, 1e-3))
+    acquisition_yaw: float | None = None
 
     def action_to_increment(self, action: NDArray) -> NDArray[np.float64]:
         """Joint increment requested by an action: dTheta = a * theta_dot_max * t_s, rad, (3,)."""
@@ -103,6 +107,13 @@ class Observation:
     joint_angles: NDArray[np.float64]
     relative_position: NDArray[np.float64]
     last_period: Any  # s: a float, or shape (N,) for a batch
+
+
+def estimate_seen(obs: Observation) -> NDArray[np.bool_]:
+    """Whether each decoded observation (a batch) carries an estimate: without one the target
+    entries repeat the end-effector position with zero velocity."""
+    same = np.all(obs.target_position == obs.ee_position, axis=-1)
+    return ~(same & np.all(obs.target_velocity == 0.0, axis=-1))
 
 
 def observation_space() -> spaces.Box:

@@ -153,6 +153,11 @@ class EstimatorConfig:
     source: str = _f("ekf", "observation source", choices=SOURCES)
     sigma_acceleration: float = _f(0.01, "EKF process noise, m/s^2", (0.0, 100.0, False))
     sigma_angular_acceleration: float = _f(0.01, "EKF process noise, rad/s^2", (0.0, 100.0, False))
+    min_init_markers: int = _f(
+        4,
+        "fewest markers of a frame that may start the filter: 4 (photogrammetry) or 3 (also P3P)",
+        (3, 4, True),
+    )
 
 
 @dataclass(frozen=True)
@@ -286,15 +291,16 @@ class Scenario:
         return range(start, start + self.seeds.validation_count)
 
     def estimator_settings(self) -> dict[str, float]:
-        """What the estimator assumes (pixel noise, process noise), as the keyword arguments of
-        ``TargetEstimator``. The pixel noise is ``noise_px``
-        with the analytic camera, and the detector's measured centroid error with the rendered
-        one (``RENDERED_DETECTION_SIGMA_PX``; the EKF floors it at ``NOISE_FLOOR_PX``)."""
+        """What the estimator assumes (pixel noise, process noise, how it may start), as the
+        keyword arguments of ``TargetEstimator``. The pixel noise is ``noise_px`` with the
+        analytic camera, and the detector's measured centroid error with the rendered one
+        (``RENDERED_DETECTION_SIGMA_PX``; the EKF floors it at ``NOISE_FLOOR_PX``)."""
         rendered = self.camera.mode == "rendered"
         return {
             "noise_px": RENDERED_DETECTION_SIGMA_PX if rendered else self.camera.noise_px,
             "sigma_acceleration": self.estimator.sigma_acceleration,
             "sigma_angular_acceleration": self.estimator.sigma_angular_acceleration,
+            "min_init_markers": self.estimator.min_init_markers,
         }
 
     def replace(self, **sections: Any) -> Scenario:
