@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.paths import config_dir
+from capture_bench.sensing.calibration import CalibrationSpread, Distortion
 from capture_bench.sensing.camera import RENDERED_DETECTION_SIGMA_PX, CameraModel
 from capture_bench.sensing.sources import SOURCES
 from capture_bench.sim.target_motion import MAX_JINKS
@@ -135,6 +136,52 @@ class CameraConfig:
         "exposure time, s: motion blur over [t - exposure, t] (rendered; 0: none)",
         (0.0, 1.0, True),
     )
+    # The lens and the calibration error (rendered; capture_bench.sensing.calibration): the
+    # estimator knows the nominal values, the episode's true camera deviates from them.
+    distortion_k1: float = _f(
+        0.0,
+        "radial distortion k1 of the lens and of its calibration, OpenCV's convention "
+        "(rendered; < 0: barrel)",
+        (-1.0, 1.0, True),
+    )
+    distortion_k2: float = _f(
+        0.0, "radial distortion k2, OpenCV's convention (rendered)", (-1.0, 1.0, True)
+    )
+    distortion_p1: float = _f(
+        0.0, "tangential distortion p1, OpenCV's convention (rendered)", (-0.1, 0.1, True)
+    )
+    distortion_p2: float = _f(
+        0.0, "tangential distortion p2, OpenCV's convention (rendered)", (-0.1, 0.1, True)
+    )
+    calibration_focal: float = _f(
+        0.0,
+        "calibration error: sigma of the true focal length's relative error, drawn per episode "
+        "(rendered; 0: none)",
+        (0.0, 0.1, True),
+    )
+    calibration_principal_px: float = _f(
+        0.0,
+        "calibration error: sigma of the principal point's error on each axis, px, per episode "
+        "(rendered)",
+        (0.0, 50.0, True),
+    )
+    calibration_k1: float = _f(
+        0.0,
+        "calibration error: sigma of the true k1 minus distortion_k1, per episode (rendered)",
+        (0.0, 0.5, True),
+    )
+    calibration_rotation_deg: float = _f(
+        0.0,
+        "calibration error: sigma of the camera's orientation error about each camera axis, deg, "
+        "per episode (rendered)",
+        (0.0, 5.0, True),
+    )
+    calibration_position: float = _f(
+        0.0,
+        "calibration error: sigma of the camera's position error along each axis, m, per episode "
+        "(rendered)",
+        (0.0, 0.05, True),
+    )
 
     def model(self) -> CameraModel:
         """The camera's geometry: looking from ``position`` at ``look_at`` with these
@@ -145,6 +192,24 @@ class CameraConfig:
             focal_length=self.focal_length,
             pixel_pitch=self.pixel_pitch,
             resolution=self.resolution,
+        )
+
+    @property
+    def calibration_rotation_rad(self) -> float:
+        """``calibration_rotation_deg`` in radians."""
+        return math.radians(self.calibration_rotation_deg)
+
+    def calibration_spread(self) -> CalibrationSpread:
+        """The nominal lens and the calibration error's spread these keys give."""
+        return CalibrationSpread(
+            distortion=Distortion(
+                self.distortion_k1, self.distortion_k2, self.distortion_p1, self.distortion_p2
+            ),
+            focal=self.calibration_focal,
+            principal=self.calibration_principal_px,
+            k1=self.calibration_k1,
+            rotation=self.calibration_rotation_rad,
+            position=self.calibration_position,
         )
 
 
@@ -374,6 +439,19 @@ def _check_file_name(path: Path, why: str) -> None:
         )
 
 
+def _check_lens(camera: CameraConfig, source: str) -> None:
+    """``ConfigError`` naming the lens and calibration keys set with the analytic camera, which
+    does not use them."""
+    names = [f.name for f in dataclasses.fields(camera)]
+    lens = [n for n in names[names.index("distortion_k1") :] if getattr(camera, n) != 0.0]
+    if lens and camera.mode != "rendered":
+        keys = ", ".join(f"'camera.{n}'" for n in lens)
+        raise ConfigError(
+            f"{source}: key(s) {keys}: apply only with camera.mode: rendered (got "
+            f"{camera.mode!r}); set camera.mode: rendered or set them to 0"
+        )
+
+
 def _checked(scenario: Scenario, source: str) -> Scenario:
     """``scenario``, or ``ConfigError`` naming the keys if a rule that ties keys together is
     broken:
@@ -383,6 +461,7 @@ def _checked(scenario: Scenario, source: str) -> Scenario:
       period (each is drawn at reset);
     * ``camera.look_at`` is within `MIN_LOOK_DISTANCE` of ``camera.position`` or straight
       above or below it (no view direction, or no camera z-axis);
+    * a lens or calibration error key is not 0 with the analytic camera (`_check_lens`);
     * ``target.initial_offset``'s low end is not above sqrt(3) ``capture_tolerance``: the target
       starts ``d`` from the home end-effector in a uniformly drawn direction ``u``, inside the
       eq. 20 box when ``d max|u_i| < epsilon``, and ``max|u_i| >= 1/sqrt(3)`` (equal on the
@@ -409,6 +488,7 @@ def _checked(scenario: Scenario, source: str) -> Scenario:
             f"{steps:.4g} steps, not valid; expected at most {MAX_EPISODE_STEPS} steps per episode"
         )
     _check_view(scenario.camera, source)
+    _check_lens(scenario.camera, source)
     low, epsilon = scenario.target.initial_offset[0], scenario.capture_tolerance
     if not low > math.sqrt(3.0) * epsilon:
         raise ConfigError(
