@@ -203,7 +203,8 @@ def test_the_estimator_reads_the_perturbed_cameras_frames_with_the_nominal_calib
         np.testing.assert_array_equal(getattr(lens.nominal, name), getattr(nominal, name))
     assert lens.model.focal_length != nominal.focal_length
     assert not np.array_equal(lens.model.rotation, nominal.rotation)
-    assert lens.nominal_distortion == Distortion(-0.2) != lens.distortion
+    known = sc.camera.calibration_spread().distortion
+    assert lens.nominal_distortion == known != lens.distortion and known.k1 == -0.2
     # A frame of the true camera, read with the nominal calibration
     with RenderedCamera(MODEL, FEATURES, calibration=SPREAD) as camera:
         episode = camera.reset(np.random.default_rng(4))
