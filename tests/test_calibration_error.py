@@ -119,6 +119,28 @@ def test_an_env_episode_has_the_error_of_its_seed():
         assert not np.array_equal(a, b)
 
 
+def test_the_camera_view_draws_the_detections_on_the_true_pinholes_image():
+    """``render_view="camera"``: the image of the episode's true pinhole, with the detector's
+    centroids in it (before the lens), where the markers are."""
+    env = CaptureEnv("paper_rendered", render_mode="rgb_array", render_size=(320, 240))
+    try:
+        env.reset(seed=3)
+        image = env.render()
+        side = env.engine.sides.sides[0]
+        state = side.camera_episode
+        true = env.engine.sides.camera.true_model(state)
+        assert true is state.lens.model and image.shape == (240, 320, 3)
+        ep = side.episode
+        centres = ep.position[0] + env.task.features @ ep.rotation[0].T
+        expected = pixel_of(true.to_camera(centres), true)
+        found = state.last_detections.found
+        assert found.any()
+        error = np.abs(state.last_detections.pixels[found] - expected[found])
+        assert error.max() < 0.3, error
+    finally:
+        env.close()
+
+
 # -- keys at 0 -----------------------------------------------------------------------------------
 def test_every_key_at_zero_gives_the_frames_of_before():
     assert not CameraConfig().calibration_spread().active

@@ -207,8 +207,8 @@ class SceneEpisode:
         last_visible: whether every marker centre was in front of the lens and on the sensor at
             the latest capture (geometry, as `CameraEpisode.last_visible`).
         last_dropped: whether the latest capture was lost to drop-out.
-        last_detections: the detector's answer for the latest capture (None when dropped: no
-            image is rendered then).
+        last_detections: the detector's answer for the latest capture, in the rendered pinhole
+            image, before the lens (None when dropped: no image is rendered then).
         target_only: frame index -> the detections of the target alone, for the seed being
             played (`capture_bench.sensing.scene_camera.RenderedSceneCamera` fills and reuses
             it); None: every frame rendered with the arm.
@@ -544,9 +544,9 @@ class RenderedCamera:
         state.last_detections = frame = None
         if not lost:
             found = self.detect(pose_at, time, theta_at, frame_index, state)
+            state.last_detections = found
             if state.lens is not None:
                 found = measure(state.lens, found)
-            state.last_detections = found
             if found.found.any():
                 if state.lens is None:
                     points = pixel_to_image_plane(found.pixels, self.model)

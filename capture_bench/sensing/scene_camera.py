@@ -199,6 +199,7 @@ class RenderedSceneCamera(RenderedCamera):
         size: tuple[int, int],
         detections: Detections | None = None,
         estimate: FloatArray | None = None,
+        model: CameraModel | None = None,
     ) -> NDArray[np.uint8]:
         """What this camera sees, scaled to ``size`` (width, height, pixels; the sensor's aspect
         is kept by the caller), with the markers found drawn over it (a green ring on each found
@@ -211,13 +212,14 @@ class RenderedSceneCamera(RenderedCamera):
             size: the image's (width, height), pixels.
             detections: the markers found (full-sensor pixels), or None for none drawn.
             estimate: the estimated capture point, global, m, or None.
+            model: the pinhole that took the image (an episode's `true_model`); None: `model`.
         """
         import cv2
 
         from capture_bench.sensing.pixels import image_plane_to_pixel
         from capture_bench.sensing.render_camera import render_frame
 
-        model = self.model
+        model = self.model if model is None else model
         width, height = int(size[0]), int(size[1])
         scale = model.resolution[0] / width
         small = CameraModel(
