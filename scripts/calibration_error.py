@@ -4,12 +4,14 @@ error of the nominal calibration's reprojection and the estimator's position err
 
     python scripts/calibration_error.py                        # 50 validation seeds each
     python scripts/calibration_error.py --seeds 20 --scenarios paper_rendered
+    python scripts/calibration_error.py --scenarios paper --keys-from paper_rendered
 
 For each rendered scenario, each setting of the keys (``off``: every lens and calibration key 0;
 ``lens``: the scenario's distortion only, known exactly to the estimator; one calibration error
 key alone at the scenario's value; ``shipped``: the scenario as shipped) plays the paper's
 controller (``incremental_ik``) on the first ``--seeds`` validation seeds (never a published
-seed) and prints:
+seed) and prints (``--keys-from``: the lens and calibration keys of another scenario, e.g. a
+rendered scenario's on its analytic twin):
 
 * **reprojection, px**: over every step of each episode, each marker the true camera sees on
   its sensor, |what the true camera records - where the nominal calibration (pose, f, principal
@@ -22,16 +24,16 @@ seed) and prints:
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 
 from capture_bench.agents import make_agent
+from capture_bench.argparsing import OneLineParser
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.sensing.calibration import TrueCamera
 from capture_bench.sensing.pixels import pixel_of, principal_point
-from capture_bench.task.scenarios import Scenario, load_scenario
+from capture_bench.task.scenarios import ConfigError, Scenario, load_scenario
 
 SCENARIOS = ("paper_rendered", "grasp_rendered")
 LENS = ("distortion_k1", "distortion_k2", "distortion_p1", "distortion_p2")
@@ -44,10 +46,10 @@ SPREAD = (
 )
 
 
-def settings(scenario: Scenario) -> dict[str, Scenario]:
-    """The scenario with its lens and calibration keys off, its lens only, each calibration
-    key alone (where the scenario sets it) and as shipped."""
-    cam = scenario.camera
+def settings(scenario: Scenario, keys_from: Scenario | None = None) -> dict[str, Scenario]:
+    """The scenario with its lens and calibration keys (or ``keys_from``'s) off, the lens
+    only, each calibration key alone (where set) and all of them."""
+    cam = (scenario if keys_from is None else keys_from).camera
     off = dict.fromkeys((*LENS, *SPREAD), 0.0)
     out = {"off": scenario.replace(camera=off)}
     out["lens"] = scenario.replace(camera={**off, **{k: getattr(cam, k) for k in LENS}})
@@ -55,7 +57,7 @@ def settings(scenario: Scenario) -> dict[str, Scenario]:
         if getattr(cam, key):
             lens = {k: getattr(cam, k) for k in LENS}
             out[key] = scenario.replace(camera={**off, **lens, key: getattr(cam, key)})
-    out["shipped"] = scenario
+    out["shipped"] = scenario.replace(camera={k: getattr(cam, k) for k in (*LENS, *SPREAD)})
     return out
 
 
@@ -118,21 +120,28 @@ def play(scenario: Scenario, seeds: list[int]) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = OneLineParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=50, help="validation seeds per scenario")
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
+    parser.add_argument(
+        "--keys-from", help="take the lens and calibration keys from this scenario instead"
+    )
     args = parser.parse_args(argv)
     if args.seeds < 1:
         parser.error(f"--seeds must be >= 1, got {args.seeds}")
+    try:
+        keys_from = None if args.keys_from is None else load_scenario(args.keys_from)
+        scenarios = [load_scenario(name) for name in args.scenarios]
+    except ConfigError as err:
+        parser.error(str(err))
     print(
         "| scenario | keys | reprojection RMS, px | p95, px | max, px | position error median, "
         "mm | p95, mm | captured | steps/s |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
-    for name in args.scenarios:
-        scenario = load_scenario(name)
+    for name, scenario in zip(args.scenarios, scenarios, strict=True):
         seeds = list(scenario.validation_seeds)[: args.seeds]
-        for label, variant in settings(scenario).items():
+        for label, variant in settings(scenario, keys_from).items():
             r = play(variant, seeds)
             print(
                 f"| {name} | {label} | {r['rms_px']:.2f} | {r['p95_px']:.2f} | "

@@ -14,6 +14,7 @@ import pytest
 
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.sensing.calibration import CalibrationSpread, Distortion, TrueCamera
+from capture_bench.sensing.camera import Camera
 from capture_bench.sensing.detector import MARKER_BANDS, detect_markers
 from capture_bench.sensing.pixels import (
     pixel_of,
@@ -265,15 +266,64 @@ def test_a_key_out_of_range_is_one_line_naming_it(tmp_path: Path, key, value, va
     assert valid in message, message
 
 
-def test_a_lens_key_with_the_analytic_camera_is_one_line_naming_it(tmp_path: Path):
-    path = tmp_path / "lens.yaml"
-    path.write_text("camera:\n  distortion_k1: -0.2\n  calibration_focal: 0.001\n")
-    with pytest.raises(ConfigError) as raised:
-        load_scenario(path)
-    message = str(raised.value)
-    assert "\n" not in message and message.startswith(f"{path}: ")
-    assert "'camera.distortion_k1', 'camera.calibration_focal'" in message
-    assert "camera.mode: rendered" in message
+# -- the analytic camera ---------------------------------------------------------------------
+def test_the_analytic_camera_projects_through_the_true_camera():
+    """All keys 0: the frames of before, bit for bit, and reset draws nothing. With an error:
+    reset draws the key (one integer) and the lens from it; `capture_sequence` (the recorded
+    path) gives `capture`'s frames (the live path) bit for bit; a frame is the nominal reading of
+    the true camera's noisy pixels."""
+    scenes = [pose_at(0.0) for pose_at in _scenes(6, seed=3)]
+    points = np.stack([p + FEATURES @ r.T for p, r in scenes])
+    plain = Camera(MODEL, noise_px=0.5, dropout=0.2, latency_frames=1)
+    zero = Camera(MODEL, 0.5, 0.2, 1, CalibrationSpread())
+    lensed = Camera(MODEL, 0.5, 0.2, 1, SPREAD)
+    expected = plain.capture_sequence(points, np.random.default_rng(5))
+    rng = np.random.default_rng(5)
+    state = zero.reset(rng)
+    assert (
+        state.lens is None
+        and rng.bit_generator.state == np.random.default_rng(5).bit_generator.state
+    )
+    for a, b in zip(zero.capture_sequence(points, np.random.default_rng(5)), expected):
+        np.testing.assert_array_equal(a, b)
+    rng = np.random.default_rng(5)
+    state = lensed.reset(rng)
+    key = int(np.random.default_rng(5).integers(0, 2**64, dtype=np.uint64))
+    for a, b in zip(_true_camera_fields(state.lens), _true_camera_fields(SPREAD.draw(key, MODEL))):
+        np.testing.assert_array_equal(a, b)
+    live = [lensed.capture(state, p, rng) for p in points]
+    images, visible = lensed.capture_sequence(points, np.random.default_rng(5))
+    assert visible.all()
+    for k, frame in enumerate(live):
+        if frame is None:
+            assert np.isnan(images[k]).all()
+        else:
+            np.testing.assert_array_equal(frame.image_points, images[k])
+    true = state.lens
+    nominal_eq2 = MODEL.project(MODEL.to_camera(points[0]))
+    seen = true.calibrated_points(
+        true.measured_pixels(pixel_of(true.model.to_camera(points[0]), true.model))
+    )
+    assert np.abs(images[1] - seen).max() / PITCH < 3.0  # the frame taken at 0, 0.5 px of noise
+    assert np.abs(images[1] - nominal_eq2).max() / PITCH > 3.0
+
+
+def test_an_analytic_episode_live_is_its_recording():
+    sc = load_scenario("paper").replace(camera=KEYS)
+    live, recorded = CaptureEnv(sc), CaptureEnv(sc, reuse_target_side=True)
+    try:
+        for env in (live, recorded):
+            env.reset(seed=7)
+        lens = live.engine.sides.sides[0].camera_episode.lens
+        assert lens is not None
+        action = np.zeros(3)
+        for _ in range(15):
+            a, b = live.step(action), recorded.step(action)
+            np.testing.assert_array_equal(a[0], b[0])
+            assert a[4]["estimate_position_error"] == b[4]["estimate_position_error"]
+    finally:
+        live.close()
+        recorded.close()
 
 
 # -- the point-level approximation ---------------------------------------------------------------

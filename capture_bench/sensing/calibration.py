@@ -19,8 +19,10 @@ pixel with the nominal calibration: undistorted with the nominal coefficients
 (`Distortion.remove`) and mapped to eq. 2's image plane with the nominal f and principal point
 (`TrueCamera.calibrated_points`).
 
-The rendered camera renders the true camera's pinhole (its pose and f) and applies the lens at
-the point level: a detected centroid, a pinhole pixel, is distorted with the true coefficients
+The analytic camera (`capture_bench.sensing.camera.Camera`) projects the feature points through
+the true camera and adds its noise to the pixels it records (`TrueCamera.observe`). The rendered
+camera renders the true camera's pinhole (its pose and f) and applies the lens at the point
+level: a detected centroid, a pinhole pixel, is distorted with the true coefficients
 and moved by the principal point's error (`TrueCamera.measured_pixels`). Distorting the image
 instead would move the blob's centroid by the distortion's curvature over the blob as well;
 ``tests/test_calibration_error.py`` bounds that difference at the sensor's corner, where
@@ -38,7 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from capture_bench.sensing.camera import CameraModel
-from capture_bench.sensing.pixels import pixel_to_image_plane, principal_point
+from capture_bench.sensing.pixels import pixel_of, pixel_to_image_plane, principal_point
 from capture_bench.sim.rotations import axis_angle_to_matrix
 
 FloatArray = NDArray[np.float64]
@@ -91,7 +93,7 @@ class Distortion:
         method from the distorted point (`_newton_step`), until no coordinate moves more than
         1e-15 (at most `UNDISTORT_STEPS` steps; NaN rows stay NaN). Up to `SMALL_BATCH` points
         are solved one by one in Python floats (a frame's markers: faster than array
-        arithmetic), more as arrays; both take the same steps."""
+        arithmetic), more as arrays; each point takes the same steps either way, to the bit."""
         target = np.asarray(distorted, dtype=float)
         if self.zero:
             return target.copy()
@@ -100,12 +102,16 @@ class Distortion:
             return np.array(rows, dtype=float).reshape(target.shape)
         tx, ty = target[:, 0], target[:, 1]
         x, y = tx.copy(), ty.copy()
+        moving = np.ones(tx.shape, dtype=bool)  # the points still taking steps
         for _ in range(UNDISTORT_STEPS):
-            dx, dy = self._newton_step(x, y, tx, ty)
-            x -= dx
-            y -= dy
-            if not (np.any(np.abs(dx) > 1e-15) or np.any(np.abs(dy) > 1e-15)):
-                break  # NaN rows compare False
+            with np.errstate(divide="ignore", invalid="ignore"):
+                dx, dy = self._newton_step(x, y, tx, ty)
+            singular = ~np.isfinite(dx) | ~np.isfinite(dy)
+            x = np.where(moving, np.where(singular, np.nan, x - dx), x)
+            y = np.where(moving, np.where(singular, np.nan, y - dy), y)
+            moving &= (np.abs(dx) > 1e-15) | (np.abs(dy) > 1e-15)  # NaN compares False
+            if not moving.any():
+                break
         return np.column_stack([x, y])
 
     def _remove_one(self, tx: float, ty: float) -> tuple[float, float]:
@@ -167,6 +173,30 @@ class TrueCamera:
         scale = self.model.focal_length / self.model.pixel_pitch
         distorted = self.distortion.apply((p - centre) / scale)
         return centre + self.principal_offset + scale * distorted
+
+    def on_sensor(self, pixels: ArrayLike) -> NDArray[np.bool_]:
+        """(N,) True where pixels ``[u, v]`` (N, 2) fall on the sensor, edges included
+        (``[-0.5, width - 0.5] x [-0.5, height - 0.5]``); False for NaN."""
+        p = np.asarray(pixels, dtype=float)
+        width, height = self.model.resolution
+        with np.errstate(invalid="ignore"):
+            inside = (p >= -0.5) & (p <= np.array([width - 0.5, height - 0.5]))
+        return np.all(inside, axis=1)
+
+    def observe(self, points_cam: ArrayLike, noise: ArrayLike) -> tuple[FloatArray, NDArray]:
+        """The analytic camera's frame through this camera: points in the true camera's frame
+        (metres, (N, 3), beyond its lens) projected by its pinhole and lens
+        (`measured_pixels`), ``noise`` (image-plane metres, (N, 2)) added to them as pixels,
+        and read with the nominal calibration (`calibrated_points`).
+
+        Returns:
+            Image-plane points of the nominal camera, metres, (N, 2), and (N,) whether each
+            noiseless pixel falls on the sensor (`on_sensor`).
+        """
+        with np.errstate(divide="ignore", invalid="ignore"):
+            pixels = self.measured_pixels(pixel_of(points_cam, self.model))
+            noisy = pixels + np.asarray(noise, dtype=float) / self.model.pixel_pitch
+            return self.calibrated_points(noisy), self.on_sensor(pixels)
 
     def calibrated_points(self, pixels: ArrayLike) -> FloatArray:
         """Measured pixels (N, 2) -> eq. 2's image-plane points of the nominal camera (metres,

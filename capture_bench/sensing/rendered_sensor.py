@@ -353,10 +353,7 @@ def measure(lens: TrueCamera, found: Detections) -> Detections:
     through `TrueCamera.measured_pixels`; one that lands off the sensor is ``AT_BORDER``
     (NaN)."""
     pixels = lens.measured_pixels(found.pixels)
-    width, height = lens.model.resolution
-    u, v = pixels[:, 0], pixels[:, 1]
-    with np.errstate(invalid="ignore"):
-        on = (u >= -0.5) & (u <= width - 0.5) & (v >= -0.5) & (v <= height - 0.5)
+    on = lens.on_sensor(pixels)
     status = np.where(found.found & ~on, np.int8(AT_BORDER), found.status).astype(np.int8)
     pixels[status != FOUND] = np.nan
     return Detections(pixels, found.areas.copy(), status)

@@ -136,50 +136,46 @@ class CameraConfig:
         "exposure time, s: motion blur over [t - exposure, t] (rendered; 0: none)",
         (0.0, 1.0, True),
     )
-    # The lens and the calibration error (rendered; capture_bench.sensing.calibration): the
-    # estimator knows the nominal values, the episode's true camera deviates from them.
+    # The lens and the calibration error (capture_bench.sensing.calibration): the estimator
+    # knows the nominal values, the episode's true camera deviates from them.
     distortion_k1: float = _f(
         0.0,
-        "radial distortion k1 of the lens and of its calibration, OpenCV's convention "
-        "(rendered; < 0: barrel)",
+        "radial distortion k1 of the lens, known to the estimator, OpenCV's convention (< 0: "
+        "barrel)",
         (-1.0, 1.0, True),
     )
-    distortion_k2: float = _f(
-        0.0, "radial distortion k2, OpenCV's convention (rendered)", (-1.0, 1.0, True)
-    )
+    distortion_k2: float = _f(0.0, "radial distortion k2, OpenCV's convention", (-1.0, 1.0, True))
     distortion_p1: float = _f(
-        0.0, "tangential distortion p1, OpenCV's convention (rendered)", (-0.1, 0.1, True)
+        0.0, "tangential distortion p1, OpenCV's convention", (-0.1, 0.1, True)
     )
     distortion_p2: float = _f(
-        0.0, "tangential distortion p2, OpenCV's convention (rendered)", (-0.1, 0.1, True)
+        0.0, "tangential distortion p2, OpenCV's convention", (-0.1, 0.1, True)
     )
     calibration_focal: float = _f(
         0.0,
         "calibration error: sigma of the true focal length's relative error, drawn per episode "
-        "(rendered; 0: none)",
+        "(0: none)",
         (0.0, 0.1, True),
     )
     calibration_principal_px: float = _f(
         0.0,
-        "calibration error: sigma of the principal point's error on each axis, px, per episode "
-        "(rendered)",
+        "calibration error: sigma of the principal point's error on each axis, px, per episode",
         (0.0, 50.0, True),
     )
     calibration_k1: float = _f(
         0.0,
-        "calibration error: sigma of the true k1 minus distortion_k1, per episode (rendered)",
+        "calibration error: sigma of the true k1 minus distortion_k1, per episode",
         (0.0, 0.5, True),
     )
     calibration_rotation_deg: float = _f(
         0.0,
         "calibration error: sigma of the camera's orientation error about each camera axis, deg, "
-        "per episode (rendered)",
+        "per episode",
         (0.0, 5.0, True),
     )
     calibration_position: float = _f(
         0.0,
-        "calibration error: sigma of the camera's position error along each axis, m, per episode "
-        "(rendered)",
+        "calibration error: sigma of the camera's position error along each axis, m, per episode",
         (0.0, 0.05, True),
     )
 
@@ -439,19 +435,6 @@ def _check_file_name(path: Path, why: str) -> None:
         )
 
 
-def _check_lens(camera: CameraConfig, source: str) -> None:
-    """``ConfigError`` naming the lens and calibration keys set with the analytic camera, which
-    does not use them."""
-    names = [f.name for f in dataclasses.fields(camera)]
-    lens = [n for n in names[names.index("distortion_k1") :] if getattr(camera, n) != 0.0]
-    if lens and camera.mode != "rendered":
-        keys = ", ".join(f"'camera.{n}'" for n in lens)
-        raise ConfigError(
-            f"{source}: key(s) {keys}: apply only with camera.mode: rendered (got "
-            f"{camera.mode!r}); set camera.mode: rendered or set them to 0"
-        )
-
-
 def _checked(scenario: Scenario, source: str) -> Scenario:
     """``scenario``, or ``ConfigError`` naming the keys if a rule that ties keys together is
     broken:
@@ -461,7 +444,6 @@ def _checked(scenario: Scenario, source: str) -> Scenario:
       period (each is drawn at reset);
     * ``camera.look_at`` is within `MIN_LOOK_DISTANCE` of ``camera.position`` or straight
       above or below it (no view direction, or no camera z-axis);
-    * a lens or calibration error key is not 0 with the analytic camera (`_check_lens`);
     * ``target.initial_offset``'s low end is not above sqrt(3) ``capture_tolerance``: the target
       starts ``d`` from the home end-effector in a uniformly drawn direction ``u``, inside the
       eq. 20 box when ``d max|u_i| < epsilon``, and ``max|u_i| >= 1/sqrt(3)`` (equal on the
@@ -488,7 +470,6 @@ def _checked(scenario: Scenario, source: str) -> Scenario:
             f"{steps:.4g} steps, not valid; expected at most {MAX_EPISODE_STEPS} steps per episode"
         )
     _check_view(scenario.camera, source)
-    _check_lens(scenario.camera, source)
     low, epsilon = scenario.target.initial_offset[0], scenario.capture_tolerance
     if not low > math.sqrt(3.0) * epsilon:
         raise ConfigError(

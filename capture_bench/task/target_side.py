@@ -149,7 +149,10 @@ class TargetSide:
             nees=np.full(n, np.nan),
             bound=None,
         )
-        state = camera.reset() if isinstance(camera, Camera) else camera.reset(rng, target_only)
+        if isinstance(camera, Camera):  # its lens, if any, drawn as record_truth draws it
+            state = camera.reset(None if plan.scenario.estimator.source == "truth" else rng)
+        else:
+            state = camera.reset(rng, target_only)
         estimator.reset()
         return cls(episode, 0, _Sensors(camera, state, estimator, features, rng))
 
