@@ -1,4 +1,5 @@
-"""The eye-to-hand camera: pinhole projection (paper eq. 2), pixel noise, drop-out and latency.
+"""The eye-to-hand camera: pinhole projection (paper eq. 2), pixel noise, drop-out and latency;
+optionally a lens and a calibration error (`capture_bench.sensing.calibration`).
 
 Frames (see ``docs/architecture.md``):
 
