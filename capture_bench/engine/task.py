@@ -48,10 +48,11 @@ def resolve_scenario(
 
 
 def scenario_camera(scenario: Scenario) -> tuple[Camera, FloatArray]:
-    """The scenario's camera (model, noise, drop-out, latency) and the target's feature points
-    (target frame, m, (N, 3))."""
+    """The scenario's camera (model, noise, drop-out, latency, lens and calibration error) and
+    the target's feature points (target frame, m, (N, 3))."""
     cam = scenario.camera
-    camera = Camera(cam.model(), cam.noise_px, cam.dropout, cam.latency_frames)
+    spread = cam.calibration_spread()
+    camera = Camera(cam.model(), cam.noise_px, cam.dropout, cam.latency_frames, spread)
     return camera, FEATURE_POINTS[scenario.target.feature_points]
 
 

@@ -410,6 +410,7 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
             self.render_size,
             state.last_detections,
             episode.estimate_position[k],
+            sides.camera.true_model(state),  # type: ignore[union-attr]
         )
 
     def close(self) -> None:

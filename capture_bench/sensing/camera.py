@@ -1,4 +1,5 @@
-"""The eye-to-hand camera: pinhole projection (paper eq. 2), pixel noise, drop-out and latency.
+"""The eye-to-hand camera: pinhole projection (paper eq. 2), pixel noise, drop-out and latency;
+optionally a lens and a calibration error (`capture_bench.sensing.calibration`).
 
 Frames (see ``docs/architecture.md``):
 
@@ -18,11 +19,15 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from capture_bench.sim.rotations import look_at
+
+if TYPE_CHECKING:
+    from capture_bench.sensing.calibration import CalibrationSpread, TrueCamera
 
 FloatArray = NDArray[np.float64]
 
@@ -176,12 +181,14 @@ class CameraEpisode:
             capture (the current one, not the delayed frame delivered). Lets the caller tell
             "not visible" from "dropped".
         last_dropped: whether the latest capture was lost to drop-out.
+        lens: the episode's true camera (`Camera.reset` with a calibration); None: `model`.
     """
 
     pipeline: deque[Frame | None] = field(default_factory=deque)
     count: int = 0
     last_visible: bool = True
     last_dropped: bool = False
+    lens: TrueCamera | None = None
 
 
 class Camera:
@@ -195,6 +202,10 @@ class Camera:
         noise_px: standard deviation of the image noise, pixels (0 for a perfect camera).
         dropout: probability in [0, 1) that a frame is lost.
         latency_frames: a frame taken at capture k is delivered by capture k + latency_frames.
+        calibration: the nominal lens and the spread of each episode's calibration error
+            (`capture_bench.sensing.calibration`): the points are projected by the episode's
+            true camera, the noise added to its pixels and the result read with the nominal
+            calibration; None (or one that is all 0): eq. 2 at ``model``, exactly.
     """
 
     def __init__(
@@ -203,6 +214,7 @@ class Camera:
         noise_px: float = 1.0,
         dropout: float = 0.0,
         latency_frames: int = 0,
+        calibration: CalibrationSpread | None = None,
     ) -> None:
         if noise_px < 0:
             raise ValueError(f"noise_px must be >= 0, got {noise_px}")
@@ -214,15 +226,28 @@ class Camera:
         self.noise_px = float(noise_px)
         self.dropout = float(dropout)
         self.latency_frames = int(latency_frames)
+        active = calibration is not None and calibration.active
+        self.calibration = calibration if active else None
 
     @property
     def noise_std(self) -> float:
         """Standard deviation of the image noise on the image plane, metres."""
         return self.noise_px * self.model.pixel_pitch
 
-    def reset(self) -> CameraEpisode:
-        """A new episode's state: an empty latency pipeline, no capture yet (no random draw)."""
-        return CameraEpisode()
+    def reset(self, rng: np.random.Generator | None = None) -> CameraEpisode:
+        """A new episode's state: an empty latency pipeline, no capture yet. No random draw,
+        but with a `calibration` and ``rng``: the episode's true camera, from one
+        ``rng.integers(0, 2**64, dtype=np.uint64)`` (`draw_lens`; without ``rng``: key 0)."""
+        return CameraEpisode(lens=self.draw_lens(rng))
+
+    def draw_lens(self, rng: np.random.Generator | None) -> TrueCamera | None:
+        """The episode's true camera (`CalibrationSpread.draw` of a key drawn from ``rng``, one
+        ``integers`` call; key 0 without ``rng``); None, drawing nothing, without a
+        `calibration`."""
+        if self.calibration is None:
+            return None
+        key = 0 if rng is None else int(rng.integers(0, 2**64, dtype=np.uint64))
+        return self.calibration.draw(key, self.model)
 
     def capture(
         self, state: CameraEpisode, points_global: ArrayLike, rng: np.random.Generator
@@ -244,14 +269,19 @@ class Camera:
             The frame captured ``latency_frames`` calls ago (None while the pipeline fills), or
             None when that frame was dropped or not every point was visible.
         """
-        model = self.model
+        model = self.model if state.lens is None else state.lens.model
         p_cam = model.to_camera(np.atleast_2d(points_global))
         lost = rng.random() < self.dropout
         noise = rng.standard_normal((p_cam.shape[0], 2)) * self.noise_std
         # model.visible(p_cam).all(), without the work for a single point behind the lens.
         visible = bool((p_cam[:, 1] > model.focal_length + LENS_MARGIN).all())
         frame = None
-        if visible:
+        if visible and state.lens is not None:
+            image, on = state.lens.observe(p_cam, noise)
+            visible = bool(on.all())
+            if visible and not lost:
+                frame = Frame(image, True, state.count)
+        elif visible:
             image = model.project(p_cam)
             visible = bool((np.abs(image) <= model._half_extent).all())  # on_sensor
             if visible and not lost:
@@ -279,8 +309,11 @@ class Camera:
             ``images`` (T, N, 2): the frame delivered at each call, metres, NaN where
             `capture` returns None; ``visible`` (T,): `CameraEpisode.last_visible` after each
             call.
+
+        With a `calibration`, the episode's true camera is drawn first, as `reset` draws it.
         """
-        model = self.model
+        lens = self.draw_lens(rng)
+        model = self.model if lens is None else lens.model
         p = np.asarray(points_global, dtype=float)
         n_t, n_points = p.shape[0], p.shape[1]
         lost = np.empty(n_t, dtype=bool)
@@ -293,10 +326,16 @@ class Camera:
         p_cam = model.to_camera(p)  # one (N, 3) product per instant, as capture() makes it
         front = (p_cam[:, :, 1] > model.focal_length + LENS_MARGIN).all(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            image = model.project(p_cam.reshape(-1, 3)).reshape(n_t, n_points, 2)
-            on_sensor = (np.abs(image) <= model._half_extent).all(axis=(1, 2))
+            if lens is None:
+                image = model.project(p_cam.reshape(-1, 3)).reshape(n_t, n_points, 2)
+                on_sensor = (np.abs(image) <= model._half_extent).all(axis=(1, 2))
+                image = image + noise
+            else:
+                flat, on = lens.observe(p_cam.reshape(-1, 3), noise.reshape(-1, 2))
+                image = flat.reshape(n_t, n_points, 2)
+                on_sensor = on.reshape(n_t, n_points).all(axis=1)
             visible: NDArray[np.bool_] = np.asarray(front & on_sensor, dtype=bool)
-        images = np.where((visible & ~lost)[:, None, None], image + noise, np.nan)
+        images = np.where((visible & ~lost)[:, None, None], image, np.nan)
         latency = self.latency_frames
         if latency:  # the frame taken at call k is delivered by call k + latency
             images = np.concatenate([np.full((min(latency, n_t), n_points, 2), np.nan), images])

@@ -49,6 +49,15 @@ function of ``(key, frame_index, (v * width + u) * 3 + c)`` (`pixel_noise`), so 
 noise is the full frame's. `RenderedCamera.reset` draws the episode's key (kept in its
 `SceneEpisode`); `capture` draws only the drop-out uniform, whatever the geometry.
 
+**Lens and calibration error** (`capture_bench.sensing.calibration`): with a
+`CalibrationSpread` whose distortion or spread is not 0, `RenderedCamera.reset` also draws the
+episode's true camera from its noise key (`CalibrationSpread.draw`, a stream of its own: nothing
+more is drawn from the episode's generator). Its pinhole (pose and f) is rendered and detected;
+each found centroid is distorted by the true lens and moved by the principal point's error
+(`TrueCamera.measured_pixels`; one falling off the sensor is ``at_border``), then read with the
+nominal calibration (`TrueCamera.calibrated_points`) into the frame's image-plane points. Without
+one, every frame is what it was without these keys, bit for bit.
+
 **Motion blur**: the mean of ``blur_subframes`` renders over ``[t - exposure_s, t]``, noise added
 after. The blob is where the marker stayed long enough to keep its saturation (>= 3 of 4
 sub-frames over white), so its centroid is the mean position, behind eq. 2 at t by half the
@@ -75,8 +84,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from capture_bench._quiet import quiet_c_output
+from capture_bench.sensing.calibration import CalibrationSpread, TrueCamera
 from capture_bench.sensing.camera import RENDERED_DETECTION_SIGMA_PX, CameraModel, Frame
-from capture_bench.sensing.detector import FOUND, MARKER_BANDS, NO_BLOB, Detections, detect_markers
+from capture_bench.sensing.detector import (
+    AT_BORDER,
+    FOUND,
+    MARKER_BANDS,
+    NO_BLOB,
+    Detections,
+    detect_markers,
+)
 from capture_bench.sensing.pixels import pixel_to_image_plane, principal_point, sphere_image
 from capture_bench.sensing.render_camera import (
     NEAR_PLANE,
@@ -184,19 +201,21 @@ class SceneEpisode:
 
     Attributes:
         noise_key: the episode's image-noise key (`pixel_noise`).
+        lens: the episode's true camera (`CalibrationSpread.draw`); None: the nominal pinhole.
         pipeline: the frames taken and not yet delivered (latency), oldest first.
         count: captures taken in the episode.
         last_visible: whether every marker centre was in front of the lens and on the sensor at
             the latest capture (geometry, as `CameraEpisode.last_visible`).
         last_dropped: whether the latest capture was lost to drop-out.
-        last_detections: the detector's answer for the latest capture (None when dropped: no
-            image is rendered then).
+        last_detections: the detector's answer for the latest capture, in the rendered pinhole
+            image, before the lens (None when dropped: no image is rendered then).
         target_only: frame index -> the detections of the target alone, for the seed being
             played (`capture_bench.sensing.scene_camera.RenderedSceneCamera` fills and reuses
             it); None: every frame rendered with the arm.
     """
 
     noise_key: int = 0
+    lens: TrueCamera | None = None
     pipeline: deque[RenderedFrame | None] = field(default_factory=deque)
     count: int = 0
     last_visible: bool = True
@@ -329,6 +348,17 @@ def detect_exactly(
     return part
 
 
+def measure(lens: TrueCamera, found: Detections) -> Detections:
+    """The detections of ``lens``'s pinhole as its sensor records them: each found centroid
+    through `TrueCamera.measured_pixels`; one that lands off the sensor is ``AT_BORDER``
+    (NaN)."""
+    pixels = lens.measured_pixels(found.pixels)
+    on = lens.on_sensor(pixels)
+    status = np.where(found.found & ~on, np.int8(AT_BORDER), found.status).astype(np.int8)
+    pixels[status != FOUND] = np.nan
+    return Detections(pixels, found.areas.copy(), status)
+
+
 def window_keeps(
     model: CameraModel, windows: Sequence[Window], centres_cam: FloatArray, radii: FloatArray
 ) -> NDArray[np.bool_]:
@@ -427,6 +457,8 @@ class RenderedCamera:
         settings: how to render and detect.
         dropout: probability in [0, 1) that a frame is lost.
         latency_frames: a frame taken at capture k is delivered by capture k + latency_frames.
+        calibration: the nominal lens and the spread of each episode's calibration error (module
+            docstring); None: a pinhole at ``model``, exactly.
     """
 
     def __init__(
@@ -436,6 +468,7 @@ class RenderedCamera:
         settings: RenderSettings | None = None,
         dropout: float = 0.0,
         latency_frames: int = 0,
+        calibration: CalibrationSpread | None = None,
     ) -> None:
         if not 0.0 <= dropout < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {dropout}")
@@ -448,6 +481,8 @@ class RenderedCamera:
             raise ValueError(f"features must have shape (4, 3), got {self.features.shape}")
         self.dropout = float(dropout)
         self.latency_frames = int(latency_frames)
+        active = calibration is not None and calibration.active
+        self.calibration = calibration if active else None
         self._lighting = self.settings.lighting()
         self._world = World(self.features, marker_radius=self.settings.marker_radius)
         self._culling = _Culling(
@@ -457,9 +492,17 @@ class RenderedCamera:
     def reset(self, rng: np.random.Generator | None = None) -> SceneEpisode:
         """A new episode's state: an empty latency pipeline, no capture yet and, given ``rng``,
         the episode's noise key drawn: one ``rng.integers(0, 2**64, dtype=np.uint64)`` (without:
-        key 0)."""
+        key 0); with a `calibration`, the episode's true camera drawn from that key."""
         key = 0 if rng is None else int(rng.integers(0, 2**64, dtype=np.uint64))
-        return SceneEpisode(noise_key=key)
+        spread = self.calibration
+        lens = None if spread is None else spread.draw(key, self.model)
+        return SceneEpisode(noise_key=key, lens=lens)
+
+    def true_model(self, episode: SceneEpisode | None) -> CameraModel:
+        """The pinhole that renders ``episode``'s images: its true camera's, else `model`."""
+        if episode is None or episode.lens is None:
+            return self.model
+        return episode.lens.model
 
     def capture(
         self,
@@ -492,14 +535,20 @@ class RenderedCamera:
         lost = bool(rng.random() < self.dropout)
         position, rotation = pose_at(time)
         points = np.asarray(position) + self.features @ np.asarray(rotation).T
-        state.last_visible = bool(self.model.visible(self.model.to_camera(points)).all())
+        model = self.true_model(state)
+        state.last_visible = bool(model.visible(model.to_camera(points)).all())
         state.last_dropped = lost
         state.last_detections = frame = None
         if not lost:
             found = self.detect(pose_at, time, theta_at, frame_index, state)
             state.last_detections = found
+            if state.lens is not None:
+                found = measure(state.lens, found)
             if found.found.any():
-                points = pixel_to_image_plane(found.pixels, self.model)
+                if state.lens is None:
+                    points = pixel_to_image_plane(found.pixels, self.model)
+                else:
+                    points = state.lens.calibrated_points(found.pixels)
                 frame = RenderedFrame(points, True, state.count, found.found, found.status)
         state.count += 1
         pipeline = state.pipeline
@@ -518,18 +567,21 @@ class RenderedCamera:
     ) -> Detections:
         """Render the image taken at ``time`` and find the markers in it (no drop-out, no
         latency): windows or the full frame, as ``settings.windowed`` says (module docstring);
-        the image noise of ``episode``'s key (key 0 without one)."""
+        the image noise of ``episode``'s key (key 0 without one), through its true pinhole
+        (`true_model`): pinhole pixels, before its lens."""
         key = 0 if episode is None else episode.noise_key
+        model = self.true_model(episode)
         scenes = self._scenes(pose_at, time, theta_at)
-        centres = np.stack([self.model.to_camera(scene[0]) for scene in scenes])
-        windows = marker_windows(self.model, centres, self.settings.marker_radius)
+        centres = np.stack([model.to_camera(scene[0]) for scene in scenes])
+        windows = marker_windows(model, centres, self.settings.marker_radius)
         n = len(windows)
         out = Detections(
             np.full((n, 2), np.nan), np.zeros(n, np.int64), np.full(n, NO_BLOB, np.int8)
         )
         looked = [i for i, w in enumerate(windows) if w is not None]
         if not self.settings.windowed:
-            whole = detect_markers(self._images(scenes, [None], frame_index, key)[0], self.model)
+            image = self._images(scenes, [None], frame_index, key, model)[0]
+            whole = detect_markers(image, model)
             results = [(looked, whole.pixels[looked], whole.areas[looked], whole.status[looked])]
         else:
             own = {i: (w[0], w[2]) for i, w in enumerate(windows) if w is not None}
@@ -538,11 +590,11 @@ class RenderedCamera:
                 u0, u1, v0, v1 = zip(*(w for w, _ in jobs))
                 box = (min(u0), max(u1), min(v0), max(v1))
                 jobs, own = [(box, looked)], dict.fromkeys(looked, (box[0], box[2]))
-            images = self._images(scenes, [w for w, _ in jobs], frame_index, key)
+            images = self._images(scenes, [w for w, _ in jobs], frame_index, key, model)
             results = []
             for (w, members), image in zip(jobs, images):
                 owns = [own[i] for i in members]
-                part = detect_exactly(image, self.model, (w[0], w[2]), members, owns)
+                part = detect_exactly(image, model, (w[0], w[2]), members, owns)
                 results.append((members, part.pixels, part.areas, part.status))
         for members, pixels, areas, status in results:
             out.pixels[members], out.areas[members], out.status[members] = pixels, areas, status
@@ -574,7 +626,7 @@ class RenderedCamera:
     ) -> list[NDArray[np.uint8]]:
         """`image` of several windows of one image, the scene set once per sub-frame."""
         scenes = self._scenes(pose_at, time, theta_at)
-        return self._images(scenes, windows, frame_index, noise_key)
+        return self._images(scenes, windows, frame_index, noise_key, self.model)
 
     def _scenes(self, pose_at: PoseAt, time: float, theta_at: ThetaAt) -> list[Scene]:
         """``(marker centres, global, (N, 3); theta; capture point; R_gt)`` per sub-frame."""
@@ -591,10 +643,11 @@ class RenderedCamera:
         windows: Sequence[Window | None],
         frame_index: int,
         noise_key: int,
+        model: CameraModel,
     ) -> list[NDArray[np.uint8]]:
-        """Render each window at each sub-frame, average, add the noise of ``noise_key``, round
-        to uint8."""
-        full = [check_window(w, self.model) for w in windows]
+        """Render each window of ``model`` at each sub-frame, average, add the noise of
+        ``noise_key``, round to uint8."""
+        full = [check_window(w, model) for w in windows]
         if not full:
             return []
         sums: list[NDArray[np.uint8] | FloatArray] = []
@@ -602,11 +655,11 @@ class RenderedCamera:
             for k, (_, theta, position, rotation) in enumerate(scenes):
                 self._world.set_joint_positions(theta.tolist())
                 self._world.set_target_pose(position, rotation)
-                spheres = self.model.to_camera(self._culling.centres(position, rotation))
-                keeps = window_keeps(self.model, full, spheres, self._culling.radii)
+                spheres = model.to_camera(self._culling.centres(position, rotation))
+                keeps = window_keeps(model, full, spheres, self._culling.radii)
                 for j, window in enumerate(full):
                     self._culling.show(keeps[j])
-                    image = render_frame(self._world.client, self.model, window, self._lighting)
+                    image = render_frame(self._world.client, model, window, self._lighting)
                     if len(scenes) == 1:
                         sums.append(image)
                     elif k == 0:
@@ -622,7 +675,7 @@ class RenderedCamera:
         for window, total in zip(full, sums):
             value = np.asarray(total, dtype=float) / len(scenes)
             if noise > 0.0:
-                width = self.model.resolution[0]
+                width = model.resolution[0]
                 value = value + noise * pixel_noise(noise_key, frame_index, window, width)
             out.append(np.clip(np.rint(value), 0, 255).astype(np.uint8))
         return out

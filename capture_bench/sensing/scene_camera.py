@@ -73,7 +73,7 @@ class RenderedSceneCamera(RenderedCamera):
     @classmethod
     def for_scenario(cls, scenario: Any, windowed: bool = True) -> RenderedSceneCamera:
         """The camera of a scenario with ``camera.mode: rendered`` (its pose, intrinsics,
-        drop-out, latency and rendering keys)."""
+        drop-out, latency, rendering, lens and calibration error keys)."""
         cam = scenario.camera
         model = cam.model()
         light = tuple(float(v) for v in cam.light_direction)
@@ -87,7 +87,8 @@ class RenderedSceneCamera(RenderedCamera):
             windowed=windowed,
         )
         features = FEATURE_POINTS[scenario.target.feature_points]
-        return cls(model, features, settings, cam.dropout, cam.latency_frames)
+        spread = cam.calibration_spread()
+        return cls(model, features, settings, cam.dropout, cam.latency_frames, spread)
 
     def reset(
         self,
@@ -132,7 +133,7 @@ class RenderedSceneCamera(RenderedCamera):
         one (or without ``episode`` or its ``target_only`` store), else the target-only
         detection (module docstring)."""
         store = None if episode is None else episode.target_only
-        if store is None or self.arm_may_hide(pose_at, time, theta_at):
+        if store is None or self.arm_may_hide(pose_at, time, theta_at, self.true_model(episode)):
             self.renders["with_arm"] += 1
             return super().detect(pose_at, time, theta_at, frame_index, episode)
         found = store.get(frame_index)
@@ -145,10 +146,18 @@ class RenderedSceneCamera(RenderedCamera):
             self.renders["reused"] += 1
         return found
 
-    def arm_may_hide(self, pose_at: PoseAt, time: float, theta_at: ThetaAt) -> bool:
+    def arm_may_hide(
+        self,
+        pose_at: PoseAt,
+        time: float,
+        theta_at: ThetaAt,
+        model: CameraModel | None = None,
+    ) -> bool:
         """Whether a link of the arm may hide a marker at any sub-frame instant of the image
-        taken at ``time`` (conservative: each link's axis-aligned bounding box)."""
-        radius, model = self.settings.marker_radius, self.model
+        ``model`` (default: `model`) takes at ``time`` (conservative: each link's axis-aligned
+        bounding box)."""
+        radius = self.settings.marker_radius
+        model = self.model if model is None else model
         for t in self.settings.instants(time):
             position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
             centres = position + self.features @ rotation.T
@@ -190,6 +199,7 @@ class RenderedSceneCamera(RenderedCamera):
         size: tuple[int, int],
         detections: Detections | None = None,
         estimate: FloatArray | None = None,
+        model: CameraModel | None = None,
     ) -> NDArray[np.uint8]:
         """What this camera sees, scaled to ``size`` (width, height, pixels; the sensor's aspect
         is kept by the caller), with the markers found drawn over it (a green ring on each found
@@ -202,13 +212,14 @@ class RenderedSceneCamera(RenderedCamera):
             size: the image's (width, height), pixels.
             detections: the markers found (full-sensor pixels), or None for none drawn.
             estimate: the estimated capture point, global, m, or None.
+            model: the pinhole that took the image (an episode's `true_model`); None: `model`.
         """
         import cv2
 
         from capture_bench.sensing.pixels import image_plane_to_pixel
         from capture_bench.sensing.render_camera import render_frame
 
-        model = self.model
+        model = self.model if model is None else model
         width, height = int(size[0]), int(size[1])
         scale = model.resolution[0] / width
         small = CameraModel(

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.paths import config_dir
+from capture_bench.sensing.calibration import CalibrationSpread, Distortion
 from capture_bench.sensing.camera import RENDERED_DETECTION_SIGMA_PX, CameraModel
 from capture_bench.sensing.sources import SOURCES
 from capture_bench.sim.target_motion import MAX_JINKS
@@ -135,6 +136,48 @@ class CameraConfig:
         "exposure time, s: motion blur over [t - exposure, t] (rendered; 0: none)",
         (0.0, 1.0, True),
     )
+    # The lens and the calibration error (capture_bench.sensing.calibration): the estimator
+    # knows the nominal values, the episode's true camera deviates from them.
+    distortion_k1: float = _f(
+        0.0,
+        "radial distortion k1 of the lens, known to the estimator, OpenCV's convention (< 0: "
+        "barrel)",
+        (-1.0, 1.0, True),
+    )
+    distortion_k2: float = _f(0.0, "radial distortion k2, OpenCV's convention", (-1.0, 1.0, True))
+    distortion_p1: float = _f(
+        0.0, "tangential distortion p1, OpenCV's convention", (-0.1, 0.1, True)
+    )
+    distortion_p2: float = _f(
+        0.0, "tangential distortion p2, OpenCV's convention", (-0.1, 0.1, True)
+    )
+    calibration_focal: float = _f(
+        0.0,
+        "calibration error: sigma of the true focal length's relative error, drawn per episode "
+        "(0: none)",
+        (0.0, 0.1, True),
+    )
+    calibration_principal_px: float = _f(
+        0.0,
+        "calibration error: sigma of the principal point's error on each axis, px, per episode",
+        (0.0, 50.0, True),
+    )
+    calibration_k1: float = _f(
+        0.0,
+        "calibration error: sigma of the true k1 minus distortion_k1, per episode",
+        (0.0, 0.5, True),
+    )
+    calibration_rotation_deg: float = _f(
+        0.0,
+        "calibration error: sigma of the camera's orientation error about each camera axis, deg, "
+        "per episode",
+        (0.0, 5.0, True),
+    )
+    calibration_position: float = _f(
+        0.0,
+        "calibration error: sigma of the camera's position error along each axis, m, per episode",
+        (0.0, 0.05, True),
+    )
 
     def model(self) -> CameraModel:
         """The camera's geometry: looking from ``position`` at ``look_at`` with these
@@ -145,6 +188,24 @@ class CameraConfig:
             focal_length=self.focal_length,
             pixel_pitch=self.pixel_pitch,
             resolution=self.resolution,
+        )
+
+    @property
+    def calibration_rotation_rad(self) -> float:
+        """``calibration_rotation_deg`` in radians."""
+        return math.radians(self.calibration_rotation_deg)
+
+    def calibration_spread(self) -> CalibrationSpread:
+        """The nominal lens and the calibration error's spread these keys give."""
+        return CalibrationSpread(
+            distortion=Distortion(
+                self.distortion_k1, self.distortion_k2, self.distortion_p1, self.distortion_p2
+            ),
+            focal=self.calibration_focal,
+            principal=self.calibration_principal_px,
+            k1=self.calibration_k1,
+            rotation=self.calibration_rotation_rad,
+            position=self.calibration_position,
         )
 
 

@@ -122,7 +122,8 @@ class TargetSide:
     ) -> TargetSide:
         """The episode of ``plan`` with its true states and reachability at every step time
         (`TargetTrajectory.states`, what the step-by-step `TargetTrajectory.state` gives, bit for
-        bit) and nothing of the camera's side computed yet: a new episode of the camera (a
+        bit) and nothing of the camera's side computed yet: a new episode of the camera (its
+        true camera drawn from ``rng`` where it has a calibration error, `Camera.reset`; a
         scene camera's reading and keeping the target-only frames in ``target_only``, see
         `SceneCamera.reset`), the estimator reset, and each row, when asked for, drawing its
         frame's noise from ``rng``."""
@@ -149,7 +150,10 @@ class TargetSide:
             nees=np.full(n, np.nan),
             bound=None,
         )
-        state = camera.reset() if isinstance(camera, Camera) else camera.reset(rng, target_only)
+        if isinstance(camera, Camera):  # its lens, if any, drawn as record_truth draws it
+            state = camera.reset(None if plan.scenario.estimator.source == "truth" else rng)
+        else:
+            state = camera.reset(rng, target_only)
         estimator.reset()
         return cls(episode, 0, _Sensors(camera, state, estimator, features, rng))
 
