@@ -254,3 +254,13 @@ def test_behaviour_cloning_from_a_dataset_writes_a_model_evaluate_loads(recorded
     finally:
         env.close()
     assert episode.steps > 0
+
+
+def test_python_m_capture_bench_dataset_runs_the_command(tmp_path, capsys, monkeypatch):
+    from capture_bench.__main__ import main
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    assert main(["dataset", "--agents", "nope", "--scenario", "paper"]) == 2
+    assert _one_line(capsys).startswith("python -m capture_bench dataset: error: unknown agent")
+    assert main(["dataset", "--help"]) == 0
+    assert "--privileged" in capsys.readouterr().out
