@@ -15,6 +15,9 @@
 training seeds, each run a Ray task, on this machine or a Ray cluster
 (`capture_bench.training.sweep.command`).
 
+``python -m capture_bench dataset ...``: record agents' episodes on a scenario's training or
+validation seeds as a Minari dataset (`capture_bench.datasets.command`; needs the datasets extra).
+
 ``python -m capture_bench list``: what is installed, and what is broken, in one screen. It prints
 the valid scenarios (name, registered gymnasium ID, evaluation and training seed ranges), the
 invalid scenario files with their error (file, key, what is valid), the suites and the algorithm
@@ -42,6 +45,8 @@ DELEGATED = {
     "zoo-hyperparams": "write the RL Zoo's hyper-parameter files (configs/zoo/) from our configs",
     "sweep": "train every combination of algorithms, scenarios and seeds as Ray tasks (needs the "
     "ray extra)",
+    "dataset": "record agents' episodes as a Minari dataset for imitation and offline RL (needs "
+    "the datasets extra)",
 }
 
 
@@ -182,6 +187,10 @@ def _command(args: list[str]) -> Callable[[], int]:
         from capture_bench.training.sweep.command import main as sweep
 
         return functools.partial(sweep, args[1:])
+    if args and args[0] == "dataset":
+        from capture_bench.datasets.command import main as dataset
+
+        return functools.partial(dataset, args[1:])
     return functools.partial(_list, args)
 
 

@@ -11,8 +11,8 @@ doing, not the importing module's, so it is no arrow here.
 Stages, lowest first (`STAGES`): the helpers any stage may use (top-level modules such as
 ``paths.py``), ``sim``, ``sensing``, ``task``, ``engine``, ``envs``, the package's
 ``__init__.py`` (importing ``capture_bench`` registers the environments' IDs), ``agents``, then
-``training`` and ``evaluation``, siblings that do not import each other, and ``__main__.py`` above
-all. A module may import its own stage and the stages below it. Anything that has to break this
+``training`` and ``evaluation``, siblings that do not import each other, ``datasets`` (it
+resolves and plays agents as evaluation does), and ``__main__.py`` above all. A module may import its own stage and the stages below it. Anything that has to break this
 is listed in `EXCEPTIONS` with its reason.
 
 Within ``training``, each job has its folder (`TRAINING_JOBS`: ``train``, ``tune``, ``sweep``,
@@ -64,7 +64,8 @@ STAGES: dict[str, tuple[str, int]] = {
     "agents": ("agents", 7),
     "training": ("training", 8),
     "evaluation": ("evaluation", 8),
-    "__main__": ("command", 9),  # python -m capture_bench evaluate | train | tune | list
+    "datasets": ("datasets", 9),  # records agents' episodes: resolves them as evaluation does
+    "__main__": ("command", 10),  # python -m capture_bench evaluate | train | tune | list
 }
 
 #: (importing module, imported module) -> why this arrow must stay although it breaks the rule.
