@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.sensing.camera import CameraModel
+from capture_bench.sensing.camera_model import CameraModel
 from capture_bench.sensing.pixels import pixel_of, pixel_to_image_plane, principal_point
 from capture_bench.sim.rotations import axis_angle_to_matrix
 

@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from capture_bench.sensing.camera import CameraModel, project_points
+from capture_bench.sensing.camera_model import CameraModel, project_points
 
 FloatArray = NDArray[np.float64]
 
