@@ -84,6 +84,7 @@ class RenderedSceneCamera(RenderedCamera):
             light_intensity=cam.light_intensity,
             image_noise=cam.image_noise,
             exposure_s=cam.exposure,
+            psf_sigma=cam.psf_sigma,
             windowed=windowed,
         )
         features = FEATURE_POINTS[scenario.target.feature_points]
@@ -149,7 +150,8 @@ class RenderedSceneCamera(RenderedCamera):
         """Whether a link of the arm may hide a marker at any sub-frame instant of the image
         taken at ``time`` (conservative: each link's axis-aligned bounding box)."""
         radius, model = self.settings.marker_radius, self.model
-        for t in self.settings.instants(time):
+        margin = MARGIN_PX + 2 * self.settings.psf_radius  # blur: what reaches the markers' band
+        for t in self.instants(pose_at, time):
             position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
             centres = position + self.features @ rotation.T
             boxes = self.link_boxes(theta_at(float(t)))
@@ -160,13 +162,13 @@ class RenderedSceneCamera(RenderedCamera):
                 return True
             pixels = pixel_of(cam, model).reshape(len(boxes), -1, 2)
             image = sphere_image(model.to_camera(centres), radius, model)
-            reach = (image.semi_major + MARGIN_PX)[None, :, None]
+            reach = (image.semi_major + margin)[None, :, None]
             low, high = pixels.min(axis=1)[:, None, :], pixels.max(axis=1)[:, None, :]
             near = ((image.centre >= low - reach) & (image.centre <= high + reach)).all(axis=2)
             if not near.any():
                 continue
             close = [box for box, hit in zip(boxes, near.any(axis=1), strict=True) if hit]
-            if obstacles_may_hide(model, centres, radius, close, MARGIN_PX).any():
+            if obstacles_may_hide(model, centres, radius, close, margin).any():
                 return True
         return False
 

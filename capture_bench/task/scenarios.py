@@ -135,6 +135,12 @@ class CameraConfig:
         "exposure time, s: motion blur over [t - exposure, t] (rendered; 0: none)",
         (0.0, 1.0, True),
     )
+    psf_sigma: float = _f(
+        0.0,
+        "optics blur: standard deviation of the Gaussian point-spread function the image is"
+        " convolved with before the sensor noise, px, 0-5 (rendered; 0: none)",
+        (0.0, 5.0, True),
+    )
 
     def model(self) -> CameraModel:
         """The camera's geometry: looking from ``position`` at ``look_at`` with these
