@@ -1,6 +1,6 @@
 """Env steps per second with the rendered camera (1280 x 960 at full pixel density), one core:
 
-    taskset -c 0 python benchmarks/bench_rendered_env.py --seeds 20
+    taskset -c 0 python benchmarks/bench_rendered_env.py --seeds 20 [--set camera.exposure=0 ...]
 
 The paper's controller plays validation seeds of each rendered scenario three ways:
 
@@ -28,7 +28,7 @@ from capture_bench.agents import make_agent  # noqa: E402
 from capture_bench.engine.cache import EpisodeCache  # noqa: E402
 from capture_bench.envs.capture_env import CaptureEnv  # noqa: E402
 from capture_bench.sensing.scene_camera import RenderedSceneCamera  # noqa: E402
-from capture_bench.task.scenarios import load_scenario  # noqa: E402
+from capture_bench.task.scenarios import ConfigError, load_scenario, with_settings  # noqa: E402
 
 
 def steps_per_second(env: CaptureEnv, seeds: list[int]) -> tuple[float, int, dict[str, int]]:
@@ -52,21 +52,32 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=20, help="validation seeds per scenario")
     parser.add_argument("--scenarios", nargs="+", default=["paper_rendered", "grasp_rendered"])
     parser.add_argument("--full", action="store_true", help="also time full-frame rendering")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="a scenario key to change in each scenario, e.g. camera.exposure=0 (repeatable)",
+    )
     args = parser.parse_args()
     for name in args.scenarios:
-        seeds = list(load_scenario(name).validation_seeds[: args.seeds])
+        try:
+            scenario = with_settings(load_scenario(name), args.set)
+        except ConfigError as exc:
+            parser.error(str(exc))
+        seeds = list(scenario.validation_seeds[: args.seeds])
         rows = []
-        live = CaptureEnv(name)
+        live = CaptureEnv(scenario)
         rows.append(("live", *steps_per_second(live, seeds)))
         live.close()
-        shared = CaptureEnv(name, reuse_target_side=True, episode_cache=EpisodeCache(100))
+        shared = CaptureEnv(scenario, reuse_target_side=True, episode_cache=EpisodeCache(100))
         rows.append(("first agent", *steps_per_second(shared, seeds)))
         camera = shared.engine.sides.camera
         camera.renders = dict.fromkeys(camera.renders, 0)
         rows.append(("next agent", *steps_per_second(shared, seeds)))
         shared.close()
         if args.full:
-            full = CaptureEnv(name)
+            full = CaptureEnv(scenario)
             full.engine.sides.camera.close()
             full.engine.sides.camera = RenderedSceneCamera.for_scenario(
                 full.task.scenario, windowed=False
