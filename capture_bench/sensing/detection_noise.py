@@ -13,9 +13,9 @@ the table and its commands: ``docs/rendered_camera.md``), three terms added in q
   saturation threshold eats more of the darker, shaded limb as it mixes with the background;
 * **sensor noise**: what ``image_noise`` adds to the variance, measured at ``psf_sigma`` 0, 0.5
   and 1 (`NOISE_PSF_KNOTS`) and ``image_noise`` 0-12 grey levels (`NOISE_KNOTS`, `NOISE_RMS`),
-  bilinear between them, held at their edges (12 grey levels, 1 px); the detector's threshold
-  stands far from a marker's grey levels, so noise costs little until ~8 grey levels; at 16 it
-  speckles the arm's blue into the cyan band and markers are lost (the fit's range ends at 12);
+  bilinear between them, held at their edges (12 grey levels, 1 px); the detector's thresholds
+  stand far from a marker's colour, so noise costs little up to 8 grey levels; at 16 a fifth of
+  the markers are lost, and the error is no longer a centroid's (the fit's range ends at 12);
 * **exposure**: the centroid lies at the exposure's mean position, half the exposure's motion
   behind eq. 2 at t: ``LAG_GAIN exposure v``, v the target's RMS speed, m/s (per axis, a random
   direction: ``f / (2 sqrt(3) d pitch)`` is 513 px per m at d = 1.2 m; fitted 553).
