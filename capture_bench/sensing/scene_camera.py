@@ -151,7 +151,11 @@ class RenderedSceneCamera(RenderedCamera):
         taken at ``time`` (conservative: each link's axis-aligned bounding box)."""
         radius, model = self.settings.marker_radius, self.model
         margin = MARGIN_PX + 2 * self.settings.psf_radius  # blur: what reaches the markers' band
-        for t in self.instants(pose_at, time):
+        instants = self.instants(pose_at, time)
+        # A blurred image (optics, or sub-frames averaged) mixes a marker's edge with what lies
+        # behind it: a link there counts too.
+        behind = self.settings.psf_sigma > 0.0 or len(instants) > 1
+        for t in instants:
             position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
             centres = position + self.features @ rotation.T
             boxes = self.link_boxes(theta_at(float(t)))
@@ -168,7 +172,7 @@ class RenderedSceneCamera(RenderedCamera):
             if not near.any():
                 continue
             close = [box for box, hit in zip(boxes, near.any(axis=1), strict=True) if hit]
-            if obstacles_may_hide(model, centres, radius, close, margin).any():
+            if obstacles_may_hide(model, centres, radius, close, margin, behind).any():
                 return True
         return False
 
