@@ -144,7 +144,9 @@ class RenderSettings:
         light_intensity: scale of the diffuse term, >= 0 (0: ambient light only).
         image_noise: sensor noise, standard deviation in grey levels (0-255) per RGB channel.
         exposure_s: motion blur: the image is the mean of ``blur_subframes`` renders at instants
-            evenly spaced over ``[t - exposure_s, t]``, seconds, >= 0 (0: one render at t).
+            evenly spaced over ``[t - exposure_s, t]``, seconds, >= 0 (0: one render at t; one
+            at mid-exposure where the markers move less than ``STILL_EXPOSURE_PX``:
+            `RenderedCamera.instants`).
         blur_subframes: renders averaged when ``exposure_s > 0``, >= 2.
         psf_sigma: optics blur: the image convolved with a Gaussian point-spread function of
             this standard deviation, pixels, >= 0 (0: none), before the sensor noise.
