@@ -101,6 +101,7 @@ def test_camera_noise_px_1e300_is_refused_with_its_range(tmp_path):
         ("camera.light_direction", "[1.0e300, 1.0e300, 1.0e300]", "in [-10, 10]"),
         ("camera.image_noise", "1.0e300", "in [0, 255]"),
         ("camera.exposure", "1.0e300", "in [0, 1]"),
+        ("camera.psf_sigma", "1.0e300", "in [0, 5]"),
         ("camera.latency_frames", "1000000000000", "in [0, 100]"),
         ("camera.position", "[1.0e300, 0, 0]", "in [-10, 10]"),
         ("estimator.sigma_acceleration", "1.0e300", "in (0, 100]"),

@@ -31,10 +31,12 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 
-#: Standard deviation of the rendered camera's marker centroids about eq. 2, pixels per axis (the
-#: EKF's measurement noise in rendered mode, floored there at 0.25 px): the per-axis RMS of
-#: detected minus eq. 2 for the default rendering over 200 unoccluded poses 0.8-2 m from the
-#: lens, ``taskset -c 0 python benchmarks/bench_rendered_sensor.py --poses 200``.
+#: Standard deviation of the rendered camera's marker centroids about eq. 2 with no blur, noise
+#: or exposure, pixels per axis: the per-axis RMS of detected minus eq. 2 for the default
+#: rendering over 200 unoccluded poses 0.8-2 m from the lens,
+#: ``taskset -c 0 python benchmarks/bench_rendered_sensor.py --poses 200``. The EKF's measurement
+#: noise in rendered mode follows the camera's settings instead
+#: (`capture_bench.sensing.detection_noise`).
 RENDERED_DETECTION_SIGMA_PX = 0.043
 
 

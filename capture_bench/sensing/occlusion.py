@@ -70,9 +70,12 @@ def obstacles_may_hide(
     radius: float,
     obstacles: Sequence[ArrayLike],
     margin_px: float = MARGIN_PX,
+    behind: bool = False,
 ) -> NDArray[np.bool_]:
     """Markers that one of the ``obstacles`` may (partly) hide, whatever the markers do to each
-    other: `hidden_markers`' obstacle test applied to every marker.
+    other: `hidden_markers`' obstacle test applied to every marker; with ``behind``, also those
+    an obstacle's image comes near from behind (a blurred image mixes a marker's edge with what
+    lies behind it).
 
     Args:
         model: the camera.
@@ -81,11 +84,12 @@ def obstacles_may_hide(
         obstacles: each a set of points, global, metres, shape (M, 3), whose convex hull contains
             the obstacle (an arm link's bounding box corners).
         margin_px: clearance required between images, pixels.
+        behind: count obstacles behind the markers too.
 
     Returns:
         (N,) True where an obstacle's image comes within ``margin_px`` of marker i's and the
-        obstacle reaches nearer the lens than the marker's far side; every marker when an
-        obstacle point is not beyond the lens.
+        obstacle reaches nearer the lens than the marker's far side (at any depth with
+        ``behind``); every marker when an obstacle point is not beyond the lens.
     """
     centres_cam = model.to_camera(np.asarray(centres_global, dtype=float).reshape(-1, 3))
     image = sphere_image(centres_cam, radius, model)
@@ -99,7 +103,7 @@ def obstacles_may_hide(
         near = cam[:, 1].min()
         hull = cv2.convexHull(pixel_of(cam, model).astype(np.float32))
         for i in np.flatnonzero(~hidden):
-            if near >= depth[i] + radius or not np.isfinite(reach[i]):
+            if (not behind and near >= depth[i] + radius) or not np.isfinite(reach[i]):
                 hidden[i] |= not np.isfinite(reach[i])
                 continue
             inside = cv2.pointPolygonTest(hull, tuple(map(float, image.centre[i])), True)

@@ -8,8 +8,11 @@ a NaN row with the detector's reason, never a guess.
 
 **Windows (the fast path).** Each marker's window bounds its sphere's exact image (the disc of the
 ellipse's semi-major axis, `sphere_image`) at every sub-frame
-instant, plus ``WINDOW_MARGIN_PX``, cut to the sensor; with motion blur one window bounds them
-all. A marker not wholly beyond the near plane at every instant, or whose window misses the
+instant, plus ``WINDOW_MARGIN_PX`` and the point-spread function's reach R (`psf_radius`), cut
+to the sensor; each window is rendered R pixels wider on every side (cut to the sensor),
+blurred, and cut back. With motion blur the windows are pasted on one black image over their
+bounding box, and every marker is looked for in it. A marker not wholly beyond the near plane
+at every instant, or whose window misses the
 sensor, is missing (``no_blob``) without rendering, in both paths. Before each window, the shapes
 whose bounding spheres cannot reach it are hidden (`window_keeps`; alpha 0, which
 TinyRenderer skips): the pixels stay the same and a capture costs less.
@@ -25,8 +28,15 @@ costs many times a windowed capture. One window over all four markers takes long
 * every pixel of marker i's colour lies in marker i's window: the sphere mesh lies inside the
   sphere (every marker pixel's centre >= 0.04 px inside the semi-major disc, measured 0.3-4 m),
   no other surface has a marker's hue and saturation (`capture_bench.sim.markers`), and a
-  blurred mean of colours can only fall in a band where some marker passed (a green marker over
-  the blue arm makes cyan), which the one blur window covers;
+  mean of colours, over sub-frames or under the point-spread function, can only fall in a band
+  where some marker's colour reaches (a green marker over the blue arm makes cyan): within R of
+  where a marker passed, which the windows cover, all looked in for every colour under motion
+  blur (outside them the black canvas, like the full frame's other surfaces, is in no band);
+* the blurred pixels of a window are the full frame's: the kernel (`psf_kernel`) is cut at R =
+  ``ceil(PSF_TRUNCATE psf_sigma)`` pixels, so a blurred pixel depends only on the pixels within
+  R of it, all rendered in the grown window; where the window meets the sensor's edge both
+  mirror the image about that edge (`psf_blur`); OpenCV's separable filter gives each pixel the
+  same float from either (random windows against a full-frame image: every pixel equal);
 * the detector adds the window's origin to a crop-relative centroid before the crop's offset,
   which rounds like the full frame's single sum only when the origin is 0 or in the centroid's
   binade ``[2^k, 2^(k+1))``; otherwise (`exact_origin`, ~20 % of markers, a small part of a
@@ -49,6 +59,13 @@ function of ``(key, frame_index, (v * width + u) * 3 + c)`` (`pixel_noise`), so 
 noise is the full frame's. `RenderedCamera.reset` draws the episode's key (kept in its
 `SceneEpisode`); `capture` draws only the drop-out uniform, whatever the geometry.
 
+**Optics blur**: the mean image convolved with a Gaussian point-spread function of standard
+deviation ``psf_sigma`` pixels (`psf_blur`), before the noise. It is the lens (diffraction,
+defocus) and the pixel's own area, which TinyRenderer, sampling one point a pixel, leaves out.
+Up to ~0.6 px it changes a centroid by little; from 0.65 px the saturation threshold eats more of
+a marker's shaded limb than of its lit side, and the centroid moves toward the light
+(`capture_bench.sensing.detection_noise`).
+
 **Lens and calibration error** (`capture_bench.sensing.calibration`): with a
 `CalibrationSpread` whose distortion or spread is not 0, `RenderedCamera.reset` also draws the
 episode's true camera from its noise key (`CalibrationSpread.draw`, a stream of its own: nothing
@@ -59,11 +76,14 @@ nominal calibration (`TrueCamera.calibrated_points`) into the frame's image-plan
 one, every frame is what it was without these keys, bit for bit.
 
 **Motion blur**: the mean of ``blur_subframes`` renders over ``[t - exposure_s, t]``, noise added
-after. The blob is where the marker stayed long enough to keep its saturation (>= 3 of 4
-sub-frames over white), so its centroid is the mean position, behind eq. 2 at t by half the
-exposure's motion: 0.48 px RMS per axis at 20 ms and 0.05 m/s. A smear over ~half the marker's
-image radius fails the fill test (``partial``): at 1.2 m and 20 ms, found at 0.2 m/s (7 px),
-partial at 0.3 m/s (10.7 px).
+after; when no marker centre's eq. 2 pixel moves ``STILL_EXPOSURE_PX`` (0.5 px) over the
+exposure, one render at its middle ``t - exposure_s / 2`` (`RenderedCamera.instants`): the
+binary centroid of a smear shorter than half a pixel is the mean position, which the middle
+render gives at the cost of one. Otherwise the blob is where the marker stayed long enough to
+keep its saturation (>= 3 of 4 sub-frames over white), so its centroid is the mean position,
+behind eq. 2 at t by half the exposure's motion: 0.48 px RMS per axis at 20 ms and 0.05 m/s.
+A smear over ~half the marker's image radius fails the fill test (``partial``): at 1.2 m and
+20 ms, found at 0.2 m/s (7 px), partial at 0.3 m/s (10.7 px).
 
 **Light**: ``light_direction`` is where the light comes from (pybullet's ``lightDirection``,
 `Lighting`'s source); ``light_intensity`` scales the
@@ -76,10 +96,12 @@ losing markers only with an ambient coefficient below ~0.19 (V < 39 on an unlit 
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -94,7 +116,12 @@ from capture_bench.sensing.detector import (
     Detections,
     detect_markers,
 )
-from capture_bench.sensing.pixels import pixel_to_image_plane, principal_point, sphere_image
+from capture_bench.sensing.pixels import (
+    pixel_of,
+    pixel_to_image_plane,
+    principal_point,
+    sphere_image,
+)
 from capture_bench.sensing.render_camera import (
     NEAR_PLANE,
     Lighting,
@@ -116,6 +143,8 @@ Scene = tuple[FloatArray, FloatArray, FloatArray, FloatArray]  # markers (N, 3),
 # Detection error, pixels (measured: sensing.camera.RENDERED_DETECTION_SIGMA_PX's comment).
 DETECTION_SIGMA_PX = RENDERED_DETECTION_SIGMA_PX
 WINDOW_MARGIN_PX = 2  # pixels of clearance around each marker's image, >= 2 (exact_origin)
+PSF_TRUNCATE = 4.0  # the point-spread function's kernel reaches this many sigmas, each side
+STILL_EXPOSURE_PX = 0.5  # marker images moving less over the exposure: one render, mid-exposure
 
 _GAMMA = 0x9E3779B97F4A7C15  # splitmix64's increment (2^64 / golden ratio)
 
@@ -132,8 +161,12 @@ class RenderSettings:
         light_intensity: scale of the diffuse term, >= 0 (0: ambient light only).
         image_noise: sensor noise, standard deviation in grey levels (0-255) per RGB channel.
         exposure_s: motion blur: the image is the mean of ``blur_subframes`` renders at instants
-            evenly spaced over ``[t - exposure_s, t]``, seconds, >= 0 (0: one render at t).
+            evenly spaced over ``[t - exposure_s, t]``, seconds, >= 0 (0: one render at t; one
+            at mid-exposure where the markers move less than ``STILL_EXPOSURE_PX``:
+            `RenderedCamera.instants`).
         blur_subframes: renders averaged when ``exposure_s > 0``, >= 2.
+        psf_sigma: optics blur: the image convolved with a Gaussian point-spread function of
+            this standard deviation, pixels, >= 0 (0: none), before the sensor noise.
         windowed: render only windows around the markers (the fast path); False: the full frame
             (the reference).
     """
@@ -145,6 +178,7 @@ class RenderSettings:
     image_noise: float = 0.0
     exposure_s: float = 0.0
     blur_subframes: int = 4
+    psf_sigma: float = 0.0
     windowed: bool = True
 
     def __post_init__(self) -> None:
@@ -158,6 +192,7 @@ class RenderSettings:
             "image_noise": self.image_noise >= 0.0,
             "exposure_s": self.exposure_s >= 0.0,
             "blur_subframes": int(self.blur_subframes) == self.blur_subframes >= 2,
+            "psf_sigma": self.psf_sigma >= 0.0,
         }
         for name, ok in checks.items():
             if not ok:
@@ -171,6 +206,12 @@ class RenderSettings:
             norm = float(np.sqrt(x * x + y * y + z * z))
             source = (float(x) / norm, float(y) / norm, float(z) / norm)
         return Lighting(source=source, diffuse=Lighting().diffuse * self.light_intensity)
+
+    @property
+    def psf_radius(self) -> int:
+        """How far the point-spread function's kernel reaches from its centre, whole pixels:
+        ``ceil(PSF_TRUNCATE psf_sigma)`` (0 without blur)."""
+        return math.ceil(PSF_TRUNCATE * self.psf_sigma)
 
     def instants(self, time: float) -> FloatArray:
         """The sub-frame instants of an image taken at ``time``, seconds, shape (S,)."""
@@ -237,8 +278,8 @@ def pixel_noise(key: int, frame_index: int, window: Window, width: int) -> Float
     With ``mix`` splitmix64's finaliser and ``G`` its odd increment (arithmetic modulo 2^64),
     the frame's seed is ``s = mix(key + (frame_index + 1) G)`` and channel c of full-frame pixel
     (u, v), counter ``n = (v * width + u) * 3 + c``, hashes to ``h = mix(s + (n + 1) G)``; its
-    high and low 32 bits are the uniforms ``a`` in (0, 1) and ``b`` of one Box-Muller normal
-    ``sqrt(-2 ln a) cos(2 pi b)`` (|value| <= 6.7).
+    high and low 32 bits are the uniforms ``a`` in (0, 1] and ``b`` of one Box-Muller normal
+    ``sqrt(-2 ln a) cos(2 pi b)`` (|value| <= 6.8), computed in single precision.
 
     Args:
         key, frame_index: the episode's noise key and the image's index, integers (mod 2^64).
@@ -248,17 +289,62 @@ def pixel_noise(key: int, frame_index: int, window: Window, width: int) -> Float
     Returns:
         Standard normals, shape ``(v1 - v0, u1 - u0, 3)``.
     """
-    u0, u1, v0, v1 = window
+    return pixel_noises(key, frame_index, [window], width)[0]
+
+
+def pixel_noises(
+    key: int, frame_index: int, windows: Sequence[Window], width: int
+) -> list[FloatArray]:
+    """`pixel_noise` of several windows of one image, computed together (the same values)."""
     seed = _mix64(np.array([(key + (frame_index + 1) * _GAMMA) % 2**64], dtype=np.uint64))
-    counter = (
-        (np.arange(v0, v1, dtype=np.uint64) * np.uint64(3 * width))[:, None, None]
-        + (np.arange(u0, u1, dtype=np.uint64) * np.uint64(3))[None, :, None]
-        + np.arange(1, 4, dtype=np.uint64)
-    )
-    h = _mix64(seed + counter * np.uint64(_GAMMA))
-    a = ((h >> np.uint64(32)).astype(float) + 0.5) * 2.0**-32
-    b = (h & np.uint64(0xFFFFFFFF)).astype(float) * 2.0**-32
-    return np.sqrt(-2.0 * np.log(a)) * np.cos(2.0 * np.pi * b)
+    counters = [
+        (
+            (np.arange(v0, v1, dtype=np.uint64) * np.uint64(3 * width))[:, None, None]
+            + (np.arange(u0, u1, dtype=np.uint64) * np.uint64(3))[None, :, None]
+            + np.arange(1, 4, dtype=np.uint64)
+        )
+        for u0, u1, v0, v1 in windows
+    ]
+    h = _mix64(seed + np.concatenate([c.ravel() for c in counters]) * np.uint64(_GAMMA))
+    one = np.float32(2.0**-32)  # single precision: a noise value needs no more, and is 4x faster
+    a = ((h >> np.uint64(32)).astype(np.float32) + np.float32(0.5)) * one
+    b = (h & np.uint64(0xFFFFFFFF)).astype(np.float32) * one
+    z = np.sqrt(np.float32(-2.0) * np.log(a)) * np.cos(np.float32(2.0 * np.pi) * b)
+    normals = z.astype(float)
+    ends = np.cumsum([c.size for c in counters])[:-1]
+    return [z.reshape(c.shape) for z, c in zip(np.split(normals, ends), counters)]
+
+
+def psf_kernel(sigma: float, reach: int) -> FloatArray:
+    """The point-spread function's one-dimensional kernel: a Gaussian of standard deviation
+    ``sigma`` pixels sampled at ``-reach .. reach`` and normalised to sum 1, shape
+    ``(2 reach + 1, 1)`` (the 2-D kernel is its outer product with itself)."""
+    return np.asarray(cv2.getGaussianKernel(2 * reach + 1, sigma, cv2.CV_64F), dtype=float)
+
+
+def psf_blur(image: FloatArray, sigma: float, reach: int) -> FloatArray:
+    """``image`` (H, W, C), float, convolved with the point-spread function (`psf_kernel`),
+    separably, the image's edges mirrored (``cv2.BORDER_REFLECT_101``): at the sensor's edge,
+    the full frame's rule. A pixel farther than ``reach`` from every edge depends only on the
+    pixels within ``reach`` of it."""
+    kernel = psf_kernel(sigma, reach)
+    flat = np.ascontiguousarray(image, dtype=float)
+    out = cv2.sepFilter2D(flat, cv2.CV_64F, kernel, kernel, borderType=cv2.BORDER_REFLECT_101)
+    return np.asarray(out, dtype=float).reshape(flat.shape)
+
+
+def grow_window(window: Window, reach: int, model: CameraModel) -> Window:
+    """``window`` ``(u0, u1, v0, v1)`` grown by ``reach`` pixels on each side, cut to the
+    sensor."""
+    u0, u1, v0, v1 = window
+    width, height = model.resolution
+    return (max(u0 - reach, 0), min(u1 + reach, width), max(v0 - reach, 0), min(v1 + reach, height))
+
+
+def cut_window(image: NDArray, region: Window, window: Window) -> NDArray:
+    """The pixels of ``window`` from ``image``, the pixels of ``region`` (which holds it)."""
+    du, dv = window[0] - region[0], window[2] - region[2]
+    return image[dv : dv + window[3] - window[2], du : du + window[1] - window[0]]
 
 
 def marker_windows(
@@ -290,6 +376,19 @@ def marker_windows(
         (int(a[0]), int(b[0]), int(a[1]), int(b[1])) if k else None
         for k, a, b in zip(keep, lo_list, hi_list)
     ]
+
+
+def on_canvas(
+    images: Sequence[NDArray[np.uint8]], windows: Sequence[Window]
+) -> tuple[Window, NDArray[np.uint8]]:
+    """The windows' images pasted on one black image over their bounding box: ``(box, image)``
+    (overlapping windows hold the same pixels)."""
+    u0, u1, v0, v1 = zip(*windows)
+    box = (min(u0), max(u1), min(v0), max(v1))
+    canvas = np.zeros((box[3] - box[2], box[1] - box[0], 3), dtype=np.uint8)
+    for (a, b, c, d), image in zip(windows, images):
+        canvas[c - box[2] : d - box[2], a - box[0] : b - box[0]] = image
+    return box, canvas
 
 
 def exact_origin(start: int, own_start: int, value: float) -> int | None:
@@ -488,6 +587,7 @@ class RenderedCamera:
         self._culling = _Culling(
             self._world, self.features, self.settings.marker_radius, self.settings.target_block
         )
+        self._last_instants: tuple[PoseAt, float, FloatArray] | None = None
 
     def reset(self, rng: np.random.Generator | None = None) -> SceneEpisode:
         """A new episode's state: an empty latency pipeline, no capture yet and, given ``rng``,
@@ -573,7 +673,8 @@ class RenderedCamera:
         model = self.true_model(episode)
         scenes = self._scenes(pose_at, time, theta_at)
         centres = np.stack([model.to_camera(scene[0]) for scene in scenes])
-        windows = marker_windows(model, centres, self.settings.marker_radius)
+        margin = WINDOW_MARGIN_PX + self.settings.psf_radius
+        windows = marker_windows(model, centres, self.settings.marker_radius, margin)
         n = len(windows)
         out = Detections(
             np.full((n, 2), np.nan), np.zeros(n, np.int64), np.full(n, NO_BLOB, np.int8)
@@ -586,11 +687,11 @@ class RenderedCamera:
         else:
             own = {i: (w[0], w[2]) for i, w in enumerate(windows) if w is not None}
             jobs = [(w, [i]) for i, w in enumerate(windows) if w is not None]
-            if len(scenes) > 1 and looked:  # motion blur: one window over every marker
-                u0, u1, v0, v1 = zip(*(w for w, _ in jobs))
-                box = (min(u0), max(u1), min(v0), max(v1))
-                jobs, own = [(box, looked)], dict.fromkeys(looked, (box[0], box[2]))
             images = self._images(scenes, [w for w, _ in jobs], frame_index, key, model)
+            if len(scenes) > 1 and looked:  # motion blur: every colour looked for in every window
+                box, canvas = on_canvas(images, [w for w, _ in jobs])
+                jobs, images = [(box, looked)], [canvas]
+                own = dict.fromkeys(looked, (box[0], box[2]))
             results = []
             for (w, members), image in zip(jobs, images):
                 owns = [own[i] for i in members]
@@ -628,10 +729,32 @@ class RenderedCamera:
         scenes = self._scenes(pose_at, time, theta_at)
         return self._images(scenes, windows, frame_index, noise_key, self.model)
 
+    def instants(self, pose_at: PoseAt, time: float) -> FloatArray:
+        """The sub-frame instants of the image taken at ``time``, seconds: the settings'
+        (`RenderSettings.instants`), or, when every marker centre's eq. 2 pixel moves less than
+        ``STILL_EXPOSURE_PX`` over the exposure, its middle ``time - exposure_s / 2`` alone."""
+        span = self.settings.instants(time)
+        if len(span) == 1:
+            return span
+        last = self._last_instants  # the scene camera asks twice for one image
+        if last is not None and last[0] is pose_at and last[1] == time:
+            return last[2]
+        ends = []
+        for t in (span[0], span[-1]):
+            position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
+            ends.append(position + self.features @ rotation.T)
+        cam = self.model.to_camera(np.concatenate(ends))
+        if self.model.in_front(cam).all():
+            start, end = np.split(pixel_of(cam, self.model), 2)
+            if np.max(np.hypot(*(end - start).T)) < STILL_EXPOSURE_PX:
+                span = np.array([float(time) - 0.5 * self.settings.exposure_s])
+        self._last_instants = (pose_at, time, span)
+        return span
+
     def _scenes(self, pose_at: PoseAt, time: float, theta_at: ThetaAt) -> list[Scene]:
         """``(marker centres, global, (N, 3); theta; capture point; R_gt)`` per sub-frame."""
         scenes = []
-        for t in self.settings.instants(time):
+        for t in self.instants(pose_at, time):
             position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
             theta = np.asarray(theta_at(float(t)), dtype=float)
             scenes.append((position + self.features @ rotation.T, theta, position, rotation))
@@ -645,19 +768,43 @@ class RenderedCamera:
         noise_key: int,
         model: CameraModel,
     ) -> list[NDArray[np.uint8]]:
-        """Render each window of ``model`` at each sub-frame, average, add the noise of
-        ``noise_key``, round to uint8."""
+        """Render each window of ``model`` (grown by the point-spread function's reach) at each
+        sub-frame, average, blur, cut back to the window, add the noise of ``noise_key``, round to
+        uint8."""
         full = [check_window(w, model) for w in windows]
         if not full:
             return []
+        reach = self.settings.psf_radius
+        drawn = [grow_window(w, reach, model) for w in full]
+        sums = self._render_sums(scenes, drawn, model)
+        noise, sigma = self.settings.image_noise, self.settings.psf_sigma
+        if len(scenes) == 1 and noise == 0.0 and sigma == 0.0:
+            return [np.asarray(s, dtype=np.uint8) for s in sums]
+        width = model.resolution[0]
+        normals = pixel_noises(noise_key, frame_index, full, width) if noise > 0.0 else None
+        out = []
+        for j, (window, region, total) in enumerate(zip(full, drawn, sums)):
+            value = np.asarray(total, dtype=float) / len(scenes)
+            if sigma > 0.0:
+                value = cut_window(psf_blur(value, sigma, reach), region, window)
+            if normals is not None:
+                value = value + noise * normals[j]
+            out.append(np.clip(np.rint(value), 0, 255).astype(np.uint8))
+        return out
+
+    def _render_sums(
+        self, scenes: Sequence[Scene], windows: Sequence[Window], model: CameraModel
+    ) -> list[NDArray[np.uint8] | FloatArray]:
+        """Each window of ``model`` rendered at each sub-frame: the image itself (uint8) for one
+        sub-frame, else the float sum over them."""
         sums: list[NDArray[np.uint8] | FloatArray] = []
         try:
             for k, (_, theta, position, rotation) in enumerate(scenes):
                 self._world.set_joint_positions(theta.tolist())
                 self._world.set_target_pose(position, rotation)
                 spheres = model.to_camera(self._culling.centres(position, rotation))
-                keeps = window_keeps(model, full, spheres, self._culling.radii)
-                for j, window in enumerate(full):
+                keeps = window_keeps(model, windows, spheres, self._culling.radii)
+                for j, window in enumerate(windows):
                     self._culling.show(keeps[j])
                     image = render_frame(self._world.client, model, window, self._lighting)
                     if len(scenes) == 1:
@@ -668,17 +815,7 @@ class RenderedCamera:
                         sums[j] += image
         finally:  # leave every shape drawn, for whoever renders the world next
             self._culling.show(np.ones(len(self._culling.radii), dtype=bool))
-        noise = self.settings.image_noise
-        if len(scenes) == 1 and noise == 0.0:
-            return [np.asarray(s, dtype=np.uint8) for s in sums]
-        out = []
-        for window, total in zip(full, sums):
-            value = np.asarray(total, dtype=float) / len(scenes)
-            if noise > 0.0:
-                width = model.resolution[0]
-                value = value + noise * pixel_noise(noise_key, frame_index, window, width)
-            out.append(np.clip(np.rint(value), 0, 255).astype(np.uint8))
-        return out
+        return sums
 
     def close(self) -> None:
         """Release the pybullet client. Safe to call more than once."""

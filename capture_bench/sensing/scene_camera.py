@@ -84,6 +84,7 @@ class RenderedSceneCamera(RenderedCamera):
             light_intensity=cam.light_intensity,
             image_noise=cam.image_noise,
             exposure_s=cam.exposure,
+            psf_sigma=cam.psf_sigma,
             windowed=windowed,
         )
         features = FEATURE_POINTS[scenario.target.feature_points]
@@ -158,7 +159,12 @@ class RenderedSceneCamera(RenderedCamera):
         bounding box)."""
         radius = self.settings.marker_radius
         model = self.model if model is None else model
-        for t in self.settings.instants(time):
+        margin = MARGIN_PX + 2 * self.settings.psf_radius  # blur: what reaches the markers' band
+        instants = self.instants(pose_at, time)
+        # A blurred image (optics, or sub-frames averaged) mixes a marker's edge with what lies
+        # behind it: a link there counts too.
+        behind = self.settings.psf_sigma > 0.0 or len(instants) > 1
+        for t in instants:
             position, rotation = (np.asarray(v, dtype=float) for v in pose_at(float(t)))
             centres = position + self.features @ rotation.T
             boxes = self.link_boxes(theta_at(float(t)))
@@ -169,13 +175,13 @@ class RenderedSceneCamera(RenderedCamera):
                 return True
             pixels = pixel_of(cam, model).reshape(len(boxes), -1, 2)
             image = sphere_image(model.to_camera(centres), radius, model)
-            reach = (image.semi_major + MARGIN_PX)[None, :, None]
+            reach = (image.semi_major + margin)[None, :, None]
             low, high = pixels.min(axis=1)[:, None, :], pixels.max(axis=1)[:, None, :]
             near = ((image.centre >= low - reach) & (image.centre <= high + reach)).all(axis=2)
             if not near.any():
                 continue
             close = [box for box, hit in zip(boxes, near.any(axis=1), strict=True) if hit]
-            if obstacles_may_hide(model, centres, radius, close, MARGIN_PX).any():
+            if obstacles_may_hide(model, centres, radius, close, margin, behind).any():
                 return True
         return False
 

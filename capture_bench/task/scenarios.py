@@ -17,13 +17,17 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from capture_bench.paths import config_dir
 from capture_bench.sensing.calibration import CalibrationSpread, Distortion
-from capture_bench.sensing.camera import RENDERED_DETECTION_SIGMA_PX, CameraModel
+from capture_bench.sensing.camera import CameraModel
+from capture_bench.sensing.detection_noise import detection_sigma, rms_speed
 from capture_bench.sensing.sources import SOURCES
 from capture_bench.sim.target_motion import MAX_JINKS
 from capture_bench.validation import (
@@ -135,6 +139,12 @@ class CameraConfig:
         0.0,
         "exposure time, s: motion blur over [t - exposure, t] (rendered; 0: none)",
         (0.0, 1.0, True),
+    )
+    psf_sigma: float = _f(
+        0.0,
+        "optics blur: standard deviation of the Gaussian point-spread function the image is"
+        " convolved with before the sensor noise, px, 0-5 (rendered; 0: none)",
+        (0.0, 5.0, True),
     )
     # The lens and the calibration error (capture_bench.sensing.calibration): the estimator
     # knows the nominal values, the episode's true camera deviates from them.
@@ -354,15 +364,26 @@ class Scenario:
     def estimator_settings(self) -> dict[str, float]:
         """What the estimator assumes (pixel noise, process noise, how it may start), as the
         keyword arguments of ``TargetEstimator``. The pixel noise is ``noise_px`` with the
-        analytic camera, and the detector's measured centroid error with the rendered one
-        (``RENDERED_DETECTION_SIGMA_PX``; the EKF floors it at ``NOISE_FLOOR_PX``)."""
+        analytic camera, and with the rendered one the detector's centroid error that the
+        camera's blur, noise and exposure make (`rendered_detection_sigma`; the EKF floors it at
+        ``NOISE_FLOOR_PX``)."""
         rendered = self.camera.mode == "rendered"
         return {
-            "noise_px": RENDERED_DETECTION_SIGMA_PX if rendered else self.camera.noise_px,
+            "noise_px": self.rendered_detection_sigma() if rendered else self.camera.noise_px,
             "sigma_acceleration": self.estimator.sigma_acceleration,
             "sigma_angular_acceleration": self.estimator.sigma_angular_acceleration,
             "min_init_markers": self.estimator.min_init_markers,
         }
+
+    def rendered_detection_sigma(self) -> float:
+        """The rendered camera's detection error, RMS per axis, px: `detection_sigma` of the
+        camera's ``psf_sigma``, ``image_noise`` and ``exposure`` and the target's RMS speed
+        (``circle_speed`` on a circle, else ``speed``: a drift's, an evasive target's at the
+        start)."""
+        cam, target = self.camera, self.target
+        low, high = target.circle_speed if target.motion == "circular" else target.speed
+        speed = rms_speed(low, high)
+        return detection_sigma(cam.psf_sigma, cam.image_noise, cam.exposure, speed)
 
     def replace(self, **sections: Any) -> Scenario:
         """A copy with some fields replaced, e.g. ``replace(estimator={"source": "truth"})``;
@@ -374,6 +395,23 @@ class Scenario:
             else:
                 data[key] = value
         return _checked(_build(Scenario, data, source="<override>", prefix=""), "<override>")
+
+
+def with_settings(scenario: Scenario, settings: Sequence[str]) -> Scenario:
+    """``scenario`` with each ``SECTION.KEY=VALUE`` of ``settings`` set (the value read as
+    YAML), validated like a file; ``ConfigError`` (one line) naming a bad item or key."""
+    sections: dict[str, dict[str, Any]] = {}
+    for item in settings:
+        name, sep, text = item.partition("=")
+        section, dot, key = name.partition(".")
+        if not sep or not dot or not section or not key:
+            raise ConfigError(f"setting {item!r} is not valid; expected SECTION.KEY=VALUE")
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise ConfigError(f"setting {item!r}: the value is not valid YAML") from None
+        sections.setdefault(section, {})[key] = value
+    return scenario.replace(**sections) if sections else scenario
 
 
 def scenario_files() -> list[Path]:
