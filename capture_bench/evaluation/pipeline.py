@@ -345,8 +345,9 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         check_writable(config.episode_plots, "--episode-plots")
     if config.video is not None:
         check_writable(config.video, "--video")
-    plan = Plan(suite, specs, scenarios, seeds, tasks, hashes, config.seed_set, seeded, seed_tasks)
-    return replace(plan, twin_tasks=twins)
+    return Plan(
+        suite, specs, scenarios, seeds, tasks, hashes, config.seed_set, seeded, seed_tasks, twins
+    )
 
 
 def observes_estimate(spec: AgentSpec) -> bool:

@@ -63,8 +63,9 @@ class Suite:
         reference_given: the file names its ``reference`` (then it must be one of the file's
             agents, checked where they are resolved); without it the reference is
             ``incremental_ik``, and a suite that does not play it has no paired comparison.
-        truth_twins: every agent that observes the estimate (not privileged, not fed pixels)
-            also plays each ranked analytic scenario's truth-fed twin (``<X>_truth``,
+        truth_twins: every agent that observes the estimate (not privileged, not fed pixels,
+            not ``random`` or ``hold``, which never read the target) also plays each ranked
+            analytic scenario's truth-fed twin (``<X>_truth``,
             `capture_bench.task.scenarios.truth_twin`) on the same seeds; not ranked.
         rendered_twins: rendered scenarios (``<X>_rendered``, X one of ``scenarios``) that
             ``rendered_agents`` (some of ``agents``) play on the first ``rendered_episodes``
