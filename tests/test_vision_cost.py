@@ -19,7 +19,12 @@ from capture_bench.evaluation.reporting import vision_cost
 from capture_bench.evaluation.reporting.report import TWINS_CSV, markdown, write_report
 from capture_bench.evaluation.reporting.vision import rendered_twins, vision_comparisons
 from capture_bench.evaluation.running.agents_loading import resolve_agent
-from capture_bench.evaluation.running.backends import EpisodeTask, close_envs, run_tasks
+from capture_bench.evaluation.running.backends import (
+    EpisodeTask,
+    close_envs,
+    make_env,
+    run_tasks,
+)
 from capture_bench.evaluation.running.suites import load_suite
 from capture_bench.task.scenarios import (
     SCENARIO_DIR,
@@ -68,6 +73,15 @@ def test_a_truth_twin_plays_the_same_targets():
     assert [r.seed for r in ekf] == [r.seed for r in truth]
     assert [r.physical_limit_time for r in ekf] == [r.physical_limit_time for r in truth]
     assert all(r.position_rmse == 0.0 for r in truth)  # fed the truth: no estimation error
+
+
+def test_a_truth_twin_makes_its_single_env():
+    env = make_env("grasp_truth")
+    try:
+        scenario = env.unwrapped.scenario
+        assert (scenario.name, scenario.estimator.source) == ("grasp_truth", "truth")
+    finally:
+        env.close()
 
 
 def test_rendered_twins_hold_the_capture_envelope_of_their_scenarios():
