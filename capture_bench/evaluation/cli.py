@@ -386,7 +386,7 @@ def _run(plan: Plan, config: EvaluationConfig, command: str) -> tuple[ReportData
         TimeRemainingColumn(),
     )
     with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
-        total = len(plan.tasks) + len(plan.seed_tasks)  # the training seeds' episodes too
+        total = len(plan.tasks) + len(plan.seed_tasks) + len(plan.twin_tasks)  # seeds, twins too
         task = bar.add_task(f"{plan.report_name}: episodes", total=total)
         return run_evaluation(plan, config, command, lambda n: bar.advance(task, n))
 

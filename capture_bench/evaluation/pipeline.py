@@ -33,8 +33,10 @@ from capture_bench.evaluation.reporting.report import (
     write_report,
 )
 from capture_bench.evaluation.reporting.reproduction import is_inside
+from capture_bench.evaluation.reporting.vision import RENDERED_SUFFIX, rendered_twins
 from capture_bench.evaluation.reporting.watch import choose_episodes
 from capture_bench.evaluation.running.agents_loading import (
+    BLIND_BUILTINS,
     AgentSpec,
     TrainingSeeds,
     check_agent,
@@ -74,7 +76,14 @@ from capture_bench.provenance import (
     package_versions,
 )
 from capture_bench.ray_cluster import check_ray_cluster
-from capture_bench.task.scenarios import SCENARIO_DIR, ConfigError, list_scenarios, load_scenario
+from capture_bench.task.scenarios import (
+    SCENARIO_DIR,
+    TRUTH_SUFFIX,
+    ConfigError,
+    list_scenarios,
+    load_scenario,
+    truth_twin_base,
+)
 from capture_bench.validation import shown
 
 #: Exceptions that mean "bad input": the CLI prints their message and exits with code 2. OSError:
@@ -160,7 +169,8 @@ class Plan:
 
     ``tasks`` are the leaderboard's episodes; ``training_seeds`` (by agent label) the agents
     whose model was shipped from several training seeds, and ``seed_tasks`` the episodes of
-    their other seeds' policies: the same scenarios and episode seeds as the agent's own."""
+    their other seeds' policies: the same scenarios and episode seeds as the agent's own.
+    ``twin_tasks`` are the episodes on the scenarios' twins (`twin_tasks`), not ranked."""
 
     suite: Suite
     agents: list[AgentSpec]
@@ -171,6 +181,7 @@ class Plan:
     seed_set: str = "evaluation"
     training_seeds: dict[str, TrainingSeeds] = field(default_factory=dict)
     seed_tasks: list[EpisodeTask] = field(default_factory=list, repr=False)
+    twin_tasks: list[EpisodeTask] = field(default_factory=list, repr=False)
 
     @property
     def report_name(self) -> str:
@@ -275,6 +286,7 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
     if duplicate:
         raise AgentSpecError(f"two agent specs are both named {duplicate!r} in the report")
     _check_reference(loaded, suite, labels)
+    _check_rendered_agents(loaded, suite, specs)
     seeded = {s.label: found for s in specs if (found := training_seeds(s)) is not None}
     seed_specs = {  # (agent label, training seed) -> that seed's policy
         (spec.label, seed): resolve_agent(path, trust_model=spec.trust_model)
@@ -307,9 +319,14 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         for name in scenarios
         for seed in seeds[name]
     ]
+    twins = twin_tasks(suite, specs, scenarios, seeds)
     hashes: dict[str, Any] = {
         "suite": {"file": display_path(suite.path), "sha256": suite.sha256},
-        "scenarios": {n: file_sha256(scenario_file(n)) for n in scenarios},
+        "scenarios": {
+            n: file_sha256(scenario_file(n))
+            for n in dict.fromkeys([*scenarios, *(t.scenario for t in twins)])
+            if truth_twin_base(n) is None  # a truth twin is its scenario's file, derived
+        },
         "models": {s.label: _model_provenance(s) for s in specs if s.kind == "model"},
     }
     for (label, seed), spec in seed_specs.items():  # each training seed's policy files
@@ -328,7 +345,77 @@ def plan_evaluation(config: EvaluationConfig) -> Plan:
         check_writable(config.episode_plots, "--episode-plots")
     if config.video is not None:
         check_writable(config.video, "--video")
-    return Plan(suite, specs, scenarios, seeds, tasks, hashes, config.seed_set, seeded, seed_tasks)
+    return Plan(
+        suite, specs, scenarios, seeds, tasks, hashes, config.seed_set, seeded, seed_tasks, twins
+    )
+
+
+def observes_estimate(spec: AgentSpec) -> bool:
+    """Whether the agent acts on the estimator's output: not privileged (the oracle reads the
+    true state), not fed the camera's pixels, and not one of `BLIND_BUILTINS`."""
+    blind = spec.kind == "builtin" and spec.target in BLIND_BUILTINS
+    return not (spec.privileged or blind or "observation_source" in spec.env_options())
+
+
+def twin_tasks(
+    suite: Suite, specs: Sequence[AgentSpec], scenarios: Sequence[str], seeds: dict[str, list[int]]
+) -> list[EpisodeTask]:
+    """The episodes on the scenarios' twins, not ranked: with ``suite.truth_twins``, every
+    agent that `observes_estimate` on each ranked shipped analytic scenario's truth-fed twin
+    (``<X>_truth``), on the scenario's seeds; then `_rendered_tasks`. Raises `SuiteError` for
+    a rendered twin that is none."""
+    tasks = []
+    if suite.truth_twins:
+        for name in scenarios:
+            scenario = load_scenario(name)
+            if is_scenario_file(name) or not scenario.ranked or scenario.camera.mode != "analytic":
+                continue
+            tasks += [
+                EpisodeTask(spec.spec, name + TRUTH_SUFFIX, seed, spec.trust_model)
+                for spec in specs
+                if observes_estimate(spec)
+                for seed in seeds[name]
+            ]
+    return tasks + _rendered_tasks(suite, specs, scenarios, seeds)
+
+
+def _rendered_tasks(
+    suite: Suite, specs: Sequence[AgentSpec], scenarios: Sequence[str], seeds: dict[str, list[int]]
+) -> list[EpisodeTask]:
+    """``suite.rendered_agents`` on each of ``suite.rendered_twins`` whose analytic scenario is
+    among ``scenarios`` (a narrowed suite drops the others), first ``rendered_episodes`` seeds."""
+    tasks = []
+    for twin in suite.rendered_twins:
+        base = twin.removesuffix(RENDERED_SUFFIX)
+        if not rendered_twins([base, twin]):
+            raise SuiteError(
+                f"{suite.path}: key 'rendered_twins': {shown(twin)} is not valid; expected "
+                f"the rendered twin X{RENDERED_SUFFIX} (the same seeds) of a shipped "
+                "scenario X with the analytic camera"
+            )
+        if base not in scenarios:
+            continue
+        tasks += [
+            EpisodeTask(spec.spec, twin, seed, spec.trust_model)
+            for spec in specs
+            if spec.label in suite.rendered_agents or spec.spec in suite.rendered_agents
+            for seed in seeds[base][: suite.rendered_episodes]
+        ]
+    return tasks
+
+
+def _check_rendered_agents(loaded: Suite, suite: Suite, specs: Sequence[AgentSpec]) -> None:
+    """``SuiteError`` if the suite file names a rendered agent that is none of its agents (as
+    the file writes it, or its report name); with ``--agents`` the others are left out."""
+    if suite.agents != loaded.agents:
+        return
+    known = [name for spec in specs for name in (spec.spec, spec.label)]
+    for name in suite.rendered_agents:
+        if name not in known:
+            raise SuiteError(
+                f"{loaded.path}: key 'rendered_agents': {shown(name)} is not valid; expected "
+                f"one of the suite's agents: {', '.join(s.label for s in specs)}"
+            )
 
 
 def _check_published_folder(config: EvaluationConfig, suite: Suite, report_name: str) -> None:
@@ -404,7 +491,12 @@ def _provenance(
             for s in plan.agents
         ],
         "backend": {"name": config.resolved_backend(), "workers": config.resolved_workers()},
-        "timing": {"wall_clock_s": seconds, "episodes": len(plan.tasks), **videos},
+        "timing": {
+            "wall_clock_s": seconds,
+            "episodes": len(plan.tasks),
+            **({"twin_episodes": len(plan.twin_tasks)} if plan.twin_tasks else {}),
+            **videos,
+        },
     }
 
 
@@ -537,10 +629,16 @@ def run_evaluation(
     start = time.perf_counter()
     backend, workers = config.resolved_backend(), config.resolved_workers()
     played = run_tasks(
-        [*plan.tasks, *plan.seed_tasks], backend, workers, config.ray_address, progress
+        [*plan.tasks, *plan.seed_tasks, *plan.twin_tasks],
+        backend,
+        workers,
+        config.ray_address,
+        progress,
     )
     records: list[EpisodeRecord] = played[: len(plan.tasks)]
-    seed_scores = training_seed_scores(plan, records, played[len(plan.tasks) :])
+    seeded = len(plan.tasks) + len(plan.seed_tasks)
+    seed_scores = training_seed_scores(plan, records, played[len(plan.tasks) : seeded])
+    twin_records = played[seeded:]
     summaries = summarise_in_pool(
         records, plan.suite.reference, workers if backend == "process" else 1
     )
@@ -559,6 +657,7 @@ def run_evaluation(
         provenance={},
         videos=[],
         training_seeds=seed_scores,
+        twin_records=twin_records,
     )
     watched_keys, requested_keys, jobs = video_jobs(plan, config, records, ranking)
     videos, drawn = make_report_media(

@@ -445,14 +445,39 @@ def invalid_scenarios() -> dict[str, str]:
     return invalid
 
 
+#: ``X`` + this suffix names the truth-fed twin of shipped scenario ``X`` (`truth_twin`).
+TRUTH_SUFFIX = "_truth"
+
+
+def truth_twin(scenario: Scenario) -> Scenario:
+    """The scenario fed the true target state: ``<name>_truth``, the same in every key but
+    ``estimator.source`` (``truth``), so the same targets, published seeds and capture rule."""
+    return scenario.replace(name=scenario.name + TRUTH_SUFFIX, estimator={"source": "truth"})
+
+
+def truth_twin_base(name: str) -> str | None:
+    """The shipped scenario whose truth-fed twin ``name`` is (``paper`` for ``paper_truth``),
+    where no shipped file is named ``name``; None otherwise."""
+    if not name.endswith(TRUTH_SUFFIX) or Path(name).name != name:
+        return None
+    if (SCENARIO_DIR / f"{name}.yaml").is_file():
+        return None
+    base = name[: -len(TRUTH_SUFFIX)]
+    return base if base and (SCENARIO_DIR / f"{base}.yaml").is_file() else None
+
+
 def load_scenario(name_or_path: str | Path) -> Scenario:
-    """Load and validate a shipped scenario by name, or any scenario YAML by path.
+    """Load and validate a shipped scenario by name, or any scenario YAML by path; the name
+    ``<X>_truth`` of no shipped file is shipped scenario X's `truth_twin`.
 
     Raises:
         ConfigError: no such scenario, or the file is invalid (the message names the file, the
             key, the bad value and what would be valid).
     """
     path = Path(name_or_path)
+    base = truth_twin_base(str(name_or_path)) if path.suffix not in (".yaml", ".yml") else None
+    if base is not None:
+        return truth_twin(load_scenario(base))
     if path.suffix not in (".yaml", ".yml"):
         path = SCENARIO_DIR / f"{name_or_path}.yaml"
         if path.parent != SCENARIO_DIR or not is_file(path):  # a name, never a path

@@ -148,15 +148,16 @@ def episode_cells(record: EpisodeRecord) -> dict[str, Any]:
     return {c: csv_value(getattr(record, c)) for c in EPISODE_COLUMNS if c not in TIMING_COLUMNS}
 
 
-def merge_records(reports: Sequence[SourceReport]) -> list[EpisodeRecord]:
-    """Every episode of ``reports`` once, in the order one evaluation of all their agents writes
+def merge_records(reports: Sequence[SourceReport], twins: bool = False) -> list[EpisodeRecord]:
+    """Every episode of ``reports`` once (with ``twins``: every episode on the scenarios'
+    twins, ``SourceReport.twin_records``), in the order one evaluation of all their agents writes
     them: agents in order of first appearance across ``reports``, then scenarios, then seeds in
     the order played. An episode in two reports is kept once if its columns (timing aside) are
     the same to the last digit; else `EvaluationError` names the two reports, the episode
     and a column that differs."""
     kept: dict[EpisodeKey, tuple[EpisodeRecord, SourceReport]] = {}
     for report in reports:
-        for record in report.records:
+        for record in report.twin_records if twins else report.records:
             key = (record.agent, record.scenario, record.seed)
             if key not in kept:
                 kept[key] = (record, report)
@@ -336,4 +337,5 @@ def plan_merge(
     if not videos and said.startswith("left out"):
         notes.append(f"the episodes to watch are {said}; the merged report shows no GIF")
     provenance = merged_provenance(reports, command, len(records), (len(videos), said))
-    return replace(data, provenance=provenance, videos=videos), notes
+    twin_records = merge_records(reports, twins=True)
+    return replace(data, provenance=provenance, videos=videos, twin_records=twin_records), notes

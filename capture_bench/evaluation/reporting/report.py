@@ -35,6 +35,7 @@ from capture_bench.evaluation.reporting import (
     summary,
     training_seeds,
     vision,
+    vision_cost,
     watch,
 )
 from capture_bench.evaluation.reporting.aggregate import (
@@ -58,6 +59,8 @@ if TYPE_CHECKING:
     from capture_bench.evaluation.running.video import EpisodeVideo
 
 CSV_FILES = ("results.csv", "episodes.csv")
+#: The episodes on the scenarios' twins (`ReportData.twin_records`), where the report has any.
+TWINS_CSV = "twin_episodes.csv"
 #: The section "Aggregate statistics (rliable)": its numbers, or None and why it has none.
 RliableNumbers = tuple[RliableSection | None, str | None]
 
@@ -81,6 +84,9 @@ class ReportData:
         training_seeds: per agent of a model shipped from several training seeds, its scores
             over them (`capture_bench.evaluation.reporting.training_seeds`); empty where no
             agent has any, and the report is then without the section and the column.
+        twin_records: the episodes on the scenarios' twins, not ranked (the truth-fed
+            ``X_truth`` and the rendered ``X_rendered`` of a suite that plays them,
+            `capture_bench.evaluation.reporting.vision_cost`); written to `TWINS_CSV`.
     """
 
     suite: str
@@ -93,6 +99,7 @@ class ReportData:
     provenance: dict[str, Any]
     videos: Sequence[EpisodeVideo] = ()
     training_seeds: dict[str, training_seeds.SeedScores] = field(default_factory=dict)
+    twin_records: Sequence[EpisodeRecord] = ()
 
     def __post_init__(self) -> None:
         if self.records and any(r.rank is not None and r.rank_low is None for r in self.ranking):
@@ -208,8 +215,16 @@ def ranking_cells(r: RankingRow) -> list[str]:
 
 def ranking_table(data: ReportData) -> tuple[list[str], list[list[str]]]:
     """The overall ranking's header and rows (`RANKING_HEADER`, `ranking_cells`), with the
-    column of the training seeds' IQM (`training_seeds.COLUMN`) where an agent has seeds."""
+    truth-fed mean capture rate (`vision_cost.COLUMN`) beside the mean capture rate where an
+    agent played the truth-fed twins, and the column of the training seeds' IQM
+    (`training_seeds.COLUMN`) where an agent has seeds."""
     header, rows = list(RANKING_HEADER), [ranking_cells(r) for r in data.ranking]
+    truth = truth_fed_rates(data)
+    if truth:
+        at = header.index("mean capture rate") + 1
+        header.insert(at, vision_cost.COLUMN)
+        for r, row in zip(data.ranking, rows):
+            row.insert(at, vision_cost.ranking_cell(truth, r.agent))
     if data.training_seeds:
         header.append(training_seeds.COLUMN)
         for r, row in zip(data.ranking, rows):
@@ -263,13 +278,28 @@ def paired_cells(c: Paired, first: str, reference: str) -> list[str]:
     ]
 
 
+def ranked_scenarios(data: ReportData) -> list[str]:
+    """The report's scenarios that count in the ranking."""
+    left_out = set(not_ranked(data))
+    return [name for name in _scenarios(data) if name not in left_out]
+
+
+def truth_fed_rates(data: ReportData) -> dict[str, float]:
+    """Per agent that played the truth-fed twins, its mean truth-fed capture rate over the
+    ranked scenarios (`vision_cost.truth_fed_rates`)."""
+    return vision_cost.truth_fed_rates(data.twin_records, ranked_scenarios(data))
+
+
 def paired_sections(data: ReportData) -> list[PairedSection]:
-    """The report's paired sections, where it holds what they compare: rendered against
-    analytic vision (`capture_bench.evaluation.reporting.vision`), pixels against the estimate
+    """The report's paired sections, where it holds what they compare: each agent fed the
+    estimate against the truth (`capture_bench.evaluation.reporting.vision_cost`), rendered
+    against analytic vision (`capture_bench.evaluation.reporting.vision`, on the scenarios and
+    their twins), pixels against the estimate
     (`capture_bench.evaluation.reporting.pixel_comparison`)."""
     models = data.provenance.get("config_hashes", {}).get("models", {})
     found = (
-        vision.section(data.records),
+        vision_cost.section(data.records, data.twin_records, ranked_scenarios(data)),
+        vision.section(vision_cost.vision_records(data.records, data.twin_records)),
         pixel_comparison.section(data.records, data.reference, models),
     )
     return [s for s in found if s is not None]
@@ -980,6 +1010,9 @@ def _write_all(data: ReportData, directory: Path, images: dict[str, bytes] | Non
     rows = result_rows(data)
     _write_csv(directory / "results.csv", list(rows[0]), rows)
     _write_csv(directory / "episodes.csv", EPISODE_COLUMNS, [r.as_row() for r in data.records])
+    if data.twin_records:
+        twins = [r.as_row() for r in data.twin_records]
+        _write_csv(directory / TWINS_CSV, EPISODE_COLUMNS, twins)
     if images is None:
         images = figures(data)
     for name, png in images.items():
@@ -1008,12 +1041,17 @@ def _write_all(data: ReportData, directory: Path, images: dict[str, bytes] | Non
 
 
 def _ranking_entry(data: ReportData, row: RankingRow) -> dict[str, Any]:
-    """A ranking row in ``results.json``: its fields, and an agent's seed IQM with its interval
-    where it has training seeds."""
+    """A ranking row in ``results.json``: its fields, an agent's truth-fed mean capture rate
+    where it played the truth-fed twins, and its seed IQM with its interval where it has
+    training seeds."""
+    entry = dict(row.__dict__)
+    truth = truth_fed_rates(data)
+    if row.agent in truth:
+        entry[vision_cost.RANKING_KEY] = truth[row.agent]
     seeds = data.training_seeds.get(row.agent)
-    if seeds is None:
-        return row.__dict__
-    return {**row.__dict__, training_seeds.RANKING_KEY: seeds.iqm.as_dict()}
+    if seeds is not None:
+        entry[training_seeds.RANKING_KEY] = seeds.iqm.as_dict()
+    return entry
 
 
 def _sanitise(o: Any) -> Any:

@@ -10,12 +10,12 @@ of one line naming the file.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from capture_bench.evaluation.errors import EvaluationError
-from capture_bench.evaluation.reporting.report import read_episodes
+from capture_bench.evaluation.reporting.report import TWINS_CSV, read_episodes
 from capture_bench.evaluation.running.rollout import EpisodeRecord
 from capture_bench.provenance import display_path
 
@@ -37,6 +37,8 @@ class SourceReport:
             published seeds played; ``config_hashes``: ``scenarios`` and ``models``; ``agents``:
             label, spec, kind, privileged; ``packages``; ``git``).
         records: its episodes, in the file's order.
+        twin_records: its episodes on the scenarios' twins (``twin_episodes.csv``, where it has
+            one), not ranked.
     """
 
     directory: Path
@@ -44,6 +46,7 @@ class SourceReport:
     reference: str
     provenance: dict[str, Any]
     records: list[EpisodeRecord]
+    twin_records: list[EpisodeRecord] = field(default_factory=list)
 
     @property
     def name(self) -> str:
@@ -93,8 +96,12 @@ def read_report(directory: Path) -> SourceReport:
         raise EvaluationError(f"{path}: cannot be read ({exc})") from None
     except json.JSONDecodeError as exc:
         raise EvaluationError(f"{path}: not valid JSON ({exc})") from None
+    twins = directory / TWINS_CSV
     report = SourceReport(
-        directory, *_checked_results(payload, path), read_episodes(directory / EPISODES)
+        directory,
+        *_checked_results(payload, path),
+        read_episodes(directory / EPISODES),
+        read_episodes(twins) if twins.is_file() else [],
     )
     _check_episodes(report)
     return report

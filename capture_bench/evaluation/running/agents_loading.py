@@ -34,6 +34,9 @@ MODELS_DIR = models_dir()  # models/: see capture_bench.paths
 MODELS_GLOB = "models/*"
 #: Built-in agents whose constructor takes ``seed``; they get the episode's seed.
 SEEDED_BUILTINS = frozenset({"random"})
+#: Built-in agents whose actions never read the observation's target (random actions, the zero
+#: action): what they are fed changes nothing, so they play no truth-fed twin.
+BLIND_BUILTINS = frozenset({"random", "hold"})
 
 _MODEL_CACHE: dict[tuple[str, bool], Any] = {}
 

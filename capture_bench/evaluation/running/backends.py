@@ -103,19 +103,25 @@ _RECORDINGS = EpisodeCache(max_episodes=2 * SEEDS_PER_CHUNK)
 
 
 def make_env(scenario: str, **kwargs: Any) -> Any:
-    """The gymnasium environment of a shipped scenario (``CaptureBench/<Name>-v1``)."""
+    """The gymnasium environment of a shipped scenario (``CaptureBench/<Name>-v1``), of a
+    scenario file given by path, or of a shipped scenario's truth-fed twin (``<X>_truth``)."""
     import gymnasium
     from gymnasium.envs.registration import EnvSpec
 
     import capture_bench  # noqa: F401  (registers the environment IDs)
-    from capture_bench.task.scenarios import load_scenario
+    from capture_bench.task.scenarios import load_scenario, truth_twin_base
 
     loaded = load_scenario(scenario)
+    given: str | Any = None  # what the unregistered env is built from
     if Path(scenario).suffix in (".yaml", ".yml"):  # a file given by path: not registered
+        given = str(Path(scenario).resolve())
+    elif truth_twin_base(scenario) is not None:  # derived in code: not registered
+        given = loaded
+    if given is not None:
         spec = EnvSpec(
             id=loaded.env_id,
             entry_point="capture_bench.envs.capture_env:CaptureEnv",
-            kwargs={"scenario": str(Path(scenario).resolve())},
+            kwargs={"scenario": given},
         )
         return gymnasium.make(spec, **kwargs)
     return gymnasium.make(loaded.env_id, **kwargs)

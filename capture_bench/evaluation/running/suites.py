@@ -8,6 +8,13 @@ A suite file::
     episodes: 100                # first N published evaluation seeds of each scenario
     reference: incremental_ik    # agent of the paired comparison; one of the agents
     videos: true                 # the report's "Episodes to watch" (default true)
+    truth_twins: true            # each ranked scenario's truth-fed twin too (default false)
+    rendered_twins: [paper_rendered]  # rendered twins of the suite's scenarios (default none)
+    rendered_agents: [incremental_ik]  # the suite's agents that play them
+    rendered_episodes: 10        # on the first N of the seeds (at most ``episodes``)
+
+The twins are not ranked: the report's "What vision costs" compares each agent on them with
+itself on their scenarios, seed by seed (`capture_bench.evaluation.reporting.vision_cost`).
 
 The suite's name is its file stem, and its report goes to ``<out>/<name>/``; a suite file given
 by path whose stem names a shipped suite but which is not that suite's file (``my/default.yaml``)
@@ -56,6 +63,13 @@ class Suite:
         reference_given: the file names its ``reference`` (then it must be one of the file's
             agents, checked where they are resolved); without it the reference is
             ``incremental_ik``, and a suite that does not play it has no paired comparison.
+        truth_twins: every agent that observes the estimate (not privileged, not fed pixels,
+            not ``random`` or ``hold``, which never read the target) also plays each ranked
+            analytic scenario's truth-fed twin (``<X>_truth``,
+            `capture_bench.task.scenarios.truth_twin`) on the same seeds; not ranked.
+        rendered_twins: rendered scenarios (``<X>_rendered``, X one of ``scenarios``) that
+            ``rendered_agents`` (some of ``agents``) play on the first ``rendered_episodes``
+            seeds; not ranked. Empty: none.
     """
 
     name: str
@@ -68,6 +82,10 @@ class Suite:
     sha256: str
     videos: bool = True
     reference_given: bool = False
+    truth_twins: bool = False
+    rendered_twins: tuple[str, ...] = ()
+    rendered_agents: tuple[str, ...] = ()
+    rendered_episodes: int = 0
 
 
 #: The seeds an evaluation can play (``EvaluationConfig.seed_set``).
@@ -85,6 +103,10 @@ _SCHEMA = {  # capture_bench.validation rules
     "episodes": Rule("int", 1),
     "reference": Rule("string"),
     "videos": Rule("bool"),
+    "truth_twins": Rule("bool"),
+    "rendered_twins": Rule("names"),
+    "rendered_agents": Rule("names"),
+    "rendered_episodes": Rule("int", 1),
 }
 
 
@@ -120,6 +142,7 @@ def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite
     data, raw = read_mapping(path, f"suite keys ({', '.join(_SCHEMA)})", SuiteError)
     required = {key: _SCHEMA[key].describe() for key in ("agents", "scenarios", "episodes")}
     checked = check_mapping(data, _SCHEMA, str(path), error=SuiteError, required=required)
+    _check_rendered_keys(checked, path)
     sha256 = hashlib.sha256(raw).hexdigest()
     name, description = path.stem, checked.get("description", "")
     shadowed = shadowed_suite(path, suites_dir)
@@ -138,7 +161,24 @@ def load_suite(name_or_path: str | Path, suites_dir: Path = SUITES_DIR) -> Suite
         sha256=sha256,
         videos=checked.get("videos", True),
         reference_given="reference" in checked,
+        truth_twins=checked.get("truth_twins", False),
+        rendered_twins=checked.get("rendered_twins", ()),
+        rendered_agents=checked.get("rendered_agents", ()),
+        rendered_episodes=min(checked.get("rendered_episodes", 0), checked["episodes"]),
     )
+
+
+def _check_rendered_keys(checked: dict[str, Any], path: Path) -> None:
+    """``rendered_twins``, ``rendered_agents`` and ``rendered_episodes`` come together;
+    `SuiteError` naming the keys missing otherwise."""
+    keys = ("rendered_twins", "rendered_agents", "rendered_episodes")
+    given = [key for key in keys if key in checked]
+    if given and len(given) < len(keys):
+        missing = ", ".join(k for k in keys if k not in given)
+        raise SuiteError(
+            f"{path}: key {given[0]!r} needs {missing} too: the rendered scenarios, the agents "
+            "that play them and on how many seeds; give all three or none"
+        )
 
 
 def narrow(
@@ -163,6 +203,7 @@ def narrow(
         changes["scenarios"] = tuple(dict.fromkeys(scenarios))
     if episodes is not None:
         changes["episodes"] = episodes
+        changes["rendered_episodes"] = min(suite.rendered_episodes, episodes)
     narrowed = dataclasses.replace(suite, **changes)
     if (narrowed.agents, narrowed.scenarios, narrowed.episodes) == (
         suite.agents,
