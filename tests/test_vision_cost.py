@@ -92,10 +92,16 @@ def test_rendered_twins_hold_the_capture_envelope_of_their_scenarios():
         assert rendered.capture == scenario.capture
         assert rendered.capture_tolerance == scenario.capture_tolerance
         assert rendered.ranked == scenario.ranked
-        other = ("name", "description", "camera")
+        other = ("name", "description", "camera", "estimator")
         assert _without(rendered, *other) == _without(scenario, *other)
-        camera = dataclasses.replace(rendered.camera, mode="analytic")
-        assert camera == scenario.camera  # only the vision differs
+        # Only the vision differs: the same camera pose and intrinsics seen through the rendered
+        # image (a lens, a calibration error, a detector), and a filter that may start from
+        # three markers; the estimator's process noise is the same.
+        geometry = ("position", "look_at", "focal_length", "pixel_pitch", "resolution")
+        for key in geometry:
+            assert getattr(rendered.camera, key) == getattr(scenario.camera, key), key
+        estimator = dataclasses.replace(rendered.estimator, min_init_markers=4)
+        assert estimator == scenario.estimator
 
 
 def _suite(**changes):
