@@ -158,13 +158,19 @@ def test_spaces_are_the_documented_dicts():
         batched.close()
 
 
-def test_gymnasium_and_sb3_env_checkers_pass():
+@pytest.mark.parametrize(
+    "options", [{}, {"frame_stack": 3, "ee_crop": 37, "ee_crop_scale": 2, "image_supersample": 2}]
+)
+def test_gymnasium_and_sb3_env_checkers_pass(options):
     from gymnasium.utils.env_checker import check_env
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-    with CaptureEnv("paper", observation_source="pixels") as env:
+    with CaptureEnv("paper", observation_source="pixels", **options) as env:
         check_env(env, skip_render_check=True)
-    with CaptureEnv("paper", observation_source="pixels") as env, warnings.catch_warnings():
+    with (
+        CaptureEnv("paper", observation_source="pixels", **options) as env,
+        warnings.catch_warnings(),
+    ):
         warnings.simplefilter("error")  # SB3's checker warns about what it would not train on
         sb3_check_env(env)
 

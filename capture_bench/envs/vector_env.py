@@ -91,6 +91,9 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         reward: ``"dense"`` or ``"sparse"``.
         image_size: with ``"pixels"``, the image's (width, height), pixels (default None:
             (84, 84)); with any other source, ``ConfigError`` (as ``CaptureEnv``).
+        frame_stack, ee_crop, ee_crop_scale, image_supersample, ee_crop_supersample: with
+            ``"pixels"``, the frame stack, the end-effector crop and the area sampling, as
+            ``CaptureEnv``'s; each sub-env's stack restarts with its episode.
         reuse_target_side: must be True (accepted so that ``make_vec(id, n,
             reuse_target_side=True)`` means the same for every vectorization mode).
         render_mode: must be None (the vector env does not render).
@@ -144,6 +147,11 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         episode_cache: EpisodeCache | None = None,
         image_size: tuple[int, int] | None = None,
+        frame_stack: int | None = None,
+        ee_crop: int | None = None,
+        ee_crop_scale: int | None = None,
+        image_supersample: int | None = None,
+        ee_crop_supersample: int | None = None,
     ) -> None:
         if not reuse_target_side:
             raise ValueError(
@@ -160,8 +168,16 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         mode = _autoreset_mode(autoreset_mode)
         self.task = task = CaptureTask(
-            scenario, observation_source=observation_source, reward=reward, image_size=image_size
-        )  # checks ``observation_source``, ``reward`` and ``image_size``
+            scenario,
+            observation_source=observation_source,
+            reward=reward,
+            image_size=image_size,
+            frame_stack=frame_stack,
+            ee_crop=ee_crop,
+            ee_crop_scale=ee_crop_scale,
+            image_supersample=image_supersample,
+            ee_crop_supersample=ee_crop_supersample,
+        )  # checks ``observation_source``, ``reward``, ``image_size`` and the pixel options
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
         self.render_mode = None

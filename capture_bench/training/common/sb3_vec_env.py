@@ -52,6 +52,8 @@ class CaptureSB3VecEnv(VecEnv):
         reward: ``"dense"`` or ``"sparse"``.
         image_size: with ``"pixels"``, the image's (width, height), pixels (None: the env's
             default).
+        pixel_options: with ``"pixels"``, ``frame_stack``, ``ee_crop``, ``ee_crop_scale``,
+            ``image_supersample``, ``ee_crop_supersample`` (``CaptureEnv``'s keys).
 
     Observations: float32, (N, *single observation shape), or with pixels a dict of such arrays
     (``image`` uint8 (N, 3, H, W), ``state`` float32 (N, 7)), each row of which is replaced
@@ -70,6 +72,7 @@ class CaptureSB3VecEnv(VecEnv):
         observation_source: str | None = None,
         reward: str = "dense",
         image_size: tuple[int, int] | None = None,
+        **pixel_options: int | None,
     ) -> None:
         self.venv = CaptureVectorEnv(
             n_envs,
@@ -77,6 +80,7 @@ class CaptureSB3VecEnv(VecEnv):
             observation_source=observation_source,
             reward=reward,
             image_size=image_size,
+            **pixel_options,
         )
         self._draws = [TrainingSeedDraw(self.venv.scenario, seed * 1000 + i) for i in range(n_envs)]
         self.venv.set_episode_seeds(self._draws)
