@@ -26,7 +26,11 @@ from capture_bench.training.common.mixture import (
     mixture_scenarios,
     mixture_shares,
 )
-from capture_bench.training.config.hyperparameters import OFF_POLICY, algorithm_class
+from capture_bench.training.config.hyperparameters import (
+    OFF_POLICY,
+    PIXEL_OPTION_KEYS,
+    algorithm_class,
+)
 from capture_bench.training.config.options import (
     TrainConfig,
 )
@@ -89,12 +93,26 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
             check_image_size(settings.pixel_size, load_scenario(config.scenario).camera.model())
         except ValueError as exc:
             raise ConfigError(f"key 'image_size': {exc}") from None
-    if settings.image_size is not None and not pixels:
-        seen = config.observation_source or "each scenario's estimate"
-        raise ConfigError(
-            f"key 'image_size' sizes the pixel observation; train with --observation-source "
-            f"pixels, or drop it for {seen}"
-        )
+    for key in ("image_size", *PIXEL_OPTION_KEYS):
+        if getattr(settings, key) is not None and not pixels:
+            seen = config.observation_source or "each scenario's estimate"
+            raise ConfigError(
+                f"key {key!r} shapes the pixel observation; train with --observation-source "
+                f"pixels, or drop it for {seen}"
+            )
+    if pixels:
+        _check_pixel_options(config, settings)
+
+
+def _check_pixel_options(config: TrainConfig, settings: TrainingSettings) -> None:
+    """The pixel options, as the env checks them (the crop must fit on the scenario's
+    sensor)."""
+    from capture_bench.engine.task import CaptureTask
+
+    try:
+        CaptureTask(config.scenario, observation_source=PIXELS, **settings.pixel_options)
+    except ValueError as exc:
+        raise ConfigError(f"the pixel observation's keys: {exc}") from None
 
 
 def shares_of(config: TrainConfig, settings: TrainingSettings) -> list[int]:
@@ -188,7 +206,7 @@ def make_env(config: TrainConfig, settings: TrainingSettings, rank: int, subproc
             scenario,
             observation_source=config.observation_source,
             reward=settings.reward,
-            image_size=settings.pixel_size,
+            **settings.pixel_options,
         )
         return TrainingSeeds(env, scenario, seed=(config.seed or 0) * 1000 + rank)
 
@@ -226,7 +244,7 @@ def build_venv(config: TrainConfig, settings: TrainingSettings) -> Any:
             seed=config.seed or 0,
             observation_source=config.observation_source,
             reward=settings.reward,
-            image_size=settings.pixel_size,
+            **settings.pixel_options,
         )
     else:
         subprocess = config.vec_env == "subproc"

@@ -127,6 +127,12 @@ def policy_metadata(
         "residual": None
         if settings.residual == "none"
         else {"base": settings.residual, "scale": settings.residual_scale},
+        # the pixel observation's options (frame stack, end-effector crop, area sampling) that
+        # evaluation makes the model's envs with; none: the original observation
+        "pixel_observation": {
+            key: value for key, value in settings.pixel_options.items() if key != "image_size"
+        }
+        or None,
     }
 
 

@@ -118,7 +118,25 @@ TRAINING_KEYS = {
     # with observation_source pixels: the image's side, pixels (square; at least NatureCNN's 36,
     # at most the shipped camera's crop, 924; train.py checks it against the scenario's camera)
     "image_size": Rule("int", 36, 924),
+    # with pixels, the observation's options (capture_bench/sensing/workspace_image.py's
+    # PixelOptions; left out: the original observation): the last frame_stack images along the
+    # channels; an ee_crop x ee_crop pixel crop centred on the end-effector (at least NatureCNN's
+    # 36), ee_crop_scale sensor pixels a pixel; image_supersample / ee_crop_supersample samples
+    # a side per pixel, averaged
+    "frame_stack": Rule("int", 1, 16),
+    "ee_crop": Rule("int", 36, 256),
+    "ee_crop_scale": Rule("int", 1, 11),
+    "image_supersample": Rule("int", 1, 11),
+    "ee_crop_supersample": Rule("int", 1, 11),
 }
+#: The keys of ``TRAINING_KEYS`` that are the pixel observation's options, env keyword arguments.
+PIXEL_OPTION_KEYS = (
+    "frame_stack",
+    "ee_crop",
+    "ee_crop_scale",
+    "image_supersample",
+    "ee_crop_supersample",
+)
 #: What an imitation leaves out takes: 4 rounds of 200k steps, 10 passes each, no warm-up.
 IMITATION_DEFAULTS = {
     "imitation_rounds": 4,
@@ -375,8 +393,15 @@ def memory_estimate(
 
         side = image_size(hp) or IMAGE_SIZE
         cnn_parameters, cnn_activations = _cnn(side)
-        observation = 3 * side[0] * side[1] + STATE_SIZE
+        stack = int(hp.get("frame_stack") or 1)
+        crop = int(hp.get("ee_crop") or 0)
+        observation = 3 * stack * (side[0] * side[1] + crop * crop) + STATE_SIZE
         features = CNN_FEATURES + STATE_SIZE
+        if crop:  # a second NatureCNN, on the end-effector crop
+            crop_parameters, crop_activations = _cnn((crop, crop))
+            cnn_parameters += crop_parameters
+            cnn_activations += crop_activations
+            features += CNN_FEATURES
     else:
         cnn_parameters = cnn_activations = 0
         observation = OBSERVATION_SIZE
@@ -619,6 +644,14 @@ def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
 
         kwargs["action_noise"] = NormalActionNoise(np.zeros(3), np.full(3, hp["action_noise_std"]))
     return kwargs
+
+
+def pixel_env_options(hp: dict[str, Any]) -> dict[str, Any]:
+    """The env keyword arguments of the pixel observation ``hp`` sets: ``image_size`` and the
+    options of `PIXEL_OPTION_KEYS` it gives (none: the env's defaults)."""
+    options = {key: hp[key] for key in PIXEL_OPTION_KEYS if hp.get(key) is not None}
+    size = image_size(hp)
+    return options if size is None else {"image_size": size, **options}
 
 
 def image_size(hp: dict[str, Any]) -> tuple[int, int] | None:
