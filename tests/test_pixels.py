@@ -210,3 +210,9 @@ def test_the_benchmark_runs_and_prints_its_rows(capsys):
     assert rows[1].split()[:2] == ["N", "pixels"]
     n, *figures = rows[2].split()
     assert n == "2" and all(float(f) > 0 for f in figures)
+    options = ["--option", "frame_stack=2", "--option", "ee_crop=37"]
+    bench.main(["--num-envs", "2", "--seconds", "0.2", "--size", "36", "36", *options])
+    rows = capsys.readouterr().out.splitlines()
+    assert rows[1] == "options: frame_stack=2, ee_crop=37" and "options steps/s" in rows[2]
+    n, *figures = rows[3].split()
+    assert n == "2" and len(figures) == 4 and all(float(f) > 0 for f in figures)

@@ -150,10 +150,9 @@ class EpisodeEngine:
         """Every row's observation at its current step (the last real period: that of the step
         just taken, t_s at the start); with pixels, the images of the arms and of the true
         targets (with a frame stack, each row's last k), and the states."""
-        rows, k = self._now()
         if self._imager is None:
-            now = {name: self.tracks[name][rows, k] for name in _OBSERVED}
-            return self.rule.observe(self.state, slice(None), now)
+            return self.observe_estimate()
+        rows, k = self._now()
         rotation = np.stack(
             [
                 episode.rotation[j]  # type: ignore[union-attr]
@@ -168,6 +167,14 @@ class EpisodeEngine:
             return views
         images = {key: value for key, value in views.items() if key != "state"}
         return {**self._stack.push(images, self.steps), "state": views["state"]}
+
+    def observe_estimate(self) -> NDArray[np.float32]:
+        """Every row's estimate-fed observation at its current step, (N, 16): what an env
+        observing the scenario's estimator gives; with pixels, the estimate the agent does not
+        see (the estimator runs for ``info``), which an analytic teacher reads."""
+        rows, k = self._now()
+        now = {name: self.tracks[name][rows, k] for name in _OBSERVED}
+        return self.rule.observe(self.state, slice(None), now)
 
     def _now(self) -> tuple[Rows, Steps]:
         """Every row and its current step (for one row, a slice and a step: views)."""

@@ -302,6 +302,13 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         self._ended[stepping] = terminated[stepping] | truncated[stepping]
         return obs, rewards, terminated, truncated, info
 
+    def estimate_observation(self) -> NDArray[np.float32]:
+        """Every sub-env's estimate-fed observation at its current step, (num_envs, 16): the
+        observation of the same env made with the scenario's estimator as its source; with
+        ``observation_source="pixels"``, the estimate behind ``info``, what an analytic teacher
+        of a pixel student reads (privileged: the agent sees the pixels)."""
+        return self._live_engine().observe_estimate()
+
     def set_episode_seeds(self, sources: Sequence[EpisodeSeedSource] | None) -> None:
         """Seed every later episode of sub-env i with ``sources[i].next()`` (None: back to each
         sub-env's own generator, gymnasium's rule).

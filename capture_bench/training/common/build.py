@@ -148,9 +148,10 @@ def check_curricula(settings: TrainingSettings, scenario: Any) -> None:
 
 
 def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: list[str]) -> None:
-    """``imitate`` fits a policy to a controller that reads the same observation, and leaves the
+    """``imitate`` fits a policy to a controller that reads the estimate-fed observation (with
+    pixels, that of the step the student sees: the batched env only), and leaves the
     learned policy alone: `IMITATORS` (PPO, A2C: the mean; SAC, TQC: the actor's deterministic
-    action), the estimate's observation, no residual and
+    action), no residual and
     no VecNormalize (whose statistics the controller would not see); a controller per scenario
     names only ``scenarios`` (the run's) and gives each one."""
     if settings.imitate is None:
@@ -172,10 +173,11 @@ def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: 
         raise ConfigError(
             f"imitate {teacher}: the controller reads the raw observation; set normalize: false"
         )
-    if config.observation_source == PIXELS:
+    if config.observation_source == PIXELS and config.vec_env != "batched":
         raise ConfigError(
-            f"imitate {teacher}: the controller reads the target estimate, not pixels; train "
-            "on the estimate (leave out --observation-source pixels)"
+            f"imitate {teacher} with pixels: the controller reads the estimate of the step the "
+            f"student sees, which the batched env gives; use --vec-env batched, not "
+            f"{config.vec_env}"
         )
 
 
