@@ -93,7 +93,7 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
             check_image_size(settings.pixel_size, load_scenario(config.scenario).camera.model())
         except ValueError as exc:
             raise ConfigError(f"key 'image_size': {exc}") from None
-    for key in ("image_size", *PIXEL_OPTION_KEYS):
+    for key in ("image_size", *PIXEL_OPTION_KEYS, "augment_shift"):
         if getattr(settings, key) is not None and not pixels:
             seen = config.observation_source or "each scenario's estimate"
             raise ConfigError(

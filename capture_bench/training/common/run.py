@@ -565,6 +565,10 @@ def train(
     venv = build_venv(config, settings)
     tb = str(run_dir / "tb")
     model = build_model(config, settings, venv, tb)
+    if settings.augment_shift:  # DrQ: the training batches' images shifted, never the env's
+        from capture_bench.training.common.augmentation import install_random_shift
+
+        install_random_shift(model.policy, settings.augment_shift)
     seed_note = f"seed {config.seed}"
     if checkpoint is not None:
         try:

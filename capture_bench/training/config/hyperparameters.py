@@ -55,7 +55,7 @@ ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "Leak
 POLICIES = ("MlpPolicy", "MultiInputPolicy")
 #: The features extractor each policy reads its observation with, where the file gives none.
 DEFAULT_FEATURES = {"MlpPolicy": "flatten", "MultiInputPolicy": "combined"}
-DICT_FEATURES = ("combined",)  # those that read a Dict observation
+DICT_FEATURES = ("combined", "spatial_softmax")  # those that read a Dict observation
 
 # Counts SB3 and numpy hold as machine integers: at most 2**53 (exact as a float, fits an int64).
 MOST = 2**53
@@ -128,6 +128,9 @@ TRAINING_KEYS = {
     "ee_crop_scale": Rule("int", 1, 11),
     "image_supersample": Rule("int", 1, 11),
     "ee_crop_supersample": Rule("int", 1, 11),
+    # with pixels, DrQ's random shift of the training batches' images by up to augment_shift
+    # pixels (capture_bench/training/common/augmentation.py); 0 or left out: none
+    "augment_shift": Rule("int", 0, 16),
 }
 #: The keys of ``TRAINING_KEYS`` that are the pixel observation's options, env keyword arguments.
 PIXEL_OPTION_KEYS = (
@@ -205,7 +208,7 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
 }
 #: Features the network computes from the observation: the keys of
 #: capture_bench.agents.features.FEATURE_EXTRACTORS (which imports torch; tests check they agree).
-FEATURES = ("flatten", "relative_log_distance", "combined")
+FEATURES = ("flatten", "relative_log_distance", "combined", "spatial_softmax")
 _NET = {
     "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
     "features_extractor": Rule("choice", choices=FEATURES),
@@ -397,6 +400,8 @@ def memory_estimate(
         crop = int(hp.get("ee_crop") or 0)
         observation = 3 * stack * (side[0] * side[1] + crop * crop) + STATE_SIZE
         features = CNN_FEATURES + STATE_SIZE
+        if kwargs.get("features_extractor") == "spatial_softmax":  # stride-1 maps: larger
+            cnn_activations = 3 * stack * side[0] * side[1] + 40 * side[0] * side[1]
         if crop:  # a second NatureCNN, on the end-effector crop
             crop_parameters, crop_activations = _cnn((crop, crop))
             cnn_parameters += crop_parameters
