@@ -183,3 +183,19 @@ def test_a_pixel_option_without_pixels_is_refused():
         ConfigError, match='frame_stack=3 applies only with observation_source="pixels"'
     ):
         CaptureVectorEnv(2, "paper", frame_stack=3)
+
+
+def test_the_envelopes_tolerance_spans_several_crop_pixels_across_the_view():
+    """configs/pixels/ppo_ee.yaml's crop (3 sensor pixels a pixel): paper's 10 mm across the
+    camera's view moves the end-effector's projection by about 6 crop pixels (grasp's 5 mm by 3);
+    along the line of sight, by under a sensor pixel (depth is read from sizes and the stack)."""
+    model = CaptureTask("paper").camera.model
+    x_e = kinematics.forward_kinematics(HOME)
+
+    def crop_pixels(step: np.ndarray) -> float:
+        before, after = (pixel_of(model.to_camera(x[None]), model)[0] for x in (x_e, x_e + step))
+        return float(np.linalg.norm(after - before)) / 3
+
+    across = [crop_pixels(0.01 * model.rotation[:, axis]) for axis in (0, 2)]
+    assert all(5.5 < n < 6.5 for n in across), across
+    assert crop_pixels(0.01 * model.rotation[:, 1]) * 3 < 1.0  # the line of sight, sensor px

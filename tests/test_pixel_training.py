@@ -281,3 +281,18 @@ def test_shipping_a_pixel_run_writes_a_card_that_replays_in_pixel_envs(pixel_run
     metadata = read_metadata(target)
     safe, trusted = load_policy(metadata), load_trusted(metadata)
     _assert_same_actions(SB3Policy(safe.policy), SB3Policy(trusted.policy))
+
+
+def test_the_shipped_end_effector_config_sets_the_documented_pixel_options():
+    from capture_bench.engine.task import CaptureTask
+    from capture_bench.training.config.settings import resolve_settings
+
+    for scenario in ("paper", "grasp"):
+        settings, _, _ = resolve_settings(
+            "ppo", load_scenario(scenario), "configs/pixels/ppo_ee.yaml"
+        )
+        options = settings.pixel_options
+        assert options == {"image_size": (84, 84), "frame_stack": 3, "ee_crop": 37,
+                           "ee_crop_scale": 3}  # fmt: skip
+        task = CaptureTask(scenario, observation_source="pixels", **options)
+        assert task.single_observation_space["ee_image"].shape == (9, 37, 37)

@@ -127,11 +127,13 @@ class CaptureTask:
             `check_image_size`); None (default):
             `IMAGE_SIZE`. Given with any other
             source, ``ConfigError``: it sizes nothing there.
-        frame_stack, ee_crop, ee_crop_scale, image_supersample, ee_crop_supersample: with
-            ``"pixels"``, the frame stack, the end-effector crop and the area sampling
-            (`PixelOptions`; None: each one's default, the original observation); checked,
-            one-line ``ValueError``; one given (not None) with any other source,
-            ``ConfigError``.
+        frame_stack: with ``"pixels"``, the frame stack (`PixelOptions`; None: its
+            default); checked, one-line ``ValueError``; given (not None) with any other
+            source, ``ConfigError``; the same for the four below.
+        ee_crop: the end-effector crop's side, pixels (`PixelOptions`).
+        ee_crop_scale: sensor pixels per crop pixel (`PixelOptions`).
+        image_supersample: samples per image pixel, a side (`PixelOptions`).
+        ee_crop_supersample: the same for the crop (`PixelOptions`).
 
     Attributes:
         scenario: the resolved ``Scenario``.

@@ -91,9 +91,12 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         reward: ``"dense"`` or ``"sparse"``.
         image_size: with ``"pixels"``, the image's (width, height), pixels (default None:
             (84, 84)); with any other source, ``ConfigError`` (as ``CaptureEnv``).
-        frame_stack, ee_crop, ee_crop_scale, image_supersample, ee_crop_supersample: with
-            ``"pixels"``, the frame stack, the end-effector crop and the area sampling, as
+        frame_stack: with ``"pixels"``, the last k images along the channels, as
             ``CaptureEnv``'s; each sub-env's stack restarts with its episode.
+        ee_crop: the end-effector crop's side, pixels, as ``CaptureEnv``'s.
+        ee_crop_scale: sensor pixels per crop pixel, as ``CaptureEnv``'s.
+        image_supersample: samples per image pixel, a side, as ``CaptureEnv``'s.
+        ee_crop_supersample: the same for the crop, as ``CaptureEnv``'s.
         reuse_target_side: must be True (accepted so that ``make_vec(id, n,
             reuse_target_side=True)`` means the same for every vectorization mode).
         render_mode: must be None (the vector env does not render).
