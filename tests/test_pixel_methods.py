@@ -159,3 +159,110 @@ def test_the_shift_without_pixels_is_one_line(tmp_path, capsys):
     assert train.main(["--set", "augment_shift=4", "--run-dir", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "'augment_shift'" in err and "pixels" in err
+
+
+# -- the asymmetric actor-critic: the critic reads the true state, the actor the pixels ---------
+
+
+def test_the_true_observation_holds_the_true_target_and_the_arm():
+    from capture_bench.envs.vector_env import CaptureVectorEnv
+    from capture_bench.task.observation import decode_observation
+
+    env = CaptureVectorEnv(2, "paper", observation_source="pixels", image_size=(SIZE,) * 2)
+    try:
+        env.reset(seed=[3, 4])
+        for action in np.random.default_rng(0).uniform(-1, 1, (5, 2, 3)):
+            env.step(action)
+            truth = decode_observation(env.true_observation(), env.description.control_period)
+            for i in range(2):
+                k = env.row_step(i)
+                episode = env.row_episode(i)
+                np.testing.assert_allclose(truth.target_position[i], episode.position[k], atol=1e-6)
+                np.testing.assert_allclose(truth.target_velocity[i], episode.velocity[k], atol=1e-6)
+    finally:
+        env.close()
+
+
+def _asymmetric():
+    from stable_baselines3 import PPO
+
+    from capture_bench.training.common.asymmetric import AsymmetricActorCriticPolicy
+
+    venv = CaptureSB3VecEnv(2, "paper", seed=1, observation_source="pixels",
+                            image_size=(SIZE,) * 2, critic_state=True)  # fmt: skip
+    model = PPO(AsymmetricActorCriticPolicy, venv, n_steps=16, batch_size=16, n_epochs=1,
+                seed=0, policy_kwargs={"net_arch": [8]}, device="cpu")  # fmt: skip
+    return model, venv
+
+
+def test_the_critic_reads_the_true_state_and_the_actor_does_not():
+    model, venv = _asymmetric()
+    try:
+        obs = venv.reset()
+        assert obs["critic_state"].shape == (2, 16)
+        moved = dict(obs, critic_state=obs["critic_state"] + 1.0)
+        policy = model.policy
+        with torch.no_grad():
+            values = [policy.predict_values(policy.obs_to_tensor(o)[0]) for o in (obs, moved)]
+            means = [
+                policy.get_distribution(policy.obs_to_tensor(o)[0]).distribution.mean
+                for o in (obs, moved)
+            ]
+        assert not torch.equal(values[0], values[1])  # the critic reads the truth
+        assert torch.equal(means[0], means[1])  # the actor does not
+        without = {k: v for k, v in obs.items() if k != "critic_state"}  # validation's envs
+        np.testing.assert_array_equal(policy.predict(without, deterministic=True)[0],
+                                      policy.predict(obs, deterministic=True)[0])  # fmt: skip
+    finally:
+        venv.close()
+
+
+def test_the_stored_policy_is_the_actor_and_the_critic_less_the_truth():
+    from capture_bench.training.common.asymmetric import actor_policy
+
+    model, venv = _asymmetric()
+    try:
+        model.learn(total_timesteps=32)  # trained weights, not the initial ones
+        obs = venv.reset()
+        plain = actor_policy(model.policy)
+        assert "critic_state" not in plain.observation_space.spaces
+        without = {k: v for k, v in obs.items() if k != "critic_state"}
+        np.testing.assert_array_equal(plain.predict(without, deterministic=True)[0],
+                                      model.policy.predict(obs, deterministic=True)[0])  # fmt: skip
+        zeroed = dict(obs, critic_state=np.zeros_like(obs["critic_state"]))
+        with torch.no_grad():
+            stored = plain.predict_values(plain.obs_to_tensor(without)[0])
+            trained = model.policy.predict_values(model.policy.obs_to_tensor(zeroed)[0])
+        torch.testing.assert_close(stored, trained)  # the truth's inputs removed, nothing else
+    finally:
+        venv.close()
+
+
+def test_an_asymmetric_run_stores_a_plain_pixel_policy_that_evaluates(tmp_path):
+    import evaluate
+
+    run = tmp_path / "run"
+    sets = [*TINY, "asymmetric_critic=true", "eval_freq=32", "eval_episodes=2"]
+    assert train.main([*PIXELS, *(f"--set={s}" for s in sets), "--run-dir", str(run)]) == 0
+    meta = json.loads((run / "metadata.json").read_text())
+    assert set(meta["observation_space"]["spaces"]) == {"image", "state"}
+    assert meta["policy_kwargs"]["share_features_extractor"] is False
+    load_policy(read_metadata(run))
+    out = tmp_path / "reports"
+    argv = ["--agents", str(run), "--scenarios", "paper", "--episodes", "2", "--workers", "1"]
+    assert evaluate.main([*argv, "--out", str(out)]) == 0
+    rows = next(out.rglob("episodes.csv")).read_text().splitlines()
+    assert sum(row.startswith("run (pixels),paper,") for row in rows) == 2
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["--set", "asymmetric_critic=true"], ["'asymmetric_critic'", "pixels"]),
+        ([*PIXELS, "--set", "asymmetric_critic=true", "--vec-env", "dummy"], ["--vec-env batched"]),
+    ],
+)
+def test_an_asymmetric_critic_it_cannot_have_is_one_line(tmp_path, capsys, argv, words):
+    assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and all(w in err for w in words), err

@@ -22,6 +22,7 @@ from capture_bench.engine.task import CaptureTask, Observation
 from capture_bench.engine.tracks import Tracks
 from capture_bench.sensing.workspace_image import WorkspaceImager
 from capture_bench.sim.target_motion import TargetTrajectory
+from capture_bench.task.observation import encode_observation
 from capture_bench.task.recording import RecordedEpisode
 from capture_bench.task.step_rule import BEFORE_TRACKS, ArmState, StepOutcome
 
@@ -175,6 +176,21 @@ class EpisodeEngine:
         rows, k = self._now()
         now = {name: self.tracks[name][rows, k] for name in _OBSERVED}
         return self.rule.observe(self.state, slice(None), now)
+
+    def observe_truth(self) -> NDArray[np.float32]:
+        """Every row's observation at its current step with the target's true position and
+        velocity in place of the estimate, (N, 16), `encode_observation`'s layout (privileged:
+        an asymmetric critic's input)."""
+        rows, k = self._now()
+        tracks = self.tracks
+        return encode_observation(
+            tracks["position"][rows, k],
+            tracks["velocity"][rows, k],
+            self.state.x_e,
+            self.state.theta,
+            tracks["dt"][rows, k],
+            self.task.description.control_period,
+        )
 
     def _now(self) -> tuple[Rows, Steps]:
         """Every row and its current step (for one row, a slice and a step: views)."""

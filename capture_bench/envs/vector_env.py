@@ -312,6 +312,12 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         of a pixel student reads (privileged: the agent sees the pixels)."""
         return self._live_engine().observe_estimate()
 
+    def true_observation(self) -> NDArray[np.float32]:
+        """Every sub-env's observation at its current step with the target's true position and
+        velocity in place of the estimate, (num_envs, 16) (privileged: what an asymmetric
+        critic reads in training, `capture_bench.training.common.asymmetric`)."""
+        return self._live_engine().observe_truth()
+
     def set_episode_seeds(self, sources: Sequence[EpisodeSeedSource] | None) -> None:
         """Seed every later episode of sub-env i with ``sources[i].next()`` (None: back to each
         sub-env's own generator, gymnasium's rule).

@@ -93,8 +93,8 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
             check_image_size(settings.pixel_size, load_scenario(config.scenario).camera.model())
         except ValueError as exc:
             raise ConfigError(f"key 'image_size': {exc}") from None
-    for key in ("image_size", *PIXEL_OPTION_KEYS, "augment_shift"):
-        if getattr(settings, key) is not None and not pixels:
+    for key in ("image_size", *PIXEL_OPTION_KEYS, "augment_shift", "asymmetric_critic"):
+        if getattr(settings, key) not in (None, False) and not pixels:
             seen = config.observation_source or "each scenario's estimate"
             raise ConfigError(
                 f"key {key!r} shapes the pixel observation; train with --observation-source "
@@ -102,6 +102,14 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
             )
     if pixels:
         _check_pixel_options(config, settings)
+    if settings.asymmetric_critic and (
+        config.algo not in ("ppo", "a2c") or config.vec_env != "batched"
+    ):
+        raise ConfigError(
+            f"asymmetric_critic: the critic's true state comes from the batched env to PPO's or "
+            f"A2C's value net; use --algo ppo or a2c with --vec-env batched (got {config.algo}, "
+            f"{config.vec_env})"
+        )
 
 
 def _check_pixel_options(config: TrainConfig, settings: TrainingSettings) -> None:
@@ -246,6 +254,7 @@ def build_venv(config: TrainConfig, settings: TrainingSettings) -> Any:
             seed=config.seed or 0,
             observation_source=config.observation_source,
             reward=settings.reward,
+            critic_state=bool(settings.asymmetric_critic),
             **settings.pixel_options,
         )
     else:
@@ -282,8 +291,13 @@ def build_model(
     threads: `set_torch_threads`)."""
     set_torch_threads()
     algorithm = algorithm_class(config.algo)
+    policy: Any = settings.policy
+    if settings.asymmetric_critic:  # the critic also reads the true state (training only)
+        from capture_bench.training.common.asymmetric import AsymmetricActorCriticPolicy
+
+        policy = AsymmetricActorCriticPolicy
     return algorithm(
-        settings.policy, venv, seed=config.seed, device=config.device,
+        policy, venv, seed=config.seed, device=config.device,
         tensorboard_log=tensorboard_log, **settings.sb3_kwargs(),
     )  # fmt: skip
 

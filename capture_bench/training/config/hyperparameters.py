@@ -131,6 +131,9 @@ TRAINING_KEYS = {
     # with pixels, DrQ's random shift of the training batches' images by up to augment_shift
     # pixels (capture_bench/training/common/augmentation.py); 0 or left out: none
     "augment_shift": Rule("int", 0, 16),
+    # with pixels (ppo, a2c): the critic also reads the true state, the actor the pixels alone
+    # (capture_bench/training/common/asymmetric.py); training only
+    "asymmetric_critic": Rule("bool"),
 }
 #: The keys of ``TRAINING_KEYS`` that are the pixel observation's options, env keyword arguments.
 PIXEL_OPTION_KEYS = (
