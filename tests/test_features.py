@@ -70,7 +70,7 @@ def test_the_torch_extractor_is_the_observation_then_the_numpy_features():
         "flatten",
         "relative_log_distance",
         "combined",
-        "spatial_softmax",
+        "keypoints",
     }
     from capture_bench.training.config.hyperparameters import FEATURES
 

@@ -643,7 +643,7 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
         bad = {k for k in bad if not str(k).startswith("policy_kwargs.")}
     kwargs = data.get("policy_kwargs")
     features = kwargs.get("features_extractor", "flatten") if isinstance(kwargs, dict) else None
-    dict_features = ("combined", "spatial_softmax")
+    dict_features = ("combined", "keypoints")
     if (
         not bad
         and data.get("normalize") is True

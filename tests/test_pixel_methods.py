@@ -122,7 +122,7 @@ def test_spatial_softmax_returns_the_expected_position_to_a_fraction_of_a_pixel(
     assert (y + 1) / 2 * (h - 1) == pytest.approx(centre[0], abs=1e-3)
 
 
-def test_the_spatial_softmax_extractor_reads_every_image_and_keeps_positions():
+def test_the_keypoints_extractor_reads_every_image_and_keeps_positions():
     with CaptureEnv("paper", observation_source="pixels", image_size=(SIZE,) * 2,
                     ee_crop=37, frame_stack=2) as env:  # fmt: skip
         space = env.observation_space
@@ -140,10 +140,10 @@ def test_the_spatial_softmax_extractor_reads_every_image_and_keeps_positions():
 
 def test_a_run_with_the_shift_and_keypoints_stores_a_plain_policy_that_loads_safely(tmp_path):
     run = tmp_path / "run"
-    sets = [*TINY, "augment_shift=4", "policy_kwargs.features_extractor=spatial_softmax"]
+    sets = [*TINY, "augment_shift=4", "policy_kwargs.features_extractor=keypoints"]
     assert train.main([*PIXELS, *(f"--set={s}" for s in sets), "--run-dir", str(run)]) == 0
     meta = json.loads((run / "metadata.json").read_text())
-    assert meta["policy_kwargs"]["features_extractor"] == "spatial_softmax"
+    assert meta["policy_kwargs"]["features_extractor"] == "keypoints"
     assert meta["hyperparameters"]["augment_shift"] == 4
     metadata = read_metadata(run)
     safe, trusted = load_policy(metadata), load_trusted(metadata)

@@ -120,7 +120,7 @@ class SpatialSoftmaxExtractor(BaseFeaturesExtractor):
     """The pixel observation's features that keep position: each image (``image``, and
     ``ee_image`` where given; frames stacked along the channels) through its own
     `keypoint_network` (`KEYPOINTS` x, y pairs), the other keys (the arm's state) flattened
-    beside them. Declared as ``spatial_softmax``."""
+    beside them. Declared as ``keypoints``."""
 
     def __init__(self, observation_space: gym.spaces.Dict) -> None:
         super().__init__(observation_space, features_dim=1)
@@ -142,11 +142,11 @@ class SpatialSoftmaxExtractor(BaseFeaturesExtractor):
 
 #: Declared name -> features extractor class (``flatten``: SB3's default for a Box observation,
 #: the raw observation; ``combined``: SB3's default for a ``Dict`` one, the pixel observation's
-#: image through SB3's NatureCNN beside the flattened arm state; ``spatial_softmax``: each image
+#: image through SB3's NatureCNN beside the flattened arm state; ``keypoints``: each image
 #: to keypoints that keep its positions, `SpatialSoftmaxExtractor`).
 FEATURE_EXTRACTORS: dict[str, type[BaseFeaturesExtractor]] = {
     "flatten": FlattenExtractor,
     "relative_log_distance": RelativeLogDistance,
     "combined": CombinedExtractor,
-    "spatial_softmax": SpatialSoftmaxExtractor,
+    "keypoints": SpatialSoftmaxExtractor,
 }

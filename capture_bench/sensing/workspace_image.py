@@ -138,11 +138,6 @@ class PixelOptions:
         """The options that differ from their defaults (what a model's card records)."""
         return {k: v for k, v in asdict(self).items() if v != PIXEL_OPTION_RANGES[k][0]}
 
-    @property
-    def is_default(self) -> bool:
-        """Every option at its default: the original pixel observation."""
-        return not self.changed()
-
 
 def largest_crop_side(model: CameraModel) -> int:
     """The longest side a crop may have on ``model``'s sensor, pixels:

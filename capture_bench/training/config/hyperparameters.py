@@ -55,7 +55,7 @@ ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "Leak
 POLICIES = ("MlpPolicy", "MultiInputPolicy")
 #: The features extractor each policy reads its observation with, where the file gives none.
 DEFAULT_FEATURES = {"MlpPolicy": "flatten", "MultiInputPolicy": "combined"}
-DICT_FEATURES = ("combined", "spatial_softmax")  # those that read a Dict observation
+DICT_FEATURES = ("combined", "keypoints")  # those that read a Dict observation
 
 # Counts SB3 and numpy hold as machine integers: at most 2**53 (exact as a float, fits an int64).
 MOST = 2**53
@@ -211,7 +211,7 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
 }
 #: Features the network computes from the observation: the keys of
 #: capture_bench.agents.features.FEATURE_EXTRACTORS (which imports torch; tests check they agree).
-FEATURES = ("flatten", "relative_log_distance", "combined", "spatial_softmax")
+FEATURES = ("flatten", "relative_log_distance", "combined", "keypoints")
 _NET = {
     "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
     "features_extractor": Rule("choice", choices=FEATURES),
@@ -403,7 +403,7 @@ def memory_estimate(
         crop = int(hp.get("ee_crop") or 0)
         observation = 3 * stack * (side[0] * side[1] + crop * crop) + STATE_SIZE
         features = CNN_FEATURES + STATE_SIZE
-        if kwargs.get("features_extractor") == "spatial_softmax":  # stride-1 maps: larger
+        if kwargs.get("features_extractor") == "keypoints":  # stride-1 maps: larger
             cnn_activations = 3 * stack * side[0] * side[1] + 40 * side[0] * side[1]
         if crop:  # a second NatureCNN, on the end-effector crop
             crop_parameters, crop_activations = _cnn((crop, crop))
