@@ -22,6 +22,8 @@ The metadata of an SB3 ``.zip`` directory::
     model: model.zip          # the SB3 file in the directory (optional if there is exactly one)
     vecnormalize: vecnormalize.pkl   # VecNormalize statistics, if training normalised observations
     observation_source: ekf   # what it was trained on (informational; evaluation uses the env's)
+    pixel_observation:        # with pixels: the options it was trained with (optional; checked)
+      frame_stack: 3          # PixelOptions' keys (frame stack, end-effector crop, area sampling)
 
 Observations are normalised with the frozen statistics (as SB3's evaluation does) before the
 policy sees them. Every problem raises `PolicyLoadError` (a ``ValueError``) with a one-line
