@@ -5,11 +5,14 @@ actions (autoresets, the recording of episodes ahead and the EKF for ``info`` in
 counts every sub-env's step; then the same env with the scenario's estimator observation, whose
 steps/s is the cost of everything but the images; and the renderer alone
 (``WorkspaceImager.render_batch`` over N random arm and target poses), in microseconds per
-image. Pin it to one core with ``taskset -c 0`` (numpy's BLAS is held to one thread here).
-Usage::
+image. With ``--option KEY=VALUE`` (the pixel observation's options: ``frame_stack``,
+``ee_crop``, ``ee_crop_scale``, ``image_supersample``, ``ee_crop_supersample``) a last column
+times the batched env with those options too. Pin it to one core with ``taskset -c 0`` (numpy's
+BLAS is held to one thread here). Usage::
 
     taskset -c 0 python benchmarks/bench_pixels.py                      # N = 16 and 64, 84 x 84
     taskset -c 0 python benchmarks/bench_pixels.py --num-envs 64 --seconds 20 --size 64 64
+    taskset -c 0 python benchmarks/bench_pixels.py --option frame_stack=3 --option ee_crop=49
 """
 
 from __future__ import annotations
@@ -71,16 +74,49 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--num-envs", type=int, nargs="+", default=[16, 64])
     parser.add_argument("--size", type=int, nargs=2, default=[84, 84], metavar=("W", "H"))
     parser.add_argument("--seconds", type=float, default=10.0, help="wall time per measurement")
+    parser.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a pixel observation option for the last column (repeat for several)",
+    )
     args = parser.parse_args(argv)
     size = (args.size[0], args.size[1])
+    options = _options(parser, args.option)
     print(f"scenario {args.scenario}, image {size[0]} x {size[1]}, pid {os.getpid()}")
-    print(f"{'N':>4} {'pixels steps/s':>15} {'estimate steps/s':>17} {'render us/image':>16}")
+    if options:
+        print("options: " + ", ".join(f"{k}={v}" for k, v in options.items()))
+    header = f"{'N':>4} {'pixels steps/s':>15} {'estimate steps/s':>17} {'render us/image':>16}"
+    print(header + (f" {'options steps/s':>16}" if options else ""))
     for n in args.num_envs:
         pixels = CaptureVectorEnv(n, args.scenario, observation_source="pixels", image_size=size)
         with_pixels = env_steps_per_second(pixels, args.seconds)
         without = env_steps_per_second(CaptureVectorEnv(n, args.scenario), args.seconds)
         render = render_us_per_image(args.scenario, size, n)
-        print(f"{n:>4} {with_pixels:>15.0f} {without:>17.0f} {render:>16.0f}")
+        row = f"{n:>4} {with_pixels:>15.0f} {without:>17.0f} {render:>16.0f}"
+        if options:
+            env = CaptureVectorEnv(
+                n, args.scenario, observation_source="pixels", image_size=size, **options
+            )
+            row += f" {env_steps_per_second(env, args.seconds):>16.0f}"
+        print(row)
+
+
+def _options(parser: argparse.ArgumentParser, pairs: Sequence[str]) -> dict[str, int]:
+    """``KEY=VALUE`` pairs as the env's keyword arguments (checked by the env)."""
+    from capture_bench.sensing.workspace_image import PixelOptions
+
+    options = {}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        if not value.isdigit():
+            parser.error(f"--option {pair!r}: expected KEY=VALUE with a whole number")
+        options[key] = int(value)
+    try:
+        return PixelOptions.check(**options).changed()
+    except ValueError as exc:
+        parser.error(f"--option: {exc}")
 
 
 if __name__ == "__main__":

@@ -66,7 +66,12 @@ def test_the_torch_extractor_is_the_observation_then_the_numpy_features():
     np.testing.assert_allclose(out[:, 16:], relative_features(obs), rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match=r"shape \(16,\)"):
         RelativeLogDistance(gymnasium.spaces.Box(-1, 1, (4,), np.float32))
-    assert set(FEATURE_EXTRACTORS) == {"flatten", "relative_log_distance", "combined"}
+    assert set(FEATURE_EXTRACTORS) == {
+        "flatten",
+        "relative_log_distance",
+        "combined",
+        "keypoints",
+    }
     from capture_bench.training.config.hyperparameters import FEATURES
 
     assert FEATURES == tuple(FEATURE_EXTRACTORS)  # the config's choices are the extractors

@@ -643,11 +643,16 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
         bad = {k for k in bad if not str(k).startswith("policy_kwargs.")}
     kwargs = data.get("policy_kwargs")
     features = kwargs.get("features_extractor", "flatten") if isinstance(kwargs, dict) else None
-    if not bad and data.get("normalize") is True and features not in (None, "flatten", "combined"):
+    dict_features = ("combined", "keypoints")
+    if (
+        not bad
+        and data.get("normalize") is True
+        and features not in (None, "flatten", *dict_features)
+    ):
         bad.add("policy_kwargs.features_extractor")  # reads the raw observation
     dict_policy = data.get("policy", "MlpPolicy") == "MultiInputPolicy"
     named = isinstance(kwargs, dict) and "features_extractor" in kwargs
-    if not bad and named and dict_policy != (features == "combined"):
+    if not bad and named and dict_policy != (features in dict_features):
         bad.add("policy_kwargs.features_extractor")  # reads another observation than the policy
     for key in IMITATION_DEFAULTS:  # checked first: an imitation setting needs imitate
         if not bad and key in data and "imitate" not in data:

@@ -215,8 +215,10 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
                 "pixels",
                 "--config",
                 "configs/pixels/ppo.yaml",
+                "--vec-env",
+                "dummy",
             ],
-            "not pixels",
+            "use --vec-env batched, not dummy",
         ),
     ],
 )
@@ -311,3 +313,100 @@ def test_planned_intercept_teaches_with_a_plan_per_training_env_and_captures_whe
     finally:
         venv.close()
     assert captured == ended, f"{captured} of {ended} captured"
+
+
+# -- a pixel student: the teacher reads the estimate of the step the student sees --------------
+PIXEL_SIZE = 36
+
+
+def test_the_pixel_envs_estimate_observation_is_the_estimate_envs_observation():
+    from capture_bench.envs.vector_env import CaptureVectorEnv
+
+    pixels = CaptureVectorEnv(2, "paper", observation_source="pixels", image_size=(36, 36))
+    estimate = CaptureVectorEnv(2, "paper")
+    try:
+        _, _ = pixels.reset(seed=[3, 4])
+        obs, _ = estimate.reset(seed=[3, 4])
+        for action in np.random.default_rng(0).uniform(-1, 1, (30, 2, 3)):
+            np.testing.assert_array_equal(pixels.estimate_observation(), obs)
+            pixels.step(action)
+            obs, *_ = estimate.step(action)
+    finally:
+        pixels.close()
+        estimate.close()
+
+
+def _pixel_model(n_envs: int):
+    from stable_baselines3 import PPO
+
+    from capture_bench.agents.features import FEATURE_EXTRACTORS
+    from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
+
+    venv = CaptureSB3VecEnv(n_envs, "paper", seed=0, observation_source="pixels",
+                            image_size=(PIXEL_SIZE,) * 2, frame_stack=2)  # fmt: skip
+    policy_kwargs = {"net_arch": [16], "features_extractor_class": FEATURE_EXTRACTORS["combined"]}
+    model = PPO("MultiInputPolicy", venv, n_steps=32, batch_size=32, n_epochs=1, seed=0,
+                policy_kwargs=policy_kwargs, device="cpu")  # fmt: skip
+    return model, venv
+
+
+def test_dagger_with_a_pixel_student_labels_each_step_with_the_teacher_on_its_estimate(
+    monkeypatch,
+):
+    """Round 0 (the teacher acts) on the same training seeds: the pixel run's labels are the
+    estimate-fed run's, action for action; the student is fitted on the images and states."""
+    teacher = make_teacher(["incremental_ik"], [describe_task(load_scenario("paper"))], [2])
+    labels: dict[str, list[np.ndarray]] = {"pixels": [], "estimate": []}
+    seen: list[dict[str, np.ndarray]] = []
+
+    def recording(kind: str):
+        def act(observations: np.ndarray) -> np.ndarray:
+            assert observations.shape == (2, 16)
+            labels[kind].append(teacher(observations))
+            return labels[kind][-1]
+
+        return act
+
+    from capture_bench.training.common import imitation
+
+    pixel_model, pixel_venv = _pixel_model(2)
+    model, venv = _model(2)
+    raw_fit = imitation.fit
+
+    def spying_fit(policy, observations, *args, **kwargs):
+        seen.append(observations)
+        return raw_fit(policy, observations, *args, **kwargs)
+
+    def view(_obs):
+        return pixel_venv.env_method("estimate_observation", indices=[0])[0]
+
+    monkeypatch.setattr(imitation, "fit", spying_fit)
+    try:
+        done = dagger(pixel_model, pixel_venv, recording("pixels"), rounds=1, steps=80, epochs=2,
+                      seed=0, log=lambda line: None, teacher_view=view)  # fmt: skip
+        dagger(model, venv, recording("estimate"), rounds=1, steps=80, epochs=1, seed=0,
+               log=lambda line: None)  # fmt: skip
+    finally:
+        pixel_venv.close()
+        venv.close()
+    assert done["labelled_steps"] == 80 and np.isfinite(done["fit_mse"][0])
+    np.testing.assert_array_equal(
+        np.concatenate(labels["pixels"]), np.concatenate(labels["estimate"])
+    )
+    images = seen[0]["image"]
+    assert images.dtype == np.uint8 and images.shape == (80, 6, PIXEL_SIZE, PIXEL_SIZE)
+    assert seen[0]["state"].shape == (80, 7)
+
+
+def test_a_pixel_run_imitates_its_teacher_through_train_py(tmp_path):
+    run_dir = tmp_path / "run"
+    sets = ["n_envs=2", "total_timesteps=64", "n_steps=32", "batch_size=32", "n_epochs=1",
+            "policy_kwargs.net_arch=[8]", f"image_size={PIXEL_SIZE}", "frame_stack=2",
+            "eval_freq=0", "checkpoint_freq=0", "imitate=incremental_ik", "imitation_steps=32",
+            "imitation_rounds=2", "imitation_epochs=1"]  # fmt: skip
+    argv = ["--observation-source", "pixels", "--config", "configs/pixels/ppo.yaml"]
+    argv += [*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]
+    assert train.main(argv) == 0
+    done = json.loads((run_dir / "imitation.json").read_text())
+    assert done["rounds"] == 2 and done["labelled_steps"] == 64
+    assert done["agreement"][0] is None and 0.0 <= done["agreement"][1] <= 1.0

@@ -33,11 +33,24 @@ TINY += ["eval_episodes=2"]
 PIXELS = ["--observation-source", "pixels", "--config", "configs/pixels/ppo.yaml"]
 
 
+#: The pixel observation's options (a frame stack and an end-effector crop), as train.py keys.
+OPTIONS = ["frame_stack=2", "ee_crop=36", "ee_crop_scale=2", "ee_crop_supersample=2"]
+
+
 @pytest.fixture(scope="module")
 def pixel_run(tmp_path_factory):
     """A tiny PPO run on paper's pixels, with its checkpoint and periodic validation."""
     run_dir = tmp_path_factory.mktemp("pixels") / "run"
     argv = [*PIXELS, *(f"--set={s}" for s in TINY), "--run-dir", str(run_dir)]
+    assert train.main(argv) == 0
+    return run_dir
+
+
+@pytest.fixture(scope="module")
+def options_run(tmp_path_factory):
+    """The same tiny run with the pixel observation's options (`OPTIONS`)."""
+    run_dir = tmp_path_factory.mktemp("pixels") / "options"
+    argv = [*PIXELS, *(f"--set={s}" for s in TINY + OPTIONS), "--run-dir", str(run_dir)]
     assert train.main(argv) == 0
     return run_dir
 
@@ -109,16 +122,49 @@ def test_a_pixel_run_resumes_from_its_checkpoint(pixel_run, tmp_path):
     assert json.loads((copy / "metadata.json").read_text())["total_timesteps"] >= 128
 
 
-def test_a_pixel_model_evaluates_through_evaluate_py_in_pixel_envs(pixel_run, tmp_path):
+def test_a_run_with_pixel_options_records_them_and_loads_without_unpickling(options_run):
+    meta = json.loads((options_run / "metadata.json").read_text())
+    assert meta["pixel_observation"] == {
+        "frame_stack": 2, "ee_crop": 36, "ee_crop_scale": 2, "ee_crop_supersample": 2,
+    }  # fmt: skip
+    shapes = {k: v["shape"] for k, v in meta["observation_space"]["spaces"].items()}
+    assert shapes == {"ee_image": [6, 36, 36], "image": [6, SIZE, SIZE], "state": [7]}
+    metadata = read_metadata(options_run)
+    assert metadata.image_size == (SIZE, SIZE)
+    env_options = metadata.env_options
+    assert env_options["frame_stack"] == 2 and env_options["ee_crop"] == 36
+    safe, trusted = load_policy(metadata), load_trusted(metadata)
+    env = CaptureEnv("paper", **env_options)
+    obs, _ = env.reset(seed=load_scenario("paper").validation_seeds[0])
+    for _ in range(3):
+        a = SB3Policy(safe.policy).predict(obs)[0]
+        np.testing.assert_array_equal(a, SB3Policy(trusted.policy).predict(obs)[0])
+        obs = env.step(a)[0]
+    env.close()
+    bad = dict(meta, pixel_observation={"frame_stack": 0})
+    (options_run / "metadata.json").write_text(json.dumps(bad))
+    try:
+        with pytest.raises(PolicyLoadError, match="frame_stack must be a whole number") as caught:
+            read_metadata(options_run)
+        assert len(str(caught.value).splitlines()) == 1
+    finally:
+        (options_run / "metadata.json").write_text(json.dumps(meta))
+
+
+@pytest.mark.parametrize("run", ["pixel_run", "options_run"])
+def test_a_pixel_model_evaluates_through_evaluate_py_in_pixel_envs(run, request, tmp_path):
+    model = request.getfixturevalue(run)
     out = tmp_path / "reports"
-    argv = ["--agents", "incremental_ik", str(pixel_run), "--scenarios", "paper"]
+    argv = ["--agents", "incremental_ik", str(model), "--scenarios", "paper"]
     argv += ["--episodes", "3", "--workers", "1", "--out", str(out)]
     assert evaluate.main(argv) == 0
     rows = (next(out.rglob("episodes.csv"))).read_text().splitlines()
-    assert sum(row.startswith("run (pixels),paper,") for row in rows) == 3
+    assert sum(row.startswith(f"{model.name} (pixels),paper,") for row in rows) == 3
 
 
-def test_the_batched_evaluation_of_a_pixel_model_equals_the_single_env(pixel_run):
+@pytest.mark.parametrize("run", ["pixel_run", "options_run"])
+def test_the_batched_evaluation_of_a_pixel_model_equals_the_single_env(run, request):
+    pixel_run = request.getfixturevalue(run)
     from capture_bench.evaluation.running.backends import (
         EpisodeTask,
         close_envs,
@@ -157,6 +203,18 @@ def test_a_pixel_model_in_an_estimate_env_and_the_reverse_are_one_line(pixel_run
         pixels.close()
 
 
+def test_a_model_with_pixel_options_in_a_plain_pixel_env_is_one_line(options_run):
+    plain = CaptureEnv("paper", observation_source="pixels", image_size=(SIZE, SIZE))
+    try:
+        with pytest.raises(PolicyLoadError) as caught:
+            load_sb3_policy(options_run, plain)
+        text = str(caught.value)
+        assert "pixel_observation" in text and "ee_image" in text
+        assert len(text.splitlines()) == 1
+    finally:
+        plain.close()
+
+
 @pytest.mark.parametrize(
     ("argv", "words"),
     [
@@ -173,6 +231,9 @@ def test_a_pixel_model_in_an_estimate_env_and_the_reverse_are_one_line(pixel_run
           "--set", "policy_kwargs.features_extractor=combined"], ["--observation-source pixels"]),
         (["--set", "policy=MultiInputPolicy"], ["features_extractor", "combined"]),
         ([*PIXELS, "--set", "image_size=20"], ["image_size", "36"]),  # below NatureCNN's
+        (["--set", "frame_stack=3"], ["'frame_stack'", "--observation-source pixels"]),
+        ([*PIXELS, "--set", "ee_crop=20"], ["ee_crop", "36"]),
+        ([*PIXELS, "--set", "ee_crop=200", "--set", "ee_crop_scale=5"], ["shorter side"]),
     ],
 )  # fmt: skip
 def test_a_bad_pixel_training_setup_is_one_line(tmp_path, capsys, argv, words):
@@ -220,3 +281,18 @@ def test_shipping_a_pixel_run_writes_a_card_that_replays_in_pixel_envs(pixel_run
     metadata = read_metadata(target)
     safe, trusted = load_policy(metadata), load_trusted(metadata)
     _assert_same_actions(SB3Policy(safe.policy), SB3Policy(trusted.policy))
+
+
+def test_the_shipped_end_effector_config_sets_the_documented_pixel_options():
+    from capture_bench.engine.task import CaptureTask
+    from capture_bench.training.config.settings import resolve_settings
+
+    for scenario in ("paper", "grasp"):
+        settings, _, _ = resolve_settings(
+            "ppo", load_scenario(scenario), "configs/pixels/ppo_ee.yaml"
+        )
+        options = settings.pixel_options
+        assert options == {"image_size": (84, 84), "frame_stack": 3, "ee_crop": 37,
+                           "ee_crop_scale": 3}  # fmt: skip
+        task = CaptureTask(scenario, observation_source="pixels", **options)
+        assert task.single_observation_space["ee_image"].shape == (9, 37, 37)

@@ -158,13 +158,19 @@ def test_spaces_are_the_documented_dicts():
         batched.close()
 
 
-def test_gymnasium_and_sb3_env_checkers_pass():
+@pytest.mark.parametrize(
+    "options", [{}, {"frame_stack": 3, "ee_crop": 37, "ee_crop_scale": 2, "image_supersample": 2}]
+)
+def test_gymnasium_and_sb3_env_checkers_pass(options):
     from gymnasium.utils.env_checker import check_env
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-    with CaptureEnv("paper", observation_source="pixels") as env:
+    with CaptureEnv("paper", observation_source="pixels", **options) as env:
         check_env(env, skip_render_check=True)
-    with CaptureEnv("paper", observation_source="pixels") as env, warnings.catch_warnings():
+    with (
+        CaptureEnv("paper", observation_source="pixels", **options) as env,
+        warnings.catch_warnings(),
+    ):
         warnings.simplefilter("error")  # SB3's checker warns about what it would not train on
         sb3_check_env(env)
 
@@ -204,3 +210,9 @@ def test_the_benchmark_runs_and_prints_its_rows(capsys):
     assert rows[1].split()[:2] == ["N", "pixels"]
     n, *figures = rows[2].split()
     assert n == "2" and all(float(f) > 0 for f in figures)
+    options = ["--option", "frame_stack=2", "--option", "ee_crop=37"]
+    bench.main(["--num-envs", "2", "--seconds", "0.2", "--size", "36", "36", *options])
+    rows = capsys.readouterr().out.splitlines()
+    assert rows[1] == "options: frame_stack=2, ee_crop=37" and "options steps/s" in rows[2]
+    n, *figures = rows[3].split()
+    assert n == "2" and len(figures) == 4 and all(float(f) > 0 for f in figures)

@@ -1,5 +1,7 @@
 """Features a policy network may compute from the observation before its layers: entries that
-resolve millimetres, without changing the env's observation (its effect: docs/results/ablation.md).
+resolve millimetres, without changing the env's observation (its effect: docs/results/ablation.md),
+and, for the pixel observation, keypoints that keep the image's positions
+(`SpatialSoftmaxExtractor`).
 
 The observation's relative vector (entries 12-14, eq. 13's predicted X^_T' - X_E, scaled by
 0.5 m) is of order 0.002 at eq. 20's 1 mm tolerance: to a network that starts with weights of
@@ -73,11 +75,78 @@ class RelativeLogDistance(BaseFeaturesExtractor):
         return torch.cat((observations, r / d, log_d), dim=1)
 
 
+class SpatialSoftmax(torch.nn.Module):
+    """Feature maps (B, K, H, W) -> K keypoints (B, 2 K): each map's softmax over its pixels
+    (divided by a learned temperature) and the expected pixel position under it, x then y for
+    each map, in [-1, 1] from the image's first to its last pixel centre (Levine, Finn, Darrell
+    & Abbeel 2016). An expectation, so a keypoint moves by a fraction of a pixel when the image
+    does."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.log_temperature = torch.nn.Parameter(torch.zeros(1))
+
+    def forward(self, maps: torch.Tensor) -> torch.Tensor:
+        b, k, h, w = maps.shape
+        weights = torch.softmax(maps.reshape(b, k, h * w) / self.log_temperature.exp(), dim=-1)
+        ys, xs = torch.meshgrid(
+            torch.linspace(-1.0, 1.0, h, device=maps.device),
+            torch.linspace(-1.0, 1.0, w, device=maps.device),
+            indexing="ij",
+        )
+        x = (weights * xs.reshape(1, 1, -1)).sum(-1)
+        y = (weights * ys.reshape(1, 1, -1)).sum(-1)
+        return torch.stack((x, y), dim=-1).reshape(b, 2 * k)
+
+
+KEYPOINTS = 16  # keypoints per image of `SpatialSoftmaxExtractor`
+
+
+def keypoint_network(channels: int) -> torch.nn.Sequential:
+    """An image (B, channels, H, W) in [0, 1] -> `KEYPOINTS` keypoints (B, 32): a 5 x 5
+    convolution at stride 1 (every pixel a position), a 3 x 3 at stride 2, a 3 x 3 at stride 1
+    to `KEYPOINTS` maps, then `SpatialSoftmax`."""
+    return torch.nn.Sequential(
+        torch.nn.Conv2d(channels, 16, 5, stride=1, padding=2),
+        torch.nn.ReLU(),
+        torch.nn.Conv2d(16, 32, 3, stride=2, padding=1),
+        torch.nn.ReLU(),
+        torch.nn.Conv2d(32, KEYPOINTS, 3, stride=1, padding=1),
+        SpatialSoftmax(),
+    )
+
+
+class SpatialSoftmaxExtractor(BaseFeaturesExtractor):
+    """The pixel observation's features that keep position: each image (``image``, and
+    ``ee_image`` where given; frames stacked along the channels) through its own
+    `keypoint_network` (`KEYPOINTS` x, y pairs), the other keys (the arm's state) flattened
+    beside them. Declared as ``keypoints``."""
+
+    def __init__(self, observation_space: gym.spaces.Dict) -> None:
+        super().__init__(observation_space, features_dim=1)
+        extractors: dict[str, torch.nn.Module] = {}
+        size = 0
+        for key, box in observation_space.spaces.items():
+            if len(box.shape) == 3:
+                extractors[key] = keypoint_network(box.shape[0])
+                size += 2 * KEYPOINTS
+            else:
+                extractors[key] = torch.nn.Flatten()
+                size += int(np.prod(box.shape))
+        self.extractors = torch.nn.ModuleDict(extractors)
+        self._features_dim = size
+
+    def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.cat([net(observations[key]) for key, net in self.extractors.items()], dim=1)
+
+
 #: Declared name -> features extractor class (``flatten``: SB3's default for a Box observation,
 #: the raw observation; ``combined``: SB3's default for a ``Dict`` one, the pixel observation's
-#: image through SB3's NatureCNN beside the flattened arm state).
+#: image through SB3's NatureCNN beside the flattened arm state; ``keypoints``: each image
+#: to keypoints that keep its positions, `SpatialSoftmaxExtractor`).
 FEATURE_EXTRACTORS: dict[str, type[BaseFeaturesExtractor]] = {
     "flatten": FlattenExtractor,
     "relative_log_distance": RelativeLogDistance,
     "combined": CombinedExtractor,
+    "keypoints": SpatialSoftmaxExtractor,
 }

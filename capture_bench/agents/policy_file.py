@@ -616,6 +616,8 @@ def declare(algorithm: str, policy: Any, normalizer: ObservationNormalizer | Non
     if algorithm not in POLICY_CLASSES:
         raise PolicyLoadError(f"algorithm {algorithm!r}; valid: {', '.join(POLICY_CLASSES)}")
     params = policy._get_constructor_parameters()
+    if getattr(policy, "share_features_extractor", True) is False:  # SB3 leaves it out
+        params["share_features_extractor"] = False
     kwargs: dict[str, Any] = {}
     names = {cls: name for name, cls in _feature_extractors().items()}
     extractor = params.get("features_extractor_class")

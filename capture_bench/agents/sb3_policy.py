@@ -22,6 +22,8 @@ The metadata of an SB3 ``.zip`` directory::
     model: model.zip          # the SB3 file in the directory (optional if there is exactly one)
     vecnormalize: vecnormalize.pkl   # VecNormalize statistics, if training normalised observations
     observation_source: ekf   # what it was trained on (informational; evaluation uses the env's)
+    pixel_observation:        # with pixels: the options it was trained with (optional; checked)
+      frame_stack: 3          # PixelOptions' keys (frame stack, end-effector crop, area sampling)
 
 Observations are normalised with the frozen statistics (as SB3's evaluation does) before the
 policy sees them. Every problem raises `PolicyLoadError` (a ``ValueError``) with a one-line
@@ -38,7 +40,8 @@ from __future__ import annotations
 import json
 import re
 import zipfile
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +61,7 @@ from capture_bench.agents.policy_file import (
     read_weights,
 )
 from capture_bench.sensing.sources import PIXELS
-from capture_bench.sensing.workspace_image import IMAGE_SIZE
+from capture_bench.sensing.workspace_image import IMAGE_SIZE, PIXEL_OPTION_RANGES, PixelOptions
 
 ALGORITHMS = tuple(POLICY_CLASSES)
 METADATA_FILES = ("metadata.json", "metadata.yaml", "metadata.yml")
@@ -72,12 +75,29 @@ TRUST_HINT = (
 )
 
 
-def observation_options(image_size: tuple[int, int] | None) -> dict[str, Any]:
-    """The env keyword arguments for a policy that sees images of ``image_size`` (pixels), or
-    none for a policy that sees the estimate (``image_size`` None)."""
+def observation_options(
+    image_size: tuple[int, int] | None, pixel_options: Mapping[str, int] | None = None
+) -> dict[str, Any]:
+    """The env keyword arguments for a policy that sees images of ``image_size`` (pixels) with
+    the pixel observation's ``pixel_options`` (`PixelOptions`'s, those set), or none for a
+    policy that sees the estimate (``image_size`` None)."""
     if image_size is None:
         return {}
-    return {"observation_source": PIXELS, "image_size": image_size}
+    return {"observation_source": PIXELS, "image_size": image_size, **(pixel_options or {})}
+
+
+def _pixel_options(value: Any, meta_file: Path) -> dict[str, int]:
+    """The metadata's ``pixel_observation`` entry, checked: None (the original observation) or
+    a mapping of `PixelOptions`'s keys; the options that differ from their defaults."""
+    if value is None:
+        return {}
+    valid = f"null or a mapping of {', '.join(PIXEL_OPTION_RANGES)} to whole numbers"
+    if not isinstance(value, dict):
+        raise PolicyLoadError(f"{meta_file}: key 'pixel_observation' is {value!r}; valid: {valid}")
+    try:
+        return PixelOptions.check(**value).changed()
+    except ValueError as exc:
+        raise PolicyLoadError(f"{meta_file}: key 'pixel_observation': {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -100,6 +120,9 @@ class ModelMetadata:
         actions: ``deterministic`` (the leaderboard's rule, the default) or ``sampled`` (key
             ``actions``: the model card declares that the policy acts with sampled actions,
             seeded per episode by evaluation).
+        pixel_options: the pixel observation's options it was trained with (key
+            ``pixel_observation``: frame stack, end-effector crop, area sampling;
+            `PixelOptions`), those that differ from the defaults; empty: the original one.
     """
 
     directory: Path
@@ -113,6 +136,13 @@ class ModelMetadata:
     vecnormalize_file: Path | None = None
     residual: tuple[str, float] | None = None
     actions: str = "deterministic"
+    pixel_options: Mapping[str, int] = field(default_factory=dict)
+
+    @property
+    def env_options(self) -> dict[str, Any]:
+        """The env keyword arguments of the observation the policy sees (`observation_options`):
+        none for the estimate; pixels of its image size, with its pixel options."""
+        return observation_options(self.image_size, self.pixel_options)
 
     @property
     def image_size(self) -> tuple[int, int] | None:
@@ -121,10 +151,10 @@ class ModelMetadata:
         None where it observes an estimate."""
         declared = self.declaration.observation_space if self.declaration else None
         if declared is not None and declared["type"] == "Dict":
-            for box in declared["spaces"].values():
-                if len(box["shape"]) == 3:
-                    _, height, width = box["shape"]
-                    return (width, height)
+            box = declared["spaces"].get("image")  # the wide image (not the end-effector crop)
+            if box is not None and len(box["shape"]) == 3:
+                _, height, width = box["shape"]
+                return (width, height)
         if self.observation_source == PIXELS:  # an SB3 .zip only: the env's default image
             return IMAGE_SIZE
         return None
@@ -248,6 +278,7 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
         "observation_source": str(data.get("observation_source") or ""),
         "residual": _residual(data.get("residual"), meta_file),
         "actions": _actions(data.get("actions", "deterministic"), meta_file),
+        "pixel_options": _pixel_options(data.get("pixel_observation"), meta_file),
     }
     vecnormalize = data.get("vecnormalize")
     vecnormalize_file = directory / str(vecnormalize) if vecnormalize else None
@@ -463,9 +494,15 @@ def check_spaces(model: Any, observation_space: Any, action_space: Any, where: s
                 f"the {needs} ({_describe(theirs)}); make the environment with {fix}"
             )
         if not _same_box(ours, theirs):
+            hint = (
+                "; make the environment with the image_size and pixel options of the model's "
+                "card (its pixel_observation: frame_stack, ee_crop, ...)"
+                if all(pixels)
+                else ""
+            )
             raise PolicyLoadError(
                 f"{where}: model {kind} space {_describe(ours)} does not match the "
-                f"environment's {_describe(theirs)}"
+                f"environment's {_describe(theirs)}{hint}"
             )
 
 

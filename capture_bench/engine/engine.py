@@ -22,11 +22,49 @@ from capture_bench.engine.task import CaptureTask, Observation
 from capture_bench.engine.tracks import Tracks
 from capture_bench.sensing.workspace_image import WorkspaceImager
 from capture_bench.sim.target_motion import TargetTrajectory
+from capture_bench.task.observation import encode_observation
 from capture_bench.task.recording import RecordedEpisode
 from capture_bench.task.step_rule import BEFORE_TRACKS, ArmState, StepOutcome
 
 FloatArray = NDArray[np.float64]
 _OBSERVED = ("estimate_valid", "estimate_position", "estimate_velocity", "dt")
+
+
+class FrameStack:
+    """The last k frames of each image view of N rows, oldest first, stacked along the channels.
+
+    A row's stack takes a frame when its step has moved since the last (a row the caller did not
+    step keeps its stack), and is filled with k copies of its first frame when its episode
+    restarts (`restart`).
+    """
+
+    def __init__(self, n: int, k: int) -> None:
+        self.n, self.k = n, k
+        self.frames: dict[str, NDArray[np.uint8]] = {}  # view -> (N, k, 3, H, W)
+        self.step = np.full(n, -1, dtype=np.int64)  # each row's step of its newest frame
+        self.fresh = np.ones(n, dtype=bool)  # rows whose episode restarted since
+
+    def restart(self, rows: NDArray[np.intp]) -> None:
+        """Rows ``rows`` start an episode: their next frame fills their stacks."""
+        self.fresh[rows] = True
+
+    def push(self, views: dict[str, NDArray], steps: NDArray[np.int64]) -> dict[str, NDArray]:
+        """Take each row's frame of every view in ``views`` ((N, 3, H, W) each) where its step
+        (``steps``, (N,)) moved or its episode restarted; the stacks, (N, 3 k, H, W) each."""
+        moved = self.fresh | (steps != self.step)
+        refill, roll = self.fresh.copy(), moved & ~self.fresh
+        stacked = {}
+        for key, frame in views.items():
+            stack = self.frames.get(key)
+            if stack is None:
+                stack = self.frames[key] = np.empty((self.n, self.k, *frame.shape[1:]), np.uint8)
+            stack[roll, :-1] = stack[roll, 1:]
+            stack[roll, -1] = frame[roll]
+            stack[refill] = frame[refill][:, None]
+            stacked[key] = stack.reshape(self.n, -1, *frame.shape[2:]).copy()
+        self.step[moved] = steps[moved]
+        self.fresh[:] = False
+        return stacked
 
 
 class EpisodeEngine:
@@ -58,6 +96,8 @@ class EpisodeEngine:
         self.episodes: list[RecordedEpisode | None] = [None] * n
         # observation_source "pixels": one renderer draws every row's image in turn
         self._imager: WorkspaceImager | None = task.imager() if task.pixels else None
+        k = task.pixel_options.frame_stack
+        self._stack: FrameStack | None = FrameStack(n, k) if task.pixels and k > 1 else None
 
     def prepare(self, draws: Sequence[EpisodeDraw]) -> list[RecordedEpisode | EpisodeDraw]:
         """What `begin` takes for the next episode of each draw (`TargetSides.prepare`)."""
@@ -72,6 +112,8 @@ class EpisodeEngine:
         for i, episode in zip(rows.tolist(), episodes, strict=True):
             self.episodes[i] = episode
         self.steps[rows] = 0
+        if self._stack is not None:
+            self._stack.restart(rows)
         return self.rule.start(self.state, rows, self.tracks["position"][rows, 0])
 
     def step(self, idx: Rows, actions: FloatArray) -> StepOutcome:
@@ -108,11 +150,10 @@ class EpisodeEngine:
     def observe(self) -> Observation:
         """Every row's observation at its current step (the last real period: that of the step
         just taken, t_s at the start); with pixels, the images of the arms and of the true
-        targets, and the states."""
-        rows, k = self._now()
+        targets (with a frame stack, each row's last k), and the states."""
         if self._imager is None:
-            now = {name: self.tracks[name][rows, k] for name in _OBSERVED}
-            return self.rule.observe(self.state, slice(None), now)
+            return self.observe_estimate()
+        rows, k = self._now()
         rotation = np.stack(
             [
                 episode.rotation[j]  # type: ignore[union-attr]
@@ -120,8 +161,35 @@ class EpisodeEngine:
             ]
         )
         position, dt = self.tracks["position"][rows, k], self.tracks["dt"][rows, k]
-        return self.task.pixel_observation(
+        views = self.task.pixel_observation(
             self._imager, self.state, slice(None), position, rotation, dt
+        )
+        if self._stack is None:
+            return views
+        images = {key: value for key, value in views.items() if key != "state"}
+        return {**self._stack.push(images, self.steps), "state": views["state"]}
+
+    def observe_estimate(self) -> NDArray[np.float32]:
+        """Every row's estimate-fed observation at its current step, (N, 16): what an env
+        observing the scenario's estimator gives; with pixels, the estimate the agent does not
+        see (the estimator runs for ``info``), which an analytic teacher reads."""
+        rows, k = self._now()
+        now = {name: self.tracks[name][rows, k] for name in _OBSERVED}
+        return self.rule.observe(self.state, slice(None), now)
+
+    def observe_truth(self) -> NDArray[np.float32]:
+        """Every row's observation at its current step with the target's true position and
+        velocity in place of the estimate, (N, 16), `encode_observation`'s layout (privileged:
+        an asymmetric critic's input)."""
+        rows, k = self._now()
+        tracks = self.tracks
+        return encode_observation(
+            tracks["position"][rows, k],
+            tracks["velocity"][rows, k],
+            self.state.x_e,
+            self.state.theta,
+            tracks["dt"][rows, k],
+            self.task.description.control_period,
         )
 
     def _now(self) -> tuple[Rows, Steps]:

@@ -20,7 +20,11 @@ from numpy.typing import NDArray
 from capture_bench.sensing.camera import Camera
 from capture_bench.sensing.rendered_sensor import RenderSettings
 from capture_bench.sensing.sources import ENV_OBSERVATIONS, PIXELS
-from capture_bench.sensing.workspace_image import WorkspaceImager, check_image_size
+from capture_bench.sensing.workspace_image import (
+    PixelOptions,
+    WorkspaceImager,
+    check_image_size,
+)
 from capture_bench.sim.target_motion import FEATURE_POINTS
 from capture_bench.task.episode import describe_task, period_count
 from capture_bench.task.observation import (
@@ -91,6 +95,24 @@ def check_actions(actions: Any, shape: tuple[int, ...], name: str) -> FloatArray
 Observation = NDArray[np.float32] | dict[str, NDArray]
 
 
+def pixel_options(
+    options: dict[str, Any], pixels: bool, observation_source: str | None
+) -> PixelOptions:
+    """``options`` (name -> value or None) checked (`PixelOptions.check`); ``ConfigError``
+    where one is given without pixels."""
+    given = [name for name, value in options.items() if value is not None]
+    if given and not pixels:
+        raise ConfigError(
+            f"{given[0]}={options[given[0]]!r} applies only with observation_source="
+            f'"pixels" (given observation_source={observation_source!r}); drop it or pass '
+            'observation_source="pixels"'
+        )
+    try:
+        return PixelOptions.check(**options)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
 class CaptureTask:
     """The task of ``scenario`` as an env plays it, for any number of episodes.
 
@@ -106,6 +128,13 @@ class CaptureTask:
             `check_image_size`); None (default):
             `IMAGE_SIZE`. Given with any other
             source, ``ConfigError``: it sizes nothing there.
+        frame_stack: with ``"pixels"``, the frame stack (`PixelOptions`; None: its
+            default); checked, one-line ``ValueError``; given (not None) with any other
+            source, ``ConfigError``; the same for the four below.
+        ee_crop: the end-effector crop's side, pixels (`PixelOptions`).
+        ee_crop_scale: sensor pixels per crop pixel (`PixelOptions`).
+        image_supersample: samples per image pixel, a side (`PixelOptions`).
+        ee_crop_supersample: the same for the crop (`PixelOptions`).
 
     Attributes:
         scenario: the resolved ``Scenario``.
@@ -118,7 +147,8 @@ class CaptureTask:
         single_action_space: ``Box(-1, 1, (3,), float32)``; single_observation_space: the
             observation of one episode (`
             observation_space`, or the pixel ``Dict``).
-        pixels: whether the agent observes pixels; image_size: (width, height), pixels.
+        pixels: whether the agent observes pixels; image_size: (width, height), pixels;
+        pixel_options: `PixelOptions`.
         steps: the most rows (reset included) an episode has.
     """
 
@@ -129,6 +159,11 @@ class CaptureTask:
         observation_source: str | None = None,
         reward: str = "dense",
         image_size: tuple[int, int] | None = None,
+        frame_stack: int | None = None,
+        ee_crop: int | None = None,
+        ee_crop_scale: int | None = None,
+        image_supersample: int | None = None,
+        ee_crop_supersample: int | None = None,
     ) -> None:
         if observation_source is not None and observation_source not in ENV_OBSERVATIONS:
             raise ConfigError(
@@ -149,9 +184,27 @@ class CaptureTask:
                 'drop image_size or pass observation_source="pixels"'
             )
         self.image_size = check_image_size(image_size, self.camera.model)
+        options = {
+            "frame_stack": frame_stack,
+            "ee_crop": ee_crop,
+            "ee_crop_scale": ee_crop_scale,
+            "image_supersample": image_supersample,
+            "ee_crop_supersample": ee_crop_supersample,
+        }
+        self.pixel_options = pixel_options(options, self.pixels, observation_source)
+        ee_side = self.pixel_options.ee_crop * self.pixel_options.ee_crop_scale
+        if ee_side > min(self.camera.model.resolution):
+            raise ConfigError(
+                f"ee_crop x ee_crop_scale = {ee_side} sensor pixels is more than the sensor's "
+                f"shorter side, {min(self.camera.model.resolution)}; make either smaller"
+            )
         self.single_action_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
         self.single_observation_space: spaces.Space = (
-            pixel_observation_space(self.image_size) if self.pixels else observation_space()
+            pixel_observation_space(
+                self.image_size, self.pixel_options.frame_stack, self.pixel_options.ee_crop
+            )
+            if self.pixels
+            else observation_space()
         )
 
     @property
@@ -170,7 +223,9 @@ class CaptureTask:
             light_intensity=cam.light_intensity,
         )
         model = self.camera.model
-        return WorkspaceImager(model, self.features, self.image_size, settings.lighting())
+        return WorkspaceImager(
+            model, self.features, self.image_size, settings.lighting(), options=self.pixel_options
+        )
 
     def pixel_observation(
         self,
@@ -184,12 +239,12 @@ class CaptureTask:
         """The pixel observation of episodes ``rows`` of ``state`` (M of them): the image of
         their arm and of the target at ``position`` (M, 3) and ``rotation`` (M, 3, 3), and their
         state with the last real periods ``dt`` (M,), s: ``image`` (M, 3, H, W), ``state``
-        (M, 7)."""
-        theta = state.theta[rows]
-        return {
-            "image": imager.render_batch(theta, position, rotation),
-            "state": encode_state(theta, state.x_e[rows], dt, self.description.control_period),
-        }
+        (M, 7); with the end-effector crop, ``ee_image`` (M, 3, n, n) too. One frame: the frame
+        stack is the engine's."""
+        theta, x_e = state.theta[rows], state.x_e[rows]
+        views: dict[str, NDArray] = imager.render_views(theta, position, rotation, x_e)
+        views["state"] = encode_state(theta, x_e, dt, self.description.control_period)
+        return views
 
     def increments(self, actions: FloatArray) -> FloatArray:
         """The joint increments M actions (M, 3) request, rad: each entry clipped to [-1, 1],

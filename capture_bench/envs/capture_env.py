@@ -203,10 +203,18 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
     ``ConfigError`` (a ``ValueError``). ``image_size``: with ``"pixels"``, the image's (width,
     height), pixels, default None: (84, 84); two whole numbers from 1 to 924 (the largest crop
     of the shipped camera), else ``ValueError``; given with any other observation source,
-    ``ConfigError`` (it sizes nothing there). ``reward``: ``"dense"``, ``"sparse"`` or
-    ``"shaped"``. ``render_mode``: ``"rgb_array"`` or ``"human"`` (a pybullet window: it needs a
-    display; on Linux without ``DISPLAY``, ``ValueError`` at construction, suggesting
-    ``"rgb_array"``). ``render_size``: (width, height) of the image
+    ``ConfigError`` (it sizes nothing there). ``frame_stack`` (k, 1-16, default 1),
+    ``ee_crop`` (n, 0-256 pixels, default 0: none), ``ee_crop_scale`` (c, 1-11 sensor pixels a
+    crop pixel, default 1: full density), ``image_supersample`` (m, 1-11, default 1: point
+    sampling) and ``ee_crop_supersample`` (the crop's m, the same): with ``"pixels"``, the last
+    k images stacked along the channels (oldest first; an episode starts with k copies of its
+    first), a second image ``ee_image`` of n x n pixels centred on the end-effector's
+    projection, and each pixel the mean of m x m samples
+    (`capture_bench.sensing.workspace_image`); None: the default; out of range,
+    ``ValueError``; given with another source, ``ConfigError``. ``reward``: ``"dense"``,
+    ``"sparse"`` or ``"shaped"``. ``render_mode``: ``"rgb_array"`` or ``"human"`` (a pybullet
+    window: it needs a display; on Linux without ``DISPLAY``, ``ValueError`` at construction,
+    suggesting ``"rgb_array"``). ``render_size``: (width, height) of the image
     ``render()`` returns, pixels, default (640, 480) (a video of many episodes asks for less:
     pybullet's TinyRenderer's cost grows with the pixels; ``benchmarks/bench_render.py`` times
     frames of two sizes); two whole numbers >= 1, else ``ValueError``. ``reuse_target_side``:
@@ -256,10 +264,23 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
         episode_cache: EpisodeCache | None = None,
         render_view: str | None = None,
         image_size: tuple[int, int] | None = None,
+        frame_stack: int | None = None,
+        ee_crop: int | None = None,
+        ee_crop_scale: int | None = None,
+        image_supersample: int | None = None,
+        ee_crop_supersample: int | None = None,
     ) -> None:
         self.task = task = CaptureTask(
-            scenario, observation_source=observation_source, reward=reward, image_size=image_size
-        )  # checks ``observation_source``, ``reward`` and ``image_size``
+            scenario,
+            observation_source=observation_source,
+            reward=reward,
+            image_size=image_size,
+            frame_stack=frame_stack,
+            ee_crop=ee_crop,
+            ee_crop_scale=ee_crop_scale,
+            image_supersample=image_supersample,
+            ee_crop_supersample=ee_crop_supersample,
+        )  # checks ``observation_source``, ``reward``, ``image_size`` and the pixel options
         rendered = task.scenario.camera.mode == "rendered"
         views = ("scene", "camera") if rendered else ("scene",)
         self.render_view = (
@@ -427,5 +448,5 @@ class CaptureEnv(TaskAccess, PrivilegedView, gym.Env):
         assert self._engine is not None
         obs = self._engine.observe()
         if isinstance(obs, dict):
-            return {"image": obs["image"][0], "state": obs["state"][0]}
+            return {key: value[0] for key, value in obs.items()}
         return obs[0]

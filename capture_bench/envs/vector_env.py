@@ -91,6 +91,12 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         reward: ``"dense"`` or ``"sparse"``.
         image_size: with ``"pixels"``, the image's (width, height), pixels (default None:
             (84, 84)); with any other source, ``ConfigError`` (as ``CaptureEnv``).
+        frame_stack: with ``"pixels"``, the last k images along the channels, as
+            ``CaptureEnv``'s; each sub-env's stack restarts with its episode.
+        ee_crop: the end-effector crop's side, pixels, as ``CaptureEnv``'s.
+        ee_crop_scale: sensor pixels per crop pixel, as ``CaptureEnv``'s.
+        image_supersample: samples per image pixel, a side, as ``CaptureEnv``'s.
+        ee_crop_supersample: the same for the crop, as ``CaptureEnv``'s.
         reuse_target_side: must be True (accepted so that ``make_vec(id, n,
             reuse_target_side=True)`` means the same for every vectorization mode).
         render_mode: must be None (the vector env does not render).
@@ -144,6 +150,11 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         episode_cache: EpisodeCache | None = None,
         image_size: tuple[int, int] | None = None,
+        frame_stack: int | None = None,
+        ee_crop: int | None = None,
+        ee_crop_scale: int | None = None,
+        image_supersample: int | None = None,
+        ee_crop_supersample: int | None = None,
     ) -> None:
         if not reuse_target_side:
             raise ValueError(
@@ -160,8 +171,16 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         mode = _autoreset_mode(autoreset_mode)
         self.task = task = CaptureTask(
-            scenario, observation_source=observation_source, reward=reward, image_size=image_size
-        )  # checks ``observation_source``, ``reward`` and ``image_size``
+            scenario,
+            observation_source=observation_source,
+            reward=reward,
+            image_size=image_size,
+            frame_stack=frame_stack,
+            ee_crop=ee_crop,
+            ee_crop_scale=ee_crop_scale,
+            image_supersample=image_supersample,
+            ee_crop_supersample=ee_crop_supersample,
+        )  # checks ``observation_source``, ``reward``, ``image_size`` and the pixel options
         self.metadata = {**self.metadata, "autoreset_mode": mode}
         self.autoreset_mode = mode
         self.render_mode = None
@@ -285,6 +304,19 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
             self._ended[resetting] = False
         self._ended[stepping] = terminated[stepping] | truncated[stepping]
         return obs, rewards, terminated, truncated, info
+
+    def estimate_observation(self) -> NDArray[np.float32]:
+        """Every sub-env's estimate-fed observation at its current step, (num_envs, 16): the
+        observation of the same env made with the scenario's estimator as its source; with
+        ``observation_source="pixels"``, the estimate behind ``info``, what an analytic teacher
+        of a pixel student reads (privileged: the agent sees the pixels)."""
+        return self._live_engine().observe_estimate()
+
+    def true_observation(self) -> NDArray[np.float32]:
+        """Every sub-env's observation at its current step with the target's true position and
+        velocity in place of the estimate, (num_envs, 16) (privileged: what an asymmetric
+        critic reads in training, `capture_bench.training.common.asymmetric`)."""
+        return self._live_engine().observe_truth()
 
     def set_episode_seeds(self, sources: Sequence[EpisodeSeedSource] | None) -> None:
         """Seed every later episode of sub-env i with ``sources[i].next()`` (None: back to each

@@ -32,21 +32,45 @@ edge to float32 precision (TinyRenderer rasterises each frustum on its own). Mea
 arm and target poses: no pixel differed in 30 scenes at 84 x 84 (s = 11), nor in 8 at 64 x 64
 (s = 13) or 84 x 64; at 36 x 36 (s = 25) one pixel of 1,296 differed in 2 of 8 scenes.
 The image comes channel-first, ``(3, height, width)``, uint8 RGB, as SB3's CNN policies take it.
+
+**Area sampling** (``image_supersample`` m > 1, `PixelOptions`). Each image pixel is the mean of
+an m x m grid of samples at the centres of its m x m sub-pixels: the crop rendered at m times the
+image's size through the same window (the frustum shifted by half a render pixel, so TinyRenderer
+samples each render pixel's centre), then averaged over m x m blocks and rounded to the nearest
+uint8. A box filter over the image pixel's footprint on the sensor, by quadrature: with m = s it
+is the mean of the s x s full-density pixels the image pixel covers. m = 1 (the default) is the
+point sampling above, unchanged. Cost: one render of m^2 times the pixels.
+
+**The end-effector crop** (``ee_crop`` n > 0, `PixelOptions`): a second image, ``ee_image``,
+n x n pixels of ``ee_crop_scale`` c sensor pixels each, from the same camera, the same scene and
+the same light, its window ``n c`` sensor pixels square centred on the end-effector X_E's
+projection (eq. 2, `capture_bench.sensing.pixels.pixel_of`): the window's top-left edge is
+``round(u + 0.5 - n c / 2)`` (and the same in v), so its centre lies within half a sensor pixel
+of the projection, moved inside the sensor where it would cross an edge (`ee_window`). With n odd
+the centre image pixel is the one X_E projects into. At c = 1 the crop is at full sensor density,
+~0.56 mm a pixel at the workspace; its own ``ee_crop_supersample`` m' samples a side per pixel,
+averaged as the wide image's (m' = c: the exact mean of the c x c sensor pixels it covers).
+The arm knows X_E (the observation's ``state`` holds it), so this crop is what a camera with a
+region of interest read out around the gripper would give.
 """
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from capture_bench.sensing.camera import CameraModel
+from capture_bench.sensing.pixels import pixel_of
 from capture_bench.sensing.render_camera import (
+    TINY_RENDERER_SAMPLE_OFFSET,
     Lighting,
     Window,
     camera_image_request,
     check_window,
+    projection_matrix,
     render_frame,
 )
 from capture_bench.sim.world import World
@@ -57,6 +81,62 @@ CROP_SIDE = 0.9625  # the crop's longest side, share of the sensor's shorter sid
 IMAGE_MARKER_RADIUS = 0.01  # m: the image's target markers
 
 FloatArray = NDArray[np.float64]
+
+#: The pixel observation's options beyond ``image_size``: name -> (default, lowest, highest).
+PIXEL_OPTION_RANGES = {
+    "frame_stack": (1, 1, 16),  # the last k images, oldest first, along the channels
+    "ee_crop": (0, 0, 256),  # the end-effector crop's side n, pixels (0: no crop)
+    "ee_crop_scale": (1, 1, 11),  # c: sensor pixels per end-effector crop pixel, a side
+    "image_supersample": (1, 1, 11),  # m: samples per image pixel, a side (1: point sampling)
+    "ee_crop_supersample": (1, 1, 11),  # the same for the end-effector crop's pixels
+}
+
+
+@dataclass(frozen=True)
+class PixelOptions:
+    """What the pixel observation holds besides the wide image of ``image_size`` (module
+    docstring); the defaults give the original observation (one point-sampled image).
+
+    Attributes:
+        frame_stack: k, the last k images of each key, oldest first, stacked along the channels
+            (``3 k`` channels); an episode's first observation repeats its first image k times.
+        ee_crop: n, the side of the end-effector crop ``ee_image``, pixels; 0: no crop.
+        ee_crop_scale: c, sensor pixels per crop pixel, a side (1: full sensor density).
+        image_supersample: m, samples per image pixel, a side, averaged (1: one point sample).
+        ee_crop_supersample: the same for the end-effector crop (m = c: the exact mean of the
+            full-density pixels each crop pixel covers).
+    """
+
+    frame_stack: int = 1
+    ee_crop: int = 0
+    ee_crop_scale: int = 1
+    image_supersample: int = 1
+    ee_crop_supersample: int = 1
+
+    @classmethod
+    def check(cls, **options: Any) -> PixelOptions:
+        """The options, each None meaning its default, or ``ValueError`` naming the first bad
+        one and its valid range (`PIXEL_OPTION_RANGES`)."""
+        values = {}
+        for name, value in options.items():
+            if name not in PIXEL_OPTION_RANGES:
+                raise ValueError(
+                    f"unknown pixel option {name!r}; valid: {', '.join(PIXEL_OPTION_RANGES)}"
+                )
+            default, low, high = PIXEL_OPTION_RANGES[name]
+            value = default if value is None else value
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                value = None
+            if value is None or not low <= value <= high:
+                raise ValueError(
+                    f"{name} must be a whole number from {low} to {high}; got {options[name]!r}"
+                )
+            values[name] = int(value)
+        return cls(**values)
+
+    def changed(self) -> dict[str, int]:
+        """The options that differ from their defaults (what a model's card records)."""
+        return {k: v for k, v in asdict(self).items() if v != PIXEL_OPTION_RANGES[k][0]}
 
 
 def largest_crop_side(model: CameraModel) -> int:
@@ -110,6 +190,52 @@ def crop_window(model: CameraModel, size: tuple[int, int]) -> Window:
     return check_window((u0, u0 + s * width, v0, v0 + s * height), model)
 
 
+def area_mean(rgba: Any, size: tuple[int, int], m: int) -> NDArray[np.uint8]:
+    """A render of ``m`` times ``size`` ``(width, height)`` (pybullet's flat RGBA buffer) as the
+    image of ``size``, channel-first RGB: each pixel the mean of its m x m render pixels,
+    rounded to the nearest whole number."""
+    width, height = size
+    rgb = np.reshape(rgba, (height * m, width * m, 4))[..., :3]
+    if m == 1:
+        return rgb.transpose(2, 0, 1)
+    total = np.full((height, width, 3), m * m // 2, dtype=np.uint16)  # 11^2 x 255 fits
+    for i in range(m):
+        for j in range(m):
+            total += rgb[i::m, j::m]
+    total //= m * m
+    return total.astype(np.uint8).transpose(2, 0, 1)
+
+
+def supersampled_request(
+    model: CameraModel, window: Window, size: tuple[int, int], m: int, template: dict[str, Any]
+) -> dict[str, Any]:
+    """``getCameraImage``'s arguments (``template``'s light and renderer) that render ``window``
+    at ``m`` times ``size``, each render pixel sampled at its centre (the frustum shifted by
+    TinyRenderer's half-pixel offset of a render pixel, ``(u1 - u0) / (m width)`` sensor
+    pixels)."""
+    u0, u1, _, _ = check_window(window, model)
+    width, height = size
+    offset = TINY_RENDERER_SAMPLE_OFFSET * (u1 - u0) / (m * width)
+    return {
+        **template,
+        "width": m * width,
+        "height": m * height,
+        "projectionMatrix": projection_matrix(model, window, sample_offset=offset),
+    }
+
+
+def ee_window(model: CameraModel, x_e: ArrayLike, side: int) -> Window:
+    """The end-effector crop's window, ``side`` sensor pixels square, centred within half a
+    sensor pixel on the projection of X_E (global, m, (3,)): top-left edge
+    ``round(u + 0.5 - side / 2)`` (u the projection's column, integer at a pixel's centre; the
+    same in v), moved inside the sensor where it would cross an edge."""
+    u, v = pixel_of(model.to_camera(np.asarray(x_e, float)[None]), model)[0]
+    sensor_w, sensor_h = model.resolution
+    u0 = min(max(round(u + 0.5 - side / 2), 0), sensor_w - side)
+    v0 = min(max(round(v + 0.5 - side / 2), 0), sensor_h - side)
+    return (u0, u0 + side, v0, v0 + side)
+
+
 class WorkspaceImager:
     """Renders the pixel observation (module docstring) from a pybullet world of its own.
 
@@ -119,9 +245,12 @@ class WorkspaceImager:
         size: the image's ``(width, height)``, pixels (`check_image_size`).
         lighting: the light; None for ``Lighting()`` (from the lens).
         marker_radius: the target's marker radius, m.
+        options: the area sampling and the end-effector crop (`PixelOptions`; its
+            ``frame_stack`` is the engine's); None: the defaults.
 
     Attributes:
-        size: ``(width, height)``; scale: s; window: the crop ``(u0, u1, v0, v1)``, sensor pixels.
+        size: ``(width, height)``; scale: s; window: the crop ``(u0, u1, v0, v1)``, sensor pixels;
+        options: `PixelOptions`.
     """
 
     def __init__(
@@ -131,13 +260,25 @@ class WorkspaceImager:
         size: tuple[int, int] = IMAGE_SIZE,
         lighting: Lighting | None = None,
         marker_radius: float = IMAGE_MARKER_RADIUS,
+        options: PixelOptions | None = None,
     ) -> None:
         self.model = model
         self.size = check_image_size(size, model)
         self.scale = crop_scale(model, self.size)
         self.window = crop_window(model, self.size)
         self.lighting = Lighting() if lighting is None else lighting
+        self.options = PixelOptions() if options is None else options
+        ee_side = self.options.ee_crop * self.options.ee_crop_scale
+        if ee_side > min(model.resolution):
+            raise ValueError(
+                f"ee_crop x ee_crop_scale = {ee_side} sensor pixels is more than the sensor's "
+                f"shorter side, {min(model.resolution)}; make the crop or its scale smaller"
+            )
+        m = self.options.image_supersample
         self._request = camera_image_request(model, self.window, self.lighting, size=self.size)
+        if m > 1:
+            self._request = supersampled_request(model, self.window, self.size, m, self._request)
+        self._template = camera_image_request(model, None, self.lighting)
         self._world: World | None = World(features, marker_radius=marker_radius)
 
     def render(
@@ -150,29 +291,78 @@ class WorkspaceImager:
         """The image of the arm at joint angles ``theta`` (rad, (3,)) and the target with its
         capture point at ``position`` (global, m, (3,)) and attitude ``rotation`` (R_gt, (3, 3)):
         uint8 RGB, ``(3, height, width)``, written into ``out`` if given."""
-        world = self._open_world()
-        world.set_joint_positions(np.asarray(theta, dtype=float).tolist())
-        world.set_target_pose(position, rotation)
-        width, height = self.size
-        _, _, rgba, _, _ = world.client.getCameraImage(**self._request)
-        rgb = np.reshape(rgba, (height, width, 4))[..., :3].transpose(2, 0, 1)
-        if out is None:
-            return np.ascontiguousarray(rgb, dtype=np.uint8)
-        out[...] = rgb
-        return out
+        self._pose(theta, position, rotation)
+        return self._shoot(self._request, self.size, out)
+
+    def render_ee(
+        self,
+        theta: ArrayLike,
+        position: ArrayLike,
+        rotation: ArrayLike,
+        x_e: ArrayLike,
+        out: NDArray[np.uint8] | None = None,
+    ) -> NDArray[np.uint8]:
+        """The end-effector crop (module docstring) of the scene `render` draws, centred on
+        X_E (global, m, (3,)): uint8 RGB, ``(3, n, n)``, written into ``out`` if given."""
+        self._pose(theta, position, rotation)
+        return self._shoot_ee(x_e, out)
 
     def render_batch(
         self, theta: ArrayLike, position: ArrayLike, rotation: ArrayLike
     ) -> NDArray[np.uint8]:
         """`render` of N scenes, one after the other in the one world: ``theta`` (N, 3),
         ``position`` (N, 3), ``rotation`` (N, 3, 3) -> (N, 3, height, width)."""
+        return self.render_views(theta, position, rotation)["image"]
+
+    def render_views(
+        self,
+        theta: ArrayLike,
+        position: ArrayLike,
+        rotation: ArrayLike,
+        x_e: ArrayLike | None = None,
+    ) -> dict[str, NDArray[np.uint8]]:
+        """N scenes, each posed once and drawn in every view it has: ``image`` (N, 3, height,
+        width), and with ``ee_crop`` > 0 ``ee_image`` (N, 3, n, n) centred on ``x_e`` (N, 3)."""
         thetas, positions = np.asarray(theta, float), np.asarray(position, float)
         rotations = np.asarray(rotation, float)
         width, height = self.size
-        images = np.empty((thetas.shape[0], 3, height, width), dtype=np.uint8)
-        for i in range(thetas.shape[0]):
-            self.render(thetas[i], positions[i], rotations[i], out=images[i])
-        return images
+        n = thetas.shape[0]
+        views = {"image": np.empty((n, 3, height, width), dtype=np.uint8)}
+        side = self.options.ee_crop
+        if side:
+            if x_e is None:
+                raise ValueError("the end-effector crop needs x_e, the end-effector positions")
+            ends = np.asarray(x_e, float)
+            views["ee_image"] = np.empty((n, 3, side, side), dtype=np.uint8)
+        for i in range(n):
+            self._pose(thetas[i], positions[i], rotations[i])
+            self._shoot(self._request, self.size, views["image"][i])
+            if side:
+                self._shoot_ee(ends[i], views["ee_image"][i])
+        return views
+
+    def _pose(self, theta: ArrayLike, position: ArrayLike, rotation: ArrayLike) -> None:
+        world = self._open_world()
+        world.set_joint_positions(np.asarray(theta, dtype=float).tolist())
+        world.set_target_pose(position, rotation)
+
+    def _shoot(
+        self, request: dict[str, Any], size: tuple[int, int], out: NDArray[np.uint8] | None
+    ) -> NDArray[np.uint8]:
+        """Render ``request`` in the posed world and area-average it down to ``size``."""
+        _, _, rgba, _, _ = self._open_world().client.getCameraImage(**request)
+        image = area_mean(rgba, size, request["width"] // size[0])
+        if out is None:
+            return np.ascontiguousarray(image, dtype=np.uint8)
+        out[...] = image
+        return out
+
+    def _shoot_ee(self, x_e: ArrayLike, out: NDArray[np.uint8] | None) -> NDArray[np.uint8]:
+        n, c = self.options.ee_crop, self.options.ee_crop_scale
+        window = ee_window(self.model, x_e, n * c)
+        m = self.options.ee_crop_supersample
+        request = supersampled_request(self.model, window, (n, n), m, self._template)
+        return self._shoot(request, (n, n), out)
 
     def full_density(
         self, theta: ArrayLike, position: ArrayLike, rotation: ArrayLike
@@ -182,10 +372,8 @@ class WorkspaceImager:
         render_frame` gives it); `render`'s pixel ``[:, i, j]`` is its pixel
         ``[s i + s // 2, s j + s // 2]`` (module docstring). Far costlier than `render`: it shades
         every pixel of the crop."""
-        world = self._open_world()
-        world.set_joint_positions(np.asarray(theta, dtype=float).tolist())
-        world.set_target_pose(position, rotation)
-        return render_frame(world.client, self.model, self.window, self.lighting)
+        self._pose(theta, position, rotation)
+        return render_frame(self._open_world().client, self.model, self.window, self.lighting)
 
     def _open_world(self) -> World:
         if self._world is None:

@@ -19,8 +19,9 @@ index  quantity (global frame)                          unit      scale
 
 The pixel observation (``observation_source="pixels"``) is a ``Dict`` instead
 (`pixel_observation_space`): ``image``, the camera's uint8 image, channel-first
-(`capture_bench.sensing.workspace_image`), and ``state``, what the agent knows without
-vision (`encode_state`, float32, shape (7,), scaled as above):
+(`capture_bench.sensing.workspace_image`; with a frame stack the last k images along the
+channels, oldest first), ``ee_image`` where the end-effector crop is asked for, and ``state``,
+what the agent knows without vision (`encode_state`, float32, shape (7,), scaled as above):
 
 =====  ===============================================  ========  ===========
 index  quantity (global frame)                          unit      scale
@@ -125,16 +126,21 @@ STATE_SIZE = 7  # the pixel observation's ``state``: Theta (3), X_E (3), dt (1)
 _STATE_INVERSE_SCALES = 1.0 / np.repeat([ANGLE_SCALE, POSITION_SCALE, 1.0], [3, 3, 1])
 
 
-def pixel_observation_space(image_size: tuple[int, int]) -> spaces.Dict:
+def pixel_observation_space(
+    image_size: tuple[int, int], frame_stack: int = 1, ee_crop: int = 0
+) -> spaces.Dict:
     """The pixel observation's space for an image of ``image_size`` (width, height), pixels:
-    ``Dict(image=Box(0, 255, (3, height, width), uint8), state=Box(-10, 10, (7,), float32))``."""
+    ``Dict(image=Box(0, 255, (3 k, height, width), uint8), state=Box(-10, 10, (7,), float32))``
+    with k = ``frame_stack`` images stacked along the channels, oldest first; with ``ee_crop``
+    n > 0 also ``ee_image=Box(0, 255, (3 k, n, n), uint8)``, the end-effector crop
+    (`capture_bench.sensing.workspace_image`)."""
     width, height = image_size
-    return spaces.Dict(
-        {
-            "image": spaces.Box(0, 255, (3, height, width), np.uint8),
-            "state": spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, (STATE_SIZE,), np.float32),
-        }
-    )
+    channels = 3 * frame_stack
+    images = {"image": spaces.Box(0, 255, (channels, height, width), np.uint8)}
+    if ee_crop:
+        images["ee_image"] = spaces.Box(0, 255, (channels, ee_crop, ee_crop), np.uint8)
+    state = spaces.Box(-OBSERVATION_BOUND, OBSERVATION_BOUND, (STATE_SIZE,), np.float32)
+    return spaces.Dict({**images, "state": state})
 
 
 def encode_state(

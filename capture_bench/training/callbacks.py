@@ -314,7 +314,7 @@ class Progress(BaseCallback):
                     scenario,
                     observation_source=self.config.observation_source,
                     reward=self.settings.reward,
-                    image_size=self.settings.pixel_size,
+                    **self.settings.pixel_options,
                 )
             env = self._envs[scenario.name]
             predictor: Any = model

@@ -56,6 +56,9 @@ class AgentSpec:
         image_size: (width, height) of the images a model that observes the camera's pixels
             sees (its episodes play in envs with ``observation_source="pixels"``); None for
             every agent that observes the estimate.
+        pixel_options: such a model's pixel observation options (``(name, value)`` pairs of
+            `capture_bench.sensing.workspace_image.PixelOptions`, those it changed; its card's
+            ``pixel_observation``).
     """
 
     spec: str
@@ -65,12 +68,13 @@ class AgentSpec:
     privileged: bool = False
     trust_model: bool = False
     image_size: tuple[int, int] | None = None
+    pixel_options: tuple[tuple[str, int], ...] = ()
 
     def env_options(self) -> dict[str, Any]:
         """The env keyword arguments this agent's episodes play with (what it observes)."""
         from capture_bench.agents.sb3_policy import observation_options
 
-        return observation_options(self.image_size)
+        return observation_options(self.image_size, dict(self.pixel_options))
 
 
 def builtin_names() -> list[str]:
@@ -127,10 +131,10 @@ def resolve_agent(spec: str, models_dir: Path = MODELS_DIR, trust_model: bool = 
             label = candidate.resolve().name
             if label in builtin_names():
                 label = f"model:{label}"
-            kind, image_size = _model_kind(candidate)
+            kind, image_size, options = _model_kind(candidate)
             return AgentSpec(
                 spec, label + kind, "model", str(candidate.resolve()), False, trust_model,
-                image_size,
+                image_size, options,
             )  # fmt: skip
         if candidate.suffix == ".zip" and candidate.is_file():
             raise AgentSpecError(
@@ -207,23 +211,26 @@ def training_seeds(spec: AgentSpec) -> TrainingSeeds | None:
     return TrainingSeeds(trained, shipped, specs)
 
 
-def _model_kind(directory: Path) -> tuple[str, tuple[int, int] | None]:
+def _model_kind(
+    directory: Path,
+) -> tuple[str, tuple[int, int] | None, tuple[tuple[str, int], ...]]:
     """What a model row says beside its name: `` (hybrid)`` for a residual on an analytic
     controller, `` (pixels)`` for a policy that sees the camera's image, `` (sampled)`` for a
     model card declaring sampled actions (nothing for the leaderboard's rule, deterministic
-    actions); and the size of the images it sees (None: it sees the estimate). A bad metadata
-    file is reported later."""
+    actions); the size of the images it sees (None: it sees the estimate) and its pixel options.
+    A bad metadata file is reported later."""
     from capture_bench.agents.policy_file import PolicyLoadError
     from capture_bench.agents.sb3_policy import read_metadata
 
     try:
         metadata = read_metadata(directory)
     except PolicyLoadError:
-        return "", None
+        return "", None, ()
     size = metadata.image_size
     sampled = metadata.actions == "sampled"
     words = [(metadata.residual, "hybrid"), (size, "pixels"), (sampled, "sampled")]
-    return "".join(f" ({word})" for flag, word in words if flag), size
+    options = tuple(sorted(metadata.pixel_options.items()))
+    return "".join(f" ({word})" for flag, word in words if flag), size, options
 
 
 def _python_factory(target: str) -> Any:

@@ -26,7 +26,11 @@ from capture_bench.training.common.mixture import (
     mixture_scenarios,
     mixture_shares,
 )
-from capture_bench.training.config.hyperparameters import OFF_POLICY, algorithm_class
+from capture_bench.training.config.hyperparameters import (
+    OFF_POLICY,
+    PIXEL_OPTION_KEYS,
+    algorithm_class,
+)
 from capture_bench.training.config.options import (
     TrainConfig,
 )
@@ -89,12 +93,34 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
             check_image_size(settings.pixel_size, load_scenario(config.scenario).camera.model())
         except ValueError as exc:
             raise ConfigError(f"key 'image_size': {exc}") from None
-    if settings.image_size is not None and not pixels:
-        seen = config.observation_source or "each scenario's estimate"
+    for key in ("image_size", *PIXEL_OPTION_KEYS, "augment_shift", "asymmetric_critic"):
+        if getattr(settings, key) not in (None, False) and not pixels:
+            seen = config.observation_source or "each scenario's estimate"
+            raise ConfigError(
+                f"key {key!r} shapes the pixel observation; train with --observation-source "
+                f"pixels, or drop it for {seen}"
+            )
+    if pixels:
+        _check_pixel_options(config, settings)
+    if settings.asymmetric_critic and (
+        config.algo not in ("ppo", "a2c") or config.vec_env != "batched"
+    ):
         raise ConfigError(
-            f"key 'image_size' sizes the pixel observation; train with --observation-source "
-            f"pixels, or drop it for {seen}"
+            f"asymmetric_critic: the critic's true state comes from the batched env to PPO's or "
+            f"A2C's value net; use --algo ppo or a2c with --vec-env batched (got {config.algo}, "
+            f"{config.vec_env})"
         )
+
+
+def _check_pixel_options(config: TrainConfig, settings: TrainingSettings) -> None:
+    """The pixel options, as the env checks them (the crop must fit on the scenario's
+    sensor)."""
+    from capture_bench.engine.task import CaptureTask
+
+    try:
+        CaptureTask(config.scenario, observation_source=PIXELS, **settings.pixel_options)
+    except ValueError as exc:
+        raise ConfigError(f"the pixel observation's keys: {exc}") from None
 
 
 def shares_of(config: TrainConfig, settings: TrainingSettings) -> list[int]:
@@ -130,9 +156,10 @@ def check_curricula(settings: TrainingSettings, scenario: Any) -> None:
 
 
 def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: list[str]) -> None:
-    """``imitate`` fits a policy to a controller that reads the same observation, and leaves the
+    """``imitate`` fits a policy to a controller that reads the estimate-fed observation (with
+    pixels, that of the step the student sees: the batched env only), and leaves the
     learned policy alone: `IMITATORS` (PPO, A2C: the mean; SAC, TQC: the actor's deterministic
-    action), the estimate's observation, no residual and
+    action), no residual and
     no VecNormalize (whose statistics the controller would not see); a controller per scenario
     names only ``scenarios`` (the run's) and gives each one."""
     if settings.imitate is None:
@@ -154,10 +181,11 @@ def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: 
         raise ConfigError(
             f"imitate {teacher}: the controller reads the raw observation; set normalize: false"
         )
-    if config.observation_source == PIXELS:
+    if config.observation_source == PIXELS and config.vec_env != "batched":
         raise ConfigError(
-            f"imitate {teacher}: the controller reads the target estimate, not pixels; train "
-            "on the estimate (leave out --observation-source pixels)"
+            f"imitate {teacher} with pixels: the controller reads the estimate of the step the "
+            f"student sees, which the batched env gives; use --vec-env batched, not "
+            f"{config.vec_env}"
         )
 
 
@@ -188,7 +216,7 @@ def make_env(config: TrainConfig, settings: TrainingSettings, rank: int, subproc
             scenario,
             observation_source=config.observation_source,
             reward=settings.reward,
-            image_size=settings.pixel_size,
+            **settings.pixel_options,
         )
         return TrainingSeeds(env, scenario, seed=(config.seed or 0) * 1000 + rank)
 
@@ -226,7 +254,8 @@ def build_venv(config: TrainConfig, settings: TrainingSettings) -> Any:
             seed=config.seed or 0,
             observation_source=config.observation_source,
             reward=settings.reward,
-            image_size=settings.pixel_size,
+            critic_state=bool(settings.asymmetric_critic),
+            **settings.pixel_options,
         )
     else:
         subprocess = config.vec_env == "subproc"
@@ -262,8 +291,13 @@ def build_model(
     threads: `set_torch_threads`)."""
     set_torch_threads()
     algorithm = algorithm_class(config.algo)
+    policy: Any = settings.policy
+    if settings.asymmetric_critic:  # the critic also reads the true state (training only)
+        from capture_bench.training.common.asymmetric import AsymmetricActorCriticPolicy
+
+        policy = AsymmetricActorCriticPolicy
     return algorithm(
-        settings.policy, venv, seed=config.seed, device=config.device,
+        policy, venv, seed=config.seed, device=config.device,
         tensorboard_log=tensorboard_log, **settings.sb3_kwargs(),
     )  # fmt: skip
 

@@ -17,6 +17,13 @@ unlike a residual (`capture_bench.training.common.residual_vec_env`). The fit se
 actor-critic's mean action (PPO, A2C) or an off-policy actor's deterministic action (SAC, TQC: the
 ``tanh`` of its mean, against the controller's action scaled to [-1, 1]), `IMITATORS`.
 
+With pixels (``observation_source: pixels``, the batched training env) the student sees the
+image and the arm's state while the teacher reads the estimate-fed observation of the same env
+step (`capture_bench.envs.vector_env.CaptureVectorEnv.estimate_observation`: the scenario's
+estimator, which runs beside the pixels for ``info``): each visited pixel observation is labelled
+with the controller's action on that step's estimate. The controller acts as it would in the
+estimate-fed env; only the student's input differs.
+
 ``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
 (`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
 before its advantages move the actor (off-policy: before its Q-values move the actor; the
@@ -141,15 +148,45 @@ def label_weights(targets: np.ndarray, floor: float) -> np.ndarray | None:
     return (w / w.mean()).astype(np.float32)
 
 
+def _stacked(observations: list[Any]) -> Any:
+    """The rows of a list of batches: one array, or with pixels one array per key (each keeping
+    its dtype: images stay uint8)."""
+    if isinstance(observations[0], dict):
+        return {key: np.concatenate([o[key] for o in observations]) for key in observations[0]}
+    return np.concatenate(observations)
+
+
+def _copied(obs: Any) -> Any:
+    """A batch of observations kept for the data set: float32, or with pixels each key copied."""
+    if isinstance(obs, dict):
+        return {key: np.array(value) for key, value in obs.items()}
+    return np.array(obs, dtype=np.float32)
+
+
+def _tensor(x: Any, device: Any) -> Any:
+    """The data set on ``device``: a float32 tensor, or a dict of tensors (images as uint8: the
+    policy's preprocessing scales them)."""
+    import torch
+
+    if isinstance(x, dict):
+        return {key: torch.as_tensor(value, device=device) for key, value in x.items()}
+    return torch.as_tensor(x, dtype=torch.float32, device=device)
+
+
+def _rows(x: Any, batch: Any) -> Any:
+    return {key: value[batch] for key, value in x.items()} if isinstance(x, dict) else x[batch]
+
+
 def fit(
     policy: Any,
-    observations: np.ndarray,
+    observations: Any,
     targets: np.ndarray,
     epochs: int,
     seed: int,
     floor: float = 0.0,
 ) -> float:
-    """Fit the policy's mean action to ``targets`` (squared error, weighted by
+    """Fit the policy's mean action on ``observations`` (an array, or with pixels a dict of
+    arrays) to ``targets`` (squared error, weighted by
     `label_weights` of ``floor``; Adam on the actor's parameters, minibatches of
     `IMITATION_BATCH` in a seeded order); return the last epoch's mean loss."""
     import torch
@@ -157,25 +194,25 @@ def fit(
     params = list(actor_parameters(policy))
     optimizer = torch.optim.Adam(params, lr=IMITATION_LR)
     rng = np.random.default_rng(seed)
-    x = torch.as_tensor(observations, dtype=torch.float32, device=policy.device)
+    x = _tensor(observations, policy.device)
     y = torch.as_tensor(policy_targets(policy, targets), dtype=torch.float32, device=policy.device)
     weights = label_weights(targets, floor)
     w = None if weights is None else torch.as_tensor(weights[:, None], device=policy.device)
     policy.set_training_mode(True)
     loss_sum = 0.0
     for _ in range(epochs):
-        order = torch.as_tensor(rng.permutation(len(x)), device=policy.device)
+        order = torch.as_tensor(rng.permutation(len(y)), device=policy.device)
         loss_sum = 0.0
-        for start in range(0, len(x), IMITATION_BATCH):
+        for start in range(0, len(y), IMITATION_BATCH):
             batch = order[start : start + IMITATION_BATCH]
-            squared = (mean_actions(policy, x[batch]) - y[batch]) ** 2
+            squared = (mean_actions(policy, _rows(x, batch)) - y[batch]) ** 2
             loss = torch.mean(squared if w is None else w[batch] * squared)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
             loss_sum += loss.item() * len(batch)
     policy.set_training_mode(False)
-    return loss_sum / len(x)
+    return loss_sum / len(y)
 
 
 def actor_parameters(policy: Any) -> list[Any]:
@@ -209,9 +246,12 @@ def dagger(  # noqa: PLR0913
     log: Callable[[str], None] = print,
     validate: Callable[[], dict[str, float]] | None = None,
     floor: float = 0.0,
+    teacher_view: Callable[[Any], np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring
-    (``floor``: the fit's `label_weights`).
+    (``floor``: the fit's `label_weights`; ``teacher_view``: what the teacher reads of the
+    step whose observation the student sees, ``teacher_view(obs)``; None: the observation
+    itself).
     Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
     share of the round's actions on which policy and teacher agree within 0.05 in every joint
     (None for round 0, where the teacher acts), the wall clock, s, and with ``validate`` (the
@@ -227,8 +267,8 @@ def dagger(  # noqa: PLR0913
     for r in range(rounds):
         close = []
         for _ in range(per_round):
-            target = teacher(obs)
-            observations.append(np.array(obs, dtype=np.float32))
+            target = teacher(obs if teacher_view is None else teacher_view(obs))
+            observations.append(_copied(obs))
             labels.append(target)
             if r == 0:
                 action = target
@@ -236,11 +276,11 @@ def dagger(  # noqa: PLR0913
                 action, _ = model.policy.predict(obs, deterministic=True)
                 close.append(np.all(np.abs(action - target) <= 0.05, axis=1))
             obs, _, _, _ = venv.step(np.asarray(action, dtype=np.float32))
-        loss = fit(model.policy, np.concatenate(observations), np.concatenate(labels), epochs,
+        loss = fit(model.policy, _stacked(observations), np.concatenate(labels), epochs,
                    seed + r, floor)  # fmt: skip
         losses.append(loss)
         agreement.append(float(np.mean(np.concatenate(close))) if close else None)
-        rows = sum(len(o) for o in observations)
+        rows = sum(len(label) for label in labels)
         note = "" if r == 0 else f", policy within 0.05 of the teacher on {agreement[-1]:.0%}"
         if validate is not None:
             stats = validate()
@@ -254,7 +294,7 @@ def dagger(  # noqa: PLR0913
     return {
         "rounds": rounds,
         "environment_steps": rounds * per_round * venv.num_envs,
-        "labelled_steps": sum(len(o) for o in observations),
+        "labelled_steps": sum(len(label) for label in labels),
         "fit_mse": losses,
         "agreement": agreement,
         "wall_time_s": round(time.perf_counter() - start, 1),

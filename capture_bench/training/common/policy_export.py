@@ -127,6 +127,12 @@ def policy_metadata(
         "residual": None
         if settings.residual == "none"
         else {"base": settings.residual, "scale": settings.residual_scale},
+        # the pixel observation's options (frame stack, end-effector crop, area sampling) that
+        # evaluation makes the model's envs with; none: the original observation
+        "pixel_observation": {
+            key: value for key, value in settings.pixel_options.items() if key != "image_size"
+        }
+        or None,
     }
 
 
@@ -145,10 +151,14 @@ def export_policy(directory: Path, model: Any, metadata: dict[str, Any]) -> Path
     """Write ``model``'s policy in the safe form into ``directory`` with ``metadata``'s entries;
     return the metadata file."""
     from capture_bench.agents.policy_file import ObservationNormalizer, save_policy
+    from capture_bench.training.common.asymmetric import AsymmetricActorCriticPolicy, actor_policy
 
     env = model.get_vec_normalize_env()
     normalizer = None if env is None else ObservationNormalizer.from_vecnormalize(env)
-    return save_policy(directory, metadata["algorithm"], model.policy, normalizer, extra=metadata)
+    policy = model.policy
+    if isinstance(policy, AsymmetricActorCriticPolicy):  # stored without the true state
+        policy = actor_policy(policy)
+    return save_policy(directory, metadata["algorithm"], policy, normalizer, extra=metadata)
 
 
 def save_sb3_files(directory: Path, model: Any) -> None:

@@ -407,9 +407,15 @@ def imitate(
     teacher = make_teacher(names, descriptions, shares)
     raw = venv.venv  # inside VecMonitor (no VecNormalize: check_imitation)
     validate = (lambda: progress.play(model)[0]) if settings.eval_freq else None
+    view = None
+    if config.observation_source == PIXELS:  # the student sees pixels, the teacher the estimate
+
+        def view(_obs: Any) -> Any:
+            return raw.env_method("estimate_observation", indices=[0])[0]
+
     return dagger(model, raw, teacher, settings.imitation_rounds, settings.imitation_steps,
                   settings.imitation_epochs, config.seed or 0, validate=validate,
-                  floor=settings.imitation_floor)  # fmt: skip
+                  floor=settings.imitation_floor, teacher_view=view)  # fmt: skip
 
 
 def resolved_yaml(config: TrainConfig, settings: TrainingSettings, origin: dict) -> str:
@@ -559,6 +565,10 @@ def train(
     venv = build_venv(config, settings)
     tb = str(run_dir / "tb")
     model = build_model(config, settings, venv, tb)
+    if settings.augment_shift:  # DrQ: the training batches' images shifted, never the env's
+        from capture_bench.training.common.augmentation import install_random_shift
+
+        install_random_shift(model.policy, settings.augment_shift)
     seed_note = f"seed {config.seed}"
     if checkpoint is not None:
         try:

@@ -52,6 +52,11 @@ class CaptureSB3VecEnv(VecEnv):
         reward: ``"dense"`` or ``"sparse"``.
         image_size: with ``"pixels"``, the image's (width, height), pixels (None: the env's
             default).
+        critic_state: with ``"pixels"``, each observation also holds ``critic_state``, the
+            true observation of the step (privileged; training only: the asymmetric critic,
+            `capture_bench.training.common.asymmetric`).
+        pixel_options: with ``"pixels"``, ``frame_stack``, ``ee_crop``, ``ee_crop_scale``,
+            ``image_supersample``, ``ee_crop_supersample`` (``CaptureEnv``'s keys).
 
     Observations: float32, (N, *single observation shape), or with pixels a dict of such arrays
     (``image`` uint8 (N, 3, H, W), ``state`` float32 (N, 7)), each row of which is replaced
@@ -70,6 +75,8 @@ class CaptureSB3VecEnv(VecEnv):
         observation_source: str | None = None,
         reward: str = "dense",
         image_size: tuple[int, int] | None = None,
+        critic_state: bool = False,
+        **pixel_options: int | None,
     ) -> None:
         self.venv = CaptureVectorEnv(
             n_envs,
@@ -77,11 +84,20 @@ class CaptureSB3VecEnv(VecEnv):
             observation_source=observation_source,
             reward=reward,
             image_size=image_size,
+            **pixel_options,
         )
         self._draws = [TrainingSeedDraw(self.venv.scenario, seed * 1000 + i) for i in range(n_envs)]
         self.venv.set_episode_seeds(self._draws)
         self._actions: NDArray | None = None
-        super().__init__(n_envs, self.venv.single_observation_space, self.venv.single_action_space)
+        self.critic_state = bool(critic_state)
+        space = self.venv.single_observation_space
+        if self.critic_state:
+            from capture_bench.training.common.asymmetric import critic_space
+
+            if not isinstance(space, gym.spaces.Dict):
+                raise ValueError("critic_state is added to the pixel observation only")
+            space = critic_space(space)
+        super().__init__(n_envs, space, self.venv.single_action_space)
 
     # -- SB3 VecEnv API -------------------------------------------------------------------------
     def reset(self) -> Batch:
@@ -93,7 +109,7 @@ class CaptureSB3VecEnv(VecEnv):
                 if seed is not None:
                     draw.reseed(seed)
             self.venv.set_episode_seeds(self._draws)  # discards what the old draws recorded
-        obs, info = self.venv.reset()
+        obs, info = self._with_truth(self.venv.reset())
         self.reset_infos = sub_env_infos(info, self.num_envs)
         self._reset_seeds()
         self._reset_options()
@@ -109,6 +125,7 @@ class CaptureSB3VecEnv(VecEnv):
         # Finished sub-envs are reset below, so the batched env's own next-step autoreset
         # never fires: every sub-env steps.
         obs, rewards, terminated, truncated, info = self.venv.step(actions)
+        obs = self._with_truth((obs, None))[0]
         dones = terminated | truncated
         infos = sub_env_infos(info, self.num_envs)
         for env_info, limit in zip(infos, (truncated & ~terminated).tolist(), strict=True):
@@ -117,12 +134,22 @@ class CaptureSB3VecEnv(VecEnv):
             ended = np.flatnonzero(dones)
             for i in ended.tolist():
                 infos[i]["terminal_observation"] = _row(obs, i)
-            new_obs, reset_info = self.venv.reset(options={"reset_mask": dones})
+            new_obs, reset_info = self._with_truth(self.venv.reset(options={"reset_mask": dones}))
             obs = _replace_rows(obs, new_obs, dones)
             new_infos = sub_env_infos(reset_info, self.num_envs)
             for i in ended.tolist():
                 self.reset_infos[i] = new_infos[i]
         return _copy(obs), rewards.astype(np.float32), dones, infos
+
+    def _with_truth(self, result: tuple[Batch, Any]) -> tuple[Batch, Any]:
+        """``(obs, info)`` with ``critic_state`` (the true observation, privileged) added to the
+        observation where the env was made with ``critic_state``."""
+        obs, info = result
+        if self.critic_state:
+            from capture_bench.training.common.asymmetric import CRITIC_KEY
+
+            obs = {**obs, CRITIC_KEY: self.venv.true_observation()}
+        return obs, info
 
     def seed(self, seed: int | None = None) -> Sequence[int | None]:
         """Re-seed draw i with ``seed + i`` at the next `reset` (SB3's rule; a random

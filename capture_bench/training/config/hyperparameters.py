@@ -55,7 +55,7 @@ ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "Leak
 POLICIES = ("MlpPolicy", "MultiInputPolicy")
 #: The features extractor each policy reads its observation with, where the file gives none.
 DEFAULT_FEATURES = {"MlpPolicy": "flatten", "MultiInputPolicy": "combined"}
-DICT_FEATURES = ("combined",)  # those that read a Dict observation
+DICT_FEATURES = ("combined", "keypoints")  # those that read a Dict observation
 
 # Counts SB3 and numpy hold as machine integers: at most 2**53 (exact as a float, fits an int64).
 MOST = 2**53
@@ -118,7 +118,31 @@ TRAINING_KEYS = {
     # with observation_source pixels: the image's side, pixels (square; at least NatureCNN's 36,
     # at most the shipped camera's crop, 924; train.py checks it against the scenario's camera)
     "image_size": Rule("int", 36, 924),
+    # with pixels, the observation's options (capture_bench/sensing/workspace_image.py's
+    # PixelOptions; left out: the original observation): the last frame_stack images along the
+    # channels; an ee_crop x ee_crop pixel crop centred on the end-effector (at least NatureCNN's
+    # 36), ee_crop_scale sensor pixels a pixel; image_supersample / ee_crop_supersample samples
+    # a side per pixel, averaged
+    "frame_stack": Rule("int", 1, 16),
+    "ee_crop": Rule("int", 36, 256),
+    "ee_crop_scale": Rule("int", 1, 11),
+    "image_supersample": Rule("int", 1, 11),
+    "ee_crop_supersample": Rule("int", 1, 11),
+    # with pixels, DrQ's random shift of the training batches' images by up to augment_shift
+    # pixels (capture_bench/training/common/augmentation.py); 0 or left out: none
+    "augment_shift": Rule("int", 0, 16),
+    # with pixels (ppo, a2c): the critic also reads the true state, the actor the pixels alone
+    # (capture_bench/training/common/asymmetric.py); training only
+    "asymmetric_critic": Rule("bool"),
 }
+#: The keys of ``TRAINING_KEYS`` that are the pixel observation's options, env keyword arguments.
+PIXEL_OPTION_KEYS = (
+    "frame_stack",
+    "ee_crop",
+    "ee_crop_scale",
+    "image_supersample",
+    "ee_crop_supersample",
+)
 #: What an imitation leaves out takes: 4 rounds of 200k steps, 10 passes each, no warm-up.
 IMITATION_DEFAULTS = {
     "imitation_rounds": 4,
@@ -187,7 +211,7 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
 }
 #: Features the network computes from the observation: the keys of
 #: capture_bench.agents.features.FEATURE_EXTRACTORS (which imports torch; tests check they agree).
-FEATURES = ("flatten", "relative_log_distance", "combined")
+FEATURES = ("flatten", "relative_log_distance", "combined", "keypoints")
 _NET = {
     "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
     "features_extractor": Rule("choice", choices=FEATURES),
@@ -375,8 +399,17 @@ def memory_estimate(
 
         side = image_size(hp) or IMAGE_SIZE
         cnn_parameters, cnn_activations = _cnn(side)
-        observation = 3 * side[0] * side[1] + STATE_SIZE
+        stack = int(hp.get("frame_stack") or 1)
+        crop = int(hp.get("ee_crop") or 0)
+        observation = 3 * stack * (side[0] * side[1] + crop * crop) + STATE_SIZE
         features = CNN_FEATURES + STATE_SIZE
+        if kwargs.get("features_extractor") == "keypoints":  # stride-1 maps: larger
+            cnn_activations = 3 * stack * side[0] * side[1] + 40 * side[0] * side[1]
+        if crop:  # a second NatureCNN, on the end-effector crop
+            crop_parameters, crop_activations = _cnn((crop, crop))
+            cnn_parameters += crop_parameters
+            cnn_activations += crop_activations
+            features += CNN_FEATURES
     else:
         cnn_parameters = cnn_activations = 0
         observation = OBSERVATION_SIZE
@@ -619,6 +652,14 @@ def sb3_kwargs(hp: dict[str, Any], algo: str) -> dict[str, Any]:
 
         kwargs["action_noise"] = NormalActionNoise(np.zeros(3), np.full(3, hp["action_noise_std"]))
     return kwargs
+
+
+def pixel_env_options(hp: dict[str, Any]) -> dict[str, Any]:
+    """The env keyword arguments of the pixel observation ``hp`` sets: ``image_size`` and the
+    options of `PIXEL_OPTION_KEYS` it gives (none: the env's defaults)."""
+    options = {key: hp[key] for key in PIXEL_OPTION_KEYS if hp.get(key) is not None}
+    size = image_size(hp)
+    return options if size is None else {"image_size": size, **options}
 
 
 def image_size(hp: dict[str, Any]) -> tuple[int, int] | None:

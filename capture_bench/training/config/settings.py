@@ -24,6 +24,7 @@ from capture_bench.training.config.hyperparameters import (
     ALGO_KEYS,
     TRAINING_KEYS,
     memory_estimate,
+    pixel_env_options,
     planned_steps,
     resolve_hyperparameters,
     sb3_kwargs,
@@ -71,6 +72,13 @@ class TrainingSettings:
     curriculum_steps: int | None = None  # `with_curriculum_steps` fills it in for a run
     curriculum_delay: int | None = None  # 0 where a curriculum leaves it out
     image_size: int | None = None
+    frame_stack: int | None = None  # the pixel observation's options: None, the env's default
+    ee_crop: int | None = None
+    ee_crop_scale: int | None = None
+    image_supersample: int | None = None
+    ee_crop_supersample: int | None = None
+    augment_shift: int | None = None  # DrQ's random shift of training batches, pixels only
+    asymmetric_critic: bool | None = None  # the critic reads the true state, pixels only
     #: SB3's own keys for the algorithm (``learning_rate``, ``n_steps``, ...), as validated.
     algorithm: Mapping[str, Any] = field(default_factory=dict)
     #: The validated mapping's keys in its order (`to_mapping` writes them so).
@@ -128,6 +136,13 @@ class TrainingSettings:
         """The pixel observation's (width, height) where ``image_size`` is set, else None
         ([`image_size`][capture_bench.training.config.hyperparameters.image_size])."""
         return None if self.image_size is None else (self.image_size, self.image_size)
+
+    @property
+    def pixel_options(self) -> dict[str, Any]:
+        """The pixel observation's env keyword arguments these settings give: ``image_size``
+        and the options they set
+        ([`pixel_env_options`][capture_bench.training.config.hyperparameters.pixel_env_options])."""
+        return pixel_env_options(self.to_mapping())
 
     @property
     def has_curriculum(self) -> bool:

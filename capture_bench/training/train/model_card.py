@@ -114,14 +114,14 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
     """The policy in ``model_dir`` on ``seeds`` of ``scenario``, as train.py validates: one
     deterministic episode per seed in the batched env, `CARD_BATCH` seeds at a time;
     per episode and summarised."""
-    from capture_bench.agents.sb3_policy import load_policy, observation_options, read_metadata
+    from capture_bench.agents.sb3_policy import load_policy, read_metadata
     from capture_bench.envs.vector_env import CaptureVectorEnv
     from capture_bench.training.common.episode_stats import summarize
     from capture_bench.training.common.validation_run import run_validation
 
     metadata = read_metadata(model_dir)
     loaded = load_policy(metadata)
-    options = observation_options(metadata.image_size)  # pixels: pixel envs
+    options = metadata.env_options  # pixels: pixel envs, with the model's pixel options
     played = []
     for start in range(0, len(seeds), CARD_BATCH):
         batch = seeds[start : start + CARD_BATCH]
