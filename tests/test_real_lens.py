@@ -194,7 +194,7 @@ def test_the_ekf_noise_agrees_with_a_fresh_measurement(camera):
     assumed = scenario.estimator_settings()["noise_px"]
     # The detector's noise: the markers within OUTLIER_PX of eq. 2 (with the shipped calibration
     # error the arm's path changes and now and then cuts a blob: one marker in several hundred
-    # lands pixels off, which the EKF's NIS test meets, not its R).
+    # lands pixels off: a gross error, not the noise R models).
     inliers = measured.rms_axis_inliers
     assert measured.outliers <= 0.01 * len(measured.errors), measured.outliers
     assert abs(inliers - assumed) <= TOLERANCE * assumed, (inliers, assumed)
