@@ -73,6 +73,11 @@ def process_noise(dt: float, variances: Sequence[float]) -> FloatArray:
     return out
 
 
+#: The least pixel noise R assumes where the camera's noise is set, not measured: a noise-free
+#: camera's filter stays well conditioned.
+NOISE_FLOOR_PX = 0.25
+
+
 def measurement_sigma(noise_px: float, pixel_pitch: float, noise_floor_px: float) -> float:
     """sigma_m of R = sigma_m^2 I (eq. 6), metres: ``max(noise_px, noise_floor_px)`` pixels."""
     return max(noise_px, noise_floor_px) * pixel_pitch

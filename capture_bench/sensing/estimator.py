@@ -85,6 +85,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from capture_bench.sensing.camera import CameraModel
 from capture_bench.sensing.ekf import (
+    NOISE_FLOOR_PX,
     POSE_INDEX,
     POSITION_VELOCITY_INDEX,
     default_initial_covariance,
@@ -118,7 +119,6 @@ PARTIAL_FRAME_RULES = ("update", "predict")
 NIS_LIMIT = 100.0
 DIVERGENCE_FRAMES = 5
 ACCEPT_RESIDUAL_SIGMAS = 5.0
-NOISE_FLOOR_PX = 0.25
 
 # Block state (q, q_dot) -> paper order: X_paper[BLOCK_ORDER] = X_block.
 BLOCK_ORDER = np.concatenate([POSE_INDEX, POSE_INDEX + 1])
@@ -132,9 +132,11 @@ _BQB_POWER = np.tile([4.0, 3.0, 3.0, 2.0], 6)
 _BQB_FACTOR = np.tile([0.25, 0.5, 0.5, 1.0], 6)
 
 
-def acceptance_residual(camera_model: CameraModel, noise_px: float) -> float:
+def acceptance_residual(
+    camera_model: CameraModel, noise_px: float, noise_floor_px: float = NOISE_FLOOR_PX
+) -> float:
     """Largest accepted photogrammetry residual RMS, metres on the image plane."""
-    sigma_m = measurement_sigma(noise_px, camera_model.pixel_pitch, NOISE_FLOOR_PX)
+    sigma_m = measurement_sigma(noise_px, camera_model.pixel_pitch, noise_floor_px)
     return ACCEPT_RESIDUAL_SIGMAS * sigma_m
 
 
@@ -263,6 +265,9 @@ class TargetEstimator:
             source's filter: the number of feature points (the default, 4: photogrammetry of
             complete frames only) or 3 (also three-point initialisation, see the module
             docstring).
+        noise_floor_px: R and the acceptance use ``max(noise_px, noise_floor_px)``, pixels:
+            the default keeps a noise-free camera's filter well conditioned; a camera whose
+            error was measured (the rendered one's, `Scenario.estimator_settings`) passes 0.
 
     Attributes:
         x: (n, 12) states in block order ``(q, q_dot)`` (see the module docstring), camera frame
@@ -287,6 +292,7 @@ class TargetEstimator:
         sigma_angular_acceleration: float = 0.01,
         partial_frames: str = "update",
         min_init_markers: int = 4,
+        noise_floor_px: float = NOISE_FLOOR_PX,
     ) -> None:
         if n < 1:
             raise ValueError(f"n must be >= 1, got {n}")
@@ -311,9 +317,12 @@ class TargetEstimator:
         # Per row: the candidate poses of its latest three-point frame, NaN rows for none.
         self._candidates = np.full((self.n, MAX_CANDIDATES, 6), np.nan)
         self.noise_px = float(noise_px)
-        self.max_residual = acceptance_residual(camera_model, self.noise_px)  # image plane, m
+        if not noise_floor_px >= 0.0:
+            raise ValueError(f"noise_floor_px must be >= 0, got {noise_floor_px}")
+        # image plane, m
+        self.max_residual = acceptance_residual(camera_model, self.noise_px, noise_floor_px)
         self._table = projection_table(self.feature_points, camera_model.focal_length)
-        sigma_m = measurement_sigma(self.noise_px, camera_model.pixel_pitch, NOISE_FLOOR_PX)
+        sigma_m = measurement_sigma(self.noise_px, camera_model.pixel_pitch, noise_floor_px)
         self._r = sigma_m**2  # R = sigma_m^2 I (eq. 6)
         self._r_matrix = self._r * np.eye(2 * self.feature_points.shape[0])
         # Q = cov(omega) (eq. 5), diagonal: sigma_a^2 for x, y, z, sigma_alpha^2 for the angles.

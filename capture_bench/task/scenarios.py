@@ -28,6 +28,7 @@ from capture_bench.paths import config_dir
 from capture_bench.sensing.calibration import CalibrationSpread, Distortion
 from capture_bench.sensing.camera import CameraModel
 from capture_bench.sensing.detection_noise import detection_sigma, rms_speed
+from capture_bench.sensing.ekf import NOISE_FLOOR_PX
 from capture_bench.sensing.sources import SOURCES
 from capture_bench.sim.target_motion import MAX_JINKS
 from capture_bench.validation import (
@@ -364,15 +365,16 @@ class Scenario:
     def estimator_settings(self) -> dict[str, float]:
         """What the estimator assumes (pixel noise, process noise, how it may start), as the
         keyword arguments of ``TargetEstimator``. The pixel noise is ``noise_px`` with the
-        analytic camera, and with the rendered one the detector's centroid error that the
-        camera's blur, noise and exposure make (`rendered_detection_sigma`; the EKF floors it at
-        ``NOISE_FLOOR_PX``)."""
+        analytic camera (the EKF floors it at ``NOISE_FLOOR_PX``), and with the rendered one the
+        detector's centroid error that the camera's blur, noise and exposure make, measured
+        (`rendered_detection_sigma`), with no floor."""
         rendered = self.camera.mode == "rendered"
         return {
             "noise_px": self.rendered_detection_sigma() if rendered else self.camera.noise_px,
             "sigma_acceleration": self.estimator.sigma_acceleration,
             "sigma_angular_acceleration": self.estimator.sigma_angular_acceleration,
             "min_init_markers": self.estimator.min_init_markers,
+            "noise_floor_px": 0.0 if rendered else NOISE_FLOOR_PX,
         }
 
     def rendered_detection_sigma(self) -> float:
