@@ -306,7 +306,7 @@ def pixel_noises(
         for u0, u1, v0, v1 in windows
     ]
     h = _mix64(seed + np.concatenate([c.ravel() for c in counters]) * np.uint64(_GAMMA))
-    one = np.float32(2.0**-32)  # single precision: a noise value needs no more, and is 4x faster
+    one = np.float32(2.0**-32)  # single precision: a noise value needs no more, and costs less
     a = ((h >> np.uint64(32)).astype(np.float32) + np.float32(0.5)) * one
     b = (h & np.uint64(0xFFFFFFFF)).astype(np.float32) * one
     z = np.sqrt(np.float32(-2.0) * np.log(a)) * np.cos(np.float32(2.0 * np.pi) * b)
