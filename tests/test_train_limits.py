@@ -198,6 +198,14 @@ def test_the_estimate_bounds_what_sb3_allocates_and_the_shipped_configs_fit_a_la
     estimate = dict((what, size) for _, what, size in parts)["the replay buffer"]
     assert held(replay) <= estimate <= 2 * held(replay)
 
+    # The imitation's data set: float32 rows of the estimate; with pixels the images kept as uint8
+    # (one byte a number, 84 x 84 x 3 of the default image), the state as float32; three copies.
+    hp = {"n_envs": 8, "policy_kwargs": {}, "imitate": "dls", "imitation_rounds": 2}
+    for pixels, row in [(False, 4 * (16 + 6)), (True, 84 * 84 * 3 + 4 * (7 + 6))]:
+        parts = memory_estimate("ppo", {**hp, "imitation_steps": 800}, pixels)
+        estimate = dict((what, size) for _, what, size in parts)["the imitation's data set"]
+        assert estimate == 3 * 1600 * row, (pixels, estimate)
+
     for algo in ALGORITHMS:  # the shipped configs are refused on no machine of 4 GiB
         hp, _, _ = resolve_hyperparameters(algo, load_scenario("paper"))
         needed = sum(size for *_, size in memory_estimate(algo, hp, False))

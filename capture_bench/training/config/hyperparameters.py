@@ -402,6 +402,8 @@ def memory_estimate(
         stack = int(hp.get("frame_stack") or 1)
         crop = int(hp.get("ee_crop") or 0)
         observation = 3 * stack * (side[0] * side[1] + crop * crop) + STATE_SIZE
+        # the imitation keeps the images as uint8 (one byte a number), the state as float32
+        kept_bytes = 3 * stack * (side[0] * side[1] + crop * crop) + STATE_SIZE * NUMBER_BYTES
         features = CNN_FEATURES + STATE_SIZE
         if kwargs.get("features_extractor") == "keypoints":  # stride-1 maps: larger
             cnn_activations = 3 * stack * side[0] * side[1] + 40 * side[0] * side[1]
@@ -413,6 +415,7 @@ def memory_estimate(
     else:
         cnn_parameters = cnn_activations = 0
         observation = OBSERVATION_SIZE
+        kept_bytes = OBSERVATION_SIZE * NUMBER_BYTES
         features = OBSERVATION_SIZE + EXTRA_FEATURES
     arch = kwargs.get("net_arch", SB3_NET_ARCH[algo])
     second = "qf" if algo in OFF_POLICY else "vf"
@@ -454,7 +457,7 @@ def memory_estimate(
     if "imitate" in hp:
         rounds, steps = int(hp["imitation_rounds"]), int(hp["imitation_steps"])
         rows = rounds * -(-steps // n_envs) * n_envs
-        size = 3 * rows * (observation + 2 * ACTION_SIZE) * NUMBER_BYTES
+        size = 3 * rows * (kept_bytes + 2 * ACTION_SIZE * NUMBER_BYTES)
         keys = f"imitation_rounds {rounds} x imitation_steps {steps}"
         parts.append((keys, "the imitation's data set", size))
     return parts
