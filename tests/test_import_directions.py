@@ -50,6 +50,7 @@ STAGES: dict[str, tuple[str, int]] = {
             "argparsing",
             "interrupts",
             "_quiet",
+            "progress",
             "rliable_stats",
             "ray_cluster",
             "worker_processes",

@@ -35,6 +35,7 @@ from capture_bench.datasets.recording import (
 )
 from capture_bench.evaluation.errors import EvaluationError
 from capture_bench.interrupts import exit_status
+from capture_bench.progress import episode_bar
 from capture_bench.task.scenarios import ConfigError
 
 PROG = "python -m capture_bench dataset"
@@ -192,29 +193,6 @@ def _check_agents(plan: RecordingPlan, specs: list[Any]) -> None:
         env.close()
 
 
-def _progress(total: int, name: str) -> Any:
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    bar = Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TextColumn("ETA"),
-        TimeRemainingColumn(),
-        console=Console(stderr=True),
-    )
-    return bar, bar.add_task(f"{name}: episodes", total=total)
-
-
 def _check_minari() -> None:
     try:
         import h5py  # noqa: F401
@@ -240,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
     _check_agents(plan, specs)
     staging = prepare_staging(plan, root, args.resume)
     start = time.perf_counter()
-    bar, task = _progress(len(plan.order()), plan.dataset_id)
+    bar, task = episode_bar(plan.dataset_id, len(plan.order()))
     try:
         with bar:
             folder = record(

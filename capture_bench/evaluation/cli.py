@@ -71,6 +71,7 @@ from capture_bench.evaluation.running.backends import BACKENDS, prestart_workers
 from capture_bench.evaluation.running.suites import ALL, SEED_SETS, shadowed_suite
 from capture_bench.files import atomic_write
 from capture_bench.interrupts import exit_status, sigterm_as_interrupt
+from capture_bench.progress import episode_bar
 from capture_bench.provenance import display_path, git_state
 from capture_bench.task.scenarios import invalid_scenarios
 
@@ -367,27 +368,9 @@ def _print_summary(data: ReportData, target: Path) -> None:
 
 
 def _run(plan: Plan, config: EvaluationConfig, command: str) -> tuple[ReportData, Path]:
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    columns = (
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TextColumn("ETA"),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=Console(stderr=True), transient=False) as bar:
-        total = len(plan.tasks) + len(plan.seed_tasks) + len(plan.twin_tasks)  # seeds, twins too
-        task = bar.add_task(f"{plan.report_name}: episodes", total=total)
+    total = len(plan.tasks) + len(plan.seed_tasks) + len(plan.twin_tasks)  # seeds, twins too
+    bar, task = episode_bar(plan.report_name, total)
+    with bar:
         return run_evaluation(plan, config, command, lambda n: bar.advance(task, n))
 
 
