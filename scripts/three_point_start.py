@@ -1,8 +1,8 @@
 """When the filter starts with and without three-point initialisation, on validation seeds.
 
 Runs one agent on a scenario's validation seeds twice, in the single env: with photogrammetry
-starts only (``min_init_markers=4``) and with three-point starts (``min_init_markers=3``),
-whatever the scenario file says (the script patches ``Scenario.estimator_settings``). Prints, per
+starts only (``estimator.min_init_markers: 4``) and with three-point starts (3), whatever the
+scenario file says, and without the agent's acquisition (the filter's start alone). Prints, per
 seed and setting, the first step with a valid estimate, the position error of that estimate and
 the outcome.
 
@@ -18,15 +18,16 @@ from typing import Any
 import numpy as np
 
 from capture_bench.agents import make_agent
-from capture_bench.evaluation.running.backends import make_env
-from capture_bench.task import scenarios
-from capture_bench.task.scenarios import load_scenario
+from capture_bench.envs.capture_env import CaptureEnv
+from capture_bench.task.scenarios import Scenario, load_scenario
 
 
-def episode(scenario: str, agent_name: str, seed: int) -> dict[str, Any]:
-    """One episode's start of the filter and its outcome."""
-    env = make_env(scenario)
+def episode(scenario: Scenario, agent_name: str, seed: int) -> dict[str, Any]:
+    """One episode's start of the filter and its outcome, the agent without acquisition."""
+    env = CaptureEnv(scenario)
     agent = make_agent(agent_name, env)
+    if hasattr(agent, "acquisition"):
+        agent.acquisition = None
     if hasattr(agent, "seed"):
         agent.seed(seed)
     agent.reset()
@@ -55,20 +56,13 @@ def main() -> None:
     parser.add_argument("--agent", default="incremental_ik")
     parser.add_argument("--seeds", type=int, default=10, help="the first N validation seeds")
     args = parser.parse_args()
-    seeds = list(load_scenario(args.scenario).validation_seeds)[: args.seeds]
-    shipped = scenarios.Scenario.estimator_settings
+    shipped = load_scenario(args.scenario)
+    seeds = list(shipped.validation_seeds)[: args.seeds]
     results: dict[int, dict[int, dict[str, Any]]] = {4: {}, 3: {}}
     for markers in (4, 3):
-
-        def settings(self: Any, _m: int = markers) -> dict[str, Any]:
-            return {**shipped(self), "min_init_markers": _m}
-
-        scenarios.Scenario.estimator_settings = settings  # type: ignore[method-assign]
-        try:
-            for seed in seeds:
-                results[markers][seed] = episode(args.scenario, args.agent, seed)
-        finally:
-            scenarios.Scenario.estimator_settings = shipped  # type: ignore[method-assign]
+        scenario = shipped.replace(estimator={"min_init_markers": markers})
+        for seed in seeds:
+            results[markers][seed] = episode(scenario, args.agent, seed)
     print(f"{args.scenario}, {args.agent}, validation seeds {seeds[0]}..{seeds[-1]}")
     print("seed | first valid step (4 / 3) | first error mm (4 / 3) | outcome (4 / 3)")
     for seed in seeds:
