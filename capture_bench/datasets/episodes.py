@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from capture_bench.evaluation.running.rollout import seed_agent
 from capture_bench.task.step_rule import END_INFO_KEYS
 
 #: ``info`` entries that are text.
@@ -149,10 +150,7 @@ def _column(key: str, values: list[Any]) -> np.ndarray:
 def play_episode(env: Any, agent: Any, *, label: str, seed: int, privileged: bool) -> EpisodeArrays:
     """Play one episode of ``agent`` (deterministic actions, as evaluation does) from
     ``env.reset(seed=seed)`` and return its arrays; a stochastic agent is seeded with ``seed``."""
-    env.action_space.seed(seed)
-    seeder = getattr(agent, "seed", None)
-    if callable(seeder):
-        seeder(seed)
+    seed_agent(agent, env, seed)
     agent.reset()
     rows = _Rows(env, privileged)
     obs, info = env.reset(seed=seed)

@@ -167,7 +167,7 @@ def _at_capture(outcome: Outcome, info: dict[str, Any], key: str) -> float:
     return info_number(info, key) if outcome.captured else math.nan
 
 
-def _seed_agent(agent: Agent, env: Any, seed: int) -> None:
+def seed_agent(agent: Agent, env: Any, seed: int) -> None:
     """Make stochastic agents reproducible per episode, whatever process runs the episode."""
     env.action_space.seed(seed)
     seeder = getattr(agent, "seed", None)
@@ -277,7 +277,7 @@ def run_episode(
     Returns:
         ``(record, trace or None)``.
     """
-    _seed_agent(agent, env, seed)
+    seed_agent(agent, env, seed)
     agent.reset()
     obs, info = env.reset(seed=seed)
     env.unwrapped.physical_limit()  # needed at the end anyway; now, so the clocks time steps only
