@@ -265,3 +265,23 @@ def test_min_init_markers_validated() -> None:
     with pytest.raises(ValueError, match="min_init_markers"):
         estimator(1, min_init_markers=2)
     assert "initialising" in STATUSES
+
+
+def test_a_diverged_filter_restarts_from_three_points() -> None:
+    points = FEATURE_POINTS["non_coplanar"]
+    before = AGREEING_POSE + [0.4, 0.3, 0.2, 0.0, 0.0, 0.0]  # where the filter settles, 54 cm off
+    default, three = estimator(1), estimator(1, min_init_markers=3)
+    for est in (default, three):
+        for _ in range(40):  # settled there
+            assert est.update(image(before, points)[None], 0.05).status_names() == ["ok"]
+    # The target is now elsewhere and shows three points: the NIS diverges the filter, and only
+    # the three-point start brings it back (its candidates agree), at the true pose, on the step
+    # the divergence is found (so no step reports "diverged").
+    frame = without(image(AGREEING_POSE, points), 2)[None]
+    names = {"default": [], "three": []}
+    for _ in range(10):
+        names["default"].append(default.update(frame, 0.05).status_names()[0])
+        names["three"].append(three.update(frame, 0.05).status_names()[0])
+    assert names["three"][-1] == "ok" and three.reinitialisations[0] == 1
+    np.testing.assert_allclose(three.x[0, :3], AGREEING_POSE[:3], rtol=0, atol=1e-6)
+    assert names["default"][-1] == "diverged" and default.reinitialisations[0] == 0
