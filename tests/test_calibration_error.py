@@ -387,3 +387,36 @@ def test_distorting_the_centroid_stands_for_distorting_the_markers_image(lens):
                 assert found.found[0]
                 errors[warp].append(float(np.hypot(*(found.pixels[0] - expected))))
     assert max(errors["lens"]) < 0.2 and max(errors["lens"]) <= max(errors["shift"]), errors
+
+
+@pytest.mark.parametrize(
+    ("key", "spread", "least_px"),
+    [
+        ("focal", {"focal": 0.005}, 0.3),
+        ("principal", {"principal": 3.0}, 0.3),
+        ("k1", {"distortion": Distortion(-0.2), "k1": 0.02}, 0.02),
+        ("rotation", {"rotation": math.radians(0.1)}, 0.3),
+        ("position", {"position": 0.001}, 0.3),
+    ],
+)
+def test_each_calibration_key_alone_moves_the_frame_off_the_nominal_projection(
+    key, spread, least_px
+):
+    """A noise-free analytic camera: with one key alone (its distortion known, its k1 error
+    alone for ``k1``), the frames read with the nominal calibration lie off eq. 2 of the nominal
+    camera by at least ``least_px`` on some marker; with that key at 0 they lie on it."""
+    points = np.stack([p + FEATURES @ r.T for p, r in (s(0.0) for s in _scenes(3, seed=7))])
+    known = spread.get("distortion", Distortion())
+    for on in (True, False):
+        chosen = spread if on else {"distortion": known}
+        camera = Camera(MODEL, 0.0, 0.0, 0, CalibrationSpread(**chosen))
+        images, visible = camera.capture_sequence(points, np.random.default_rng(9))
+        assert visible.all()
+        off = max(
+            np.abs(images[k] - MODEL.project(MODEL.to_camera(points[k]))).max() / PITCH
+            for k in range(len(points))
+        )
+        if on:
+            assert off >= least_px, (key, off)
+        else:
+            assert off < 1e-6, (key, off)
