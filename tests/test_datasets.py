@@ -61,8 +61,31 @@ def test_a_recorded_dataset_replays_bit_for_bit(recorded):
             n = len(episode) + 1
             np.testing.assert_array_equal(episode.infos["true_target_position"], truth.position[:n])
             np.testing.assert_array_equal(episode.infos["true_target_velocity"], truth.velocity[:n])
+            _assert_covariance_gives_the_nees(episode.infos, truth, n)
     finally:
         env.close()
+
+
+def _assert_covariance_gives_the_nees(infos, truth, n):
+    """The recorded covariance P is the estimator's: symmetric, positive definite where the
+    filter has one, NaN where it has none, and with the estimate's error against the true state it
+    gives the env's NEES, e^T P^-1 e, row by row (reset's, which its ``info`` does not carry, the
+    recording's)."""
+    covariance = infos["estimate_covariance"]
+    assert covariance.shape == (n, 6, 6)
+    has = np.isfinite(covariance).all(axis=(1, 2))
+    assert has.sum() > n // 2
+    assert np.isnan(covariance[~has]).all()
+    p = covariance[has]
+    np.testing.assert_allclose(p, np.swapaxes(p, 1, 2), rtol=0, atol=1e-12)
+    assert (np.linalg.eigvalsh(p)[:, 0] > 0).all()
+    error = np.concatenate([
+        truth.estimate_position[:n] - infos["true_target_position"],
+        truth.estimate_velocity[:n] - infos["true_target_velocity"],
+    ], axis=1)[has]  # fmt: skip
+    nees = np.einsum("ki,ki->k", error, np.linalg.solve(p, error[:, :, None])[:, :, 0])
+    env_nees = np.where(np.arange(n) == 0, truth.nees[:n], infos["estimate_nees"])  # reset: NaN
+    np.testing.assert_allclose(nees, env_nees[has], rtol=1e-9)
 
 
 def _assert_info_row(info, rows, k):

@@ -47,7 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
         hint=" (see --help)",
         description="Record agents' episodes on a scenario's training (default) or validation "
         "seeds as a Minari dataset: observations, actions, rewards, terminations, truncations, "
-        "info (and the true target state with --privileged), the env's spec "
+        "info with the estimator's covariance (and the true target state with --privileged), "
+        "the env's spec "
         "(dataset.recover_environment()) and each episode's seed. Published evaluation seeds "
         "are refused.",
     )

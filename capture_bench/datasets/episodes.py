@@ -7,7 +7,10 @@ terminations and truncations, and T + 1 rows of every ``info`` entry (reset's fi
 reset ``info`` holds ``time`` and ``distance`` only; its other rows are NaN (numbers), False
 (flags) or "" (text) there. ``failure`` is "" where the env gives None, and the optional numbers
 (``capture_time`` ...) are NaN where it gives None. ``physical_limit_time``, in the last step's
-``info`` only, is an episode's metadata, not a row.
+``info`` only, is an episode's metadata, not a row. Beside the env's ``info``, every row holds
+``estimate_covariance`` (6 x 6): the estimator's covariance P of the estimate's (position,
+velocity) at that step, in the global frame (m, m/s), NaN where the estimator has none (no
+estimate yet, photogrammetry alone, or the truth source); the observation's estimate is its mean.
 
 The action recorded is the one stepped: the agent's action as float32 (the action space's
 dtype), clipped to [-1, 1] (the env clips every action there anyway), so stepping the recorded
@@ -38,6 +41,8 @@ TRUE_STATE = (
     ("true_target_velocity", "velocity"),
     ("true_target_rotation", "rotation"),
 )
+#: The estimator's covariance of each row (module docstring).
+COVARIANCE_INFO = "estimate_covariance"
 _INFO_PREFIX = "info/"
 
 
@@ -110,8 +115,9 @@ class _Rows:
         """The observation and ``info`` of reset or of a step, and the true state there."""
         self.observations.append(np.asarray(observation, dtype=np.float32))
         row = {k: v for k, v in info.items() if k not in END_INFO_KEYS}
+        episode, k = self.env.recorded_episode, len(self.infos)
+        row[COVARIANCE_INFO] = episode.estimate_covariance[k].copy()
         if self.privileged:
-            episode, k = self.env.recorded_episode, len(self.infos)
             row.update({name: getattr(episode, track)[k] for name, track in TRUE_STATE})
         self.infos.append(row)
 

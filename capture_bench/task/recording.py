@@ -61,7 +61,9 @@ class RecordedEpisode(EpisodeTruth):
 
     The fields of `EpisodeTruth`, then what the estimator and the env derive from them:
     ``estimate_position``,
-    ``estimate_velocity`` (T+1, 3), NaN where not ``estimate_valid``; ``estimator_status`` (T+1,)
+    ``estimate_velocity`` (T+1, 3), NaN where not ``estimate_valid``; ``estimate_covariance``
+    (T+1, 6, 6), the EKF's covariance P of (position, velocity), NaN where it has none;
+    ``estimator_status`` (T+1,)
     index into `capture_bench.sensing.estimator.STATUSES`; ``reachable`` (T+1,);
     ``position_error``, ``velocity_error``, ``nees`` (T+1,). ``bound`` is the episode's physical
     limit, None until asked for (the single env reads it from the plan, which carries it since
@@ -74,6 +76,7 @@ class RecordedEpisode(EpisodeTruth):
     estimate_position: FloatArray
     estimate_velocity: FloatArray
     estimate_valid: BoolArray
+    estimate_covariance: FloatArray
     estimator_status: NDArray[np.int8]
     reachable: BoolArray
     position_error: FloatArray
@@ -251,6 +254,7 @@ def _finish(
         estimate_position=position,
         estimate_velocity=velocity,
         estimate_valid=valid,
+        estimate_covariance=covariance,
         estimator_status=status,
         reachable=kinematics.reachable(truth.position),
         position_error=position_error,

@@ -143,6 +143,7 @@ class TargetSide:
             estimate_position=nan3.copy(),
             estimate_velocity=nan3,
             estimate_valid=np.zeros(n, dtype=bool),
+            estimate_covariance=np.full((n, 6, 6), np.nan),
             estimator_status=np.zeros(n, dtype=np.int8),
             reachable=kinematics.reachable(position),
             position_error=np.full(n, np.nan),
@@ -210,6 +211,7 @@ class TargetSide:
         out = estimator.update(ep.images[k : k + 1], ep.dt[k : k + 1], None, truth)
         ep.estimate_valid[k] = out.valid[0]
         ep.estimate_position[k], ep.estimate_velocity[k] = out.position[0], out.velocity[0]
+        ep.estimate_covariance[k] = out.covariance[0]
         ep.estimator_status[k] = out.status[0]
         errors = estimate_errors(out.position, out.velocity, out.covariance, out.valid, *truth)
         ep.position_error[k], ep.velocity_error[k], ep.nees[k] = (e[0] for e in errors)
