@@ -19,6 +19,7 @@ from capture_bench.training.common.imitation import (
     actor_parameters,
     dagger,
     describe_teacher,
+    fit,
     label_weights,
     make_teacher,
     teacher_names,
@@ -153,6 +154,39 @@ def test_the_relative_fit_weighs_a_small_step_as_much_as_a_full_one():
     np.testing.assert_allclose(wide, 1.0, rtol=1e-2)
 
 
+@pytest.mark.parametrize(
+    ("lr", "batch_size", "steps"), [(1e-3, 40, 1), (2e-4, 40, 1), (1e-3, 16, 3)]
+)
+def test_the_fit_takes_adam_steps_of_its_rate_on_minibatches_of_its_size(lr, batch_size, steps):
+    """One pass over 40 rows is ceil(40 / batch_size) Adam steps, and Adam's first step moves each
+    parameter with a gradient by the learning rate: the action head's bias moves by ``lr`` per
+    step at most, and by exactly ``lr`` after one step."""
+    import torch
+
+    model, venv = _model(2)
+    obs = np.random.default_rng(0).normal(size=(40, 16)).astype(np.float32)
+    targets = np.full((40, 3), 0.5, dtype=np.float32)  # far from the initial ~0 actions
+    bias = model.policy.action_net.bias.detach().clone()
+    calls = []
+    step = torch.optim.Adam.step
+
+    def counted(self, *args, **kwargs):
+        calls.append(1)
+        return step(self, *args, **kwargs)
+
+    try:
+        torch.optim.Adam.step = counted
+        fit(model.policy, obs, targets, 1, 0, lr=lr, batch_size=batch_size)
+    finally:
+        torch.optim.Adam.step = step
+        venv.close()
+    assert len(calls) == steps
+    moved = (model.policy.action_net.bias.detach() - bias).abs()
+    if steps == 1:
+        torch.testing.assert_close(moved, torch.full_like(moved, lr), rtol=1e-3, atol=0)
+    assert float(moved.max()) <= steps * lr * 1.001
+
+
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_the_warm_up_trains_the_critic_alone(algo):
     """PPO's value head, SAC's Q-networks learn while the actor stays as imitated; the actor
@@ -194,6 +228,7 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
     saved = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
     assert saved["imitate"] == "incremental_ik" and saved["imitation_warmup"] == 128
     assert saved["imitation_floor"] == 0.05
+    assert (saved["imitation_lr"], saved["imitation_batch"]) == (1e-3, 1024)  # the defaults
 
 
 @pytest.mark.parametrize(
@@ -202,6 +237,8 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
         (["--algo", "td3", "--set", "imitate=dls"], "fits the policy of ppo, a2c, sac, tqc"),
         (["--set", "imitation_steps=10"], "needs imitate"),
         (["--set", "imitate=dls", "--set", "imitation_floor=-1"], "expected a number in [0, 10]"),
+        (["--set", "imitate=dls", "--set", "imitation_lr=0"], "imitation_lr"),
+        (["--set", "imitate=dls", "--set", "imitation_batch=0"], "imitation_batch"),
         (["--set", "imitate=oracle"], "expected one of incremental_ik"),
         (["--set", "imitate={paper: oracle}"], "or a mapping of scenario names (and default)"),
         (["--set", "imitate={grasp: dls}"], "'grasp', which is not a scenario of this run"),

@@ -10,7 +10,8 @@ envs (training seeds only). Every visited observation is labelled with the contr
 their scenario's); round 0 follows the teacher, the later rounds follow the policy being trained
 (deterministic actions), so the data set also holds the states the policy itself reaches,
 DAgger's point. After each round the policy's mean action is fitted to the labels of every round
-so far (mean squared error, Adam, ``imitation_epochs`` passes; with ``imitation_floor`` > 0 each
+so far (mean squared error, Adam at ``imitation_lr`` on minibatches of ``imitation_batch``,
+``imitation_epochs`` passes; with ``imitation_floor`` > 0 each
 label's error is taken relative to the teacher's action above that floor,
 `label_weights`). The policy then acts alone: nothing of the controller is left in it,
 unlike a residual (`capture_bench.training.common.residual_vec_env`). The fit sets an
@@ -45,7 +46,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 #: actor's deterministic squashed action (SAC, TQC).
 IMITATORS = ("ppo", "a2c", "sac", "tqc")
 
-#: Adam's learning rate and minibatch size for the imitation fit.
+#: Adam's learning rate and minibatch size for the imitation fit where a run leaves them out
+#: (``imitation_lr``, ``imitation_batch``): right for a policy on the 16 numbers of the
+#: observation; a convolutional student of pixels needs smaller steps (docs/pixels.md).
 IMITATION_LR = 1e-3
 IMITATION_BATCH = 1024
 
@@ -184,15 +187,17 @@ def fit(
     epochs: int,
     seed: int,
     floor: float = 0.0,
+    lr: float = IMITATION_LR,
+    batch_size: int = IMITATION_BATCH,
 ) -> float:
     """Fit the policy's mean action on ``observations`` (an array, or with pixels a dict of
     arrays) to ``targets`` (squared error, weighted by
-    `label_weights` of ``floor``; Adam on the actor's parameters, minibatches of
-    `IMITATION_BATCH` in a seeded order); return the last epoch's mean loss."""
+    `label_weights` of ``floor``; Adam at ``lr`` on the actor's parameters, minibatches of
+    ``batch_size`` in a seeded order); return the last epoch's mean loss."""
     import torch
 
     params = list(actor_parameters(policy))
-    optimizer = torch.optim.Adam(params, lr=IMITATION_LR)
+    optimizer = torch.optim.Adam(params, lr=lr)
     rng = np.random.default_rng(seed)
     x = _tensor(observations, policy.device)
     y = torch.as_tensor(policy_targets(policy, targets), dtype=torch.float32, device=policy.device)
@@ -203,8 +208,8 @@ def fit(
     for _ in range(epochs):
         order = torch.as_tensor(rng.permutation(len(y)), device=policy.device)
         loss_sum = 0.0
-        for start in range(0, len(y), IMITATION_BATCH):
-            batch = order[start : start + IMITATION_BATCH]
+        for start in range(0, len(y), batch_size):
+            batch = order[start : start + batch_size]
             squared = (mean_actions(policy, _rows(x, batch)) - y[batch]) ** 2
             loss = torch.mean(squared if w is None else w[batch] * squared)
             optimizer.zero_grad()
@@ -247,11 +252,13 @@ def dagger(  # noqa: PLR0913
     validate: Callable[[], dict[str, float]] | None = None,
     floor: float = 0.0,
     teacher_view: Callable[[Any], np.ndarray] | None = None,
+    lr: float = IMITATION_LR,
+    batch_size: int = IMITATION_BATCH,
 ) -> dict[str, Any]:
     """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring
-    (``floor``: the fit's `label_weights`; ``teacher_view``: what the teacher reads of the
-    step whose observation the student sees, ``teacher_view(obs)``; None: the observation
-    itself).
+    (``floor``, ``lr``, ``batch_size``: the fit's, `fit`; ``teacher_view``: what the teacher
+    reads of the step whose observation the student sees, ``teacher_view(obs)``; None: the
+    observation itself).
     Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
     share of the round's actions on which policy and teacher agree within 0.05 in every joint
     (None for round 0, where the teacher acts), the wall clock, s, and with ``validate`` (the
@@ -277,7 +284,7 @@ def dagger(  # noqa: PLR0913
                 close.append(np.all(np.abs(action - target) <= 0.05, axis=1))
             obs, _, _, _ = venv.step(np.asarray(action, dtype=np.float32))
         loss = fit(model.policy, _stacked(observations), np.concatenate(labels), epochs,
-                   seed + r, floor)  # fmt: skip
+                   seed + r, floor, lr, batch_size)  # fmt: skip
         losses.append(loss)
         agreement.append(float(np.mean(np.concatenate(close))) if close else None)
         rows = sum(len(label) for label in labels)

@@ -415,7 +415,8 @@ def imitate(
 
     return dagger(model, raw, teacher, settings.imitation_rounds, settings.imitation_steps,
                   settings.imitation_epochs, config.seed or 0, validate=validate,
-                  floor=settings.imitation_floor, teacher_view=view)  # fmt: skip
+                  floor=settings.imitation_floor, teacher_view=view, lr=settings.imitation_lr,
+                  batch_size=settings.imitation_batch)  # fmt: skip
 
 
 def resolved_yaml(config: TrainConfig, settings: TrainingSettings, origin: dict) -> str:

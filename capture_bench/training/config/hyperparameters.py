@@ -106,6 +106,10 @@ TRAINING_KEYS = {
     # > 0: the fit weighs each label by 1 / (|a|^2 + imitation_floor^2), the error relative to
     # the teacher's action a (the small last steps onto the capture point as much as the rest)
     "imitation_floor": Rule("float", 0.0, 10.0),
+    # the fit's Adam learning rate and minibatch size (a pixel student needs smaller steps than
+    # a policy on the 16 numbers of the observation: docs/pixels.md)
+    "imitation_lr": Rule("float", 0.0, 1.0, low_inclusive=False),
+    "imitation_batch": POS_INT,
     # a mixture's sub-envs per scenario, relative to the scenarios it leaves out (weight 1 each):
     # {grasp: 4} gives grasp four times the share of each other scenario (mixture.mixture_shares)
     "mixture_weights": Rule("weights"),
@@ -143,13 +147,16 @@ PIXEL_OPTION_KEYS = (
     "image_supersample",
     "ee_crop_supersample",
 )
-#: What an imitation leaves out takes: 4 rounds of 200k steps, 10 passes each, no warm-up.
+#: What an imitation leaves out takes: 4 rounds of 200k steps, 10 passes each of Adam at 1e-3 on
+#: minibatches of 1024, no warm-up.
 IMITATION_DEFAULTS = {
     "imitation_rounds": 4,
     "imitation_steps": 200_000,
     "imitation_epochs": 10,
     "imitation_warmup": 0,
     "imitation_floor": 0.0,
+    "imitation_lr": 1e-3,
+    "imitation_batch": 1024,
 }
 #: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
 CURRICULA = ("curriculum_tolerance", "curriculum_hold")

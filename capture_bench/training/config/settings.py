@@ -67,6 +67,8 @@ class TrainingSettings:
     imitation_epochs: int | None = None
     imitation_warmup: int | None = None
     imitation_floor: float | None = None
+    imitation_lr: float | None = None
+    imitation_batch: int | None = None
     mixture_weights: Mapping[str, Any] | None = None
     curriculum_hold: float | None = None
     curriculum_steps: int | None = None  # `with_curriculum_steps` fills it in for a run

@@ -512,10 +512,15 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
     imitated = []
     if imitation:
         warm = hp.get("imitation_warmup", 0)
+        fit_steps = (  # a config without the keys took the defaults, which the card leaves unnamed
+            f"Adam at {hp['imitation_lr']:g}, minibatches of {hp['imitation_batch']}; "
+            if "imitation_lr" in hp
+            else ""
+        )
         imitated = [
             f"- imitation: DAgger from `{imitation['teacher']}`, {imitation['rounds']} rounds, "
             f"{imitation['environment_steps']:,} environment steps on training seeds, "
-            f"{hp.get('imitation_epochs')} passes of the fit after each (last fit MSE "
+            f"{hp.get('imitation_epochs')} passes of the fit after each ({fit_steps}last fit MSE "
             f"{imitation['fit_mse'][-1]:.1e}), {imitation['wall_time_s']:.0f} s; then "
             f"{card['total_timesteps']:,} steps of {meta.get('algorithm')}, the actor frozen "
             f"for the first {min(warm, card['total_timesteps']):,}"
