@@ -22,6 +22,7 @@ from capture_bench.agents.baselines import (
     Hold,
     Intercept,
     JointIntercept,
+    JointInterceptDLS,
     PurePursuit,
     RandomAgent,
 )
@@ -57,6 +58,7 @@ AGENTS: dict[str, AgentFactory] = {
     "joint_intercept": _public(JointIntercept),
     "joint_intercept_uncapped": _public(JointIntercept, cap=False),
     "dls": _public(DampedLeastSquares),
+    "joint_intercept_dls": _public(JointInterceptDLS),
     "planned_intercept": _public(PlannedIntercept),
     "random": _public(RandomAgent),
     "hold": _public(Hold),
@@ -80,6 +82,8 @@ environment itself (privileged, ranked apart).
 - `joint_intercept_uncapped`: the same at full rate, sweeping through that pose (``cap=False``).
 - `dls`: [`DampedLeastSquares`][capture_bench.agents.baselines.DampedLeastSquares], damped least
   squares resolved rate, feed-forward + P.
+- `joint_intercept_dls`: [`JointInterceptDLS`][capture_bench.agents.baselines.JointInterceptDLS],
+  `joint_intercept` far from the estimate, `dls` within 30 mm of it.
 - `planned_intercept`:
   [`PlannedIntercept`][capture_bench.agents.planned_intercept.PlannedIntercept], the oracle's
   landing and tracking on the estimate's constant-velocity trajectory, planned again as the

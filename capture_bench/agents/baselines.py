@@ -10,6 +10,7 @@ they are held to the same joint-rate limits as every other agent.
 * `JointIntercept` — the joints straight to the earliest pose that meets the predicted
   target, the physical limit's test on the estimate, re-planned every step.
 * `DampedLeastSquares` — resolved-rate control with feed-forward and a proportional term.
+* `JointInterceptDLS` — `JointIntercept` far from the target, `DampedLeastSquares` near it.
 * `RandomAgent` — uniform actions from its own seeded generator.
 * `Hold` — never moves.
 """
@@ -22,7 +23,7 @@ from numpy.typing import NDArray
 from capture_bench.agents.base import AnalyticController, safe_action
 from capture_bench.agents.incremental_ik import incremental_steps, lambda_max_of, resolve_direction
 from capture_bench.sim.kinematics import forward_kinematics, jacobian
-from capture_bench.task.observation import TaskDescription
+from capture_bench.task.observation import OBSERVATION_SIZE, TaskDescription
 from capture_bench.task.physical_limit import first_feasible
 
 FloatArray = NDArray[np.float64]
@@ -57,6 +58,8 @@ class PurePursuit(AnalyticController):
 
 
 REFINE_POINTS = 64
+#: `JointInterceptDLS`'s switch: the DLS step within this distance of X^_T, m.
+JOINT_INTERCEPT_NEAR = 0.03
 
 
 def interception_times(
@@ -278,6 +281,43 @@ class DampedLeastSquares(AnalyticController):
         rate = np.where((peak > 1.0)[:, None], rate / peak[:, None], rate)  # keeps the direction
         increment = rate * self.description.control_period  # rad
         return safe_action(self.description.increment_to_action(increment))
+
+
+class JointInterceptDLS(AnalyticController):
+    """`JointIntercept` while the estimate is far, `DampedLeastSquares` near it.
+
+    Where ``||X^_T - X_E|| > near`` every joint runs at up to its own rate to the earliest pose
+    that meets the predicted target (`JointIntercept`, capped: the fast approach); within
+    ``near`` the damped-least-squares step matches the target's estimated velocity and closes the
+    remaining distance, halving it per step (`DampedLeastSquares`): the landing slows into the
+    capture envelope and tracks through its hold. The switch reads the observation alone, so the
+    controller is a function of it (no state kept between calls), as a residual base or an
+    imitation's teacher needs.
+
+    Args:
+        description: the environment's public description.
+        near: the distance from the end-effector to X^_T below which the DLS step acts, m.
+    """
+
+    def __init__(self, description: TaskDescription, near: float = JOINT_INTERCEPT_NEAR) -> None:
+        super().__init__(description)
+        if not near > 0.0:
+            raise ValueError(f"near must be > 0 m, got {near}")
+        self.near = float(near)
+        self.far_controller = JointIntercept(description)
+        self.near_controller = DampedLeastSquares(description)
+
+    def act_batch(self, observations: NDArray) -> NDArray[np.float32]:
+        """Actions for N observations, (N, 16) -> (N, 3), float32, in [-1, 1]."""
+        rows = np.asarray(observations).reshape(-1, OBSERVATION_SIZE)
+        obs = self.decode(rows)
+        x_e = forward_kinematics(obs.joint_angles)
+        distance = np.linalg.norm(obs.target_position - x_e, axis=1)
+        action = self.near_controller.act_batch(rows)
+        far = distance > self.near
+        if np.any(far):
+            action[far] = self.far_controller.act_batch(rows[far])
+        return action
 
 
 class RandomAgent(AnalyticController):

@@ -32,6 +32,7 @@ RESIDUAL_BASES = (
     "joint_intercept",
     "joint_intercept_uncapped",
     "dls",
+    "joint_intercept_dls",
 )
 #: The analytic controllers an imitation may learn from (``imitate``): the residual bases, and
 #: ``planned_intercept``, which keeps each row's plan between calls, so that it labels a row's
