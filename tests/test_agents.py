@@ -538,3 +538,21 @@ def test_joint_intercept_arrives_at_the_first_step_a_brute_force_finds_reachable
         assert np.linalg.norm(forward_kinematics(theta) - (p0 + v * k_first * T_S)) < 1e-5
         checked += 1
     assert checked >= 6
+
+
+def test_joint_intercept_dls_is_joint_intercept_far_from_the_estimate_and_dls_near_it():
+    """Row by row, with targets from on X_E to metres away: the joint intercept's action where
+    ||X^_T - X_E|| exceeds ``near``, the DLS step within it (both rows of each kind present)."""
+    agent = make_agent("joint_intercept_dls", PublicEnv())
+    far, near = make_agent("joint_intercept", PublicEnv()), make_agent("dls", PublicEnv())
+    obs = _observations(np.random.default_rng(3), 80)
+    decoded = decode_observation(obs, DESCRIPTION.control_period)
+    distance = np.linalg.norm(
+        decoded.target_position - forward_kinematics(decoded.joint_angles), axis=1
+    )
+    is_far = distance > agent.near
+    assert 10 <= is_far.sum() <= 70
+    expected = np.where(is_far[:, None], far.predict(obs)[0], near.predict(obs)[0])
+    assert np.array_equal(agent.predict(obs)[0], expected)
+    with pytest.raises(ValueError, match="near must be > 0 m"):
+        make_agent("joint_intercept_dls", PublicEnv(), near=0.0)

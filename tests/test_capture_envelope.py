@@ -123,7 +123,9 @@ def test_a_sweep_through_the_target_at_full_joint_rate_never_captures():
     assert _captures("joint_intercept_uncapped", v_max=0.05, hold=0.0) == 0
 
 
-@pytest.mark.parametrize("agent", ["incremental_ik", "joint_intercept", "oracle"])
+@pytest.mark.parametrize(
+    "agent", ["incremental_ik", "joint_intercept", "joint_intercept_dls", "oracle"]
+)
 def test_a_controller_that_lands_and_tracks_captures_under_the_envelope(agent):
     assert _captures(agent, v_max=0.05, hold=0.2) == len(SEEDS)
 
