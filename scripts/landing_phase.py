@@ -19,23 +19,22 @@ import numpy as np
 
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.evaluation.running.agents_loading import build_agent, resolve_agent
+from capture_bench.evaluation.running.rollout import run_episode
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.validation import ConfigError
 
 
 def phases(env: CaptureEnv, agent: object, seed: int, near: float) -> tuple[float, float]:
-    """(end of the approach, capture time), s, of one episode; NaN where it never comes within
-    ``near`` or is not captured."""
-    obs, _ = env.reset(seed=seed)
-    approach, done = math.nan, False
-    while not done:
-        action, _ = agent.predict(obs, deterministic=True)  # type: ignore[attr-defined]
-        obs, _, terminated, truncated, info = env.step(action)
-        if math.isnan(approach) and info["distance"] < near:
-            approach = float(info["time"])
-        done = terminated or truncated
-    captured = info.get("capture_time")
-    return approach, math.nan if captured is None else float(captured)
+    """(end of the approach, capture time), s, of one episode as the evaluation plays it
+    (`run_episode`, with its per-step trace); NaN where it never comes within ``near`` or is not
+    captured."""
+    record, trace = run_episode(
+        env, agent, agent_name="", scenario=env.scenario.name, seed=seed, trace=True
+    )
+    assert trace is not None
+    within = np.flatnonzero(trace.distance < near)
+    approach = float(trace.time[within[0]]) if within.size else math.nan
+    return approach, float(record.capture_time)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -63,7 +62,6 @@ def main(argv: list[str] | None = None) -> int:
         rows = []
         for seed in seeds:
             agent = build_agent(spec, env, seed)
-            agent.reset()
             rows.append(phases(env, agent, seed, args.near))
         approach, capture = np.array(rows).T
         ok = np.isfinite(capture) & np.isfinite(approach)
