@@ -42,6 +42,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
+from capture_bench.training.config.hyperparameters import IMITATION_DEFAULTS
+
 #: The algorithms whose policy the fit can set: an actor-critic's mean (PPO, A2C), an off-policy
 #: actor's deterministic squashed action (SAC, TQC).
 IMITATORS = ("ppo", "a2c", "sac", "tqc")
@@ -49,8 +51,8 @@ IMITATORS = ("ppo", "a2c", "sac", "tqc")
 #: Adam's learning rate and minibatch size for the imitation fit where a run leaves them out
 #: (``imitation_lr``, ``imitation_batch``): right for a policy on the 16 numbers of the
 #: observation; a convolutional student of pixels needs smaller steps (docs/pixels.md).
-IMITATION_LR = 1e-3
-IMITATION_BATCH = 1024
+IMITATION_LR = IMITATION_DEFAULTS["imitation_lr"]
+IMITATION_BATCH = IMITATION_DEFAULTS["imitation_batch"]
 
 #: N observations (N, 16) -> the teacher's N actions (N, 3)
 Teacher = Callable[[np.ndarray], np.ndarray]

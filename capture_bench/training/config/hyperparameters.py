@@ -408,9 +408,10 @@ def memory_estimate(
         cnn_parameters, cnn_activations = _cnn(side)
         stack = int(hp.get("frame_stack") or 1)
         crop = int(hp.get("ee_crop") or 0)
-        observation = 3 * stack * (side[0] * side[1] + crop * crop) + STATE_SIZE
+        pixels = 3 * stack * (side[0] * side[1] + crop * crop)
+        observation = pixels + STATE_SIZE
         # the imitation keeps the images as uint8 (one byte a number), the state as float32
-        kept_bytes = 3 * stack * (side[0] * side[1] + crop * crop) + STATE_SIZE * NUMBER_BYTES
+        kept_bytes = pixels + STATE_SIZE * NUMBER_BYTES
         features = CNN_FEATURES + STATE_SIZE
         if kwargs.get("features_extractor") == "keypoints":  # stride-1 maps: larger
             cnn_activations = 3 * stack * side[0] * side[1] + 40 * side[0] * side[1]
