@@ -239,6 +239,10 @@ def test_a_run_that_imitates_writes_what_it_did_and_validates_the_imitated_polic
         (["--set", "imitate=dls", "--set", "imitation_floor=-1"], "expected a number in [0, 10]"),
         (["--set", "imitate=dls", "--set", "imitation_lr=0"], "imitation_lr"),
         (["--set", "imitate=dls", "--set", "imitation_batch=0"], "imitation_batch"),
+        (
+            ["--set", "imitate=dls", "--set", "imitation_state_weight=1"],
+            "is for a pixel student of ppo or a2c",
+        ),
         (["--set", "imitate=oracle"], "expected one of incremental_ik"),
         (["--set", "imitate={paper: oracle}"], "or a mapping of scenario names (and default)"),
         (["--set", "imitate={grasp: dls}"], "'grasp', which is not a scenario of this run"),
@@ -440,10 +444,66 @@ def test_a_pixel_run_imitates_its_teacher_through_train_py(tmp_path):
     sets = ["n_envs=2", "total_timesteps=64", "n_steps=32", "batch_size=32", "n_epochs=1",
             "policy_kwargs.net_arch=[8]", f"image_size={PIXEL_SIZE}", "frame_stack=2",
             "eval_freq=0", "checkpoint_freq=0", "imitate=incremental_ik", "imitation_steps=32",
-            "imitation_rounds=2", "imitation_epochs=1"]  # fmt: skip
+            "imitation_rounds=2", "imitation_epochs=1", "imitation_state_weight=0.5"]  # fmt: skip
     argv = ["--observation-source", "pixels", "--config", "configs/pixels/ppo.yaml"]
     argv += [*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]
     assert train.main(argv) == 0
     done = json.loads((run_dir / "imitation.json").read_text())
     assert done["rounds"] == 2 and done["labelled_steps"] == 64
     assert done["agreement"][0] is None and 0.0 <= done["agreement"][1] <= 1.0
+    saved = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
+    assert saved["imitation_state_weight"] == 0.5
+
+
+def test_the_fits_state_regression_teaches_the_features_what_the_teacher_reads(monkeypatch):
+    """With ``state_weight`` the fit also regresses the teacher's (estimate-fed) observation of
+    each row from the actor's features: the head learns it, its gradient reaches the features
+    extractor, and the policy keeps its own parameters (the head is not one of them)."""
+    import torch
+
+    from capture_bench.training.common import imitation
+
+    model, venv = _pixel_model(2)
+    teacher = make_teacher(["incremental_ik"], [describe_task(load_scenario("paper"))], [2])
+    passed = []
+    raw_fit = imitation.fit
+
+    def spying_fit(policy, observations, targets, *args, **kwargs):
+        passed.append((observations, targets, args))
+        return raw_fit(policy, observations, targets, *args, **kwargs)
+
+    def view(_obs):
+        return venv.env_method("estimate_observation", indices=[0])[0]
+
+    monkeypatch.setattr(imitation, "fit", spying_fit)
+    keys = set(model.policy.state_dict())
+    try:
+        dagger(model, venv, teacher, rounds=1, steps=64, epochs=1, seed=0,
+               log=lambda line: None, teacher_view=view, state_weight=1.0)  # fmt: skip
+    finally:
+        venv.close()
+    observations, targets, (epochs, seed, floor, lr, batch, state) = passed[0]
+    assert state.weight == 1.0 and state.targets.shape == (64, 16)
+    live = state.targets.std(axis=0) > 0
+    np.testing.assert_allclose(
+        state.targets[:, live].mean(axis=0, dtype=np.float64), 0.0, atol=1e-6
+    )
+    np.testing.assert_allclose(state.targets[:, live].std(axis=0), 1.0, atol=1e-4)
+    assert set(model.policy.state_dict()) == keys
+    assert not {id(p) for p in state.head.parameters()} & {id(p) for p in model.policy.parameters()}
+
+    def said_error() -> float:
+        with torch.no_grad():
+            obs, _ = model.policy.obs_to_tensor(observations)
+            _, said = imitation._actions_and_state(model.policy, obs, state.head)
+            return float(torch.mean((said - torch.as_tensor(state.targets)) ** 2))
+
+    extractor = model.policy.pi_features_extractor
+    before, start = said_error(), [p.detach().clone() for p in extractor.parameters()]
+    raw_fit(model.policy, observations, targets, 40, seed, floor, 1e-3, 16, state)
+    assert said_error() < 0.5 * before
+    with_state = [p.detach().clone() for p in extractor.parameters()]
+    for p, s0 in zip(extractor.parameters(), start, strict=True):
+        p.data.copy_(s0)
+    raw_fit(model.policy, observations, targets, 40, seed, floor, 1e-3, 16)
+    assert not all(torch.equal(a, b) for a, b in zip(with_state, extractor.parameters()))

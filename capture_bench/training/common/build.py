@@ -181,6 +181,14 @@ def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: 
         raise ConfigError(
             f"imitate {teacher}: the controller reads the raw observation; set normalize: false"
         )
+    if settings.imitation_state_weight and (
+        config.observation_source != PIXELS or config.algo not in ("ppo", "a2c")
+    ):
+        raise ConfigError(
+            f"imitation_state_weight {settings.imitation_state_weight:g}: the fit's regression of "
+            "the teacher's observation is for a pixel student of ppo or a2c (--observation-source "
+            f"pixels); this run is {config.algo} on {config.observation_source}: leave it out"
+        )
     if config.observation_source == PIXELS and config.vec_env != "batched":
         raise ConfigError(
             f"imitate {teacher} with pixels: the controller reads the estimate of the step the "

@@ -25,6 +25,15 @@ estimator, which runs beside the pixels for ``info``): each visited pixel observ
 with the controller's action on that step's estimate. The controller acts as it would in the
 estimate-fed env; only the student's input differs.
 
+With ``imitation_state_weight`` w > 0 (pixels, PPO and A2C) the fit also asks the student's
+features to say what the teacher reads: a linear head from the actor's features to that step's
+estimate-fed observation (each of its 16 entries standardised over the data set) adds w times
+its mean squared error to the action's loss (`StateTargets`). The label of every rendered frame
+is then 16 numbers, the target's position and velocity among them, not the 3 of an action whose
+error says little of where the target is; the head shapes the features extractor during the
+fit and is not part of the policy (the policy saved and evaluated is the same network as
+without it).
+
 ``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
 (`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
 before its advantages move the actor (off-policy: before its Q-values move the actor; the
@@ -37,6 +46,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -182,6 +192,45 @@ def _rows(x: Any, batch: Any) -> Any:
     return {key: value[batch] for key, value in x.items()} if isinstance(x, dict) else x[batch]
 
 
+@dataclass
+class StateTargets:
+    """The auxiliary regression of `fit`: ``head`` (a ``torch.nn.Linear`` from the actor's
+    features to the teacher's observation), ``targets`` (N, 16), the teacher's observation of
+    each row of the data set, standardised, and ``weight`` w of its mean squared error."""
+
+    head: Any
+    targets: np.ndarray
+    weight: float
+
+
+def standardised(rows: np.ndarray) -> np.ndarray:
+    """``rows`` (N, D) less their mean over N, over their standard deviation (1 where it is
+    below 1e-6: a constant entry stays 0), float32."""
+    x = np.asarray(rows, dtype=np.float64)
+    std = x.std(axis=0)
+    return ((x - x.mean(axis=0)) / np.where(std < 1e-6, 1.0, std)).astype(np.float32)
+
+
+def _state_head(policy: Any, size: int, seed: int) -> Any:
+    """A linear map from ``policy``'s actor features to ``size`` numbers, seeded."""
+    import torch
+
+    with torch.random.fork_rng():  # torch's global stream stays where the run has it
+        torch.manual_seed(seed)
+        head = torch.nn.Linear(policy.features_dim, size)
+    return head.to(policy.device)
+
+
+def _actions_and_state(policy: Any, observations: Any, head: Any) -> tuple[Any, Any]:
+    """`mean_actions` of an actor-critic and ``head`` of the same features (one pass of the
+    actor's features extractor)."""
+    from stable_baselines3.common.policies import BaseModel
+
+    features = BaseModel.extract_features(policy, observations, policy.pi_features_extractor)
+    latent = policy.mlp_extractor.forward_actor(features)
+    return policy._get_action_dist_from_latent(latent).distribution.mean, head(features)
+
+
 def fit(
     policy: Any,
     observations: Any,
@@ -191,14 +240,20 @@ def fit(
     floor: float = 0.0,
     lr: float = IMITATION_LR,
     batch_size: int = IMITATION_BATCH,
+    state: StateTargets | None = None,
 ) -> float:
     """Fit the policy's mean action on ``observations`` (an array, or with pixels a dict of
     arrays) to ``targets`` (squared error, weighted by
     `label_weights` of ``floor``; Adam at ``lr`` on the actor's parameters, minibatches of
-    ``batch_size`` in a seeded order); return the last epoch's mean loss."""
+    ``batch_size`` in a seeded order), with ``state`` also its auxiliary regression (module
+    docstring; the head's parameters join Adam's); return the last epoch's mean loss of the
+    action (the auxiliary's not included)."""
     import torch
 
     params = list(actor_parameters(policy))
+    if state is not None:
+        params += list(state.head.parameters())
+        s = torch.as_tensor(state.targets, device=policy.device)
     optimizer = torch.optim.Adam(params, lr=lr)
     rng = np.random.default_rng(seed)
     x = _tensor(observations, policy.device)
@@ -212,10 +267,17 @@ def fit(
         loss_sum = 0.0
         for start in range(0, len(y), batch_size):
             batch = order[start : start + batch_size]
-            squared = (mean_actions(policy, _rows(x, batch)) - y[batch]) ** 2
+            if state is None:
+                actions = mean_actions(policy, _rows(x, batch))
+            else:
+                actions, said = _actions_and_state(policy, _rows(x, batch), state.head)
+            squared = (actions - y[batch]) ** 2
             loss = torch.mean(squared if w is None else w[batch] * squared)
+            total = loss
+            if state is not None:
+                total = loss + state.weight * torch.mean((said - s[batch]) ** 2)
             optimizer.zero_grad()
-            loss.backward()
+            total.backward()
             optimizer.step()
             loss_sum += loss.item() * len(batch)
     policy.set_training_mode(False)
@@ -256,11 +318,13 @@ def dagger(  # noqa: PLR0913
     teacher_view: Callable[[Any], np.ndarray] | None = None,
     lr: float = IMITATION_LR,
     batch_size: int = IMITATION_BATCH,
+    state_weight: float = 0.0,
 ) -> dict[str, Any]:
     """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring
     (``floor``, ``lr``, ``batch_size``: the fit's, `fit`; ``teacher_view``: what the teacher
     reads of the step whose observation the student sees, ``teacher_view(obs)``; None: the
-    observation itself).
+    observation itself; ``state_weight`` > 0: the fit's auxiliary regression of what the teacher
+    reads, `StateTargets`).
     Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
     share of the round's actions on which policy and teacher agree within 0.05 in every joint
     (None for round 0, where the teacher acts), the wall clock, s, and with ``validate`` (the
@@ -272,21 +336,30 @@ def dagger(  # noqa: PLR0913
     losses: list[float] = []
     agreement: list[float | None] = []
     curve: list[dict[str, float]] = []
+    views: list[np.ndarray] = []
+    head = None
     obs = venv.reset()
     for r in range(rounds):
         close = []
         for _ in range(per_round):
-            target = teacher(obs if teacher_view is None else teacher_view(obs))
+            seen = obs if teacher_view is None else teacher_view(obs)
+            target = teacher(seen)
             observations.append(_copied(obs))
             labels.append(target)
+            if state_weight > 0:
+                views.append(np.array(seen, dtype=np.float32))
             if r == 0:
                 action = target
             else:
                 action, _ = model.policy.predict(obs, deterministic=True)
                 close.append(np.all(np.abs(action - target) <= 0.05, axis=1))
             obs, _, _, _ = venv.step(np.asarray(action, dtype=np.float32))
+        state = None
+        if state_weight > 0:
+            head = head or _state_head(model.policy, views[0].shape[1], seed)
+            state = StateTargets(head, standardised(np.concatenate(views)), state_weight)
         loss = fit(model.policy, _stacked(observations), np.concatenate(labels), epochs,
-                   seed + r, floor, lr, batch_size)  # fmt: skip
+                   seed + r, floor, lr, batch_size, state)  # fmt: skip
         losses.append(loss)
         agreement.append(float(np.mean(np.concatenate(close))) if close else None)
         rows = sum(len(label) for label in labels)

@@ -416,7 +416,8 @@ def imitate(
     return dagger(model, raw, teacher, settings.imitation_rounds, settings.imitation_steps,
                   settings.imitation_epochs, config.seed or 0, validate=validate,
                   floor=settings.imitation_floor, teacher_view=view, lr=settings.imitation_lr,
-                  batch_size=settings.imitation_batch)  # fmt: skip
+                  batch_size=settings.imitation_batch,
+                  state_weight=settings.imitation_state_weight or 0.0)  # fmt: skip
 
 
 def resolved_yaml(config: TrainConfig, settings: TrainingSettings, origin: dict) -> str:

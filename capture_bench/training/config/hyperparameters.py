@@ -110,6 +110,9 @@ TRAINING_KEYS = {
     # a policy on the 16 numbers of the observation: docs/pixels.md)
     "imitation_lr": Rule("float", 0.0, 1.0, low_inclusive=False),
     "imitation_batch": POS_INT,
+    # > 0, pixels (ppo, a2c): the fit also regresses the teacher's estimate-fed observation from
+    # the actor's features, this weight times its squared error (imitation.StateTargets)
+    "imitation_state_weight": Rule("float", 0.0, 100.0),
     # a mixture's sub-envs per scenario, relative to the scenarios it leaves out (weight 1 each):
     # {grasp: 4} gives grasp four times the share of each other scenario (mixture.mixture_shares)
     "mixture_weights": Rule("weights"),
@@ -148,7 +151,7 @@ PIXEL_OPTION_KEYS = (
     "ee_crop_supersample",
 )
 #: What an imitation leaves out takes: 4 rounds of 200k steps, 10 passes each of Adam at 1e-3 on
-#: minibatches of 1024, no warm-up.
+#: minibatches of 1024, no warm-up, no auxiliary regression.
 IMITATION_DEFAULTS = {
     "imitation_rounds": 4,
     "imitation_steps": 200_000,
@@ -157,6 +160,7 @@ IMITATION_DEFAULTS = {
     "imitation_floor": 0.0,
     "imitation_lr": 1e-3,
     "imitation_batch": 1024,
+    "imitation_state_weight": 0.0,
 }
 #: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
 CURRICULA = ("curriculum_tolerance", "curriculum_hold")

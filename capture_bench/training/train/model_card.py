@@ -517,6 +517,11 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
             if "imitation_lr" in hp
             else ""
         )
+        if hp.get("imitation_state_weight"):
+            fit_steps += (
+                f"plus {hp['imitation_state_weight']:g} x the error of a regression of the "
+                "teacher's observation from the policy's features; "
+            )
         imitated = [
             f"- imitation: DAgger from `{imitation['teacher']}`, {imitation['rounds']} rounds, "
             f"{imitation['environment_steps']:,} environment steps on training seeds, "
