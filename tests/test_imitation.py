@@ -451,6 +451,7 @@ def test_a_pixel_run_imitates_its_teacher_through_train_py(tmp_path):
     done = json.loads((run_dir / "imitation.json").read_text())
     assert done["rounds"] == 2 and done["labelled_steps"] == 64
     assert done["agreement"][0] is None and 0.0 <= done["agreement"][1] <= 1.0
+    assert len(done["state_mse"]) == 2 and all(np.isfinite(done["state_mse"]))
     saved = json.loads((run_dir / "config.json").read_text())["hyperparameters"]
     assert saved["imitation_state_weight"] == 0.5
 
@@ -502,6 +503,7 @@ def test_the_fits_state_regression_teaches_the_features_what_the_teacher_reads(m
     before, start = said_error(), [p.detach().clone() for p in extractor.parameters()]
     raw_fit(model.policy, observations, targets, 40, seed, floor, 1e-3, 16, state)
     assert said_error() < 0.5 * before
+    assert state.last_mse is not None and state.last_mse < 0.5 * before  # what fit says it left
     with_state = [p.detach().clone() for p in extractor.parameters()]
     for p, s0 in zip(extractor.parameters(), start, strict=True):
         p.data.copy_(s0)

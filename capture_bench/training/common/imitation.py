@@ -196,11 +196,13 @@ def _rows(x: Any, batch: Any) -> Any:
 class StateTargets:
     """The auxiliary regression of `fit`: ``head`` (a ``torch.nn.Linear`` from the actor's
     features to the teacher's observation), ``targets`` (N, 16), the teacher's observation of
-    each row of the data set, standardised, and ``weight`` w of its mean squared error."""
+    each row of the data set, standardised, and ``weight`` w of its mean squared error;
+    ``last_mse``, set by `fit`: that error over the last epoch (1 is the targets' variance)."""
 
     head: Any
     targets: np.ndarray
     weight: float
+    last_mse: float | None = None
 
 
 def standardised(rows: np.ndarray) -> np.ndarray:
@@ -261,10 +263,10 @@ def fit(
     weights = label_weights(targets, floor)
     w = None if weights is None else torch.as_tensor(weights[:, None], device=policy.device)
     policy.set_training_mode(True)
-    loss_sum = 0.0
+    loss_sum = state_sum = 0.0
     for _ in range(epochs):
         order = torch.as_tensor(rng.permutation(len(y)), device=policy.device)
-        loss_sum = 0.0
+        loss_sum = state_sum = 0.0
         for start in range(0, len(y), batch_size):
             batch = order[start : start + batch_size]
             if state is None:
@@ -275,12 +277,16 @@ def fit(
             loss = torch.mean(squared if w is None else w[batch] * squared)
             total = loss
             if state is not None:
-                total = loss + state.weight * torch.mean((said - s[batch]) ** 2)
+                state_loss = torch.mean((said - s[batch]) ** 2)
+                total = loss + state.weight * state_loss
+                state_sum += state_loss.item() * len(batch)
             optimizer.zero_grad()
             total.backward()
             optimizer.step()
             loss_sum += loss.item() * len(batch)
     policy.set_training_mode(False)
+    if state is not None:
+        state.last_mse = state_sum / len(y)
     return loss_sum / len(y)
 
 
@@ -327,13 +333,16 @@ def dagger(  # noqa: PLR0913
     reads, `StateTargets`).
     Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
     share of the round's actions on which policy and teacher agree within 0.05 in every joint
-    (None for round 0, where the teacher acts), the wall clock, s, and with ``validate`` (the
-    run's validation: pooled statistics of the policy on validation seeds) the policy's
-    validation after each round and the wall clock then, its learning curve (``validations``)."""
+    (None for round 0, where the teacher acts), with ``state_weight`` each round's error of the
+    regression of the teacher's observation (``state_mse``, a share of its variance), the wall
+    clock, s, and with ``validate`` (the run's validation: pooled statistics of the policy on
+    validation seeds) the policy's validation after each round and the wall clock then, its
+    learning curve (``validations``)."""
     start = time.perf_counter()
     per_round = max(1, math.ceil(steps / venv.num_envs))
     observations, labels = [], []
     losses: list[float] = []
+    state_losses: list[float] = []
     agreement: list[float | None] = []
     curve: list[dict[str, float]] = []
     views: list[np.ndarray] = []
@@ -361,6 +370,8 @@ def dagger(  # noqa: PLR0913
         loss = fit(model.policy, _stacked(observations), np.concatenate(labels), epochs,
                    seed + r, floor, lr, batch_size, state)  # fmt: skip
         losses.append(loss)
+        if state is not None and state.last_mse is not None:
+            state_losses.append(state.last_mse)
         agreement.append(float(np.mean(np.concatenate(close))) if close else None)
         rows = sum(len(label) for label in labels)
         note = "" if r == 0 else f", policy within 0.05 of the teacher on {agreement[-1]:.0%}"
@@ -372,13 +383,18 @@ def dagger(  # noqa: PLR0913
                           "wall_time_s": wall})  # fmt: skip
             note += (f"; validation capture rate {stats['capture_rate']:.2f}, median ratio "
                      f"{stats['median_ratio_to_limit']:.2f}")  # fmt: skip
-        log(f"imitation round {r + 1}/{rounds}: {rows} labelled steps, fit MSE {loss:.2e}{note}")
+        said = ""
+        if state_losses:
+            said = f" (the teacher's observation: {state_losses[-1]:.3f} of its variance)"
+        log(f"imitation round {r + 1}/{rounds}: {rows} labelled steps, fit MSE {loss:.2e}{said}"
+            f"{note}")  # fmt: skip
     return {
         "rounds": rounds,
         "environment_steps": rounds * per_round * venv.num_envs,
         "labelled_steps": sum(len(label) for label in labels),
         "fit_mse": losses,
         "agreement": agreement,
+        **({"state_mse": state_losses} if state_losses else {}),
         "wall_time_s": round(time.perf_counter() - start, 1),
         **({"validations": curve} if validate is not None else {}),
     }
