@@ -365,7 +365,8 @@ def dagger(  # noqa: PLR0913
             obs, _, _, _ = venv.step(np.asarray(action, dtype=np.float32))
         state = None
         if state_weight > 0:
-            head = head or _state_head(model.policy, views[0].shape[1], seed)
+            if head is None:
+                head = _state_head(model.policy, views[0].shape[1], seed)
             state = StateTargets(head, standardised(np.concatenate(views)), state_weight)
         loss = fit(model.policy, _stacked(observations), np.concatenate(labels), epochs,
                    seed + r, floor, lr, batch_size, state)  # fmt: skip
