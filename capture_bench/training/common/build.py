@@ -42,6 +42,9 @@ from capture_bench.training.seeds import TrainingSeeds
 #: <= 1024), so a second thread saves little in the update and costs a spin-waiting core that
 #: the env side (the same process) and other processes need; see docs/speed.md, "Training speed".
 TORCH_THREADS = 1
+#: The algorithms whose policy is SB3's ``ActorCriticPolicy``: one actor and one value net, both
+#: fed by the features extractor (what the asymmetric critic and the fit's state regression use).
+ACTOR_CRITIC_ALGOS = ("ppo", "a2c")
 
 
 def pixel_config(algo: str) -> Path:
@@ -103,7 +106,7 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
     if pixels:
         _check_pixel_options(config, settings)
     if settings.asymmetric_critic and (
-        config.algo not in ("ppo", "a2c") or config.vec_env != "batched"
+        config.algo not in ACTOR_CRITIC_ALGOS or config.vec_env != "batched"
     ):
         raise ConfigError(
             f"asymmetric_critic: the critic's true state comes from the batched env to PPO's or "
@@ -182,7 +185,7 @@ def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: 
             f"imitate {teacher}: the controller reads the raw observation; set normalize: false"
         )
     if settings.imitation_state_weight and (
-        config.observation_source != PIXELS or config.algo not in ("ppo", "a2c")
+        config.observation_source != PIXELS or config.algo not in ACTOR_CRITIC_ALGOS
     ):
         raise ConfigError(
             f"imitation_state_weight {settings.imitation_state_weight:g}: the fit's regression of "
