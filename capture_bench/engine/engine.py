@@ -192,6 +192,20 @@ class EpisodeEngine:
             self.task.description.control_period,
         )
 
+    def true_features(self) -> NDArray[np.float64]:
+        """Every row's target feature points (the marker centres) at
+        its current step, global, m, (N, F, 3): X_T + R_gt f for the task's features f
+        (privileged: the truth behind the image, for supervising what a pixel network reads)."""
+        rows, k = self._now()
+        position = np.reshape(self.tracks["position"][rows, k], (-1, 3))
+        rotation = np.stack(
+            [
+                episode.rotation[j]  # type: ignore[union-attr]
+                for episode, j in zip(self.episodes, self.steps.tolist(), strict=True)
+            ]
+        )
+        return position[:, None, :] + np.einsum("nij,fj->nfi", rotation, self.task.features)
+
     def _now(self) -> tuple[Rows, Steps]:
         """Every row and its current step (for one row, a slice and a step: views)."""
         if self.n == 1:

@@ -318,6 +318,12 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         critic reads in training, `capture_bench.training.common.asymmetric`)."""
         return self._live_engine().observe_truth()
 
+    def true_features(self) -> NDArray[np.float64]:
+        """Every sub-env's target feature points (the marker centres) at its current step,
+        global, m, (num_envs, F, 3) (privileged: the truth behind the image; `WorkspaceImager.
+        view_points` places them in a view's pixels, `capture_bench.sensing.workspace_image`)."""
+        return self._live_engine().true_features()
+
     def set_episode_seeds(self, sources: Sequence[EpisodeSeedSource] | None) -> None:
         """Seed every later episode of sub-env i with ``sources[i].next()`` (None: back to each
         sub-env's own generator, gymnasium's rule).

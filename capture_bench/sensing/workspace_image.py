@@ -294,6 +294,22 @@ class WorkspaceImager:
         self._pose(theta, position, rotation)
         return self._shoot(self._request, self.size, out)
 
+    def view_points(self, points: ArrayLike, x_e: ArrayLike) -> dict[str, NDArray[np.float64]]:
+        """Where global points (M, 3) lie in each view of a scene whose end-effector is at
+        ``x_e`` (global, m, (3,)): ``image`` (M, 2) and, with the crop, ``ee_image`` (M, 2),
+        [column, row] in the view's pixels, fractional, pixel (i, j) at (j, i): the point sampled
+        for view pixel j is sensor column u0 + s j + s // 2 (module docstring), so a point's
+        column is (u - u0 - s // 2) / s for its projection u (eq. 2), and the same in rows."""
+        uv = pixel_of(self.model.to_camera(np.asarray(points, float).reshape(-1, 3)), self.model)
+        u0, _, v0, _ = self.window
+        s = self.scale
+        found = {"image": (uv - [u0 + s // 2, v0 + s // 2]) / s}
+        n, c = self.options.ee_crop, self.options.ee_crop_scale
+        if n > 0:
+            e0, _, f0, _ = ee_window(self.model, x_e, n * c)
+            found["ee_image"] = (uv - [e0 + c // 2, f0 + c // 2]) / c
+        return found
+
     def render_ee(
         self,
         theta: ArrayLike,
