@@ -35,6 +35,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,7 +74,7 @@ class Rows:
 class SeedList:
     """Episode seeds in a given order (an `EpisodeSeedSource`)."""
 
-    def __init__(self, seeds: list[int]) -> None:
+    def __init__(self, seeds: Sequence[int]) -> None:
         self._seeds = iter(seeds)
 
     def next(self) -> int:
@@ -84,7 +85,7 @@ def make_env(scenario: str, options: dict[str, int], **kwargs: object) -> Captur
     return CaptureVectorEnv(NUM_ENVS, scenario, observation_source="pixels", **options, **kwargs)
 
 
-def collect(scenario: str, options: dict[str, int], steps: int, seeds: list[int]) -> Rows:
+def collect(scenario: str, options: dict[str, int], steps: int, seeds: Sequence[int]) -> Rows:
     """``steps`` rows of `dls` with DART noise (module docstring, 1) on episodes seeded from
     ``seeds`` in turn (one per sub-env reset)."""
     venv = make_env(scenario, options)
@@ -294,8 +295,8 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     if args.ee_crop:
         options |= {"ee_crop": args.ee_crop, "ee_crop_scale": args.ee_crop_scale}
     start = time.perf_counter()
-    train_seeds = list(scenario.training_seeds[: args.train_steps])
-    validation_seeds = list(scenario.validation_seeds[args.episodes :])
+    train_seeds = scenario.training_seeds
+    validation_seeds = scenario.validation_seeds[args.episodes :]
     train = collect(args.scenario, options, args.train_steps, train_seeds)
     validation = collect(args.scenario, options, args.validation_steps, validation_seeds)
     collected = time.perf_counter() - start
