@@ -21,6 +21,23 @@ set_hypothesis_home_dir(Path(tempfile.gettempdir()) / "capture-bench-hypothesis"
 os.environ.setdefault("SB3_LOGDIR", str(Path(tempfile.gettempdir()) / "capture-bench-sb3-logs"))
 
 
+@pytest.fixture(scope="session")
+def load_script():
+    """``load_script(name)``: ``scripts/<name>.py`` as a module, registered in ``sys.modules``
+    under ``name`` (a dataclass there looks its module up)."""
+    import sys
+
+    def _load(name: str):
+        path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+        return module
+
+    return _load
+
+
 @pytest.fixture
 def make_env():
     """Factory for registered envs; closes every env it made."""

@@ -4,23 +4,9 @@ far better than on point-sampled ones."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 
 from capture_bench.sim.markers import BLOCK_COLOUR, MARKER_COLOURS
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "pixel_depth.py"
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("pixel_depth", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass looks itself up there
-    spec.loader.exec_module(module)
-    return module
 
 
 def _area_sampled_discs(centres: np.ndarray, radius: float, size: int, m: int) -> np.ndarray:
@@ -35,8 +21,8 @@ def _area_sampled_discs(centres: np.ndarray, radius: float, size: int, m: int) -
     return np.rint(image.reshape(size, m, size, m, 3).mean(axis=(1, 3))).astype(np.uint8)
 
 
-def test_the_reading_finds_an_area_sampled_discs_centre_to_a_tenth_of_a_pixel():
-    pixel_depth = _script()
+def test_the_reading_finds_an_area_sampled_discs_centre_to_a_tenth_of_a_pixel(load_script):
+    pixel_depth = load_script("pixel_depth")
     centres = np.array([[6.3, 5.8], [17.55, 6.1], [6.05, 17.4], [17.2, 17.77]])
     read = pixel_depth.read_markers(_area_sampled_discs(centres, 1.6, 24, 11))
     np.testing.assert_allclose(read, centres, atol=0.08)
@@ -44,8 +30,8 @@ def test_the_reading_finds_an_area_sampled_discs_centre_to_a_tenth_of_a_pixel():
     assert np.abs(point - centres).max() > 0.1  # point sampling: the whole-pixel blob's centre
 
 
-def test_area_sampling_locates_the_target_in_depth_where_point_sampling_cannot():
-    pixel_depth = _script()
+def test_area_sampling_locates_the_target_in_depth_where_point_sampling_cannot(load_script):
+    pixel_depth = load_script("pixel_depth")
     point = pixel_depth.depth_reading("paper", 1, 8)
     area = pixel_depth.depth_reading("paper", 11, 8)
     assert len(area.errors) >= 12 and len(point.errors) >= 12

@@ -3,10 +3,6 @@ describe, and scripts/pixel_keypoint_probe.py end to end on a few rows."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -16,16 +12,7 @@ from capture_bench.sensing.detector import detect_markers
 from capture_bench.sim.kinematics import HOME, forward_kinematics
 from capture_bench.task.scenarios import load_scenario
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "pixel_keypoint_probe.py"
 CROP = {"image_supersample": 3, "ee_crop": 75, "ee_crop_scale": 3}
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("pixel_keypoint_probe", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass looks itself up there
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_true_features_are_the_targets_markers_where_the_target_is():
@@ -70,8 +57,8 @@ def test_view_points_are_where_the_rendered_markers_and_the_end_effector_are():
     assert np.all(np.abs(points["ee_image"][4] - 37) <= 0.5 / 3 + 1e-9)
 
 
-def test_the_probe_collects_fits_measures_and_plays(tmp_path):
-    probe = _script()
+def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
+    probe = load_script("pixel_keypoint_probe")
     rows = probe.collect("paper", CROP, 48, list(range(16 * 64)))
     assert rows.views["image"].shape == (48, 3, 84, 84)
     assert rows.views["ee_image"].shape == (48, 3, 75, 75)
@@ -98,16 +85,16 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path):
     assert all(np.isfinite(report["relative_median_mm"]))
 
 
-def test_the_probe_refuses_an_unknown_scenario_in_one_line(capsys):
-    probe = _script()
+def test_the_probe_refuses_an_unknown_scenario_in_one_line(capsys, load_script):
+    probe = load_script("pixel_keypoint_probe")
     assert probe.main(["--scenario", "nowhere", "--train-steps", "16"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("pixel_keypoint_probe:") and "\n" not in err
 
 
 @pytest.mark.parametrize("crop", [0, 75])
-def test_the_probe_network_reads_every_view(crop):
-    probe = _script()
+def test_the_probe_network_reads_every_view(crop, load_script):
+    probe = load_script("pixel_keypoint_probe")
     sizes = {"image": 84, **({"ee_image": crop} if crop else {})}
     net = probe.ProbeNet(sizes)
     import torch
