@@ -130,10 +130,31 @@ def collect(scenario: str, options: dict[str, int], steps: int, seeds: Sequence[
     )
 
 
-class ViewKeypoints(nn.Module):
-    """One view (B, 3, H, W) uint8 -> keypoints in pixels (B, K, 2) and features (B, D)."""
+def local_soft_argmax(maps: torch.Tensor, temperature: torch.Tensor, half: int) -> torch.Tensor:
+    """Each map's (B, K, H, W) expected position under its softmax over the (2 half + 1)^2 pixels
+    around its largest value (the window moved inside the map at the edges), [x, y] in pixels,
+    (B, K, 2): the background beyond the window has no weight to pull it."""
+    b, k, h, w = maps.shape
+    peak = maps.flatten(2).argmax(-1)
+    side = 2 * half + 1
+    r0 = (peak // w).clamp(half, h - 1 - half) - half
+    c0 = (peak % w).clamp(half, w - 1 - half) - half
+    offsets = torch.arange(side, device=maps.device)
+    rows = (r0[..., None] + offsets)[..., :, None].expand(b, k, side, side)
+    cols = (c0[..., None] + offsets)[..., None, :].expand(b, k, side, side)
+    flat = (rows * w + cols).reshape(b, k, -1)
+    weights = torch.softmax(maps.flatten(2).gather(-1, flat) / temperature, dim=-1)
+    x = (weights * cols.reshape(b, k, -1)).sum(-1)
+    y = (weights * rows.reshape(b, k, -1)).sum(-1)
+    return torch.stack((x, y), dim=-1).float()
 
-    def __init__(self, size: int) -> None:
+
+class ViewKeypoints(nn.Module):
+    """One view (B, 3, H, W) uint8 -> its keypoints in pixels, a list of (B, K, 2) (the whole
+    view's spatial softmax, and with ``window`` > 0 the `local_soft_argmax` that the features
+    read), and features (B, D)."""
+
+    def __init__(self, size: int, window: int = 0) -> None:
         super().__init__()
         self.maps = nn.Sequential(
             nn.Conv2d(3, HIDDEN, 3, padding=1), nn.ReLU(), nn.Conv2d(HIDDEN, KEYPOINTS, 1)
@@ -142,17 +163,21 @@ class ViewKeypoints(nn.Module):
         with torch.no_grad():
             self.softmax.log_temperature.fill_(np.log(0.1))  # sharp from the start
         self.size = size
+        self.window = window
         self.pairs = torch.triu_indices(KEYPOINTS, KEYPOINTS, 1)
         self.dim = 3 * KEYPOINTS + self.pairs.shape[1]
 
-    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, image: torch.Tensor) -> tuple[list[torch.Tensor], torch.Tensor]:
         maps = self.maps(image.float() / 255.0)
         xy = self.softmax(maps).reshape(-1, KEYPOINTS, 2)  # [-1, 1], first to last pixel centre
         t = self.softmax.log_temperature.exp()
+        pixels = [(xy + 1.0) * (self.size - 1) / 2.0]
+        if self.window > 0:
+            pixels.append(local_soft_argmax(maps, t, self.window))
+            xy = pixels[-1] * 2.0 / (self.size - 1) - 1.0
         mass = torch.logsumexp(maps.flatten(2) / t, dim=-1) / 10.0
         i, j = self.pairs
         spacing = torch.log(torch.linalg.vector_norm(xy[:, i] - xy[:, j], dim=-1) + 1e-3)
-        pixels = (xy + 1.0) * (self.size - 1) / 2.0
         return pixels, torch.cat((xy.flatten(1), mass, spacing), dim=1)
 
 
@@ -160,9 +185,9 @@ class ProbeNet(nn.Module):
     """The views' keypoint features and the state -> (action (3), relative vector (3),
     standardised); the keypoints of each view in pixels."""
 
-    def __init__(self, sizes: dict[str, int]) -> None:
+    def __init__(self, sizes: dict[str, int], window: int = 0) -> None:
         super().__init__()
-        self.views = nn.ModuleDict({k: ViewKeypoints(s) for k, s in sizes.items()})
+        self.views = nn.ModuleDict({k: ViewKeypoints(s, window) for k, s in sizes.items()})
         width = sum(v.dim for v in self.views.values()) + 7
         self.trunk = nn.Sequential(nn.Linear(width, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU())
         self.head = nn.Linear(256, 6)
@@ -212,10 +237,11 @@ def fit(net: ProbeNet, rows: Rows, epochs: int, lr: float, supervise: bool, seed
             a, r, keypoints = net(*_batch(rows, index))
             loss = ((a - action[index]) ** 2).mean() + ((r - relative[index]) ** 2).mean()
             if supervise:
-                for k, p in keypoints.items():
+                for k, found in keypoints.items():
                     f = points[k].shape[1]
-                    err = ((p[:, :f] - points[k][index]) ** 2).sum(-1)
-                    loss = loss + 0.01 * (inside[k][index] * err).mean()
+                    for p in found:  # the whole view's keypoints and the local ones
+                        err = ((p[:, :f] - points[k][index]) ** 2).sum(-1)
+                        loss = loss + 0.01 * (inside[k][index] * err).mean()
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -233,7 +259,7 @@ def measure(net: ProbeNet, rows: Rows) -> dict[str, object]:
             actions.append(a.numpy())
             relatives.append(r.numpy())
             for k, p in keypoints.items():
-                found[k].append(p.numpy())
+                found[k].append(p[-1].numpy())  # the keypoints the features read
     r_mean, r_std = net.relative_scale  # type: ignore[misc]
     predicted = np.concatenate(relatives) * r_std + r_mean
     error = np.abs(predicted - rows.relative).astype(float) * 1e3  # mm
@@ -300,9 +326,10 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     train = collect(args.scenario, options, args.train_steps, train_seeds)
     validation = collect(args.scenario, options, args.validation_steps, validation_seeds)
     collected = time.perf_counter() - start
-    net = ProbeNet({k: v.shape[-1] for k, v in train.views.items()})
+    net = ProbeNet({k: v.shape[-1] for k, v in train.views.items()}, args.window)
     fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed)
-    report = {"options": options, "supervised": not args.no_supervision, **measure(net, validation)}
+    report = {"options": options, "supervised": not args.no_supervision, "window": args.window,
+              **measure(net, validation)}  # fmt: skip
     report["captured"] = play(net, args.scenario, options, args.episodes) if args.episodes else 0
     report["episodes"] = args.episodes
     report["collect_s"] = round(collected, 1)
@@ -323,6 +350,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=48, help="validation seeds played")
     parser.add_argument("--no-supervision", action="store_true",
                         help="no privileged keypoint targets")  # fmt: skip
+    parser.add_argument("--window", type=int, default=0,
+                        help="w > 0: the features read each map's soft-argmax over the (2w+1)^2 "
+                        "pixels around its peak (both keypoints supervised)")  # fmt: skip
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="write the report here as JSON")

@@ -76,10 +76,10 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
 
     out = tmp_path / "probe.json"
     args = ["--train-steps", "48", "--validation-steps", "32", "--epochs", "1", "--episodes", "2",
-            "--out", str(out)]  # fmt: skip
+            "--window", "2", "--out", str(out)]  # fmt: skip
     assert probe.main(args) == 0
     report = __import__("json").loads(out.read_text())
-    assert report["rows"] == 32 and report["episodes"] == 2
+    assert report["rows"] == 32 and report["episodes"] == 2 and report["window"] == 2
     assert 0 <= report["captured"] <= 2
     assert len(report["image_keypoint_median_px"]) == 5  # four markers and X_E
     assert all(np.isfinite(report["relative_median_mm"]))
@@ -92,16 +92,32 @@ def test_the_probe_refuses_an_unknown_scenario_in_one_line(capsys, load_script):
     assert err.startswith("pixel_keypoint_probe:") and "\n" not in err
 
 
-@pytest.mark.parametrize("crop", [0, 75])
-def test_the_probe_network_reads_every_view(crop, load_script):
+@pytest.mark.parametrize(("crop", "window"), [(0, 0), (75, 3)])
+def test_the_probe_network_reads_every_view(crop, window, load_script):
     probe = load_script("pixel_keypoint_probe")
     sizes = {"image": 84, **({"ee_image": crop} if crop else {})}
-    net = probe.ProbeNet(sizes)
+    net = probe.ProbeNet(sizes, window)
     import torch
 
     views = {k: torch.zeros((2, 3, s, s), dtype=torch.uint8) for k, s in sizes.items()}
     action, relative, keypoints = net(views, torch.zeros((2, 7)))
     assert action.shape == (2, 3) and relative.shape == (2, 3)
     assert set(keypoints) == set(sizes)
-    for k, p in keypoints.items():  # a blank image: every map uniform, keypoints at the centre
-        np.testing.assert_allclose(p.detach().numpy(), (sizes[k] - 1) / 2, atol=1e-3)
+    for k, found in keypoints.items():
+        assert len(found) == (2 if window else 1)  # the whole view's, then the local ones
+        # a blank image: every map uniform, the whole view's keypoints at its centre
+        np.testing.assert_allclose(found[0].detach().numpy(), (sizes[k] - 1) / 2, atol=1e-3)
+
+
+def test_the_local_soft_argmax_finds_a_peaks_sub_pixel_centre_the_whole_view_misses(load_script):
+    import torch
+
+    probe = load_script("pixel_keypoint_probe")
+    ys, xs = torch.meshgrid(torch.arange(30.0), torch.arange(40.0), indexing="ij")
+    centre = torch.tensor([20.3, 11.7])
+    maps = 5.0 * torch.exp(-((xs - centre[0]) ** 2 + (ys - centre[1]) ** 2) / 2.0)
+    found = probe.local_soft_argmax(maps[None, None], torch.tensor(1.0), 3)[0, 0]
+    assert torch.linalg.vector_norm(found - centre) < 0.12
+    weights = torch.softmax(maps.flatten(), 0)  # the whole view: the background pulls it away
+    whole = torch.stack(((weights * xs.flatten()).sum(), (weights * ys.flatten()).sum()))
+    assert torch.linalg.vector_norm(whole - centre) > 1.0
