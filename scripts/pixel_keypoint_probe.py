@@ -193,6 +193,8 @@ class ProbeNet(nn.Module):
         self.head = nn.Linear(256, 6)
         self.register_buffer("mean", torch.zeros(width))
         self.register_buffer("std", torch.ones(width))
+        self.register_buffer("relative_mean", torch.zeros(3))  # m: the relative head's units
+        self.register_buffer("relative_std", torch.ones(3))
 
     def features(self, views: dict[str, torch.Tensor], state: torch.Tensor):
         found = {k: net(views[k]) for k, net in self.views.items()}
@@ -218,8 +220,9 @@ def fit(net: ProbeNet, rows: Rows, epochs: int, lr: float, supervise: bool, seed
         x, _ = net.features(*_batch(rows, np.sort(rng.choice(n, min(n, 2048), replace=False))))
         net.mean.copy_(x.mean(0))
         net.std.copy_(x.std(0) + 1e-3)
-    r_mean, r_std = rows.relative.mean(0), rows.relative.std(0) + 1e-6
-    relative = torch.as_tensor((rows.relative - r_mean) / r_std)
+        net.relative_mean.copy_(torch.as_tensor(rows.relative.mean(0)))
+        net.relative_std.copy_(torch.as_tensor(rows.relative.std(0) + 1e-6))
+    relative = (torch.as_tensor(rows.relative) - net.relative_mean) / net.relative_std
     action = torch.as_tensor(rows.action)
     points = {k: torch.as_tensor(v) for k, v in rows.points.items()}
     inside = {
@@ -247,7 +250,6 @@ def fit(net: ProbeNet, rows: Rows, epochs: int, lr: float, supervise: bool, seed
             optimizer.step()
             schedule.step()
     net.eval()
-    net.relative_scale = (r_mean, r_std)  # type: ignore[assignment]
 
 
 def measure(net: ProbeNet, rows: Rows) -> dict[str, object]:
@@ -260,8 +262,7 @@ def measure(net: ProbeNet, rows: Rows) -> dict[str, object]:
             relatives.append(r.numpy())
             for k, p in keypoints.items():
                 found[k].append(p[-1].numpy())  # the keypoints the features read
-    r_mean, r_std = net.relative_scale  # type: ignore[misc]
-    predicted = np.concatenate(relatives) * r_std + r_mean
+    predicted = np.concatenate(relatives) * net.relative_std.numpy() + net.relative_mean.numpy()
     error = np.abs(predicted - rows.relative).astype(float) * 1e3  # mm
     near = np.linalg.norm(rows.relative, axis=1) < NEAR
     report: dict[str, object] = {
