@@ -193,9 +193,9 @@ class EpisodeEngine:
         )
 
     def true_features(self) -> NDArray[np.float64]:
-        """Every row's target feature points (the marker centres) at
-        its current step, global, m, (N, F, 3): X_T + R_gt f for the task's features f
-        (privileged: the truth behind the image, for supervising what a pixel network reads)."""
+        """Every row's target feature points (the marker centres) at its current step, global,
+        m, (N, F, 3): X_T + R_gt f for the task's features f (privileged: the truth behind the
+        image, for supervising what a pixel network reads)."""
         rows, k = self._now()
         position = np.reshape(self.tracks["position"][rows, k], (-1, 3))
         rotation = np.stack(

@@ -299,7 +299,9 @@ class WorkspaceImager:
         ``x_e`` (global, m, (3,)): ``image`` (M, 2) and, with the crop, ``ee_image`` (M, 2),
         [column, row] in the view's pixels, fractional, pixel (i, j) at (j, i): the point sampled
         for view pixel j is sensor column u0 + s j + s // 2 (module docstring), so a point's
-        column is (u - u0 - s // 2) / s for its projection u (eq. 2), and the same in rows."""
+        column is (u - u0 - s // 2) / s for its projection u (eq. 2), and the same in rows (an
+        area-sampled pixel's footprint is centred at u0 + s j + (s - 1) / 2: the same for odd s,
+        half a sensor pixel earlier for even s)."""
         uv = pixel_of(self.model.to_camera(np.asarray(points, float).reshape(-1, 3)), self.model)
         u0, _, v0, _ = self.window
         s = self.scale
