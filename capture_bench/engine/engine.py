@@ -154,12 +154,7 @@ class EpisodeEngine:
         if self._imager is None:
             return self.observe_estimate()
         rows, k = self._now()
-        rotation = np.stack(
-            [
-                episode.rotation[j]  # type: ignore[union-attr]
-                for episode, j in zip(self.episodes, self.steps.tolist(), strict=True)
-            ]
-        )
+        rotation = self._rotations()
         position, dt = self.tracks["position"][rows, k], self.tracks["dt"][rows, k]
         views = self.task.pixel_observation(
             self._imager, self.state, slice(None), position, rotation, dt
@@ -198,13 +193,17 @@ class EpisodeEngine:
         image, for supervising what a pixel network reads)."""
         rows, k = self._now()
         position = np.reshape(self.tracks["position"][rows, k], (-1, 3))
-        rotation = np.stack(
+        features = np.einsum("nij,fj->nfi", self._rotations(), self.task.features)
+        return position[:, None, :] + features
+
+    def _rotations(self) -> NDArray[np.float64]:
+        """Every row's target attitude R_gt at its current step, (N, 3, 3), from its recording."""
+        return np.stack(
             [
                 episode.rotation[j]  # type: ignore[union-attr]
                 for episode, j in zip(self.episodes, self.steps.tolist(), strict=True)
             ]
         )
-        return position[:, None, :] + np.einsum("nij,fj->nfi", rotation, self.task.features)
 
     def _now(self) -> tuple[Rows, Steps]:
         """Every row and its current step (for one row, a slice and a step: views)."""
