@@ -12,14 +12,23 @@ few millimetres, along the line of sight too) before anything is trained on it f
    teacher's action, the true predicted relative vector X_T' - X_E (eq. 13) and, privileged,
    where the target's feature points and X_E lie in each view (`WorkspaceImager.view_points`).
    Validation rows come from the first validation seeds, episodes never trained on.
-2. **Network.** Each view through a 3 x 3 convolution to 16 maps, a ReLU and a 1 x 1 convolution
-   to `KEYPOINTS` maps, then a spatial softmax (`capture_bench.agents.features.SpatialSoftmax`):
-   each map's expected position, its log-sum-exp (how much it found) and the log distances
-   between keypoints (the markers' spacing, which is what tells depth). An MLP (256, 256) on
-   those and the arm's state, standardised, gives the action and the relative vector.
+2. **Network.** Each view to keypoints by ``--reader`` (`ViewKeypoints`): ``softmax``, a 3 x 3
+   convolution to 16 maps, a ReLU, a 1 x 1 convolution to `KEYPOINTS` maps and a spatial
+   softmax (`capture_bench.agents.features.SpatialSoftmax`); ``centroid``, the same
+   convolutions as detection logits that place a window on each map's peak, and a per-pixel
+   network of the pixel's colour (`colour_channels`; ``centroid-rgb``: its RGB alone) whose
+   non-negative weights' centroid in that window is the keypoint; ``oracle``, no
+   image: the privileged points themselves plus Gaussian noise (what a head does with keypoints
+   that precise). The features: the keypoints, how much each map found, and the log distances
+   between keypoints (the markers' spacing, which is what tells depth). An MLP (``--layers`` of
+   ``--hidden`` units, 256 x 2) on those and the arm's state, standardised, gives the action and
+   the relative vector.
 3. **Fit.** Adam, one-cycle schedule, minibatches of 128: the action's squared error, the relative
    vector's (standardised) and, with privileged supervision, the squared pixel error of keypoint
-   k against feature point k (then X_E) where that point lies inside the view.
+   k against feature point k (then X_E) where that point lies inside the view (and for the
+   centroid reader the detection logits' cross-entropy against it, `heatmap_loss`). With
+   ``--head-epochs`` E the reader is then frozen, its features computed once, and the MLP fitted
+   E more epochs on them (`fit_head`): the head's precision for the cost of an MLP's fit.
 4. **Report.** On the validation rows: each supervised keypoint's median pixel error, the relative
    vector's median and 90th-percentile error per axis (all rows, and the rows within 50 mm of
    the target), the action's error; then the network plays the first validation seeds of the
@@ -85,6 +94,17 @@ def make_env(scenario: str, options: dict[str, int], **kwargs: object) -> Captur
     return CaptureVectorEnv(NUM_ENVS, scenario, observation_source="pixels", **options, **kwargs)
 
 
+def privileged_points(imager, venv: CaptureVectorEnv, state: np.ndarray, names) -> dict:
+    """Where the target's feature points and X_E lie in each view named, name -> (N, F + 1, 2)
+    view pixels (`WorkspaceImager.view_points`)."""
+    features = venv.true_features()
+    found = [
+        imager.view_points(np.vstack([features[i], x_e]), x_e)
+        for i, x_e in enumerate(state[:, 3:6].astype(float))
+    ]
+    return {k: np.stack([f[k] for f in found]).astype(np.float32) for k in names}
+
+
 def collect(scenario: str, options: dict[str, int], steps: int, seeds: Sequence[int]) -> Rows:
     """``steps`` rows of `dls` with DART noise (module docstring, 1) on episodes seeded from
     ``seeds`` in turn (one per sub-env reset)."""
@@ -104,14 +124,10 @@ def collect(scenario: str, options: dict[str, int], steps: int, seeds: Sequence[
         for _ in range(-(-steps // NUM_ENVS)):
             label = teacher(venv.estimate_observation())
             truth = venv.true_observation()
-            features = venv.true_features()
+            found = privileged_points(imager, venv, obs["state"], names)
             for k in names:
                 frames[k].append(obs[k][:, -3:])  # the newest frame
-            for i in range(NUM_ENVS):
-                x_e = obs["state"][i, 3:6].astype(float)
-                found = imager.view_points(np.vstack([features[i], x_e]), x_e)
-                for k in names:
-                    points[k].append(found[k])
+                points[k].append(found[k])
             state.append(obs["state"])
             action.append(label)
             relative.append(truth[:, SLICES["relative_position"]] * RELATIVE_SCALE)
@@ -120,10 +136,9 @@ def collect(scenario: str, options: dict[str, int], steps: int, seeds: Sequence[
     finally:
         imager.close()
         venv.close()
-    n = len(state) * NUM_ENVS
     return Rows(
         {k: np.concatenate(v)[:steps] for k, v in frames.items()},
-        {k: np.asarray(v, dtype=np.float32).reshape(n, -1, 2)[:steps] for k, v in points.items()},
+        {k: np.concatenate(v)[:steps] for k, v in points.items()},
         np.concatenate(state)[:steps],
         np.concatenate(action)[:steps].astype(np.float32),
         np.concatenate(relative)[:steps].astype(np.float32),
@@ -149,75 +164,223 @@ def local_soft_argmax(maps: torch.Tensor, temperature: torch.Tensor, half: int) 
     return torch.stack((x, y), dim=-1).float()
 
 
-class ViewKeypoints(nn.Module):
-    """One view (B, 3, H, W) uint8 -> its keypoints in pixels, a list of (B, K, 2) (the whole
-    view's spatial softmax, and with ``window`` > 0 the `local_soft_argmax` that the features
-    read), and features (B, D)."""
+def local_centroid(
+    maps: torch.Tensor, half: int, peak: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each non-negative map's (B, K, H, W) centroid over the (2 half + 1)^2 pixels around
+    ``peak`` (B, K), a flat pixel index (default: the map's largest value; the window moved
+    inside the map at the edges), [x, y] in pixels, (B, K, 2),
+    and the weight it found there, (B, K). The weights are the map's values themselves, not
+    their softmax: where a map is linear in how much of a pixel a marker covers (an area-sampled
+    edge pixel), the centroid is the marker's sub-pixel centre, as `scripts/pixel_depth.py`'s
+    saturation-weighted reading is. An empty window gives its centre."""
+    b, k, h, w = maps.shape
+    peak = maps.flatten(2).argmax(-1) if peak is None else peak
+    side = 2 * half + 1
+    r0 = (peak // w).clamp(half, h - 1 - half) - half
+    c0 = (peak % w).clamp(half, w - 1 - half) - half
+    offsets = torch.arange(side, device=maps.device)
+    rows = (r0[..., None] + offsets)[..., :, None].expand(b, k, side, side).reshape(b, k, -1)
+    cols = (c0[..., None] + offsets)[..., None, :].expand(b, k, side, side).reshape(b, k, -1)
+    weights = maps.flatten(2).gather(-1, rows * w + cols)
+    mass = weights.sum(-1)
+    x = c0 + half + (weights * (cols - c0[..., None] - half)).sum(-1) / (mass + 1e-6)
+    y = r0 + half + (weights * (rows - r0[..., None] - half)).sum(-1) / (mass + 1e-6)
+    return torch.stack((x, y), dim=-1).float(), mass
 
-    def __init__(self, size: int, window: int = 0) -> None:
+
+def keypoint_features(pixels: torch.Tensor, mass: torch.Tensor, size: int) -> torch.Tensor:
+    """Keypoints (B, K, 2) in pixels of a ``size``-pixel view and how much each found, (B, K) ->
+    features: the keypoints in [-1, 1], ``mass`` and the log distances between keypoints (the
+    markers' spacing, which is what tells depth)."""
+    xy = pixels * 2.0 / (size - 1) - 1.0
+    i, j = torch.triu_indices(pixels.shape[1], pixels.shape[1], 1)
+    spacing = torch.log(torch.linalg.vector_norm(xy[:, i] - xy[:, j], dim=-1) + 1e-3)
+    return torch.cat((xy.flatten(1), mass, spacing), dim=1)
+
+
+def feature_width(keypoints: int) -> int:
+    return 3 * keypoints + keypoints * (keypoints - 1) // 2
+
+
+class ViewKeypoints(nn.Module):
+    """One view (B, 3, H, W) uint8 -> its keypoints in pixels, a list of (B, K, 2), features
+    (B, D) and, for the ``centroid`` reader, its detection logits (B, K, H, W), by ``reader``:
+
+    * ``softmax``: a 3 x 3 convolution to `HIDDEN` maps, a ReLU and a 1 x 1 convolution to
+      `KEYPOINTS` maps, then the whole view's spatial softmax (and with ``window`` > 0 the
+      `local_soft_argmax` that the features read);
+    * ``centroid``: the same convolutions give detection logits, whose largest value places a
+      window of (2 ``window`` + 1)^2 pixels, and a per-pixel network of `colour_channels` (1 x 1
+      convolutions, `HIDDEN` then `KEYPOINTS` maps, each followed by a ReLU) gives the weights
+      whose `local_centroid` in that window is the keypoint.
+    """
+
+    def __init__(self, size: int, window: int = 0, reader: str = "softmax") -> None:
         super().__init__()
+        self.reader = reader
         self.maps = nn.Sequential(
             nn.Conv2d(3, HIDDEN, 3, padding=1), nn.ReLU(), nn.Conv2d(HIDDEN, KEYPOINTS, 1)
         )
-        self.softmax = SpatialSoftmax()
-        with torch.no_grad():
-            self.softmax.log_temperature.fill_(np.log(0.1))  # sharp from the start
+        self.colour = reader == "centroid"  # "centroid-rgb": the weights read RGB alone
+        if reader.startswith("centroid"):
+            self.weights = nn.Sequential(
+                nn.Conv2d(10 if self.colour else 3, HIDDEN, 1),
+                nn.ReLU(),
+                nn.Conv2d(HIDDEN, KEYPOINTS, 1),
+                nn.ReLU(),
+            )
+            with torch.no_grad():
+                self.weights[2].bias.fill_(0.1)  # every weight alive at the start
+        else:
+            self.softmax = SpatialSoftmax()
+            with torch.no_grad():
+                self.softmax.log_temperature.fill_(np.log(0.1))  # sharp from the start
         self.size = size
-        self.window = window
-        self.pairs = torch.triu_indices(KEYPOINTS, KEYPOINTS, 1)
-        self.dim = 3 * KEYPOINTS + self.pairs.shape[1]
+        self.window = max(window, 1) if reader.startswith("centroid") else window
+        self.dim = feature_width(KEYPOINTS)
 
-    def forward(self, image: torch.Tensor) -> tuple[list[torch.Tensor], torch.Tensor]:
-        maps = self.maps(image.float() / 255.0)
+    def forward(self, image: torch.Tensor):
+        x = image.float() / 255.0
+        maps = self.maps(x)
+        if self.reader.startswith("centroid"):
+            weights = self.weights(colour_channels(x) if self.colour else x)
+            peak = maps.flatten(2).argmax(-1)
+            pixels, mass = local_centroid(weights, self.window, peak)
+            return [pixels], keypoint_features(pixels, torch.log(mass + 1e-3), self.size), maps
         xy = self.softmax(maps).reshape(-1, KEYPOINTS, 2)  # [-1, 1], first to last pixel centre
         t = self.softmax.log_temperature.exp()
         pixels = [(xy + 1.0) * (self.size - 1) / 2.0]
         if self.window > 0:
             pixels.append(local_soft_argmax(maps, t, self.window))
-            xy = pixels[-1] * 2.0 / (self.size - 1) - 1.0
         mass = torch.logsumexp(maps.flatten(2) / t, dim=-1) / 10.0
-        i, j = self.pairs
-        spacing = torch.log(torch.linalg.vector_norm(xy[:, i] - xy[:, j], dim=-1) + 1e-3)
-        return pixels, torch.cat((xy.flatten(1), mass, spacing), dim=1)
+        return pixels, keypoint_features(pixels[-1], mass, self.size), None
+
+
+def colour_channels(x: torch.Tensor) -> torch.Tensor:
+    """An RGB image (B, 3, H, W) in [0, 1] -> (B, 10, H, W): RGB, saturation (max - min) / max,
+    chromaticity (each channel over their sum) and saturation times chromaticity. Saturation and
+    chromaticity do not change with the shading across a lit sphere, so a marker's weight can
+    follow how much of a pixel it covers and not how brightly it is lit there."""
+    top, low = x.max(1, keepdim=True).values, x.min(1, keepdim=True).values
+    saturation = (top - low) / (top + 1e-3)
+    chroma = x / (x.sum(1, keepdim=True) + 1e-3)
+    return torch.cat((x, saturation, chroma, saturation * chroma), dim=1)
+
+
+def heatmap_loss(logits: torch.Tensor, points: torch.Tensor, inside: torch.Tensor) -> torch.Tensor:
+    """Cross-entropy of the first F detection maps' softmax over the view (B, K, H, W) against
+    the points (B, F, 2), each spread bilinearly over the four pixels around it; points outside
+    the view (``inside`` (B, F) false) count nothing."""
+    b, _, h, w = logits.shape
+    f = points.shape[1]
+    logp = torch.log_softmax(logits[:, :f].flatten(2), dim=-1)
+    xy = points.clamp(min=0.0)
+    x0 = xy[..., 0].floor().clamp(max=w - 2)
+    y0 = xy[..., 1].floor().clamp(max=h - 2)
+    fx, fy = (xy[..., 0] - x0).clamp(0, 1), (xy[..., 1] - y0).clamp(0, 1)
+    loss = torch.zeros(b, f)
+    for dx, dy, share in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                          (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):  # fmt: skip
+        index = ((y0 + dy) * w + x0 + dx).long()
+        loss = loss - share * logp.gather(-1, index[..., None])[..., 0]
+    return (inside * loss).mean()
+
+
+class OracleKeypoints(nn.Module):
+    """One view's privileged points (B, F + 1, 2), view pixels, given in place of its image ->
+    the same list and features as `ViewKeypoints` (no mass): what the head does with keypoints
+    as precise as the points given."""
+
+    reader = "oracle"
+
+    def __init__(self, size: int, points: int) -> None:
+        super().__init__()
+        self.size = size
+        self.dim = feature_width(points)
+
+    def forward(self, points: torch.Tensor):
+        zero = torch.zeros(points.shape[:2])
+        return [points], keypoint_features(points, zero, self.size), None
 
 
 class ProbeNet(nn.Module):
     """The views' keypoint features and the state -> (action (3), relative vector (3),
-    standardised); the keypoints of each view in pixels."""
+    standardised), through ``depth`` layers of ``hidden`` units; the keypoints of each view in
+    pixels. ``reader``: `ViewKeypoints`'s, or ``oracle`` (`OracleKeypoints` of ``points`` points,
+    fed the privileged points)."""
 
-    def __init__(self, sizes: dict[str, int], window: int = 0) -> None:
+    def __init__(
+        self, sizes: dict[str, int], window: int | dict[str, int] = 0, reader: str = "softmax",
+        points: int = 5, hidden: int = 256, depth: int = 2,
+    ) -> None:  # fmt: skip
         super().__init__()
-        self.views = nn.ModuleDict({k: ViewKeypoints(s, window) for k, s in sizes.items()})
+        self.oracle = reader == "oracle"
+        windows = window if isinstance(window, dict) else dict.fromkeys(sizes, window)
+        self.views = nn.ModuleDict({
+            k: OracleKeypoints(s, points) if self.oracle
+            else ViewKeypoints(s, windows[k], reader)
+            for k, s in sizes.items()
+        })  # fmt: skip
         width = sum(v.dim for v in self.views.values()) + 7
-        self.trunk = nn.Sequential(nn.Linear(width, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU())
-        self.head = nn.Linear(256, 6)
+        layers: list[nn.Module] = []
+        for n in range(depth):
+            layers += [nn.Linear(width if n == 0 else hidden, hidden), nn.ReLU()]
+        self.trunk = nn.Sequential(*layers)
+        self.head = nn.Linear(hidden, 6)
         self.register_buffer("mean", torch.zeros(width))
         self.register_buffer("std", torch.ones(width))
         self.register_buffer("relative_mean", torch.zeros(3))  # m: the relative head's units
         self.register_buffer("relative_std", torch.ones(3))
 
     def features(self, views: dict[str, torch.Tensor], state: torch.Tensor):
+        """The features (B, D), each view's keypoints (a list of (B, K, 2)) and each view's
+        detection logits (None but for the ``centroid`` reader)."""
         found = {k: net(views[k]) for k, net in self.views.items()}
-        x = torch.cat([f for _, f in found.values()] + [state], dim=1)
-        return x, {k: p for k, (p, _) in found.items()}
+        x = torch.cat([f for _, f, _ in found.values()] + [state], dim=1)
+        return x, {k: p for k, (p, _, _) in found.items()}, {k: m for k, (_, _, m) in found.items()}
+
+    def heads(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        out = self.head(self.trunk((x - self.mean) / self.std))
+        return out[:, :3], out[:, 3:]
 
     def forward(self, views: dict[str, torch.Tensor], state: torch.Tensor):
-        x, keypoints = self.features(views, state)
-        out = self.head(self.trunk((x - self.mean) / self.std))
-        return out[:, :3], out[:, 3:], keypoints
+        x, keypoints, _ = self.features(views, state)
+        return *self.heads(x), keypoints
 
 
-def _batch(rows: Rows, index: np.ndarray) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-    views = {k: torch.as_tensor(v[index]) for k, v in rows.views.items()}
+def _batch(
+    rows: Rows,
+    index: np.ndarray,
+    noise: float | None = None,
+    rng: np.random.Generator | None = None,
+) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    """The rows' views, or with ``noise`` (an oracle's) their privileged points plus Gaussian
+    noise of that std, pixels; and their states."""
+    if noise is None:
+        views = {k: torch.as_tensor(v[index]) for k, v in rows.views.items()}
+    else:
+        views = {k: torch.as_tensor(_noisy(v[index], noise, rng)) for k, v in rows.points.items()}
     return views, torch.as_tensor(rows.state[index])
 
 
-def fit(net: ProbeNet, rows: Rows, epochs: int, lr: float, supervise: bool, seed: int) -> None:
-    """Module docstring, 3."""
+def _noisy(points: np.ndarray, noise: float, rng: np.random.Generator) -> np.ndarray:
+    return (points + noise * rng.standard_normal(points.shape)).astype(np.float32)
+
+
+def fit(
+    net: ProbeNet, rows: Rows, epochs: int, lr: float, supervise: bool, seed: int,
+    noise: float | None = None,
+) -> None:  # fmt: skip
+    """Module docstring, 3 (an oracle's points, ``noise``, are not supervised)."""
     rng = np.random.default_rng(seed)
     n = len(rows.state)
+    supervise = supervise and not net.oracle
+    # squared pixel error's weight: a centroid's keypoints, sub-pixel once detected, weigh more
+    weight = 1.0 if any(v.reader.startswith("centroid") for v in net.views.values()) else 0.01
     with torch.no_grad():
-        x, _ = net.features(*_batch(rows, np.sort(rng.choice(n, min(n, 2048), replace=False))))
+        sample = np.sort(rng.choice(n, min(n, 2048), replace=False))
+        x, _, _ = net.features(*_batch(rows, sample, noise, rng))
         net.mean.copy_(x.mean(0))
         net.std.copy_(x.std(0) + 1e-3)
         net.relative_mean.copy_(torch.as_tensor(rows.relative.mean(0)))
@@ -237,14 +400,17 @@ def fit(net: ProbeNet, rows: Rows, epochs: int, lr: float, supervise: bool, seed
         order = rng.permutation(n)
         for b in range(per_epoch):
             index = np.sort(order[b * BATCH : (b + 1) * BATCH])
-            a, r, keypoints = net(*_batch(rows, index))
+            x, keypoints, logits = net.features(*_batch(rows, index, noise, rng))
+            a, r = net.heads(x)
             loss = ((a - action[index]) ** 2).mean() + ((r - relative[index]) ** 2).mean()
             if supervise:
                 for k, found in keypoints.items():
                     f = points[k].shape[1]
                     for p in found:  # the whole view's keypoints and the local ones
                         err = ((p[:, :f] - points[k][index]) ** 2).sum(-1)
-                        loss = loss + 0.01 * (inside[k][index] * err).mean()
+                        loss = loss + weight * (inside[k][index] * err).mean()
+                    if logits[k] is not None:
+                        loss = loss + heatmap_loss(logits[k], points[k][index], inside[k][index])
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -252,12 +418,44 @@ def fit(net: ProbeNet, rows: Rows, epochs: int, lr: float, supervise: bool, seed
     net.eval()
 
 
-def measure(net: ProbeNet, rows: Rows) -> dict[str, object]:
+def fit_head(
+    net: ProbeNet, rows: Rows, epochs: int, lr: float, seed: int, noise: float | None = None
+) -> None:
+    """The MLP alone, ``epochs`` more epochs on the views' features computed once (an oracle's
+    noise drawn once per row), the action's and the relative vector's squared errors."""
+    rng = np.random.default_rng(seed + 1)
+    n = len(rows.state)
+    with torch.no_grad():
+        x = torch.cat([
+            net.features(*_batch(rows, np.arange(lo, min(lo + 512, n)), noise, rng))[0]
+            for lo in range(0, n, 512)
+        ])  # fmt: skip
+    relative = (torch.as_tensor(rows.relative) - net.relative_mean) / net.relative_std
+    action = torch.as_tensor(rows.action)
+    params = [*net.trunk.parameters(), *net.head.parameters()]
+    optimizer = torch.optim.Adam(params, lr=lr)
+    per_epoch = max(1, n // BATCH)
+    schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, lr, total_steps=epochs * per_epoch)
+    for _ in range(epochs):
+        order = torch.as_tensor(rng.permutation(n))
+        for b in range(per_epoch):
+            index = order[b * BATCH : (b + 1) * BATCH]
+            a, r = net.heads(x[index])
+            loss = ((a - action[index]) ** 2).mean() + ((r - relative[index]) ** 2).mean()
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            schedule.step()
+
+
+def measure(net: ProbeNet, rows: Rows, noise: float | None = None) -> dict[str, object]:
     """Module docstring, 4 (the offline part)."""
     actions, relatives, found = [], [], {k: [] for k in rows.views}
+    rng = np.random.default_rng(1)
     with torch.no_grad():
         for lo in range(0, len(rows.state), 512):
-            a, r, keypoints = net(*_batch(rows, np.arange(lo, min(lo + 512, len(rows.state)))))
+            index = np.arange(lo, min(lo + 512, len(rows.state)))
+            a, r, keypoints = net(*_batch(rows, index, noise, rng))
             actions.append(a.numpy())
             relatives.append(r.numpy())
             for k, p in keypoints.items():
@@ -287,10 +485,16 @@ def measure(net: ProbeNet, rows: Rows) -> dict[str, object]:
     return report
 
 
-def play(net: ProbeNet, scenario: str, options: dict[str, int], episodes: int) -> int:
-    """The captures of the network on the scenario's first ``episodes`` validation seeds."""
+def play(
+    net: ProbeNet, scenario: str, options: dict[str, int], episodes: int,
+    noise: float | None = None,
+) -> int:  # fmt: skip
+    """The captures of the network on the scenario's first ``episodes`` validation seeds (an
+    oracle's fed the privileged points plus Gaussian noise of std ``noise``, pixels)."""
     seeds = list(load_scenario(scenario).validation_seeds[:episodes])
     venv = make_env(scenario, options, autoreset_mode="Disabled")
+    imager = CaptureTask(load_scenario(scenario), observation_source="pixels", **options).imager()
+    rng = np.random.default_rng(2)
     captured = 0
     try:
         for lo in range(0, episodes, NUM_ENVS):
@@ -300,7 +504,11 @@ def play(net: ProbeNet, scenario: str, options: dict[str, int], episodes: int) -
             ended[len(batch) :] = True  # padding rows are played, not counted
             counted = ended.copy()
             while not ended.all():
-                views = {k: torch.as_tensor(obs[k][:, -3:].copy()) for k in net.views}
+                if net.oracle:
+                    found = privileged_points(imager, venv, obs["state"], list(net.views))
+                    views = {k: torch.as_tensor(_noisy(v, noise, rng)) for k, v in found.items()}
+                else:
+                    views = {k: torch.as_tensor(obs[k][:, -3:].copy()) for k in net.views}
                 with torch.no_grad():
                     a, _, _ = net(views, torch.as_tensor(obs["state"]))
                 obs, _, terminated, truncated, info = venv.step(np.clip(a.numpy(), -1, 1))
@@ -310,6 +518,7 @@ def play(net: ProbeNet, scenario: str, options: dict[str, int], episodes: int) -
                 counted |= now
                 ended |= terminated | truncated
     finally:
+        imager.close()
         venv.close()
     return captured
 
@@ -327,11 +536,28 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     train = collect(args.scenario, options, args.train_steps, train_seeds)
     validation = collect(args.scenario, options, args.validation_steps, validation_seeds)
     collected = time.perf_counter() - start
-    net = ProbeNet({k: v.shape[-1] for k, v in train.views.items()}, args.window)
-    fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed)
-    report = {"options": options, "supervised": not args.no_supervision, "window": args.window,
-              **measure(net, validation)}  # fmt: skip
-    report["captured"] = play(net, args.scenario, options, args.episodes) if args.episodes else 0
+    sizes = {k: v.shape[-1] for k, v in train.views.items()}
+    points = next(iter(train.points.values())).shape[1]
+    windows = {"image": args.window}
+    if args.ee_crop:  # the same field of sensor pixels around a keypoint in the crop
+        imager = CaptureTask(scenario, observation_source="pixels", **options).imager()
+        windows["ee_image"] = -(-args.window * imager.scale // args.ee_crop_scale)
+        imager.close()
+    net = ProbeNet(sizes, windows, args.reader, points, args.hidden, args.layers)
+    noise = args.oracle_noise if args.reader == "oracle" else None
+    fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed, noise)
+    if args.head_epochs:
+        fit_head(net, train, args.head_epochs, args.lr, args.seed, noise)
+    report = {"options": options, "supervised": not args.no_supervision, "window": windows,
+              "reader": args.reader, "mlp": [args.hidden] * args.layers,
+              "train_rows": len(train.state), "epochs": args.epochs,
+              "head_epochs": args.head_epochs,
+              **measure(net, validation, noise)}  # fmt: skip
+    if noise is not None:
+        report["oracle_noise_px"] = noise
+    report["captured"] = (
+        play(net, args.scenario, options, args.episodes, noise) if args.episodes else 0
+    )
     report["episodes"] = args.episodes
     report["collect_s"] = round(collected, 1)
     report["wall_clock_s"] = round(time.perf_counter() - start, 1)
@@ -348,12 +574,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--validation-steps", type=int, default=8000)
     parser.add_argument("--epochs", type=int, default=8)
     parser.add_argument("--lr", type=float, default=2e-3)
+    parser.add_argument("--head-epochs", type=int, default=0,
+                        help="E > 0: then E epochs of the MLP alone on the frozen reader's "
+                        "features")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=48, help="validation seeds played")
     parser.add_argument("--no-supervision", action="store_true",
                         help="no privileged keypoint targets")  # fmt: skip
     parser.add_argument("--window", type=int, default=0,
                         help="w > 0: the features read each map's soft-argmax over the (2w+1)^2 "
                         "pixels around its peak (both keypoints supervised)")  # fmt: skip
+    parser.add_argument("--reader", choices=("softmax", "centroid", "centroid-rgb", "oracle"),
+                        default="softmax",
+                        help="how each view's keypoints are read: a spatial softmax, local "
+                        "centroids of non-negative maps of each pixel's colour (centroid-rgb: of "
+                        "its RGB alone), or the true points plus "
+                        "--oracle-noise (what a head does with such keypoints)")  # fmt: skip
+    parser.add_argument("--oracle-noise", type=float, default=0.0,
+                        help="std of the noise on the oracle's points, view pixels")  # fmt: skip
+    parser.add_argument("--hidden", type=int, default=256, help="units of each layer of the MLP")
+    parser.add_argument("--layers", type=int, default=2, help="layers of the MLP")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="write the report here as JSON")
