@@ -78,6 +78,26 @@ class Rows:
     state: np.ndarray
     action: np.ndarray
     relative: np.ndarray
+    history: dict[str, np.ndarray] | None = None  # name -> (N, S, F + 1, 2): the last S steps'
+
+
+class PointHistory:
+    """Each sub-env's privileged points of its last ``stack`` steps, oldest first, name ->
+    (N, S, F + 1, 2); an episode's first step fills all S with its own (a frame stack's rule)."""
+
+    def __init__(self, stack: int) -> None:
+        self.stack = stack
+        self.last: dict[str, np.ndarray] | None = None
+
+    def push(self, found: dict[str, np.ndarray], fresh: np.ndarray) -> dict[str, np.ndarray]:
+        if self.last is None:
+            fresh = np.ones(len(next(iter(found.values()))), dtype=bool)
+            self.last = {k: np.repeat(v[:, None], self.stack, axis=1) for k, v in found.items()}
+        for k, v in found.items():
+            h = np.concatenate([self.last[k][:, 1:], v[:, None]], axis=1)
+            h[fresh] = v[fresh][:, None]
+            self.last[k] = h
+        return {k: v.copy() for k, v in self.last.items()}
 
 
 class SeedList:
@@ -105,9 +125,12 @@ def privileged_points(imager, venv: CaptureVectorEnv, state: np.ndarray, names) 
     return {k: np.stack([f[k] for f in found]).astype(np.float32) for k in names}
 
 
-def collect(scenario: str, options: dict[str, int], steps: int, seeds: Sequence[int]) -> Rows:
+def collect(
+    scenario: str, options: dict[str, int], steps: int, seeds: Sequence[int], stack: int = 1
+) -> Rows:
     """``steps`` rows of `dls` with DART noise (module docstring, 1) on episodes seeded from
-    ``seeds`` in turn (one per sub-env reset)."""
+    ``seeds`` in turn (one per sub-env reset); with ``stack`` > 1 each row also holds the
+    privileged points of its last ``stack`` steps (`PointHistory`)."""
     venv = make_env(scenario, options)
     venv.set_episode_seeds([SeedList(seeds[i::NUM_ENVS]) for i in range(NUM_ENVS)])
     teacher = make_teacher(["dls"], [describe_task(resolve_scenario(scenario, "pixels"))],
@@ -119,20 +142,28 @@ def collect(scenario: str, options: dict[str, int], steps: int, seeds: Sequence[
     frames = {k: [] for k in names}
     points = {k: [] for k in names}
     state, action, relative = [], [], []
+    history, stacked = PointHistory(stack), {k: [] for k in names}
+    ended = np.zeros(NUM_ENVS, dtype=bool)  # NEXT_STEP autoreset: the step after an end resets
     obs, _ = venv.reset()
     try:
         for _ in range(-(-steps // NUM_ENVS)):
             label = teacher(venv.estimate_observation())
             truth = venv.true_observation()
             found = privileged_points(imager, venv, obs["state"], names)
+            last = history.push(found, ended) if stack > 1 else {}
             for k in names:
                 frames[k].append(obs[k][:, -3:])  # the newest frame
                 points[k].append(found[k])
+                if stack > 1:
+                    stacked[k].append(last[k])
             state.append(obs["state"])
             action.append(label)
             relative.append(truth[:, SLICES["relative_position"]] * RELATIVE_SCALE)
             noisy = label + noise * rng.standard_normal(label.shape)
-            obs, *_ = venv.step(np.clip(noisy, -1.0, 1.0).astype(np.float32))
+            obs, _, terminated, truncated, _ = venv.step(
+                np.clip(noisy, -1.0, 1.0).astype(np.float32)
+            )
+            ended = terminated | truncated
     finally:
         imager.close()
         venv.close()
@@ -142,38 +173,16 @@ def collect(scenario: str, options: dict[str, int], steps: int, seeds: Sequence[
         np.concatenate(state)[:steps],
         np.concatenate(action)[:steps].astype(np.float32),
         np.concatenate(relative)[:steps].astype(np.float32),
+        {k: np.concatenate(v)[:steps] for k, v in stacked.items()} if stack > 1 else None,
     )
 
 
-def local_soft_argmax(maps: torch.Tensor, temperature: torch.Tensor, half: int) -> torch.Tensor:
-    """Each map's (B, K, H, W) expected position under its softmax over the (2 half + 1)^2 pixels
-    around its largest value (the window moved inside the map at the edges), [x, y] in pixels,
-    (B, K, 2): the background beyond the window has no weight to pull it."""
-    b, k, h, w = maps.shape
-    peak = maps.flatten(2).argmax(-1)
-    side = 2 * half + 1
-    r0 = (peak // w).clamp(half, h - 1 - half) - half
-    c0 = (peak % w).clamp(half, w - 1 - half) - half
-    offsets = torch.arange(side, device=maps.device)
-    rows = (r0[..., None] + offsets)[..., :, None].expand(b, k, side, side)
-    cols = (c0[..., None] + offsets)[..., None, :].expand(b, k, side, side)
-    flat = (rows * w + cols).reshape(b, k, -1)
-    weights = torch.softmax(maps.flatten(2).gather(-1, flat) / temperature, dim=-1)
-    x = (weights * cols.reshape(b, k, -1)).sum(-1)
-    y = (weights * rows.reshape(b, k, -1)).sum(-1)
-    return torch.stack((x, y), dim=-1).float()
-
-
-def local_centroid(
+def window_pixels(
     maps: torch.Tensor, half: int, peak: torch.Tensor | None = None
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Each non-negative map's (B, K, H, W) centroid over the (2 half + 1)^2 pixels around
-    ``peak`` (B, K), a flat pixel index (default: the map's largest value; the window moved
-    inside the map at the edges), [x, y] in pixels, (B, K, 2),
-    and the weight it found there, (B, K). The weights are the map's values themselves, not
-    their softmax: where a map is linear in how much of a pixel a marker covers (an area-sampled
-    edge pixel), the centroid is the marker's sub-pixel centre, as `scripts/pixel_depth.py`'s
-    saturation-weighted reading is. An empty window gives its centre."""
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The (2 half + 1)^2 pixels around each map's ``peak`` (B, K), a flat pixel index (default:
+    the map's largest value), the window moved inside the map (B, K, H, W) at the edges: their
+    rows, columns, (B, K, (2 half + 1)^2) each, and the maps' values there."""
     b, k, h, w = maps.shape
     peak = maps.flatten(2).argmax(-1) if peak is None else peak
     side = 2 * half + 1
@@ -182,10 +191,34 @@ def local_centroid(
     offsets = torch.arange(side, device=maps.device)
     rows = (r0[..., None] + offsets)[..., :, None].expand(b, k, side, side).reshape(b, k, -1)
     cols = (c0[..., None] + offsets)[..., None, :].expand(b, k, side, side).reshape(b, k, -1)
-    weights = maps.flatten(2).gather(-1, rows * w + cols)
+    return rows, cols, maps.flatten(2).gather(-1, rows * w + cols)
+
+
+def local_soft_argmax(maps: torch.Tensor, temperature: torch.Tensor, half: int) -> torch.Tensor:
+    """Each map's (B, K, H, W) expected position under its softmax over the (2 half + 1)^2 pixels
+    around its largest value (`window_pixels`), [x, y] in pixels, (B, K, 2): the background
+    beyond the window has no weight to pull it."""
+    rows, cols, values = window_pixels(maps, half)
+    weights = torch.softmax(values / temperature, dim=-1)
+    x = (weights * cols).sum(-1)
+    y = (weights * rows).sum(-1)
+    return torch.stack((x, y), dim=-1).float()
+
+
+def local_centroid(
+    maps: torch.Tensor, half: int, peak: torch.Tensor | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each non-negative map's (B, K, H, W) centroid over the (2 half + 1)^2 pixels around
+    ``peak`` (`window_pixels`), [x, y] in pixels, (B, K, 2), and the weight it found there,
+    (B, K). The weights are the map's values themselves, not their softmax: where a map is
+    linear in how much of a pixel a marker covers (an area-sampled edge pixel), the centroid is
+    the marker's sub-pixel centre, as `scripts/pixel_depth.py`'s saturation-weighted reading
+    is. An empty window gives its centre."""
+    rows, cols, weights = window_pixels(maps, half, peak)
     mass = weights.sum(-1)
-    x = c0 + half + (weights * (cols - c0[..., None] - half)).sum(-1) / (mass + 1e-6)
-    y = r0 + half + (weights * (rows - r0[..., None] - half)).sum(-1) / (mass + 1e-6)
+    centre_x, centre_y = cols.float().mean(-1), rows.float().mean(-1)
+    x = centre_x + (weights * (cols - centre_x[..., None])).sum(-1) / (mass + 1e-6)
+    y = centre_y + (weights * (rows - centre_y[..., None])).sum(-1) / (mass + 1e-6)
     return torch.stack((x, y), dim=-1).float(), mass
 
 
@@ -288,37 +321,41 @@ def heatmap_loss(logits: torch.Tensor, points: torch.Tensor, inside: torch.Tenso
 
 
 class OracleKeypoints(nn.Module):
-    """One view's privileged points (B, F + 1, 2), view pixels, given in place of its image ->
-    the same list and features as `ViewKeypoints` (no mass): what the head does with keypoints
-    as precise as the points given."""
+    """One view's privileged points (B, F + 1, 2), view pixels, given in place of its image (or
+    with ``stack`` > 1 those of the last S steps, (B, S, F + 1, 2)) -> the newest as the
+    keypoints and `ViewKeypoints`'s features of each step (no mass): what the head does with
+    keypoints as precise as the points given."""
 
     reader = "oracle"
 
-    def __init__(self, size: int, points: int) -> None:
+    def __init__(self, size: int, points: int, stack: int = 1) -> None:
         super().__init__()
         self.size = size
-        self.dim = feature_width(points)
+        self.stack = stack
+        self.dim = stack * feature_width(points)
 
     def forward(self, points: torch.Tensor):
-        zero = torch.zeros(points.shape[:2])
-        return [points], keypoint_features(points, zero, self.size), None
+        steps = points if self.stack > 1 else points[:, None]
+        zero = torch.zeros(steps.shape[:1] + steps.shape[2:3])
+        found = [keypoint_features(steps[:, i], zero, self.size) for i in range(self.stack)]
+        return [steps[:, -1]], torch.cat(found, dim=1), None
 
 
 class ProbeNet(nn.Module):
     """The views' keypoint features and the state -> (action (3), relative vector (3),
     standardised), through ``depth`` layers of ``hidden`` units; the keypoints of each view in
     pixels. ``reader``: `ViewKeypoints`'s, or ``oracle`` (`OracleKeypoints` of ``points`` points,
-    fed the privileged points)."""
+    fed the privileged points, of the last ``stack`` steps)."""
 
     def __init__(
         self, sizes: dict[str, int], window: int | dict[str, int] = 0, reader: str = "softmax",
-        points: int = 5, hidden: int = 256, depth: int = 2,
+        points: int = 5, hidden: int = 256, depth: int = 2, stack: int = 1,
     ) -> None:  # fmt: skip
         super().__init__()
         self.oracle = reader == "oracle"
         windows = window if isinstance(window, dict) else dict.fromkeys(sizes, window)
         self.views = nn.ModuleDict({
-            k: OracleKeypoints(s, points) if self.oracle
+            k: OracleKeypoints(s, points, stack) if self.oracle
             else ViewKeypoints(s, windows[k], reader)
             for k, s in sizes.items()
         })  # fmt: skip
@@ -355,12 +392,13 @@ def _batch(
     noise: float | None = None,
     rng: np.random.Generator | None = None,
 ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-    """The rows' views, or with ``noise`` (an oracle's) their privileged points plus Gaussian
-    noise of that std, pixels; and their states."""
+    """The rows' views, or with ``noise`` (an oracle's) their privileged points (of the last
+    steps where the rows hold them) plus Gaussian noise of that std, pixels; and their states."""
     if noise is None:
         views = {k: torch.as_tensor(v[index]) for k, v in rows.views.items()}
     else:
-        views = {k: torch.as_tensor(_noisy(v[index], noise, rng)) for k, v in rows.points.items()}
+        points = rows.points if rows.history is None else rows.history
+        views = {k: torch.as_tensor(_noisy(v[index], noise, rng)) for k, v in points.items()}
     return views, torch.as_tensor(rows.state[index])
 
 
@@ -500,12 +538,15 @@ def play(
         for lo in range(0, episodes, NUM_ENVS):
             batch = seeds[lo : lo + NUM_ENVS]
             obs, _ = venv.reset(seed=batch + batch[:1] * (NUM_ENVS - len(batch)))
+            history = PointHistory(max(v.stack for v in net.views.values()) if net.oracle else 1)
             ended = np.zeros(NUM_ENVS, dtype=bool)
             ended[len(batch) :] = True  # padding rows are played, not counted
             counted = ended.copy()
             while not ended.all():
                 if net.oracle:
                     found = privileged_points(imager, venv, obs["state"], list(net.views))
+                    if history.stack > 1:
+                        found = history.push(found, np.zeros(NUM_ENVS, dtype=bool))
                     views = {k: torch.as_tensor(_noisy(v, noise, rng)) for k, v in found.items()}
                 else:
                     views = {k: torch.as_tensor(obs[k][:, -3:].copy()) for k in net.views}
@@ -533,8 +574,9 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     start = time.perf_counter()
     train_seeds = scenario.training_seeds
     validation_seeds = scenario.validation_seeds[args.episodes :]
-    train = collect(args.scenario, options, args.train_steps, train_seeds)
-    validation = collect(args.scenario, options, args.validation_steps, validation_seeds)
+    stack = args.stack if args.reader == "oracle" else 1
+    train = collect(args.scenario, options, args.train_steps, train_seeds, stack)
+    validation = collect(args.scenario, options, args.validation_steps, validation_seeds, stack)
     collected = time.perf_counter() - start
     sizes = {k: v.shape[-1] for k, v in train.views.items()}
     points = next(iter(train.points.values())).shape[1]
@@ -543,7 +585,7 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
         imager = CaptureTask(scenario, observation_source="pixels", **options).imager()
         windows["ee_image"] = -(-args.window * imager.scale // args.ee_crop_scale)
         imager.close()
-    net = ProbeNet(sizes, windows, args.reader, points, args.hidden, args.layers)
+    net = ProbeNet(sizes, windows, args.reader, points, args.hidden, args.layers, stack)
     noise = args.oracle_noise if args.reader == "oracle" else None
     fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed, noise)
     if args.head_epochs:
@@ -551,7 +593,7 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     report = {"options": options, "supervised": not args.no_supervision, "window": windows,
               "reader": args.reader, "mlp": [args.hidden] * args.layers,
               "train_rows": len(train.state), "epochs": args.epochs,
-              "head_epochs": args.head_epochs,
+              "head_epochs": args.head_epochs, "stack": stack,
               **measure(net, validation, noise)}  # fmt: skip
     if noise is not None:
         report["oracle_noise_px"] = noise
@@ -589,6 +631,9 @@ def main(argv: list[str] | None = None) -> int:
                         "centroids of non-negative maps of each pixel's colour (centroid-rgb: of "
                         "its RGB alone), or the true points plus "
                         "--oracle-noise (what a head does with such keypoints)")  # fmt: skip
+    parser.add_argument("--stack", type=int, default=1,
+                        help="the oracle reads the points of the last S steps (noise drawn "
+                        "for each)")  # fmt: skip
     parser.add_argument("--oracle-noise", type=float, default=0.0,
                         help="std of the noise on the oracle's points, view pixels")  # fmt: skip
     parser.add_argument("--hidden", type=int, default=256, help="units of each layer of the MLP")

@@ -234,3 +234,31 @@ def test_fit_head_moves_the_mlp_alone_and_fits_it(load_script):
     assert error() < 0.5 * first
     assert all(torch.equal(a, b) for a, b in zip(reader, net.views.parameters(), strict=True))
     assert not any(torch.equal(a, b) for a, b in zip(trunk, net.trunk.parameters(), strict=True))
+
+
+def test_point_history_holds_the_last_steps_in_order_and_restarts_with_an_episode(load_script):
+    probe = load_script("pixel_keypoint_probe")
+    history = probe.PointHistory(3)
+
+    def step(value):
+        return {"image": np.full((2, 5, 2), value, dtype=np.float32)}
+
+    first = history.push(step(1.0), np.zeros(2, dtype=bool))
+    assert first["image"].shape == (2, 3, 5, 2) and np.all(first["image"] == 1.0)  # filled
+    history.push(step(2.0), np.zeros(2, dtype=bool))
+    third = history.push(step(3.0), np.array([False, True]))  # sub-env 1's episode restarts
+    np.testing.assert_array_equal(third["image"][0, :, 0, 0], [1.0, 2.0, 3.0])  # oldest first
+    np.testing.assert_array_equal(third["image"][1, :, 0, 0], [3.0, 3.0, 3.0])
+    fourth = history.push(step(4.0), np.zeros(2, dtype=bool))
+    np.testing.assert_array_equal(fourth["image"][0, :, 0, 0], [2.0, 3.0, 4.0])
+    np.testing.assert_array_equal(third["image"][0, :, 0, 0], [1.0, 2.0, 3.0])  # a copy
+
+
+def test_the_probe_collects_the_points_of_the_last_steps(load_script):
+    probe = load_script("pixel_keypoint_probe")
+    rows = probe.collect("paper", {"image_supersample": 3}, 64, list(range(16 * 64)), stack=3)
+    h, p = rows.history["image"], rows.points["image"]
+    assert h.shape == (64, 3, 5, 2)
+    np.testing.assert_array_equal(h[:, -1], p)  # the newest is the row's own
+    np.testing.assert_array_equal(h[:16, 0], p[:16])  # the episodes' first rows: filled
+    np.testing.assert_array_equal(h[16:, 1], p[:48])  # then the same sub-env's step before
