@@ -79,11 +79,24 @@ class Rows:
     action: np.ndarray
     relative: np.ndarray
     history: dict[str, np.ndarray] | None = None  # name -> (N, S, F + 1, 2): the last S steps'
+    first: np.ndarray | None = None  # (N,) bool: the row is its episode's first step
 
 
-class PointHistory:
-    """Each sub-env's privileged points of its last ``stack`` steps, oldest first, name ->
-    (N, S, F + 1, 2); an episode's first step fills all S with its own (a frame stack's rule)."""
+def stacked(x: torch.Tensor, first: np.ndarray, stack: int) -> torch.Tensor:
+    """Each row's features ``x`` (N, D) and those of its sub-env's ``stack`` - 1 steps before,
+    oldest first, (N, S, D), for rows in `collect`'s order (step after step, `NUM_ENVS` rows a
+    step); an episode's first step stands in for the steps before it (a frame stack's rule)."""
+    prev = np.where(first, np.arange(len(first)), np.arange(len(first)) - NUM_ENVS)
+    index = [np.arange(len(first))]
+    for _ in range(stack - 1):
+        index.insert(0, prev[index[0]])
+    return torch.stack([x[torch.as_tensor(i)] for i in index], dim=1)
+
+
+class History:
+    """Each sub-env's values of its last ``stack`` steps (privileged points, or features), oldest
+    first, name -> (N, S, ...); an episode's first step fills all S with its own (a frame stack's
+    rule)."""
 
     def __init__(self, stack: int) -> None:
         self.stack = stack
@@ -130,7 +143,7 @@ def collect(
 ) -> Rows:
     """``steps`` rows of `dls` with DART noise (module docstring, 1) on episodes seeded from
     ``seeds`` in turn (one per sub-env reset); with ``stack`` > 1 each row also holds the
-    privileged points of its last ``stack`` steps (`PointHistory`)."""
+    privileged points of its last ``stack`` steps (`History`)."""
     venv = make_env(scenario, options)
     venv.set_episode_seeds([SeedList(seeds[i::NUM_ENVS]) for i in range(NUM_ENVS)])
     teacher = make_teacher(["dls"], [describe_task(resolve_scenario(scenario, "pixels"))],
@@ -141,8 +154,8 @@ def collect(
     names = ["image", *(["ee_image"] if options.get("ee_crop") else [])]
     frames = {k: [] for k in names}
     points = {k: [] for k in names}
-    state, action, relative = [], [], []
-    history, stacked = PointHistory(stack), {k: [] for k in names}
+    state, action, relative, first = [], [], [], []
+    history, recent = History(stack), {k: [] for k in names}
     ended = np.zeros(NUM_ENVS, dtype=bool)  # NEXT_STEP autoreset: the step after an end resets
     obs, _ = venv.reset()
     try:
@@ -155,10 +168,11 @@ def collect(
                 frames[k].append(obs[k][:, -3:])  # the newest frame
                 points[k].append(found[k])
                 if stack > 1:
-                    stacked[k].append(last[k])
+                    recent[k].append(last[k])
             state.append(obs["state"])
             action.append(label)
             relative.append(truth[:, SLICES["relative_position"]] * RELATIVE_SCALE)
+            first.append(ended if first else np.ones(NUM_ENVS, dtype=bool))
             noisy = label + noise * rng.standard_normal(label.shape)
             obs, _, terminated, truncated, _ = venv.step(
                 np.clip(noisy, -1.0, 1.0).astype(np.float32)
@@ -173,7 +187,8 @@ def collect(
         np.concatenate(state)[:steps],
         np.concatenate(action)[:steps].astype(np.float32),
         np.concatenate(relative)[:steps].astype(np.float32),
-        {k: np.concatenate(v)[:steps] for k, v in stacked.items()} if stack > 1 else None,
+        {k: np.concatenate(v)[:steps] for k, v in recent.items()} if stack > 1 else None,
+        np.concatenate(first)[:steps],
     )
 
 
@@ -360,11 +375,8 @@ class ProbeNet(nn.Module):
             for k, s in sizes.items()
         })  # fmt: skip
         width = sum(v.dim for v in self.views.values()) + 7
-        layers: list[nn.Module] = []
-        for n in range(depth):
-            layers += [nn.Linear(width if n == 0 else hidden, hidden), nn.ReLU()]
-        self.trunk = nn.Sequential(*layers)
-        self.head = nn.Linear(hidden, 6)
+        self.width, self.hidden, self.depth, self.head_stack = width, hidden, depth, 1
+        self.trunk, self.head = self._mlp(width)
         self.register_buffer("mean", torch.zeros(width))
         self.register_buffer("std", torch.ones(width))
         self.register_buffer("relative_mean", torch.zeros(3))  # m: the relative head's units
@@ -377,8 +389,21 @@ class ProbeNet(nn.Module):
         x = torch.cat([f for _, f, _ in found.values()] + [state], dim=1)
         return x, {k: p for k, (p, _, _) in found.items()}, {k: m for k, (_, _, m) in found.items()}
 
+    def _mlp(self, width: int) -> tuple[nn.Sequential, nn.Linear]:
+        layers: list[nn.Module] = []
+        for n in range(self.depth):
+            layers += [nn.Linear(width if n == 0 else self.hidden, self.hidden), nn.ReLU()]
+        return nn.Sequential(*layers), nn.Linear(self.hidden, 6)
+
+    def stack_head(self, stack: int) -> None:
+        """A new MLP that reads the features of the last ``stack`` steps (`heads`)."""
+        self.head_stack = stack
+        self.trunk, self.head = self._mlp(stack * self.width)
+
     def heads(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        out = self.head(self.trunk((x - self.mean) / self.std))
+        """The action and the relative vector from features (B, D), or with a head stack
+        (`fit_head`) the features of each row's last ``head_stack`` steps (B, S, D)."""
+        out = self.head(self.trunk(((x - self.mean) / self.std).flatten(1)))
         return out[:, :3], out[:, 3:]
 
     def forward(self, views: dict[str, torch.Tensor], state: torch.Tensor):
@@ -456,18 +481,37 @@ def fit(
     net.eval()
 
 
+def all_features(
+    net: ProbeNet, rows: Rows, noise: float | None = None, rng: np.random.Generator | None = None
+) -> tuple[torch.Tensor, dict[str, list[torch.Tensor]]]:
+    """Every row's features (N, D) and each view's keypoints (the list `ViewKeypoints` gives),
+    in batches, without gradients."""
+    n = len(rows.state)
+    xs, keypoints = [], {}
+    with torch.no_grad():
+        for lo in range(0, n, 512):
+            x, found, _ = net.features(*_batch(rows, np.arange(lo, min(lo + 512, n)), noise, rng))
+            xs.append(x)
+            for k, p in found.items():
+                keypoints.setdefault(k, []).append(p)
+    return torch.cat(xs), {k: [torch.cat(p) for p in zip(*v)] for k, v in keypoints.items()}
+
+
 def fit_head(
-    net: ProbeNet, rows: Rows, epochs: int, lr: float, seed: int, noise: float | None = None
-) -> None:
+    net: ProbeNet, rows: Rows, epochs: int, lr: float, seed: int, noise: float | None = None,
+    stack: int = 1,
+) -> None:  # fmt: skip
     """The MLP alone, ``epochs`` more epochs on the views' features computed once (an oracle's
-    noise drawn once per row), the action's and the relative vector's squared errors."""
+    noise drawn once per row), the action's and the relative vector's squared errors. With
+    ``stack`` > 1 a new MLP (same layers) reads the features of each row's last ``stack`` steps
+    (`stacked`; ``net.head_stack``), as a frame stack read by the same reader frame by frame
+    would give them."""
     rng = np.random.default_rng(seed + 1)
     n = len(rows.state)
-    with torch.no_grad():
-        x = torch.cat([
-            net.features(*_batch(rows, np.arange(lo, min(lo + 512, n)), noise, rng))[0]
-            for lo in range(0, n, 512)
-        ])  # fmt: skip
+    x, _ = all_features(net, rows, noise, rng)
+    if stack > 1:
+        x = stacked(x, rows.first, stack)
+        net.stack_head(stack)
     relative = (torch.as_tensor(rows.relative) - net.relative_mean) / net.relative_std
     action = torch.as_tensor(rows.action)
     params = [*net.trunk.parameters(), *net.head.parameters()]
@@ -488,16 +532,16 @@ def fit_head(
 
 def measure(net: ProbeNet, rows: Rows, noise: float | None = None) -> dict[str, object]:
     """Module docstring, 4 (the offline part)."""
-    actions, relatives, found = [], [], {k: [] for k in rows.views}
-    rng = np.random.default_rng(1)
+    actions, relatives = [], []
+    x, keypoints = all_features(net, rows, noise, np.random.default_rng(1))
+    if net.head_stack > 1:
+        x = stacked(x, rows.first, net.head_stack)
     with torch.no_grad():
         for lo in range(0, len(rows.state), 512):
-            index = np.arange(lo, min(lo + 512, len(rows.state)))
-            a, r, keypoints = net(*_batch(rows, index, noise, rng))
+            a, r = net.heads(x[lo : lo + 512])
             actions.append(a.numpy())
             relatives.append(r.numpy())
-            for k, p in keypoints.items():
-                found[k].append(p[-1].numpy())  # the keypoints the features read
+    found = {k: [p[-1].numpy()] for k, p in keypoints.items()}  # the keypoints the features read
     predicted = np.concatenate(relatives) * net.relative_std.numpy() + net.relative_mean.numpy()
     error = np.abs(predicted - rows.relative).astype(float) * 1e3  # mm
     near = np.linalg.norm(rows.relative, axis=1) < NEAR
@@ -538,7 +582,8 @@ def play(
         for lo in range(0, episodes, NUM_ENVS):
             batch = seeds[lo : lo + NUM_ENVS]
             obs, _ = venv.reset(seed=batch + batch[:1] * (NUM_ENVS - len(batch)))
-            history = PointHistory(max(v.stack for v in net.views.values()) if net.oracle else 1)
+            history = History(max(v.stack for v in net.views.values()) if net.oracle else 1)
+            recent = History(net.head_stack)
             ended = np.zeros(NUM_ENVS, dtype=bool)
             ended[len(batch) :] = True  # padding rows are played, not counted
             counted = ended.copy()
@@ -551,7 +596,11 @@ def play(
                 else:
                     views = {k: torch.as_tensor(obs[k][:, -3:].copy()) for k in net.views}
                 with torch.no_grad():
-                    a, _, _ = net(views, torch.as_tensor(obs["state"]))
+                    x, _, _ = net.features(views, torch.as_tensor(obs["state"]))
+                    if net.head_stack > 1:
+                        fresh = np.zeros(NUM_ENVS, dtype=bool)
+                        x = torch.as_tensor(recent.push({"x": x.numpy()}, fresh)["x"])
+                    a, _ = net.heads(x)
                 obs, _, terminated, truncated, info = venv.step(np.clip(a.numpy(), -1, 1))
                 now = (terminated | truncated) & ~counted
                 success = np.asarray(info.get("is_success", np.zeros(NUM_ENVS, dtype=bool)))
@@ -589,11 +638,11 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     noise = args.oracle_noise if args.reader == "oracle" else None
     fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed, noise)
     if args.head_epochs:
-        fit_head(net, train, args.head_epochs, args.lr, args.seed, noise)
+        fit_head(net, train, args.head_epochs, args.lr, args.seed, noise, args.head_stack)
     report = {"options": options, "supervised": not args.no_supervision, "window": windows,
               "reader": args.reader, "mlp": [args.hidden] * args.layers,
               "train_rows": len(train.state), "epochs": args.epochs,
-              "head_epochs": args.head_epochs, "stack": stack,
+              "head_epochs": args.head_epochs, "head_stack": net.head_stack, "stack": stack,
               **measure(net, validation, noise)}  # fmt: skip
     if noise is not None:
         report["oracle_noise_px"] = noise
@@ -631,6 +680,9 @@ def main(argv: list[str] | None = None) -> int:
                         "centroids of non-negative maps of each pixel's colour (centroid-rgb: of "
                         "its RGB alone), or the true points plus "
                         "--oracle-noise (what a head does with such keypoints)")  # fmt: skip
+    parser.add_argument("--head-stack", type=int, default=1,
+                        help="S > 1 (with --head-epochs): the head-only fit's new MLP reads "
+                        "the features of the last S steps")  # fmt: skip
     parser.add_argument("--stack", type=int, default=1,
                         help="the oracle reads the points of the last S steps (noise drawn "
                         "for each)")  # fmt: skip

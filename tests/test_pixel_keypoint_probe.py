@@ -79,6 +79,8 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
         args = ["--train-steps", "48", "--validation-steps", "32", "--epochs", "1",
                 "--episodes", "2", "--window", "2", "--reader", reader, "--oracle-noise", "0.1",
                 "--out", str(out)]  # fmt: skip
+        if reader == "centroid":  # then the head alone, reading the last two steps' features
+            args += ["--head-epochs", "1", "--head-stack", "2"]
         assert probe.main(args) == 0
         report = __import__("json").loads(out.read_text())
         assert report["rows"] == 32 and report["episodes"] == 2
@@ -86,6 +88,7 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
         assert 0 <= report["captured"] <= 2
         assert len(report["image_keypoint_median_px"]) == 5  # four markers and X_E
         assert all(np.isfinite(report["relative_median_mm"]))
+        assert report["head_stack"] == (2 if reader == "centroid" else 1)
         if reader == "oracle":  # fed the true points plus the noise asked for
             assert report["oracle_noise_px"] == 0.1
             assert all(0.05 < e < 0.2 for e in report["image_keypoint_median_px"])
@@ -236,9 +239,9 @@ def test_fit_head_moves_the_mlp_alone_and_fits_it(load_script):
     assert not any(torch.equal(a, b) for a, b in zip(trunk, net.trunk.parameters(), strict=True))
 
 
-def test_point_history_holds_the_last_steps_in_order_and_restarts_with_an_episode(load_script):
+def test_history_holds_the_last_steps_in_order_and_restarts_with_an_episode(load_script):
     probe = load_script("pixel_keypoint_probe")
-    history = probe.PointHistory(3)
+    history = probe.History(3)
 
     def step(value):
         return {"image": np.full((2, 5, 2), value, dtype=np.float32)}
@@ -262,3 +265,21 @@ def test_the_probe_collects_the_points_of_the_last_steps(load_script):
     np.testing.assert_array_equal(h[:, -1], p)  # the newest is the row's own
     np.testing.assert_array_equal(h[:16, 0], p[:16])  # the episodes' first rows: filled
     np.testing.assert_array_equal(h[16:, 1], p[:48])  # then the same sub-env's step before
+    assert rows.first.shape == (64,) and rows.first[:16].all() and not rows.first[16:].any()
+
+
+def test_stacked_gives_each_row_its_sub_envs_steps_before(load_script):
+    import torch
+
+    probe = load_script("pixel_keypoint_probe")
+    n = probe.NUM_ENVS
+    x = torch.arange(4 * n, dtype=torch.float32)[:, None]  # 4 steps of n sub-envs
+    first = np.zeros(4 * n, dtype=bool)
+    first[:n] = True  # every episode starts at step 0
+    first[2 * n + 1] = True  # sub-env 1 starts a new episode at step 2
+    got = probe.stacked(x, first, 3)[..., 0].numpy()
+    assert got.shape == (4 * n, 3)
+    np.testing.assert_array_equal(got[0], [0, 0, 0])
+    np.testing.assert_array_equal(got[3 * n], [n, 2 * n, 3 * n])  # oldest first
+    np.testing.assert_array_equal(got[2 * n + 1], [2 * n + 1] * 3)  # its episode's first step
+    np.testing.assert_array_equal(got[3 * n + 1], [2 * n + 1, 2 * n + 1, 3 * n + 1])
