@@ -237,12 +237,16 @@ def local_centroid(
     return torch.stack((x, y), dim=-1).float(), mass
 
 
-def keypoint_features(pixels: torch.Tensor, mass: torch.Tensor, size: int) -> torch.Tensor:
-    """Keypoints (B, K, 2) in pixels of a ``size``-pixel view and how much each found, (B, K) ->
-    features: the keypoints in [-1, 1], ``mass`` and the log distances between keypoints (the
-    markers' spacing, which is what tells depth)."""
-    xy = pixels * 2.0 / (size - 1) - 1.0
-    i, j = torch.triu_indices(pixels.shape[1], pixels.shape[1], 1)
+def to_unit(pixels: torch.Tensor, size: int) -> torch.Tensor:
+    """Pixels of a ``size``-pixel view -> [-1, 1] from its first to its last pixel centre."""
+    return pixels * 2.0 / (size - 1) - 1.0
+
+
+def keypoint_features(xy: torch.Tensor, mass: torch.Tensor) -> torch.Tensor:
+    """Keypoints (B, K, 2) in [-1, 1] (`to_unit`) and how much each found, (B, K) -> features:
+    the keypoints, ``mass`` and the log distances between keypoints (the markers' spacing, which
+    is what tells depth)."""
+    i, j = torch.triu_indices(xy.shape[1], xy.shape[1], 1)
     spacing = torch.log(torch.linalg.vector_norm(xy[:, i] - xy[:, j], dim=-1) + 1e-3)
     return torch.cat((xy.flatten(1), mass, spacing), dim=1)
 
@@ -295,14 +299,16 @@ class ViewKeypoints(nn.Module):
             weights = self.weights(colour_channels(x) if self.colour else x)
             peak = maps.flatten(2).argmax(-1)
             pixels, mass = local_centroid(weights, self.window, peak)
-            return [pixels], keypoint_features(pixels, torch.log(mass + 1e-3), self.size), maps
+            features = keypoint_features(to_unit(pixels, self.size), torch.log(mass + 1e-3))
+            return [pixels], features, maps
         xy = self.softmax(maps).reshape(-1, KEYPOINTS, 2)  # [-1, 1], first to last pixel centre
         t = self.softmax.log_temperature.exp()
         pixels = [(xy + 1.0) * (self.size - 1) / 2.0]
         if self.window > 0:
             pixels.append(local_soft_argmax(maps, t, self.window))
+            xy = to_unit(pixels[-1], self.size)
         mass = torch.logsumexp(maps.flatten(2) / t, dim=-1) / 10.0
-        return pixels, keypoint_features(pixels[-1], mass, self.size), None
+        return pixels, keypoint_features(xy, mass), None
 
 
 def colour_channels(x: torch.Tensor) -> torch.Tensor:
@@ -352,7 +358,9 @@ class OracleKeypoints(nn.Module):
     def forward(self, points: torch.Tensor):
         steps = points if self.stack > 1 else points[:, None]
         zero = torch.zeros(steps.shape[:1] + steps.shape[2:3])
-        found = [keypoint_features(steps[:, i], zero, self.size) for i in range(self.stack)]
+        found = [
+            keypoint_features(to_unit(steps[:, i], self.size), zero) for i in range(self.stack)
+        ]
         return [steps[:, -1]], torch.cat(found, dim=1), None
 
 
