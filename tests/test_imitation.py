@@ -509,3 +509,121 @@ def test_the_fits_state_regression_teaches_the_features_what_the_teacher_reads(m
         p.data.copy_(s0)
     raw_fit(model.policy, observations, targets, 40, seed, floor, 1e-3, 16)
     assert not all(torch.equal(a, b) for a, b in zip(with_state, extractor.parameters()))
+
+
+def test_a_round_store_gives_back_the_rows_and_the_policy_it_kept(tmp_path):
+    """Pixel-like rows (a dict of uint8 images and float states) and the teacher's views, round
+    by round: loaded back identical, dtypes kept, and the policy's parameters restored."""
+    import torch
+
+    from capture_bench.training.common.imitation_progress import Progress, RoundStore
+
+    rng = np.random.default_rng(0)
+
+    def batch():
+        return {"image": rng.integers(0, 256, (2, 3, 8, 8), dtype=np.uint8),
+                "state": rng.standard_normal((2, 7)).astype(np.float32)}  # fmt: skip
+
+    policy = torch.nn.Linear(4, 2)
+    store = RoundStore(tmp_path / "rounds")
+    assert store.rounds_done() == 0 and store.load(policy)[0].rounds == 0
+    done = Progress()
+    for r in (1, 2):
+        first = len(done.labels)
+        for _ in range(3):
+            done.observations.append(batch())
+            done.labels.append(rng.standard_normal((2, 3)).astype(np.float32))
+            done.views.append(rng.standard_normal((2, 16)).astype(np.float32))
+        done.losses.append(0.1 * r)
+        done.rounds = r
+        store.save(done, first, policy)
+    kept = [p.detach().clone() for p in policy.parameters()]
+    fresh = torch.nn.Linear(4, 2)
+    back, head = store.load(fresh)
+    assert back.rounds == 2 == store.rounds_done() and back.losses == [0.1, 0.2] and head is None
+    assert all(torch.equal(a, b) for a, b in zip(kept, fresh.parameters(), strict=True))
+    for name in ("image", "state"):
+        want = np.concatenate([b[name] for b in done.observations])
+        got = np.concatenate([b[name] for b in back.observations])
+        assert got.dtype == want.dtype and np.array_equal(got, want)
+    assert np.array_equal(np.concatenate(back.labels), np.concatenate(done.labels))
+    assert np.array_equal(np.concatenate(back.views), np.concatenate(done.views))
+    store.clear()
+    assert not (tmp_path / "rounds").exists()
+
+
+def test_dagger_goes_on_from_its_last_stored_round(tmp_path):
+    """One round stored, then a new model given the same store and two rounds: it starts from
+    the stored policy and data set, plays only the second round, and its log holds both."""
+    import torch
+
+    from capture_bench.training.common.imitation_progress import RoundStore
+
+    teacher = make_teacher(["incremental_ik"], [describe_task(load_scenario("paper"))], [4])
+    store = RoundStore(tmp_path / "rounds")
+    model, venv = _model(4)
+    try:
+        first = dagger(model, venv, teacher, rounds=1, steps=64, epochs=1, seed=0,
+                       log=lambda line: None, store=store)  # fmt: skip
+    finally:
+        venv.close()
+    after_one = {k: v.clone() for k, v in model.policy.state_dict().items()}
+    lines: list[str] = []
+    steps: list[int] = []
+    model, venv = _model(4)
+    real_step = venv.step
+
+    def counted(actions):
+        steps.append(len(actions))
+        return real_step(actions)
+
+    venv.step = counted
+    loaded = {}
+
+    def fit_spy(policy, observations, targets, *args, **kwargs):
+        if not loaded:  # the second round's fit starts from the stored policy
+            loaded.update({k: v.clone() for k, v in policy.state_dict().items()})
+        return fit(policy, observations, targets, *args, **kwargs)
+
+    from capture_bench.training.common import imitation
+
+    real_fit, imitation.fit = imitation.fit, fit_spy
+    try:
+        second = dagger(model, venv, teacher, rounds=2, steps=64, epochs=1, seed=0,
+                        log=lines.append, store=store)  # fmt: skip
+    finally:
+        imitation.fit = real_fit
+        venv.close()
+    assert all(torch.equal(after_one[k], loaded[k]) for k in after_one)
+    assert len(steps) == 16  # one round of 64 steps on 4 envs, not two
+    assert "1 of 2 rounds done before" in lines[0]
+    assert second["fit_mse"][0] == first["fit_mse"][0] and len(second["fit_mse"]) == 2
+    assert second["labelled_steps"] == 128 and store.rounds_done() == 2
+    assert second["agreement"][0] is None and second["agreement"][1] is not None
+
+
+def test_a_run_stopped_after_an_imitation_round_goes_on_from_it(tmp_path, monkeypatch, capsys):
+    from capture_bench.training.common import imitation
+
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=2",
+            "imitation_epochs=1"]  # fmt: skip
+    real = imitation.fit
+    calls = []
+
+    def stopped_in_round_two(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(imitation, "fit", stopped_in_round_two)
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) != 0
+    assert "1 complete rounds kept" in capsys.readouterr().out
+    assert (run_dir / "imitation_progress" / "round_1.npz").is_file()
+    monkeypatch.setattr(imitation, "fit", real)
+    assert train.main(["--resume", str(run_dir)]) == 0
+    assert "1 of 2 rounds done before" in capsys.readouterr().out
+    done = json.loads((run_dir / "imitation.json").read_text())
+    assert done["rounds"] == 2 and len(done["fit_mse"]) == 2 and done["labelled_steps"] == 128
+    assert not (run_dir / "imitation_progress").exists()  # recorded, then removed

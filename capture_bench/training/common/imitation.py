@@ -34,6 +34,9 @@ error says little of where the target is; the head shapes the features extractor
 fit and is not part of the policy (the policy saved and evaluated is the same network as
 without it).
 
+Each complete round is kept on disk (`capture_bench.training.common.imitation_progress`): a run
+stopped during its imitation goes on from its last complete round.
+
 ``imitation_warmup`` environment steps of the algorithm follow with the actor frozen
 (`FrozenActor`), so the critic, still untrained, learns the imitated policy's values
 before its advantages move the actor (off-policy: before its Q-values move the actor; the
@@ -47,12 +50,15 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
 from capture_bench.training.config.hyperparameters import IMITATION_DEFAULTS
+
+if TYPE_CHECKING:
+    from capture_bench.training.common.imitation_progress import RoundStore
 
 #: The algorithms whose policy the fit can set: an actor-critic's mean (PPO, A2C), an off-policy
 #: actor's deterministic squashed action (SAC, TQC).
@@ -325,6 +331,7 @@ def dagger(  # noqa: PLR0913
     lr: float = IMITATION_LR,
     batch_size: int = IMITATION_BATCH,
     state_weight: float = 0.0,
+    store: RoundStore | None = None,
 ) -> dict[str, Any]:
     """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring
     (``floor``, ``lr``, ``batch_size``: the fit's, `fit`; ``teacher_view``: what the teacher
@@ -337,19 +344,29 @@ def dagger(  # noqa: PLR0913
     regression of the teacher's observation (``state_mse``, a share of its variance), the wall
     clock, s, and with ``validate`` (the run's validation: pooled statistics of the policy on
     validation seeds) the policy's validation after each round and the wall clock then, its
-    learning curve (``validations``)."""
+    learning curve (``validations``).
+
+    With ``store`` each complete round is kept on disk, and a store that holds rounds already
+    (a run stopped during its imitation) is gone on from: the data set, the policy and the log as
+    they were after its last round, the next round on freshly reset envs
+    (`capture_bench.training.common.imitation_progress`)."""
+    from capture_bench.training.common.imitation_progress import Progress
+
     start = time.perf_counter()
     per_round = max(1, math.ceil(steps / venv.num_envs))
-    observations, labels = [], []
-    losses: list[float] = []
-    state_losses: list[float] = []
-    agreement: list[float | None] = []
-    curve: list[dict[str, float]] = []
-    views: list[np.ndarray] = []
+    done, head_state = (Progress(), None) if store is None else store.load(model.policy)
+    observations, labels, views = done.observations, done.labels, done.views
     head = None
+    if done.rounds:
+        if state_weight > 0:
+            head = _state_head(model.policy, views[0].shape[1], seed)
+            if head_state is not None:
+                head.load_state_dict(head_state)
+        log(f"imitation: {done.rounds} of {rounds} rounds done before; going on from there")
     obs = venv.reset()
-    for r in range(rounds):
+    for r in range(done.rounds, rounds):
         close = []
+        first_row = len(labels)
         for _ in range(per_round):
             seen = obs if teacher_view is None else teacher_view(obs)
             target = teacher(seen)
@@ -370,35 +387,45 @@ def dagger(  # noqa: PLR0913
             state = StateTargets(head, standardised(np.concatenate(views)), state_weight)
         loss = fit(model.policy, _stacked(observations), np.concatenate(labels), epochs,
                    seed + r, floor, lr, batch_size, state)  # fmt: skip
-        losses.append(loss)
+        done.losses.append(loss)
         if state is not None and state.last_mse is not None:
-            state_losses.append(state.last_mse)
-        agreement.append(float(np.mean(np.concatenate(close))) if close else None)
+            done.state_losses.append(state.last_mse)
+        done.agreement.append(float(np.mean(np.concatenate(close))) if close else None)
         rows = sum(len(label) for label in labels)
-        note = "" if r == 0 else f", policy within 0.05 of the teacher on {agreement[-1]:.0%}"
+        note = "" if r == 0 else f", policy within 0.05 of the teacher on {done.agreement[-1]:.0%}"
         if validate is not None:
             stats = validate()
             keys = ("capture_rate", "median_ratio_to_limit", "mean_score")
-            wall = round(time.perf_counter() - start, 1)
-            curve.append({"environment_steps": rows, **{k: _finite(stats[k]) for k in keys},
-                          "wall_time_s": wall})  # fmt: skip
+            wall = round(done.elapsed_s + time.perf_counter() - start, 1)
+            found = {k: _finite(stats[k]) for k in keys}
+            done.curve.append({"environment_steps": rows, **found, "wall_time_s": wall})
             note += (f"; validation capture rate {stats['capture_rate']:.2f}, median ratio "
                      f"{stats['median_ratio_to_limit']:.2f}")  # fmt: skip
         said = ""
-        if state_losses:
-            said = f" (the teacher's observation: {state_losses[-1]:.3f} of its variance)"
+        if done.state_losses:
+            said = f" (the teacher's observation: {done.state_losses[-1]:.3f} of its variance)"
         log(f"imitation round {r + 1}/{rounds}: {rows} labelled steps, fit MSE {loss:.2e}{said}"
             f"{note}")  # fmt: skip
+        if store is not None:
+            done.rounds = r + 1
+            store.save(_with_elapsed(done, start), first_row, model.policy, head)
     return {
         "rounds": rounds,
         "environment_steps": rounds * per_round * venv.num_envs,
         "labelled_steps": sum(len(label) for label in labels),
-        "fit_mse": losses,
-        "agreement": agreement,
-        **({"state_mse": state_losses} if state_losses else {}),
-        "wall_time_s": round(time.perf_counter() - start, 1),
-        **({"validations": curve} if validate is not None else {}),
+        "fit_mse": done.losses,
+        "agreement": done.agreement,
+        **({"state_mse": done.state_losses} if done.state_losses else {}),
+        "wall_time_s": round(done.elapsed_s + time.perf_counter() - start, 1),
+        **({"validations": done.curve} if validate is not None else {}),
     }
+
+
+def _with_elapsed(done: Any, start: float) -> Any:
+    """``done`` as it is to be stored: its wall clock with this session's time so far added."""
+    import dataclasses
+
+    return dataclasses.replace(done, elapsed_s=done.elapsed_s + time.perf_counter() - start)
 
 
 def _finite(value: float) -> float | None:

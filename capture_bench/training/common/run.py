@@ -58,6 +58,7 @@ from capture_bench.training.common.checkpoint import (
     read_checkpoint,
     restore,
 )
+from capture_bench.training.common.imitation_progress import ROUNDS_DIR, RoundStore
 from capture_bench.training.common.mixture import (
     is_mixture,
     mixture_name,
@@ -235,7 +236,7 @@ def _prepare(
         _check_memory(config, settings, resume=True)
         found = list_checkpoints(run_dir / "checkpoints")
         if not found and settings.imitate is not None and not (run_dir / IMITATION_FILE).is_file():
-            # stopped during its imitation, which is not checkpointed: it starts again
+            # stopped during its imitation: it goes on from its last complete round
             check_writable(run_dir, "--resume")
             return config, settings, run_dir, None
         if not found:
@@ -417,7 +418,8 @@ def imitate(
                   settings.imitation_epochs, config.seed or 0, validate=validate,
                   floor=settings.imitation_floor, teacher_view=view, lr=settings.imitation_lr,
                   batch_size=settings.imitation_batch,
-                  state_weight=settings.imitation_state_weight or 0.0)  # fmt: skip
+                  state_weight=settings.imitation_state_weight or 0.0,
+                  store=RoundStore(Path(config.run_dir) / ROUNDS_DIR))  # fmt: skip
 
 
 def resolved_yaml(config: TrainConfig, settings: TrainingSettings, origin: dict) -> str:
@@ -607,6 +609,7 @@ def train(
         if imitating:
             done = imitate(config, settings, model, venv, progress)
             atomic_write(run_dir / IMITATION_FILE, json.dumps(done, indent=2).encode())
+            RoundStore(run_dir / ROUNDS_DIR).clear()  # recorded: the policy goes on from here
             imitating = False
             progress.validate_at_start = True  # the imitated policy's validation, at step 0
             progress.extra_wall_s = time.perf_counter() - start  # on the curves' clock too
@@ -618,9 +621,10 @@ def train(
         )
     except KeyboardInterrupt as exc:
         status = exit_status(exc)
-        if imitating:  # a half-imitated policy is no checkpoint: the imitation starts again
-            print(f"\ninterrupted during the imitation (not checkpointed); start it again with: "
-                  f"python train.py --resume {run_dir}")  # fmt: skip
+        if imitating:  # the imitation goes on from its last complete round
+            kept = RoundStore(run_dir / ROUNDS_DIR).rounds_done()
+            print(f"\ninterrupted during the imitation ({kept} complete rounds kept); go on "
+                  f"with: python train.py --resume {run_dir}")  # fmt: skip
             return status
         path = checkpointer.save(model)
         add_wall_time(run_dir, time.perf_counter() - start)
