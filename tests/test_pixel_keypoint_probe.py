@@ -144,8 +144,8 @@ def _area_sampled_disc(centre, radius, shape, m=21):
 
 def test_the_local_centroid_finds_an_area_sampled_discs_sub_pixel_centre(load_script):
     """A marker 3.3 pixels across (the wide view's at 1.2 m), area-sampled: the centroid of the
-    coverage itself is its centre to a hundredth of a pixel, where a local softmax of the same
-    map is a tenth of a pixel off; a window given elsewhere reads there."""
+    coverage itself is its centre to a thousandth of a pixel, where a local softmax of the same
+    map at temperature 1 is half a pixel off; a window given elsewhere reads there."""
     import torch
 
     probe = load_script("pixel_keypoint_probe")
@@ -153,11 +153,11 @@ def test_the_local_centroid_finds_an_area_sampled_discs_sub_pixel_centre(load_sc
     disc = torch.as_tensor(_area_sampled_disc(centre, 1.65, (30, 40)), dtype=torch.float32)
     maps = torch.stack((disc, torch.roll(disc, 9, dims=1)))[None]  # (1, 2, 30, 40)
     found, mass = probe.local_centroid(maps, 3)
-    np.testing.assert_allclose(found[0, 0].numpy(), centre, atol=0.01)
-    np.testing.assert_allclose(found[0, 1].numpy(), centre + [9, 0], atol=0.01)
+    np.testing.assert_allclose(found[0, 0].numpy(), centre, atol=0.002)
+    np.testing.assert_allclose(found[0, 1].numpy(), centre + [9, 0], atol=0.002)
     np.testing.assert_allclose(mass[0].numpy(), np.pi * 1.65**2, rtol=0.01)
     soft = probe.local_soft_argmax(maps, torch.tensor(1.0), 3)[0, 0].numpy()
-    assert np.linalg.norm(soft - centre) > 0.05
+    assert np.linalg.norm(soft - centre) > 0.5
     peak = torch.tensor([[12 * 40 + 30, 12 * 40 + 20]])  # the first map read around (30, 12)
     found, mass = probe.local_centroid(maps, 3, peak)
     np.testing.assert_allclose(found[0, 0].numpy(), [30, 12], atol=1e-4)  # nothing there: centre
