@@ -621,9 +621,59 @@ def test_a_run_stopped_after_an_imitation_round_goes_on_from_it(tmp_path, monkey
     assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) != 0
     assert "1 complete rounds kept" in capsys.readouterr().out
     assert (run_dir / "imitation_progress" / "round_1.npz").is_file()
+    assert (run_dir / "wall_time.json").is_file()  # the stopped session's time is counted
     monkeypatch.setattr(imitation, "fit", real)
     assert train.main(["--resume", str(run_dir)]) == 0
     assert "1 of 2 rounds done before" in capsys.readouterr().out
     done = json.loads((run_dir / "imitation.json").read_text())
     assert done["rounds"] == 2 and len(done["fit_mse"]) == 2 and done["labelled_steps"] == 128
     assert not (run_dir / "imitation_progress").exists()  # recorded, then removed
+
+
+def test_a_run_lost_after_its_imitation_before_a_checkpoint_gets_its_policy_back(
+    tmp_path, monkeypatch, capsys
+):
+    """Killed (here: an error) after imitation.json and before any checkpoint: the kept rounds
+    give the imitated policy back; the folder goes once a checkpoint holds it."""
+    from stable_baselines3 import PPO
+
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=1",
+            "imitation_epochs=1"]  # fmt: skip
+
+    def lost(*args, **kwargs):
+        raise RuntimeError("lost")
+
+    monkeypatch.setattr(PPO, "learn", lost)
+    with pytest.raises(RuntimeError, match="lost"):
+        train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)])
+    assert (run_dir / "imitation.json").is_file()
+    assert not list((run_dir / "checkpoints").glob("step_*"))
+    monkeypatch.undo()
+    assert train.main(["--resume", str(run_dir)]) == 0
+    assert "1 of 1 rounds done before" in capsys.readouterr().out
+    assert not (run_dir / "imitation_progress").exists()
+
+
+def test_kept_rounds_that_cannot_be_read_are_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    from capture_bench.training.common import imitation
+
+    run_dir = tmp_path / "run"
+    sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=2",
+            "imitation_epochs=1"]  # fmt: skip
+    real, calls = imitation.fit, []
+
+    def stopped_in_round_two(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(imitation, "fit", stopped_in_round_two)
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) != 0
+    monkeypatch.undo()
+    (run_dir / "imitation_progress" / "round_1.npz").write_bytes(b"not an npz")
+    capsys.readouterr()
+    assert train.main(["--resume", str(run_dir)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "imitation_progress" in err[0] and "remove that folder" in err[0]

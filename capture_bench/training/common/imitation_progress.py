@@ -8,17 +8,23 @@ After round r the store holds, under ``<run>/imitation_progress/``:
   the state regression, what the teacher read (``views``);
 * ``state.pt``: the policy's parameters after round r's fit (and the state regression's head),
   the rounds done and the log so far (fit losses, agreement, state errors, validations, wall
-  clock), written last and atomically, so it names only rounds whose rows are whole on disk.
+  clock), written after the rows and atomically, so it names only rounds whose rows are whole on
+  disk; then ``rounds.json``, the count alone.
 
 A resumed imitation loads the data set and the policy as they were and plays its next round on
 freshly reset envs (the episodes in progress when it stopped are not continued: the rows it
-gathers are DAgger's all the same, states the policy reaches, labelled by the teacher). Once the
-imitation is complete, the run removes the store (`RoundStore.clear`).
+gathers are DAgger's all the same, states the policy reaches, labelled by the teacher). The run
+removes the store once a checkpoint holds the imitated policy (`RoundStore.clear`). A store that
+cannot be read is a `CheckpointError` that says so; removing the folder starts the imitation
+again.
 """
 
 from __future__ import annotations
 
+import json
+import pickle
 import shutil
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,16 +32,19 @@ from typing import Any
 import numpy as np
 
 from capture_bench.files import atomic_write
+from capture_bench.training.common.checkpoint import CheckpointError
 
 #: The store's folder inside a run's directory.
 ROUNDS_DIR = "imitation_progress"
 _STATE = "state.pt"
+_COUNT = "rounds.json"
 
 
 @dataclass
 class Progress:
     """What DAgger has done so far: ``rounds`` complete, the data set's ``observations``,
-    ``labels`` and ``views`` (one batch per environment step, as `dagger` gathers them), each
+    ``labels`` and ``views`` (batches: one per environment step as `dagger` gathers them, one per
+    round as `RoundStore.load` gives them back), each
     round's ``losses``, ``state_losses``, ``agreement`` and ``curve`` (validations), and the wall
     clock ``elapsed_s`` spent on them."""
 
@@ -89,16 +98,27 @@ class RoundStore:
             "log": progress.log(),
         }
         atomic_write(self.directory / _STATE, writer=lambda tmp: torch.save(state, tmp))
+        atomic_write(self.directory / _COUNT, json.dumps({"rounds": progress.rounds}).encode())
 
     def load(self, policy: Any) -> tuple[Progress, dict[str, Any] | None]:
         """The progress stored (an empty one where nothing is), the policy's parameters set to
         those after its last round; and the state regression head's parameters, if any."""
-        import torch
-
         path = self.directory / _STATE
         if not path.is_file():
             return Progress(), None
-        state = torch.load(path, weights_only=True)
+        try:
+            return self._load(path, policy)
+        except (OSError, EOFError, ValueError, KeyError, RuntimeError, pickle.UnpicklingError,
+                zipfile.BadZipFile) as exc:  # fmt: skip
+            raise CheckpointError(
+                f"{self.directory}: the imitation's kept rounds cannot be read ({exc}); remove "
+                "that folder to start the imitation again"
+            ) from exc
+
+    def _load(self, path: Path, policy: Any) -> tuple[Progress, dict[str, Any] | None]:
+        import torch
+
+        state = torch.load(path, map_location="cpu", weights_only=True)
         log = state["log"]
         progress = Progress(
             rounds=int(log["rounds"]),
@@ -123,11 +143,11 @@ class RoundStore:
         return progress, state["head"]
 
     def rounds_done(self) -> int:
-        """How many complete rounds the store holds."""
-        import torch
-
-        path = self.directory / _STATE
-        return int(torch.load(path, weights_only=True)["log"]["rounds"]) if path.is_file() else 0
+        """How many complete rounds the store holds (0 where it holds none or cannot say)."""
+        try:
+            return int(json.loads((self.directory / _COUNT).read_text())["rounds"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return 0
 
     def clear(self) -> None:
         """Remove the store (the imitation is complete and recorded elsewhere)."""

@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``train.py`` with ``argv`` (default: ``sys.argv[1:]``); return the exit status.
 
     The run directory is locked for the run's whole life (`RunLock`). A new run that fails before
-    its first checkpoint (an interrupt while the
+    its first checkpoint and before a complete round of its imitation (an interrupt while the
     envs start, an error) leaves its directory as it found it, so the same command can be run
     again."""
     with RunLock() as lock:
@@ -136,10 +136,11 @@ def _error(exc: object) -> int:
 
 
 def _discard_unstarted(lock: RunLock, run_dir: Path, new: bool) -> None:
-    """Remove what a new run wrote into ``run_dir`` where it has no checkpoint to resume from
-    (`discard`)."""
+    """Remove what a new run wrote into ``run_dir`` where it has nothing to resume from: no
+    checkpoint and no complete round of its imitation (`discard`)."""
     if new and not list_checkpoints(run_dir / "checkpoints"):
-        lock.discard(run_dir)
+        if not RoundStore(run_dir / ROUNDS_DIR).rounds_done():
+            lock.discard(run_dir)
 
 
 def _read_run_config(run_dir: Path) -> tuple[dict, TrainConfig]:
@@ -235,8 +236,11 @@ def _prepare(
             _check_mixture(config, settings, len(mixture_scenarios(config.scenario)))
         _check_memory(config, settings, resume=True)
         found = list_checkpoints(run_dir / "checkpoints")
-        if not found and settings.imitate is not None and not (run_dir / IMITATION_FILE).is_file():
-            # stopped during its imitation: it goes on from its last complete round
+        imitated = (run_dir / IMITATION_FILE).is_file()
+        kept = RoundStore(run_dir / ROUNDS_DIR).rounds_done()
+        if not found and settings.imitate is not None and (not imitated or kept):
+            # stopped during its imitation, or after it and before its first checkpoint: it goes
+            # on from its last complete round (all of them: the imitated policy back)
             check_writable(run_dir, "--resume")
             return config, settings, run_dir, None
         if not found:
@@ -609,7 +613,6 @@ def train(
         if imitating:
             done = imitate(config, settings, model, venv, progress)
             atomic_write(run_dir / IMITATION_FILE, json.dumps(done, indent=2).encode())
-            RoundStore(run_dir / ROUNDS_DIR).clear()  # recorded: the policy goes on from here
             imitating = False
             progress.validate_at_start = True  # the imitated policy's validation, at step 0
             progress.extra_wall_s = time.perf_counter() - start  # on the curves' clock too
@@ -622,11 +625,13 @@ def train(
     except KeyboardInterrupt as exc:
         status = exit_status(exc)
         if imitating:  # the imitation goes on from its last complete round
+            add_wall_time(run_dir, time.perf_counter() - start)
             kept = RoundStore(run_dir / ROUNDS_DIR).rounds_done()
             print(f"\ninterrupted during the imitation ({kept} complete rounds kept); go on "
                   f"with: python train.py --resume {run_dir}")  # fmt: skip
             return status
         path = checkpointer.save(model)
+        RoundStore(run_dir / ROUNDS_DIR).clear()  # the checkpoint holds the imitated policy
         add_wall_time(run_dir, time.perf_counter() - start)
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint {path}; "
               f"continue with: python train.py --resume {run_dir}")  # fmt: skip
@@ -636,6 +641,7 @@ def train(
     if status:
         return status
     checkpointer.save(model)
+    RoundStore(run_dir / ROUNDS_DIR).clear()  # the checkpoint holds the imitated policy
     wall = time.perf_counter() - start
     total_wall = add_wall_time(run_dir, wall)
     save_final(model, config, settings, run_dir, total_wall)
