@@ -603,31 +603,16 @@ def test_dagger_goes_on_from_its_last_stored_round(tmp_path):
 
 
 def test_a_run_stopped_after_an_imitation_round_goes_on_from_it(tmp_path, monkeypatch, capsys):
-    from capture_bench.training.common import imitation
-
     run_dir = tmp_path / "run"
-    sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=2",
-            "imitation_epochs=1"]  # fmt: skip
-    real = imitation.fit
-    calls = []
-
-    def stopped_in_round_two(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(imitation, "fit", stopped_in_round_two)
-    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) != 0
+    _stopped_in_round_two(run_dir, monkeypatch)
     assert "1 complete rounds kept" in capsys.readouterr().out
     assert (run_dir / "imitation_progress" / "round_1.npz").is_file()
     assert (run_dir / "wall_time.json").is_file()  # the stopped session's time is counted
-    monkeypatch.setattr(imitation, "fit", real)
     assert train.main(["--resume", str(run_dir)]) == 0
     assert "1 of 2 rounds done before" in capsys.readouterr().out
     done = json.loads((run_dir / "imitation.json").read_text())
     assert done["rounds"] == 2 and len(done["fit_mse"]) == 2 and done["labelled_steps"] == 128
-    assert not (run_dir / "imitation_progress").exists()  # recorded, then removed
+    assert not (run_dir / "imitation_progress").exists()  # a checkpoint holds the policy
 
 
 def test_a_run_lost_after_its_imitation_before_a_checkpoint_gets_its_policy_back(
@@ -656,24 +641,29 @@ def test_a_run_lost_after_its_imitation_before_a_checkpoint_gets_its_policy_back
 
 
 def test_kept_rounds_that_cannot_be_read_are_refused_in_one_line(tmp_path, monkeypatch, capsys):
-    from capture_bench.training.common import imitation
-
     run_dir = tmp_path / "run"
-    sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=2",
-            "imitation_epochs=1"]  # fmt: skip
-    real, calls = imitation.fit, []
-
-    def stopped_in_round_two(*args, **kwargs):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(imitation, "fit", stopped_in_round_two)
-    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) != 0
-    monkeypatch.undo()
+    _stopped_in_round_two(run_dir, monkeypatch)
     (run_dir / "imitation_progress" / "round_1.npz").write_bytes(b"not an npz")
     capsys.readouterr()
     assert train.main(["--resume", str(run_dir)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "imitation_progress" in err[0] and "remove that folder" in err[0]
+
+
+def _stopped_in_round_two(run_dir, monkeypatch) -> None:
+    """A new two-round imitation run stopped (Ctrl-C) during its second round's fit."""
+    from capture_bench.training.common import imitation
+
+    sets = [*TINY, "imitate=incremental_ik", "imitation_steps=64", "imitation_rounds=2",
+            "imitation_epochs=1"]  # fmt: skip
+    real, calls = imitation.fit, []
+
+    def stopped(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(imitation, "fit", stopped)
+    assert train.main([*(f"--set={s}" for s in sets), "--run-dir", str(run_dir)]) != 0
+    monkeypatch.undo()
