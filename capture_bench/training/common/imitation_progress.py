@@ -44,9 +44,8 @@ _COUNT = "rounds.json"
 class Progress:
     """What DAgger has done so far: ``rounds`` complete, the data set's ``observations``,
     ``labels`` and ``views`` (batches: one per environment step as `dagger` gathers them, one per
-    round as `RoundStore.load` gives them back), each
-    round's ``losses``, ``state_losses``, ``agreement`` and ``curve`` (validations), and the wall
-    clock ``elapsed_s`` spent on them."""
+    round as `RoundStore.load` gives them back), each round's ``losses``, ``state_losses``,
+    ``agreement`` and ``curve`` (validations), and the wall clock ``elapsed_s`` spent on them."""
 
     rounds: int = 0
     observations: list[Any] = field(default_factory=list)
