@@ -53,6 +53,7 @@ import torch
 from torch import nn
 
 from capture_bench.agents.features import SpatialSoftmax
+from capture_bench.engine.engine import FrameStack
 from capture_bench.engine.task import CaptureTask, resolve_scenario
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.task.episode import describe_task
@@ -93,24 +94,12 @@ def stacked(x: torch.Tensor, first: np.ndarray, stack: int) -> torch.Tensor:
     return torch.stack([x[torch.as_tensor(i)] for i in index], dim=1)
 
 
-class History:
-    """Each sub-env's values of its last ``stack`` steps (privileged points, or features), oldest
-    first, name -> (N, S, ...); an episode's first step fills all S with its own (a frame stack's
-    rule)."""
-
-    def __init__(self, stack: int) -> None:
-        self.stack = stack
-        self.last: dict[str, np.ndarray] | None = None
-
-    def push(self, found: dict[str, np.ndarray], fresh: np.ndarray) -> dict[str, np.ndarray]:
-        if self.last is None:
-            fresh = np.ones(len(next(iter(found.values()))), dtype=bool)
-            self.last = {k: np.repeat(v[:, None], self.stack, axis=1) for k, v in found.items()}
-        for k, v in found.items():
-            h = np.concatenate([self.last[k][:, 1:], v[:, None]], axis=1)
-            h[fresh] = v[fresh][:, None]
-            self.last[k] = h
-        return {k: v.copy() for k, v in self.last.items()}
+def last_steps(stack: FrameStack, values: dict[str, np.ndarray], t: int) -> dict:
+    """Each sub-env's ``values`` (name -> (N, ...)) of its last ``stack.k`` steps, oldest first,
+    name -> (N, S, ...), after taking those of step ``t`` (`FrameStack.push`: an episode's first
+    step fills all S with its own, as a frame stack does)."""
+    got = stack.push(values, np.full(stack.n, t))
+    return {k: v.reshape(v.shape[0], stack.k, -1, *v.shape[2:]) for k, v in got.items()}
 
 
 class SeedList:
@@ -143,7 +132,7 @@ def collect(
 ) -> Rows:
     """``steps`` rows of `dls` with DART noise (module docstring, 1) on episodes seeded from
     ``seeds`` in turn (one per sub-env reset); with ``stack`` > 1 each row also holds the
-    privileged points of its last ``stack`` steps (`History`)."""
+    privileged points of its last ``stack`` steps (`last_steps`)."""
     venv = make_env(scenario, options)
     venv.set_episode_seeds([SeedList(seeds[i::NUM_ENVS]) for i in range(NUM_ENVS)])
     teacher = make_teacher(["dls"], [describe_task(resolve_scenario(scenario, "pixels"))],
@@ -155,15 +144,16 @@ def collect(
     frames = {k: [] for k in names}
     points = {k: [] for k in names}
     state, action, relative, first = [], [], [], []
-    history, recent = History(stack), {k: [] for k in names}
+    history, recent = FrameStack(NUM_ENVS, stack), {k: [] for k in names}
     ended = np.zeros(NUM_ENVS, dtype=bool)  # NEXT_STEP autoreset: the step after an end resets
     obs, _ = venv.reset()
     try:
-        for _ in range(-(-steps // NUM_ENVS)):
+        for t in range(-(-steps // NUM_ENVS)):
             label = teacher(venv.estimate_observation())
             truth = venv.true_observation()
             found = privileged_points(imager, venv, obs["state"], names)
-            last = history.push(found, ended) if stack > 1 else {}
+            history.restart(np.flatnonzero(ended))
+            last = last_steps(history, found, t) if stack > 1 else {}
             for k in names:
                 frames[k].append(obs[k][:, -3:])  # the newest frame
                 points[k].append(found[k])
@@ -590,24 +580,25 @@ def play(
         for lo in range(0, episodes, NUM_ENVS):
             batch = seeds[lo : lo + NUM_ENVS]
             obs, _ = venv.reset(seed=batch + batch[:1] * (NUM_ENVS - len(batch)))
-            history = History(max(v.stack for v in net.views.values()) if net.oracle else 1)
-            recent = History(net.head_stack)
+            oracle_stack = max(v.stack for v in net.views.values()) if net.oracle else 1
+            history = FrameStack(NUM_ENVS, oracle_stack)
+            recent = FrameStack(NUM_ENVS, net.head_stack)
+            t = 0
             ended = np.zeros(NUM_ENVS, dtype=bool)
             ended[len(batch) :] = True  # padding rows are played, not counted
             counted = ended.copy()
             while not ended.all():
                 if net.oracle:
                     found = privileged_points(imager, venv, obs["state"], list(net.views))
-                    if history.stack > 1:
-                        found = history.push(found, np.zeros(NUM_ENVS, dtype=bool))
+                    if history.k > 1:
+                        found = last_steps(history, found, t)
                     views = {k: torch.as_tensor(_noisy(v, noise, rng)) for k, v in found.items()}
                 else:
                     views = {k: torch.as_tensor(obs[k][:, -3:].copy()) for k in net.views}
                 with torch.no_grad():
                     x, _, _ = net.features(views, torch.as_tensor(obs["state"]))
                     if net.head_stack > 1:
-                        fresh = np.zeros(NUM_ENVS, dtype=bool)
-                        x = torch.as_tensor(recent.push({"x": x.numpy()}, fresh)["x"])
+                        x = torch.as_tensor(last_steps(recent, {"x": x.numpy()}, t)["x"])
                     a, _ = net.heads(x)
                 obs, _, terminated, truncated, info = venv.step(np.clip(a.numpy(), -1, 1))
                 now = (terminated | truncated) & ~counted
@@ -615,6 +606,7 @@ def play(
                 captured += int(np.sum(success & now))
                 counted |= now
                 ended |= terminated | truncated
+                t += 1
     finally:
         imager.close()
         venv.close()

@@ -239,20 +239,24 @@ def test_fit_head_moves_the_mlp_alone_and_fits_it(load_script):
     assert not any(torch.equal(a, b) for a, b in zip(trunk, net.trunk.parameters(), strict=True))
 
 
-def test_history_holds_the_last_steps_in_order_and_restarts_with_an_episode(load_script):
+def test_last_steps_hold_the_last_steps_in_order_and_restart_with_an_episode(load_script):
+    from capture_bench.engine.engine import FrameStack
+
     probe = load_script("pixel_keypoint_probe")
-    history = probe.History(3)
+    history = FrameStack(2, 3)
 
     def step(value):
         return {"image": np.full((2, 5, 2), value, dtype=np.float32)}
 
-    first = history.push(step(1.0), np.zeros(2, dtype=bool))
+    first = probe.last_steps(history, step(1.0), 0)
     assert first["image"].shape == (2, 3, 5, 2) and np.all(first["image"] == 1.0)  # filled
-    history.push(step(2.0), np.zeros(2, dtype=bool))
-    third = history.push(step(3.0), np.array([False, True]))  # sub-env 1's episode restarts
+    assert first["image"].dtype == np.float32
+    probe.last_steps(history, step(2.0), 1)
+    history.restart(np.array([1]))  # sub-env 1's episode restarts
+    third = probe.last_steps(history, step(3.0), 2)
     np.testing.assert_array_equal(third["image"][0, :, 0, 0], [1.0, 2.0, 3.0])  # oldest first
     np.testing.assert_array_equal(third["image"][1, :, 0, 0], [3.0, 3.0, 3.0])
-    fourth = history.push(step(4.0), np.zeros(2, dtype=bool))
+    fourth = probe.last_steps(history, step(4.0), 3)
     np.testing.assert_array_equal(fourth["image"][0, :, 0, 0], [2.0, 3.0, 4.0])
     np.testing.assert_array_equal(third["image"][0, :, 0, 0], [1.0, 2.0, 3.0])  # a copy
 

@@ -31,7 +31,9 @@ _OBSERVED = ("estimate_valid", "estimate_position", "estimate_velocity", "dt")
 
 
 class FrameStack:
-    """The last k frames of each image view of N rows, oldest first, stacked along the channels.
+    """The last k frames of each image view of N rows, oldest first, stacked along the channels
+    (or of any per-row values, (N, ...) a step, kept in their dtype: stacked along their first
+    axis after the row's).
 
     A row's stack takes a frame when its step has moved since the last (a row the caller did not
     step keeps its stack), and is filled with k copies of its first frame when its episode
@@ -40,7 +42,7 @@ class FrameStack:
 
     def __init__(self, n: int, k: int) -> None:
         self.n, self.k = n, k
-        self.frames: dict[str, NDArray[np.uint8]] = {}  # view -> (N, k, 3, H, W)
+        self.frames: dict[str, NDArray] = {}  # view -> (N, k, 3, H, W)
         self.step = np.full(n, -1, dtype=np.int64)  # each row's step of its newest frame
         self.fresh = np.ones(n, dtype=bool)  # rows whose episode restarted since
 
@@ -50,14 +52,16 @@ class FrameStack:
 
     def push(self, views: dict[str, NDArray], steps: NDArray[np.int64]) -> dict[str, NDArray]:
         """Take each row's frame of every view in ``views`` ((N, 3, H, W) each) where its step
-        (``steps``, (N,)) moved or its episode restarted; the stacks, (N, 3 k, H, W) each."""
+        (``steps``, (N,)) moved or its episode restarted; the stacks, (N, 3 k, H, W) each (values
+        (N, d, ...): (N, k d, ...))."""
         moved = self.fresh | (steps != self.step)
         refill, roll = self.fresh.copy(), moved & ~self.fresh
         stacked = {}
         for key, frame in views.items():
             stack = self.frames.get(key)
             if stack is None:
-                stack = self.frames[key] = np.empty((self.n, self.k, *frame.shape[1:]), np.uint8)
+                stack = np.empty((self.n, self.k, *frame.shape[1:]), frame.dtype)
+                self.frames[key] = stack
             stack[roll, :-1] = stack[roll, 1:]
             stack[roll, -1] = frame[roll]
             stack[refill] = frame[refill][:, None]
