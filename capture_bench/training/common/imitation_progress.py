@@ -74,6 +74,11 @@ class RoundStore:
     def __init__(self, directory: str | Path) -> None:
         self.directory = Path(directory)
 
+    @classmethod
+    def of_run(cls, run_dir: str | Path) -> RoundStore:
+        """The store of the run in ``run_dir`` (its `ROUNDS_DIR`)."""
+        return cls(Path(run_dir) / ROUNDS_DIR)
+
     def save(self, progress: Progress, first_row: int, policy: Any, head: Any = None) -> None:
         """Round ``progress.rounds``: its rows (the batches from ``first_row`` on), then the
         policy's parameters (and ``head``'s) and the log."""
@@ -149,7 +154,7 @@ class RoundStore:
             return 0
 
     def clear(self) -> None:
-        """Remove the store (the imitation is complete and recorded elsewhere)."""
+        """Remove the store (a checkpoint holds the imitated policy)."""
         shutil.rmtree(self.directory, ignore_errors=True)
 
 

@@ -58,7 +58,7 @@ from capture_bench.training.common.checkpoint import (
     read_checkpoint,
     restore,
 )
-from capture_bench.training.common.imitation_progress import ROUNDS_DIR, RoundStore
+from capture_bench.training.common.imitation_progress import RoundStore
 from capture_bench.training.common.mixture import (
     is_mixture,
     mixture_name,
@@ -139,7 +139,7 @@ def _discard_unstarted(lock: RunLock, run_dir: Path, new: bool) -> None:
     """Remove what a new run wrote into ``run_dir`` where it has nothing to resume from: no
     checkpoint and no complete round of its imitation (`discard`)."""
     if new and not list_checkpoints(run_dir / "checkpoints"):
-        if not RoundStore(run_dir / ROUNDS_DIR).rounds_done():
+        if not RoundStore.of_run(run_dir).rounds_done():
             lock.discard(run_dir)
 
 
@@ -237,7 +237,7 @@ def _prepare(
         _check_memory(config, settings, resume=True)
         found = list_checkpoints(run_dir / "checkpoints")
         imitated = (run_dir / IMITATION_FILE).is_file()
-        kept = RoundStore(run_dir / ROUNDS_DIR).rounds_done()
+        kept = RoundStore.of_run(run_dir).rounds_done()
         if not found and settings.imitate is not None and (not imitated or kept):
             # stopped during its imitation, or after it and before its first checkpoint: it goes
             # on from its last complete round (all of them: the imitated policy back)
@@ -423,7 +423,7 @@ def imitate(
                   floor=settings.imitation_floor, teacher_view=view, lr=settings.imitation_lr,
                   batch_size=settings.imitation_batch,
                   state_weight=settings.imitation_state_weight or 0.0,
-                  store=RoundStore(Path(config.run_dir) / ROUNDS_DIR))  # fmt: skip
+                  store=RoundStore.of_run(config.run_dir))  # fmt: skip
 
 
 def resolved_yaml(config: TrainConfig, settings: TrainingSettings, origin: dict) -> str:
@@ -626,12 +626,12 @@ def train(
         status = exit_status(exc)
         if imitating:  # the imitation goes on from its last complete round
             add_wall_time(run_dir, time.perf_counter() - start)
-            kept = RoundStore(run_dir / ROUNDS_DIR).rounds_done()
+            kept = RoundStore.of_run(run_dir).rounds_done()
             print(f"\ninterrupted during the imitation ({kept} complete rounds kept); go on "
                   f"with: python train.py --resume {run_dir}")  # fmt: skip
             return status
         path = checkpointer.save(model)
-        RoundStore(run_dir / ROUNDS_DIR).clear()  # the checkpoint holds the imitated policy
+        RoundStore.of_run(run_dir).clear()  # the checkpoint holds the imitated policy
         add_wall_time(run_dir, time.perf_counter() - start)
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint {path}; "
               f"continue with: python train.py --resume {run_dir}")  # fmt: skip
@@ -641,7 +641,7 @@ def train(
     if status:
         return status
     checkpointer.save(model)
-    RoundStore(run_dir / ROUNDS_DIR).clear()  # the checkpoint holds the imitated policy
+    RoundStore.of_run(run_dir).clear()  # the checkpoint holds the imitated policy
     wall = time.perf_counter() - start
     total_wall = add_wall_time(run_dir, wall)
     save_final(model, config, settings, run_dir, total_wall)
