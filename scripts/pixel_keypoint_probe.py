@@ -20,7 +20,9 @@ few millimetres, along the line of sight too) before anything is trained on it f
    non-negative weights' centroid in that window is the keypoint; ``oracle``, no
    image: the privileged points themselves plus Gaussian noise (what a head does with keypoints
    that precise). The features: the keypoints, how much each map found, and the log distances
-   between keypoints (the markers' spacing, which is what tells depth). An MLP (``--layers`` of
+   between keypoints (the markers' spacing, which is what tells depth); with ``--features
+   markers`` those of the markers' keypoints alone (X_E's place is in the arm's state, and its
+   log distance to a marker runs off to -7 as the two meet). An MLP (``--layers`` of
    ``--hidden`` units, 256 x 2) on those and the arm's state, standardised, gives the action and
    the relative vector.
 3. **Fit.** Adam, one-cycle schedule, minibatches of 128: the action's squared error, the relative
@@ -83,6 +85,20 @@ class Rows:
     first: np.ndarray | None = None  # (N,) bool: the row is its episode's first step
 
 
+def joined(a: Rows, b: Rows) -> Rows:
+    """The rows of ``a`` then ``b`` (two collections, each starting its sub-envs' episodes, so
+    `stacked` never reaches from one into the other)."""
+
+    def cat(x: dict | None, y: dict | None) -> dict | None:
+        return None if x is None else {k: np.concatenate((x[k], y[k])) for k in x}
+
+    return Rows(
+        cat(a.views, b.views), cat(a.points, b.points), np.concatenate((a.state, b.state)),
+        np.concatenate((a.action, b.action)), np.concatenate((a.relative, b.relative)),
+        cat(a.history, b.history), np.concatenate((a.first, b.first)),
+    )  # fmt: skip
+
+
 def stacked(x: torch.Tensor, first: np.ndarray, stack: int) -> torch.Tensor:
     """Each row's features ``x`` (N, D) and those of its sub-env's ``stack`` - 1 steps before,
     oldest first, (N, S, D), for rows in `collect`'s order (step after step, `NUM_ENVS` rows a
@@ -127,12 +143,45 @@ def privileged_points(imager, venv: CaptureVectorEnv, state: np.ndarray, names) 
     return {k: np.stack([f[k] for f in found]).astype(np.float32) for k in names}
 
 
+class Student:
+    """The probe's network acting on `NUM_ENVS` sub-envs: each step's newest images (or, for an
+    oracle, the privileged points of its last steps plus Gaussian noise of std ``noise``) and
+    the arm's state -> actions in [-1, 1]; `restart` the sub-envs whose episode starts."""
+
+    def __init__(self, net: ProbeNet, noise: float | None, rng: np.random.Generator) -> None:
+        self.net, self.noise, self.rng = net, noise, rng
+        points_stack = max(v.stack for v in net.views.values()) if net.oracle else 1
+        self.history = FrameStack(NUM_ENVS, points_stack)
+        self.recent = FrameStack(NUM_ENVS, net.head_stack)
+
+    def restart(self, rows: np.ndarray) -> None:
+        self.history.restart(rows)
+        self.recent.restart(rows)
+
+    def __call__(self, obs: dict, found: dict | None, t: int) -> np.ndarray:
+        """The actions at step ``t`` from the observation and (an oracle's) privileged points."""
+        if self.net.oracle:
+            if self.history.k > 1:
+                found = last_steps(self.history, found, t)
+            views = {k: torch.as_tensor(_noisy(v, self.noise, self.rng)) for k, v in found.items()}
+        else:
+            views = {k: torch.as_tensor(obs[k][:, -3:].copy()) for k in self.net.views}
+        with torch.no_grad():
+            x, _, _ = self.net.features(views, torch.as_tensor(obs["state"]))
+            if self.net.head_stack > 1:
+                x = torch.as_tensor(last_steps(self.recent, {"x": x.numpy()}, t)["x"])
+            a, _ = self.net.heads(x)
+        return np.clip(a.numpy(), -1, 1)
+
+
 def collect(
-    scenario: str, options: dict[str, int], steps: int, seeds: Sequence[int], stack: int = 1
-) -> Rows:
+    scenario: str, options: dict[str, int], steps: int, seeds: Sequence[int], stack: int = 1,
+    student: Student | None = None,
+) -> Rows:  # fmt: skip
     """``steps`` rows of `dls` with DART noise (module docstring, 1) on episodes seeded from
     ``seeds`` in turn (one per sub-env reset); with ``stack`` > 1 each row also holds the
-    privileged points of its last ``stack`` steps (`last_steps`)."""
+    privileged points of its last ``stack`` steps (`last_steps`). With a ``student`` the student
+    acts (DAgger: the states it reaches, each labelled with the teacher's action there)."""
     venv = make_env(scenario, options)
     venv.set_episode_seeds([SeedList(seeds[i::NUM_ENVS]) for i in range(NUM_ENVS)])
     teacher = make_teacher(["dls"], [describe_task(resolve_scenario(scenario, "pixels"))],
@@ -146,13 +195,16 @@ def collect(
     state, action, relative, first = [], [], [], []
     history, recent = FrameStack(NUM_ENVS, stack), {k: [] for k in names}
     ended = np.zeros(NUM_ENVS, dtype=bool)  # NEXT_STEP autoreset: the step after an end resets
+    starting = np.ones(NUM_ENVS, dtype=bool)  # the sub-envs whose episode starts this row
     obs, _ = venv.reset()
     try:
         for t in range(-(-steps // NUM_ENVS)):
             label = teacher(venv.estimate_observation())
             truth = venv.true_observation()
             found = privileged_points(imager, venv, obs["state"], names)
-            history.restart(np.flatnonzero(ended))
+            history.restart(np.flatnonzero(starting))
+            if student is not None:
+                student.restart(np.flatnonzero(starting))
             last = last_steps(history, found, t) if stack > 1 else {}
             for k in names:
                 frames[k].append(obs[k][:, -3:])  # the newest frame
@@ -162,12 +214,13 @@ def collect(
             state.append(obs["state"])
             action.append(label)
             relative.append(truth[:, SLICES["relative_position"]] * RELATIVE_SCALE)
-            first.append(ended if first else np.ones(NUM_ENVS, dtype=bool))
-            noisy = label + noise * rng.standard_normal(label.shape)
-            obs, _, terminated, truncated, _ = venv.step(
-                np.clip(noisy, -1.0, 1.0).astype(np.float32)
-            )
-            ended = terminated | truncated
+            first.append(starting)
+            if student is None:
+                act = np.clip(label + noise * rng.standard_normal(label.shape), -1.0, 1.0)
+            else:
+                act = student(obs, found, t)
+            obs, _, terminated, truncated, _ = venv.step(act.astype(np.float32))
+            starting, ended = ended, terminated | truncated  # the ended sub-envs were reset
     finally:
         imager.close()
         venv.close()
@@ -258,9 +311,12 @@ class ViewKeypoints(nn.Module):
       whose `local_centroid` in that window is the keypoint.
     """
 
-    def __init__(self, size: int, window: int = 0, reader: str = "softmax") -> None:
+    def __init__(
+        self, size: int, window: int = 0, reader: str = "softmax", read: int = KEYPOINTS
+    ) -> None:
         super().__init__()
         self.reader = reader
+        self.read = read
         self.maps = nn.Sequential(
             nn.Conv2d(3, HIDDEN, 3, padding=1), nn.ReLU(), nn.Conv2d(HIDDEN, KEYPOINTS, 1)
         )
@@ -280,7 +336,7 @@ class ViewKeypoints(nn.Module):
                 self.softmax.log_temperature.fill_(np.log(0.1))  # sharp from the start
         self.size = size
         self.window = max(window, 1) if reader.startswith("centroid") else window
-        self.dim = feature_width(KEYPOINTS)
+        self.dim = feature_width(read)
 
     def forward(self, image: torch.Tensor):
         x = image.float() / 255.0
@@ -289,8 +345,9 @@ class ViewKeypoints(nn.Module):
             weights = self.weights(colour_channels(x) if self.colour else x)
             peak = maps.flatten(2).argmax(-1)
             pixels, mass = local_centroid(weights, self.window, peak)
-            features = keypoint_features(to_unit(pixels, self.size), torch.log(mass + 1e-3))
-            return [pixels], features, maps
+            r = self.read
+            unit = to_unit(pixels[:, :r], self.size)
+            return [pixels], keypoint_features(unit, torch.log(mass[:, :r] + 1e-3)), maps
         xy = self.softmax(maps).reshape(-1, KEYPOINTS, 2)  # [-1, 1], first to last pixel centre
         t = self.softmax.log_temperature.exp()
         pixels = [(xy + 1.0) * (self.size - 1) / 2.0]
@@ -298,7 +355,7 @@ class ViewKeypoints(nn.Module):
             pixels.append(local_soft_argmax(maps, t, self.window))
             xy = to_unit(pixels[-1], self.size)
         mass = torch.logsumexp(maps.flatten(2) / t, dim=-1) / 10.0
-        return pixels, keypoint_features(xy, mass), None
+        return pixels, keypoint_features(xy[:, : self.read], mass[:, : self.read]), None
 
 
 def colour_channels(x: torch.Tensor) -> torch.Tensor:
@@ -339,18 +396,18 @@ class OracleKeypoints(nn.Module):
 
     reader = "oracle"
 
-    def __init__(self, size: int, points: int, stack: int = 1) -> None:
+    def __init__(self, size: int, points: int, stack: int = 1, read: int | None = None) -> None:
         super().__init__()
         self.size = size
         self.stack = stack
-        self.dim = stack * feature_width(points)
+        self.read = points if read is None else read
+        self.dim = stack * feature_width(self.read)
 
     def forward(self, points: torch.Tensor):
         steps = points if self.stack > 1 else points[:, None]
-        zero = torch.zeros(steps.shape[:1] + steps.shape[2:3])
-        found = [
-            keypoint_features(to_unit(steps[:, i], self.size), zero) for i in range(self.stack)
-        ]
+        read = steps[:, :, : self.read]
+        zero = torch.zeros(read.shape[:1] + read.shape[2:3])
+        found = [keypoint_features(to_unit(read[:, i], self.size), zero) for i in range(self.stack)]
         return [steps[:, -1]], torch.cat(found, dim=1), None
 
 
@@ -358,18 +415,21 @@ class ProbeNet(nn.Module):
     """The views' keypoint features and the state -> (action (3), relative vector (3),
     standardised), through ``depth`` layers of ``hidden`` units; the keypoints of each view in
     pixels. ``reader``: `ViewKeypoints`'s, or ``oracle`` (`OracleKeypoints` of ``points`` points,
-    fed the privileged points, of the last ``stack`` steps)."""
+    fed the privileged points, of the last ``stack`` steps). ``read``: the features read the
+    first ``read`` keypoints alone (the feature points, not X_E, whose place the state gives);
+    None: all of them."""
 
     def __init__(
         self, sizes: dict[str, int], window: int | dict[str, int] = 0, reader: str = "softmax",
         points: int = 5, hidden: int = 256, depth: int = 2, stack: int = 1,
+        read: int | None = None,
     ) -> None:  # fmt: skip
         super().__init__()
         self.oracle = reader == "oracle"
         windows = window if isinstance(window, dict) else dict.fromkeys(sizes, window)
         self.views = nn.ModuleDict({
-            k: OracleKeypoints(s, points, stack) if self.oracle
-            else ViewKeypoints(s, windows[k], reader)
+            k: OracleKeypoints(s, points, stack, read) if self.oracle
+            else ViewKeypoints(s, windows[k], reader, KEYPOINTS if read is None else read)
             for k, s in sizes.items()
         })  # fmt: skip
         width = sum(v.dim for v in self.views.values()) + 7
@@ -574,33 +634,23 @@ def play(
     seeds = list(load_scenario(scenario).validation_seeds[:episodes])
     venv = make_env(scenario, options, autoreset_mode="Disabled")
     imager = CaptureTask(load_scenario(scenario), observation_source="pixels", **options).imager()
-    rng = np.random.default_rng(2)
+    student = Student(net, noise, np.random.default_rng(2))
     captured = 0
     try:
         for lo in range(0, episodes, NUM_ENVS):
             batch = seeds[lo : lo + NUM_ENVS]
             obs, _ = venv.reset(seed=batch + batch[:1] * (NUM_ENVS - len(batch)))
-            oracle_stack = max(v.stack for v in net.views.values()) if net.oracle else 1
-            history = FrameStack(NUM_ENVS, oracle_stack)
-            recent = FrameStack(NUM_ENVS, net.head_stack)
+            student.restart(np.arange(NUM_ENVS))
             t = 0
             ended = np.zeros(NUM_ENVS, dtype=bool)
             ended[len(batch) :] = True  # padding rows are played, not counted
             counted = ended.copy()
             while not ended.all():
-                if net.oracle:
-                    found = privileged_points(imager, venv, obs["state"], list(net.views))
-                    if history.k > 1:
-                        found = last_steps(history, found, t)
-                    views = {k: torch.as_tensor(_noisy(v, noise, rng)) for k, v in found.items()}
-                else:
-                    views = {k: torch.as_tensor(obs[k][:, -3:].copy()) for k in net.views}
-                with torch.no_grad():
-                    x, _, _ = net.features(views, torch.as_tensor(obs["state"]))
-                    if net.head_stack > 1:
-                        x = torch.as_tensor(last_steps(recent, {"x": x.numpy()}, t)["x"])
-                    a, _ = net.heads(x)
-                obs, _, terminated, truncated, info = venv.step(np.clip(a.numpy(), -1, 1))
+                found = (
+                    privileged_points(imager, venv, obs["state"], list(net.views))
+                    if net.oracle else None
+                )  # fmt: skip
+                obs, _, terminated, truncated, info = venv.step(student(obs, found, t))
                 now = (terminated | truncated) & ~counted
                 success = np.asarray(info.get("is_success", np.zeros(NUM_ENVS, dtype=bool)))
                 captured += int(np.sum(success & now))
@@ -634,15 +684,29 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
         imager = CaptureTask(scenario, observation_source="pixels", **options).imager()
         windows["ee_image"] = -(-args.window * imager.scale // args.ee_crop_scale)
         imager.close()
-    net = ProbeNet(sizes, windows, args.reader, points, args.hidden, args.layers, stack)
+    read = points - 1 if args.features == "markers" else None  # the last point is X_E
+    net = ProbeNet(sizes, windows, args.reader, points, args.hidden, args.layers, stack, read)
     noise = args.oracle_noise if args.reader == "oracle" else None
     fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed, noise)
     if args.head_epochs:
         fit_head(net, train, args.head_epochs, args.lr, args.seed, noise, args.head_stack)
+    rounds = []
+    for r in range(args.dagger):  # the student's own states, labelled by the teacher
+        captured = play(net, args.scenario, options, args.episodes, noise)
+        rounds.append({"rows": len(train.state), "captured": captured})
+        seeds = train_seeds[len(train_seeds) - (r + 1) * 100_000 :]  # not the first collection's
+        student = Student(net, noise, np.random.default_rng(args.seed + 10 + r))
+        train = joined(train, collect(args.scenario, options, args.dagger_steps, seeds, stack,
+                                      student))  # fmt: skip
+        if args.head_epochs:  # the reader stays as fitted, the head is fitted anew
+            fit_head(net, train, args.head_epochs, args.lr, args.seed, noise, args.head_stack)
+        else:
+            fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed, noise)
     report = {"options": options, "supervised": not args.no_supervision, "window": windows,
-              "reader": args.reader, "mlp": [args.hidden] * args.layers,
+              "reader": args.reader, "features": args.features, "mlp": [args.hidden] * args.layers,
               "train_rows": len(train.state), "epochs": args.epochs,
               "head_epochs": args.head_epochs, "head_stack": net.head_stack, "stack": stack,
+              "dagger_rounds": rounds,
               **measure(net, validation, noise)}  # fmt: skip
     if noise is not None:
         report["oracle_noise_px"] = noise
@@ -688,6 +752,15 @@ def main(argv: list[str] | None = None) -> int:
                         "for each)")  # fmt: skip
     parser.add_argument("--oracle-noise", type=float, default=0.0,
                         help="std of the noise on the oracle's points, view pixels")  # fmt: skip
+    parser.add_argument("--features", choices=("all", "markers"), default="all",
+                        help="what the head reads of each view: every keypoint, or the "
+                        "markers' alone (X_E's place is in the arm's state)")  # fmt: skip
+    parser.add_argument("--dagger", type=int, default=0,
+                        help="R > 0: then R rounds in which the network acts on training seeds, "
+                        "the teacher labels the states it reaches, and the head (the whole "
+                        "network without --head-epochs) is fitted again on all rows")  # fmt: skip
+    parser.add_argument("--dagger-steps", type=int, default=16000,
+                        help="rows each DAgger round adds")  # fmt: skip
     parser.add_argument("--hidden", type=int, default=256, help="units of each layer of the MLP")
     parser.add_argument("--layers", type=int, default=2, help="layers of the MLP")
     parser.add_argument("--threads", type=int, default=1)

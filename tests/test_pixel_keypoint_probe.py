@@ -81,6 +81,8 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
                 "--out", str(out)]  # fmt: skip
         if reader == "centroid":  # then the head alone, reading the last two steps' features
             args += ["--head-epochs", "1", "--head-stack", "2"]
+        if reader == "oracle":  # the markers' features, and a DAgger round
+            args += ["--features", "markers", "--dagger", "1", "--dagger-steps", "32"]
         assert probe.main(args) == 0
         report = __import__("json").loads(out.read_text())
         assert report["rows"] == 32 and report["episodes"] == 2
@@ -89,6 +91,11 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
         assert len(report["image_keypoint_median_px"]) == 5  # four markers and X_E
         assert all(np.isfinite(report["relative_median_mm"]))
         assert report["head_stack"] == (2 if reader == "centroid" else 1)
+        assert report["features"] == ("markers" if reader == "oracle" else "all")
+        rounds = report["dagger_rounds"]
+        assert len(rounds) == (1 if reader == "oracle" else 0)
+        if rounds:  # played before the round, on the first collection's rows
+            assert rounds[0]["rows"] == 48 and 0 <= rounds[0]["captured"] <= 2
         if reader == "oracle":  # fed the true points plus the noise asked for
             assert report["oracle_noise_px"] == 0.1
             assert all(0.05 < e < 0.2 for e in report["image_keypoint_median_px"])
@@ -132,6 +139,35 @@ def test_the_centroid_reader_reads_every_view_and_gives_detection_logits(load_sc
         # a blank image: the logits' first pixel is their largest, the weights are uniform, so
         # each keypoint is the centre of the window moved inside the view from that corner
         np.testing.assert_allclose(keypoints[k][0].detach().numpy(), half, atol=1e-4)
+
+
+@pytest.mark.parametrize("reader", ["oracle", "softmax", "centroid"])
+def test_the_markers_features_read_the_first_keypoints_alone(reader, load_script):
+    """``read`` = 4: the features are the four markers' (X_E and the other maps not read):
+    moving X_E's point (the oracle) or the maps beyond the fourth changes none of them."""
+    import torch
+
+    probe = load_script("pixel_keypoint_probe")
+    torch.manual_seed(0)
+    net = probe.ProbeNet({"image": 84}, 3, reader, points=5, read=4)
+    assert net.views["image"].dim == probe.feature_width(4)
+    if reader == "oracle":
+        points = torch.rand((2, 5, 2)) * 83
+        moved = points.clone()
+        moved[:, 4] += 7.0
+        views = [{"image": points}, {"image": moved}]
+    else:
+        views = [{"image": torch.randint(0, 256, (2, 3, 84, 84), dtype=torch.uint8)}] * 2
+    x, _, _ = net.features(views[0], torch.zeros((2, 7)))
+    assert x.shape == (2, probe.feature_width(4) + 7)
+    if reader != "oracle":  # the maps beyond the markers' carry no weight into the features
+        view = net.views["image"]
+        last = view.weights[2] if reader == "centroid" else view.maps[2]  # to the maps
+        with torch.no_grad():
+            last.weight[4:] += 1.0
+            last.bias[4:] += 1.0
+    moved_x, _, _ = net.features(views[1], torch.zeros((2, 7)))
+    torch.testing.assert_close(moved_x, x)
 
 
 def _area_sampled_disc(centre, radius, shape, m=21):
@@ -270,6 +306,35 @@ def test_the_probe_collects_the_points_of_the_last_steps(load_script):
     np.testing.assert_array_equal(h[:16, 0], p[:16])  # the episodes' first rows: filled
     np.testing.assert_array_equal(h[16:, 1], p[:48])  # then the same sub-env's step before
     assert rows.first.shape == (64,) and rows.first[:16].all() and not rows.first[16:].any()
+
+
+def test_the_rows_marked_first_are_the_episodes_first_steps(load_script):
+    """With next-step autoreset the row after an episode's last is the next one's first: the
+    rows marked first are those where the arm is at its start (every episode starts it there),
+    and their last steps are their own."""
+    probe = load_script("pixel_keypoint_probe")
+    rows = probe.collect("paper", {"image_supersample": 1}, 16 * 40, list(range(16 * 64)), 2)
+    at_start = np.all(rows.state[:, :3] == rows.state[0, :3], axis=1)
+    assert at_start[16:].any()  # an episode ended and the next started within the rows
+    np.testing.assert_array_equal(rows.first, at_start)
+    h, p = rows.history["image"], rows.points["image"]
+    np.testing.assert_array_equal(h[rows.first, 0], p[rows.first])
+
+
+def test_a_students_rows_are_its_states_labelled_by_the_teacher(load_script):
+    """DAgger's rows: a student that holds the arm still keeps it at its start, and every row is
+    labelled with what the teacher would do there (it would move)."""
+    import torch
+
+    probe = load_script("pixel_keypoint_probe")
+    net = probe.ProbeNet({"image": 84}, 0, "oracle", points=5, read=4)
+    with torch.no_grad():
+        net.head.weight.zero_()
+        net.head.bias.zero_()
+    student = probe.Student(net, 0.1, np.random.default_rng(0))
+    rows = probe.collect("paper", {"image_supersample": 1}, 64, list(range(16 * 64)), 1, student)
+    assert np.all(rows.state[:, :3] == rows.state[0, :3])  # the arm never moved
+    assert np.all(np.abs(rows.action).max(axis=1) > 0.1)  # the teacher would have moved it
 
 
 def test_stacked_gives_each_row_its_sub_envs_steps_before(load_script):
