@@ -17,7 +17,8 @@ few millimetres, along the line of sight too) before anything is trained on it f
    softmax (`capture_bench.agents.features.SpatialSoftmax`); ``centroid``, the same
    convolutions as detection logits that place a window on each map's peak, and a per-pixel
    network of the pixel's colour (`colour_channels`; ``centroid-rgb``: its RGB alone) whose
-   non-negative weights' centroid in that window is the keypoint; ``oracle``, no
+   non-negative weights' centroid in that window is the keypoint; ``marker``, train.py's
+   reader of the markers (`capture_bench.agents.marker_reader.MarkerReader`); ``oracle``, no
    image: the privileged points themselves plus Gaussian noise (what a head does with keypoints
    that precise). The features: the keypoints, how much each map found, and the log distances
    between keypoints (the markers' spacing, which is what tells depth); with ``--features
@@ -55,6 +56,17 @@ import torch
 from torch import nn
 
 from capture_bench.agents.features import SpatialSoftmax
+from capture_bench.agents.marker_reader import (
+    MARKERS,
+    MarkerReader,
+    colour_channels,
+    feature_width,
+    heatmap_loss,
+    keypoint_features,
+    local_centroid,
+    to_unit,
+    window_pixels,
+)
 from capture_bench.engine.engine import FrameStack
 from capture_bench.engine.task import CaptureTask, resolve_scenario
 from capture_bench.envs.vector_env import CaptureVectorEnv
@@ -69,6 +81,7 @@ NEAR = 0.05  # m: rows this close to the target are reported apart
 NUM_ENVS = 16
 DART_NOISE = 0.3  # std of the action noise on every second sub-env (actions in [-1, 1])
 BATCH = 128
+CENTROIDS = ("centroid", "centroid-rgb", "marker")  # readers whose keypoints are centroids
 
 
 @dataclass
@@ -235,23 +248,6 @@ def collect(
     )
 
 
-def window_pixels(
-    maps: torch.Tensor, half: int, peak: torch.Tensor | None = None
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The (2 half + 1)^2 pixels around each map's ``peak`` (B, K), a flat pixel index (default:
-    the map's largest value), the window moved inside the map (B, K, H, W) at the edges: their
-    rows, columns, (B, K, (2 half + 1)^2) each, and the maps' values there."""
-    b, k, h, w = maps.shape
-    peak = maps.flatten(2).argmax(-1) if peak is None else peak
-    side = 2 * half + 1
-    r0 = (peak // w).clamp(half, h - 1 - half) - half
-    c0 = (peak % w).clamp(half, w - 1 - half) - half
-    offsets = torch.arange(side, device=maps.device)
-    rows = (r0[..., None] + offsets)[..., :, None].expand(b, k, side, side).reshape(b, k, -1)
-    cols = (c0[..., None] + offsets)[..., None, :].expand(b, k, side, side).reshape(b, k, -1)
-    return rows, cols, maps.flatten(2).gather(-1, rows * w + cols)
-
-
 def local_soft_argmax(maps: torch.Tensor, temperature: torch.Tensor, half: int) -> torch.Tensor:
     """Each map's (B, K, H, W) expected position under its softmax over the (2 half + 1)^2 pixels
     around its largest value (`window_pixels`), [x, y] in pixels, (B, K, 2): the background
@@ -261,41 +257,6 @@ def local_soft_argmax(maps: torch.Tensor, temperature: torch.Tensor, half: int) 
     x = (weights * cols).sum(-1)
     y = (weights * rows).sum(-1)
     return torch.stack((x, y), dim=-1).float()
-
-
-def local_centroid(
-    maps: torch.Tensor, half: int, peak: torch.Tensor | None = None
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Each non-negative map's (B, K, H, W) centroid over the (2 half + 1)^2 pixels around
-    ``peak`` (`window_pixels`), [x, y] in pixels, (B, K, 2), and the weight it found there,
-    (B, K). The weights are the map's values themselves, not their softmax: where a map is
-    linear in how much of a pixel a marker covers (an area-sampled edge pixel), the centroid is
-    the marker's sub-pixel centre, as `scripts/pixel_depth.py`'s saturation-weighted reading
-    is. An empty window gives its centre."""
-    rows, cols, weights = window_pixels(maps, half, peak)
-    mass = weights.sum(-1)
-    centre_x, centre_y = cols.float().mean(-1), rows.float().mean(-1)
-    x = centre_x + (weights * (cols - centre_x[..., None])).sum(-1) / (mass + 1e-6)
-    y = centre_y + (weights * (rows - centre_y[..., None])).sum(-1) / (mass + 1e-6)
-    return torch.stack((x, y), dim=-1).float(), mass
-
-
-def to_unit(pixels: torch.Tensor, size: int) -> torch.Tensor:
-    """Pixels of a ``size``-pixel view -> [-1, 1] from its first to its last pixel centre."""
-    return pixels * 2.0 / (size - 1) - 1.0
-
-
-def keypoint_features(xy: torch.Tensor, mass: torch.Tensor) -> torch.Tensor:
-    """Keypoints (B, K, 2) in [-1, 1] (`to_unit`) and how much each found, (B, K) -> features:
-    the keypoints, ``mass`` and the log distances between keypoints (the markers' spacing, which
-    is what tells depth)."""
-    i, j = torch.triu_indices(xy.shape[1], xy.shape[1], 1)
-    spacing = torch.log(torch.linalg.vector_norm(xy[:, i] - xy[:, j], dim=-1) + 1e-3)
-    return torch.cat((xy.flatten(1), mass, spacing), dim=1)
-
-
-def feature_width(keypoints: int) -> int:
-    return 3 * keypoints + keypoints * (keypoints - 1) // 2
 
 
 class ViewKeypoints(nn.Module):
@@ -308,7 +269,10 @@ class ViewKeypoints(nn.Module):
     * ``centroid``: the same convolutions give detection logits, whose largest value places a
       window of (2 ``window`` + 1)^2 pixels, and a per-pixel network of `colour_channels` (1 x 1
       convolutions, `HIDDEN` then `KEYPOINTS` maps, each followed by a ReLU) gives the weights
-      whose `local_centroid` in that window is the keypoint.
+      whose `local_centroid` in that window is the keypoint;
+    * ``marker``: `capture_bench.agents.marker_reader.MarkerReader`, the reader of train.py's
+      ``marker_keypoints`` (as ``centroid`` with one map per marker and the weights' last
+      activation a sharp softplus); its keypoints are the markers' alone.
     """
 
     def __init__(
@@ -316,6 +280,12 @@ class ViewKeypoints(nn.Module):
     ) -> None:
         super().__init__()
         self.reader = reader
+        self.size = size
+        if reader == "marker":
+            self.marker = MarkerReader(max(window, 1))
+            self.read = min(read, MARKERS)
+            self.dim = feature_width(self.read)
+            return
         self.read = read
         self.maps = nn.Sequential(
             nn.Conv2d(3, HIDDEN, 3, padding=1), nn.ReLU(), nn.Conv2d(HIDDEN, KEYPOINTS, 1)
@@ -340,6 +310,10 @@ class ViewKeypoints(nn.Module):
 
     def forward(self, image: torch.Tensor):
         x = image.float() / 255.0
+        if self.reader == "marker":
+            pixels, mass, logits = self.marker(x)
+            unit = to_unit(pixels[:, : self.read], self.size)
+            return [pixels], keypoint_features(unit, torch.log(mass[:, : self.read] + 1e-3)), logits
         maps = self.maps(x)
         if self.reader.startswith("centroid"):
             weights = self.weights(colour_channels(x) if self.colour else x)
@@ -356,36 +330,6 @@ class ViewKeypoints(nn.Module):
             xy = to_unit(pixels[-1], self.size)
         mass = torch.logsumexp(maps.flatten(2) / t, dim=-1) / 10.0
         return pixels, keypoint_features(xy[:, : self.read], mass[:, : self.read]), None
-
-
-def colour_channels(x: torch.Tensor) -> torch.Tensor:
-    """An RGB image (B, 3, H, W) in [0, 1] -> (B, 10, H, W): RGB, saturation (max - min) / max,
-    chromaticity (each channel over their sum) and saturation times chromaticity. Saturation and
-    chromaticity do not change with the shading across a lit sphere, so a marker's weight can
-    follow how much of a pixel it covers and not how brightly it is lit there."""
-    top, low = x.max(1, keepdim=True).values, x.min(1, keepdim=True).values
-    saturation = (top - low) / (top + 1e-3)
-    chroma = x / (x.sum(1, keepdim=True) + 1e-3)
-    return torch.cat((x, saturation, chroma, saturation * chroma), dim=1)
-
-
-def heatmap_loss(logits: torch.Tensor, points: torch.Tensor, inside: torch.Tensor) -> torch.Tensor:
-    """Cross-entropy of the first F detection maps' softmax over the view (B, K, H, W) against
-    the points (B, F, 2), each spread bilinearly over the four pixels around it; points outside
-    the view (``inside`` (B, F) false) count nothing."""
-    b, _, h, w = logits.shape
-    f = points.shape[1]
-    logp = torch.log_softmax(logits[:, :f].flatten(2), dim=-1)
-    xy = points.clamp(min=0.0)
-    x0 = xy[..., 0].floor().clamp(max=w - 2)
-    y0 = xy[..., 1].floor().clamp(max=h - 2)
-    fx, fy = (xy[..., 0] - x0).clamp(0, 1), (xy[..., 1] - y0).clamp(0, 1)
-    loss = torch.zeros(b, f)
-    for dx, dy, share in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
-                          (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):  # fmt: skip
-        index = ((y0 + dy) * w + x0 + dx).long()
-        loss = loss - share * logp.gather(-1, index[..., None])[..., 0]
-    return (inside * loss).mean()
 
 
 class OracleKeypoints(nn.Module):
@@ -498,7 +442,7 @@ def fit(
     n = len(rows.state)
     supervise = supervise and not net.oracle
     # squared pixel error's weight: a centroid's keypoints, sub-pixel once detected, weigh more
-    weight = 1.0 if any(v.reader.startswith("centroid") for v in net.views.values()) else 0.01
+    weight = 1.0 if any(v.reader in CENTROIDS for v in net.views.values()) else 0.01
     with torch.no_grad():
         sample = np.sort(rng.choice(n, min(n, 2048), replace=False))
         x, _, _ = net.features(*_batch(rows, sample, noise, rng))
@@ -526,12 +470,14 @@ def fit(
             loss = ((a - action[index]) ** 2).mean() + ((r - relative[index]) ** 2).mean()
             if supervise:
                 for k, found in keypoints.items():
-                    f = points[k].shape[1]
                     for p in found:  # the whole view's keypoints and the local ones
-                        err = ((p[:, :f] - points[k][index]) ** 2).sum(-1)
-                        loss = loss + weight * (inside[k][index] * err).mean()
+                        f = min(points[k].shape[1], p.shape[1])  # the marker reader: no X_E
+                        err = ((p[:, :f] - points[k][index, :f]) ** 2).sum(-1)
+                        loss = loss + weight * (inside[k][index, :f] * err).mean()
                     if logits[k] is not None:
-                        loss = loss + heatmap_loss(logits[k], points[k][index], inside[k][index])
+                        f = min(points[k].shape[1], logits[k].shape[1])
+                        target, seen = points[k][index, :f], inside[k][index, :f]
+                        loss = loss + heatmap_loss(logits[k], target, seen)
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
@@ -614,9 +560,10 @@ def measure(net: ProbeNet, rows: Rows, noise: float | None = None) -> dict[str, 
         report["near_median_mm"] = np.median(error[near], 0).round(1).tolist()
         report["near_p90_mm"] = np.percentile(error[near], 90, 0).round(1).tolist()
     for k, p in found.items():
-        target = rows.points[k]
-        f = target.shape[1]
-        err = np.linalg.norm(np.concatenate(p)[:, :f] - target, axis=-1)
+        found_k = np.concatenate(p)
+        f = min(rows.points[k].shape[1], found_k.shape[1])
+        target = rows.points[k][:, :f]
+        err = np.linalg.norm(found_k[:, :f] - target, axis=-1)
         seen = np.all((target >= 0) & (target <= rows.views[k].shape[-1] - 1), axis=2)
         report[f"{k}_keypoint_median_px"] = [
             round(float(np.median(err[seen[:, j], j])), 2) if seen[:, j].any() else None
@@ -738,11 +685,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--window", type=int, default=0,
                         help="w > 0: the features read each map's soft-argmax over the (2w+1)^2 "
                         "pixels around its peak (both keypoints supervised)")  # fmt: skip
-    parser.add_argument("--reader", choices=("softmax", "centroid", "centroid-rgb", "oracle"),
+    parser.add_argument("--reader",
+                        choices=("softmax", "centroid", "centroid-rgb", "marker", "oracle"),
                         default="softmax",
                         help="how each view's keypoints are read: a spatial softmax, local "
                         "centroids of non-negative maps of each pixel's colour (centroid-rgb: of "
-                        "its RGB alone), or the true points plus "
+                        "its RGB alone; marker: train.py's marker_keypoints reader), or the true "
+                        "points plus "
                         "--oracle-noise (what a head does with such keypoints)")  # fmt: skip
     parser.add_argument("--head-stack", type=int, default=1,
                         help="S > 1 (with --head-epochs): the head-only fit's new MLP reads "

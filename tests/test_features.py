@@ -71,6 +71,7 @@ def test_the_torch_extractor_is_the_observation_then_the_numpy_features():
         "relative_log_distance",
         "combined",
         "keypoints",
+        "marker_keypoints",
     }
     from capture_bench.training.config.hyperparameters import FEATURES
 

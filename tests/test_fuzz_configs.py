@@ -643,7 +643,7 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
         bad = {k for k in bad if not str(k).startswith("policy_kwargs.")}
     kwargs = data.get("policy_kwargs")
     features = kwargs.get("features_extractor", "flatten") if isinstance(kwargs, dict) else None
-    dict_features = ("combined", "keypoints")
+    dict_features = ("combined", "keypoints", "marker_keypoints")
     if (
         not bad
         and data.get("normalize") is True
@@ -654,6 +654,8 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
     named = isinstance(kwargs, dict) and "features_extractor" in kwargs
     if not bad and named and dict_policy != (features in dict_features):
         bad.add("policy_kwargs.features_extractor")  # reads another observation than the policy
+    if not bad and features == "marker_keypoints" and data.get("ee_crop"):
+        bad.add("policy_kwargs.features_extractor")  # reads the wide image alone
     for key in IMITATION_DEFAULTS:  # checked first: an imitation setting needs imitate
         if not bad and key in data and "imitate" not in data:
             bad.add(key)

@@ -75,7 +75,7 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
     np.testing.assert_allclose(rows.relative[0], start, atol=1e-6)
 
     out = tmp_path / "probe.json"
-    for reader in ("softmax", "centroid", "oracle"):
+    for reader in ("softmax", "centroid", "marker", "oracle"):
         args = ["--train-steps", "48", "--validation-steps", "32", "--epochs", "1",
                 "--episodes", "2", "--window", "2", "--reader", reader, "--oracle-noise", "0.1",
                 "--out", str(out)]  # fmt: skip
@@ -88,7 +88,8 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
         assert report["rows"] == 32 and report["episodes"] == 2
         assert report["window"] == {"image": 2} and report["reader"] == reader
         assert 0 <= report["captured"] <= 2
-        assert len(report["image_keypoint_median_px"]) == 5  # four markers and X_E
+        read = 4 if reader == "marker" else 5  # the marker reader reads no X_E
+        assert len(report["image_keypoint_median_px"]) == read
         assert all(np.isfinite(report["relative_median_mm"]))
         assert report["head_stack"] == (2 if reader == "centroid" else 1)
         assert report["features"] == ("markers" if reader == "oracle" else "all")
@@ -141,7 +142,7 @@ def test_the_centroid_reader_reads_every_view_and_gives_detection_logits(load_sc
         np.testing.assert_allclose(keypoints[k][0].detach().numpy(), half, atol=1e-4)
 
 
-@pytest.mark.parametrize("reader", ["oracle", "softmax", "centroid"])
+@pytest.mark.parametrize("reader", ["oracle", "softmax", "centroid", "marker"])
 def test_the_markers_features_read_the_first_keypoints_alone(reader, load_script):
     """``read`` = 4: the features are the four markers' (X_E and the other maps not read):
     moving X_E's point (the oracle) or the maps beyond the fourth changes none of them."""
@@ -160,7 +161,9 @@ def test_the_markers_features_read_the_first_keypoints_alone(reader, load_script
         views = [{"image": torch.randint(0, 256, (2, 3, 84, 84), dtype=torch.uint8)}] * 2
     x, _, _ = net.features(views[0], torch.zeros((2, 7)))
     assert x.shape == (2, probe.feature_width(4) + 7)
-    if reader != "oracle":  # the maps beyond the markers' carry no weight into the features
+    if reader == "marker":  # one map per marker, nothing beyond them
+        assert net.views["image"].marker.detect[2].out_channels == 4
+    elif reader != "oracle":  # the maps beyond the markers' carry no weight into the features
         view = net.views["image"]
         last = view.weights[2] if reader == "centroid" else view.maps[2]  # to the maps
         with torch.no_grad():
@@ -168,56 +171,6 @@ def test_the_markers_features_read_the_first_keypoints_alone(reader, load_script
             last.bias[4:] += 1.0
     moved_x, _, _ = net.features(views[1], torch.zeros((2, 7)))
     torch.testing.assert_close(moved_x, x)
-
-
-def _area_sampled_disc(centre, radius, shape, m=21):
-    """How much of each pixel (pixel centres at whole numbers) a disc covers, (H, W)."""
-    h, w = shape
-    ys, xs = np.mgrid[0 : h * m, 0 : w * m]
-    inside = np.hypot((xs + 0.5) / m - 0.5 - centre[0], (ys + 0.5) / m - 0.5 - centre[1]) <= radius
-    return inside.reshape(h, m, w, m).mean(axis=(1, 3))
-
-
-def test_the_local_centroid_finds_an_area_sampled_discs_sub_pixel_centre(load_script):
-    """A marker 3.3 pixels across (the wide view's at 1.2 m), area-sampled: the centroid of the
-    coverage itself is its centre to a thousandth of a pixel, where a local softmax of the same
-    map at temperature 1 is half a pixel off; a window given elsewhere reads there."""
-    import torch
-
-    probe = load_script("pixel_keypoint_probe")
-    centre = np.array([20.37, 11.71])
-    disc = torch.as_tensor(_area_sampled_disc(centre, 1.65, (30, 40)), dtype=torch.float32)
-    maps = torch.stack((disc, torch.roll(disc, 9, dims=1)))[None]  # (1, 2, 30, 40)
-    found, mass = probe.local_centroid(maps, 3)
-    np.testing.assert_allclose(found[0, 0].numpy(), centre, atol=0.002)
-    np.testing.assert_allclose(found[0, 1].numpy(), centre + [9, 0], atol=0.002)
-    np.testing.assert_allclose(mass[0].numpy(), np.pi * 1.65**2, rtol=0.01)
-    soft = probe.local_soft_argmax(maps, torch.tensor(1.0), 3)[0, 0].numpy()
-    assert np.linalg.norm(soft - centre) > 0.5
-    peak = torch.tensor([[12 * 40 + 30, 12 * 40 + 20]])  # the first map read around (30, 12)
-    found, mass = probe.local_centroid(maps, 3, peak)
-    np.testing.assert_allclose(found[0, 0].numpy(), [30, 12], atol=1e-4)  # nothing there: centre
-    assert mass[0, 0] == 0.0
-
-
-def test_the_heatmap_loss_is_least_at_the_points_bilinear_shares(load_script):
-    import torch
-
-    probe = load_script("pixel_keypoint_probe")
-    points = torch.tensor([[[3.25, 4.5], [0.0, 6.0]]])  # (1, 2, 2): x, y
-    shares = torch.zeros(1, 2, 8, 8)
-    shares[0, 0, 4, 3], shares[0, 0, 4, 4] = 0.375, 0.125  # (1 - fx)(1 - fy), fx (1 - fy)
-    shares[0, 0, 5, 3], shares[0, 0, 5, 4] = 0.375, 0.125
-    shares[0, 1, 6, 0] = 1.0
-    best = torch.log(shares + 1e-12)
-    inside = torch.ones(1, 2)
-    entropy = -(0.75 * np.log(0.375) + 0.25 * np.log(0.125)) / 2  # the second map: 0
-    assert abs(probe.heatmap_loss(best, points, inside).item() - entropy) < 1e-4
-    for shifted in (torch.roll(best, 1, dims=3), torch.zeros_like(best), best * 0.5):
-        assert probe.heatmap_loss(shifted, points, inside) > probe.heatmap_loss(
-            best, points, inside
-        )
-    assert probe.heatmap_loss(torch.zeros_like(best), points, torch.zeros(1, 2)) == 0.0
 
 
 def test_the_local_soft_argmax_finds_a_peaks_sub_pixel_centre_the_whole_view_misses(load_script):
@@ -232,19 +185,6 @@ def test_the_local_soft_argmax_finds_a_peaks_sub_pixel_centre_the_whole_view_mis
     weights = torch.softmax(maps.flatten(), 0)  # the whole view: the background pulls it away
     whole = torch.stack(((weights * xs.flatten()).sum(), (weights * ys.flatten()).sum()))
     assert torch.linalg.vector_norm(whole - centre) > 1.0
-
-
-def test_colour_channels_do_not_change_with_shading(load_script):
-    import torch
-
-    probe = load_script("pixel_keypoint_probe")
-    red = torch.tensor([0.9, 0.2, 0.1])[None, :, None, None]
-    lit, shaded = probe.colour_channels(red), probe.colour_channels(0.5 * red)
-    assert lit.shape == (1, 10, 1, 1)
-    np.testing.assert_allclose(lit[:, 3:].numpy(), shaded[:, 3:].numpy(), atol=2e-3)
-    np.testing.assert_allclose(lit[0, 3, 0, 0].item(), (0.9 - 0.1) / 0.9, atol=2e-3)
-    grey = probe.colour_channels(torch.full((1, 3, 1, 1), 0.55))
-    assert grey[0, 3].item() == 0.0  # a grey pixel has no saturation
 
 
 def test_fit_head_moves_the_mlp_alone_and_fits_it(load_script):

@@ -33,6 +33,7 @@ from stable_baselines3.common.torch_layers import (
     FlattenExtractor,
 )
 
+from capture_bench.agents.marker_reader import MarkerKeypointExtractor
 from capture_bench.task.observation import OBSERVATION_SIZE, RELATIVE_SCALE, SLICES
 
 MIN_DISTANCE = 1e-6  # m: below it the direction is noise and the log is clamped
@@ -143,10 +144,12 @@ class SpatialSoftmaxExtractor(BaseFeaturesExtractor):
 #: Declared name -> features extractor class (``flatten``: SB3's default for a Box observation,
 #: the raw observation; ``combined``: SB3's default for a ``Dict`` one, the pixel observation's
 #: image through SB3's NatureCNN beside the flattened arm state; ``keypoints``: each image
-#: to keypoints that keep its positions, `SpatialSoftmaxExtractor`).
+#: to keypoints that keep its positions, `SpatialSoftmaxExtractor`; ``marker_keypoints``: the
+#: wide image's markers read to a fraction of a pixel, frame by frame, `MarkerKeypointExtractor`).
 FEATURE_EXTRACTORS: dict[str, type[BaseFeaturesExtractor]] = {
     "flatten": FlattenExtractor,
     "relative_log_distance": RelativeLogDistance,
     "combined": CombinedExtractor,
     "keypoints": SpatialSoftmaxExtractor,
+    "marker_keypoints": MarkerKeypointExtractor,
 }

@@ -55,7 +55,7 @@ ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "Leak
 POLICIES = ("MlpPolicy", "MultiInputPolicy")
 #: The features extractor each policy reads its observation with, where the file gives none.
 DEFAULT_FEATURES = {"MlpPolicy": "flatten", "MultiInputPolicy": "combined"}
-DICT_FEATURES = ("combined", "keypoints")  # those that read a Dict observation
+DICT_FEATURES = ("combined", "keypoints", "marker_keypoints")  # those that read a Dict one
 
 # Counts SB3 and numpy hold as machine integers: at most 2**53 (exact as a float, fits an int64).
 MOST = 2**53
@@ -222,7 +222,7 @@ ALGO_KEYS: dict[str, dict[str, Rule]] = {
 }
 #: Features the network computes from the observation: the keys of
 #: capture_bench.agents.features.FEATURE_EXTRACTORS (which imports torch; tests check they agree).
-FEATURES = ("flatten", "relative_log_distance", "combined", "keypoints")
+FEATURES = ("flatten", "relative_log_distance", "combined", "keypoints", "marker_keypoints")
 _NET = {
     "activation_fn": Rule("choice", choices=tuple(ACTIVATIONS)),
     "features_extractor": Rule("choice", choices=FEATURES),
@@ -298,6 +298,13 @@ def validate_hyperparameters(
             + (f" (from {features_from}, under this file)" if features_from else "")
             + f" does not read the observation of policy {out['policy']}; valid: "
             + ", ".join(fits)
+        )
+    if features == "marker_keypoints" and out.get("ee_crop"):
+        raise ConfigError(
+            f"{source}: key 'policy_kwargs.features_extractor': 'marker_keypoints'"
+            + (f" (from {features_from}, under this file)" if features_from else "")
+            + f" reads the wide image alone and cannot be combined with ee_crop: "
+            f"{shown(out['ee_crop'])}; leave out ee_crop, or use keypoints or combined"
         )
     out.setdefault("normalize", False)
     out.setdefault("reward", "dense")
@@ -419,6 +426,8 @@ def memory_estimate(
         features = CNN_FEATURES + STATE_SIZE
         if kwargs.get("features_extractor") == "keypoints":  # stride-1 maps: larger
             cnn_activations = 3 * stack * side[0] * side[1] + 40 * side[0] * side[1]
+        if kwargs.get("features_extractor") == "marker_keypoints":  # per frame, full size
+            cnn_activations = stack * 53 * side[0] * side[1]  # 3 + 16 + 4 + 10 + 16 + 4 maps
         if crop:  # a second NatureCNN, on the end-effector crop
             crop_parameters, crop_activations = _cnn((crop, crop))
             cnn_parameters += crop_parameters
