@@ -54,7 +54,7 @@ IDENTIFIER_TEXT = (
 )
 
 #: The longest `shown` text, characters.
-SHOWN_CHARS = 100
+SHOWN_CHARS = 80
 _SHORT = reprlib.Repr()
 _SHORT.maxlevel = 3
 _SHORT.maxtuple = _SHORT.maxlist = _SHORT.maxarray = _SHORT.maxdict = 6

@@ -483,7 +483,7 @@ def test_the_fits_state_regression_teaches_the_features_what_the_teacher_reads(m
                log=lambda line: None, teacher_view=view, state_weight=1.0)  # fmt: skip
     finally:
         venv.close()
-    observations, targets, (epochs, seed, floor, lr, batch, state) = passed[0]
+    observations, targets, (epochs, seed, floor, lr, batch, state, _marks) = passed[0]
     assert state.weight == 1.0 and state.targets.shape == (64, 16)
     live = state.targets.std(axis=0) > 0
     np.testing.assert_allclose(

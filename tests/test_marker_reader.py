@@ -206,3 +206,130 @@ def test_marker_keypoints_with_the_crop_is_refused_in_one_line(tmp_path, capsys)
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "marker_keypoints" in err and "ee_crop" in err
     assert not (tmp_path / "r").exists()
+
+
+# -- the reader fitted in DAgger to where the markers are --------------------------------------
+
+
+def test_the_envs_true_image_points_are_where_view_points_puts_the_markers():
+    from capture_bench.engine.task import CaptureTask
+    from capture_bench.envs.vector_env import CaptureVectorEnv
+    from capture_bench.task.scenarios import load_scenario
+
+    options = {"image_supersample": 3, "ee_crop": 37, "ee_crop_scale": 3}
+    env = CaptureVectorEnv(3, "paper", observation_source="pixels", **options)
+    imager = CaptureTask(load_scenario("paper"), observation_source="pixels", **options).imager()
+    try:
+        env.reset(seed=5)
+        for _ in range(3):
+            obs = env.step(np.full((3, 3), 0.3, dtype=np.float32))[0]
+        found, features = env.true_image_points(), env.true_features()
+        for i in range(3):
+            expected = imager.view_points(features[i], obs["state"][i, 3:6].astype(float))
+            np.testing.assert_array_equal(found[i], expected["image"])
+    finally:
+        imager.close()
+        env.close()
+    assert found.shape == (3, MARKERS, 2) and np.all((found > 0) & (found < 83))
+
+
+def _marker_model(n_envs: int):
+    from stable_baselines3 import PPO
+
+    from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
+
+    venv = CaptureSB3VecEnv(n_envs, "paper", seed=0, observation_source="pixels", frame_stack=2)
+    policy_kwargs = {"net_arch": [16], "features_extractor_class": MarkerKeypointExtractor}
+    model = PPO("MultiInputPolicy", venv, n_steps=32, batch_size=32, n_epochs=1, seed=0,
+                policy_kwargs=policy_kwargs, device="cpu")  # fmt: skip
+    return model, venv
+
+
+def test_dagger_fits_the_readers_keypoints_to_the_markers_true_image_points(monkeypatch):
+    """Each labelled step's targets are the env's true image points at that step; the fit sets
+    the extractor's standardisation from the data set and brings the keypoints to the targets."""
+    from capture_bench.task.episode import describe_task
+    from capture_bench.task.scenarios import load_scenario
+    from capture_bench.training.common import imitation
+
+    model, venv = _marker_model(2)
+    teacher = imitation.make_teacher(["dls"], [describe_task(load_scenario("paper"))], [2])
+    passed, truth = [], []
+    raw_fit = imitation.fit
+
+    def spying_fit(policy, observations, targets, *args, **kwargs):
+        passed.append((observations, targets, args))
+        return raw_fit(policy, observations, targets, *args, **kwargs)
+
+    def points():
+        truth.append(venv.venv.true_image_points())
+        return venv.env_method("true_image_points", indices=[0])[0]
+
+    def view(_obs):
+        return venv.env_method("estimate_observation", indices=[0])[0]
+
+    monkeypatch.setattr(imitation, "fit", spying_fit)
+    try:
+        done = imitation.dagger(model, venv, teacher, rounds=1, steps=64, epochs=1, seed=0,
+                                log=lambda line: None, teacher_view=view, keypoint_weight=1.0,
+                                keypoint_view=points)  # fmt: skip
+    finally:
+        venv.close()
+    observations, targets, (epochs, seed, floor, lr, batch, state, marks) = passed[0]
+    assert marks.weight == 1.0 and marks.points.shape == (64, MARKERS, 2)
+    np.testing.assert_array_equal(marks.points, np.concatenate(truth).astype(np.float32))
+    assert len(done["keypoint_px"]) == 1 and np.isfinite(done["keypoint_px"][0])
+    extractor = model.policy.pi_features_extractor
+    assert torch.any(extractor.mean != 0) and torch.any(extractor.std != 1)
+
+    def error() -> float:
+        with torch.no_grad():
+            images = torch.as_tensor(observations["image"])
+            pixels, _, _ = extractor.read(images.float() / 255.0)
+        return float(torch.linalg.vector_norm(pixels - torch.as_tensor(marks.points), dim=-1)
+                     .median())  # fmt: skip
+
+    before = error()
+    raw_fit(model.policy, observations, targets, 60, seed, floor, 1e-2, 16, None, marks)
+    assert error() < 0.5 * before, (before, error())
+    assert marks.last_px is not None and marks.last_px < before
+
+
+def test_a_round_store_keeps_the_keypoint_targets(tmp_path):
+    from capture_bench.training.common.imitation_progress import Progress, RoundStore
+
+    policy = torch.nn.Linear(4, 2)
+    store = RoundStore(tmp_path / "rounds")
+    done = Progress(rounds=1, observations=[np.zeros((2, 3), np.float32)],
+                    labels=[np.zeros((2, 3), np.float32)],
+                    points=[np.arange(16, dtype=np.float32).reshape(2, 4, 2)],
+                    losses=[0.1], agreement=[None], keypoint_px=[0.7])  # fmt: skip
+    store.save(done, 0, policy)
+    back, _ = store.load(policy)
+    np.testing.assert_array_equal(back.points[0], done.points[0])
+    assert back.keypoint_px == [0.7]
+
+
+def test_a_run_fits_the_markers_keypoints_through_train_py(tmp_path):
+    run = tmp_path / "run"
+    sets = [*TINY, "imitate=dls", "imitation_steps=32", "imitation_rounds=2",
+            "imitation_epochs=1", "imitation_keypoint_weight=1"]  # fmt: skip
+    assert train.main([*PIXELS, *(f"--set={s}" for s in sets), "--run-dir", str(run)]) == 0
+    done = json.loads((run / "imitation.json").read_text())
+    assert done["rounds"] == 2 and len(done["keypoint_px"]) == 2
+    assert all(np.isfinite(done["keypoint_px"]))
+    saved = json.loads((run / "config.json").read_text())["hyperparameters"]
+    assert saved["imitation_keypoint_weight"] == 1
+    metadata = read_metadata(run)  # the policy stored and loaded with its standardisation
+    state = load_policy(metadata).policy.state_dict()
+    assert torch.any(state["pi_features_extractor.mean"] != 0)
+
+
+def test_keypoint_targets_without_the_markers_reader_are_refused_in_one_line(tmp_path, capsys):
+    sets = [s for s in TINY if "features_extractor" not in s]
+    sets += ["imitate=dls", "imitation_keypoint_weight=1"]
+    args = [*PIXELS, *(f"--set={s}" for s in sets), "--run-dir", str(tmp_path / "r")]
+    assert train.main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "marker_keypoints" in err
+    assert "imitation_keypoint_weight" in err and not (tmp_path / "r").exists()

@@ -200,6 +200,14 @@ class EpisodeEngine:
         features = np.einsum("nij,fj->nfi", self._rotations(), self.task.features)
         return position[:, None, :] + features
 
+    def true_image_points(self) -> NDArray[np.float64]:
+        """Where every row's target feature points lie in the wide image, [column, row] in its
+        pixels, (N, F, 2) (privileged: what a pixel network's keypoints are fitted to;
+        `WorkspaceImager.image_points`). Pixel tasks only."""
+        if self._imager is None:
+            raise ValueError("true_image_points: the task renders no image (pixels only)")
+        return self._imager.image_points(self.true_features())
+
     def _rotations(self) -> NDArray[np.float64]:
         """Every row's target attitude R_gt at its current step, (N, 3, 3), from its recording."""
         return np.stack(

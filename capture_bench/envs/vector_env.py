@@ -324,6 +324,12 @@ class CaptureVectorEnv(TaskAccess, VectorEnv):
         view_points` places them in a view's pixels, `capture_bench.sensing.workspace_image`)."""
         return self._live_engine().true_features()
 
+    def true_image_points(self) -> NDArray[np.float64]:
+        """Every sub-env's target feature points in the wide image at its current step,
+        [column, row] in its pixels, (num_envs, F, 2) (privileged: the keypoints a pixel
+        student's reader is fitted to in DAgger, `capture_bench.training.common.imitation`)."""
+        return self._live_engine().true_image_points()
+
     def set_episode_seeds(self, sources: Sequence[EpisodeSeedSource] | None) -> None:
         """Seed every later episode of sub-env i with ``sources[i].next()`` (None: back to each
         sub-env's own generator, gymnasium's rule).

@@ -303,14 +303,24 @@ class WorkspaceImager:
         area-sampled pixel's footprint is centred at u0 + s j + (s - 1) / 2: the same for odd s,
         half a sensor pixel earlier for even s)."""
         uv = pixel_of(self.model.to_camera(np.asarray(points, float).reshape(-1, 3)), self.model)
-        u0, _, v0, _ = self.window
-        s = self.scale
-        found = {"image": (uv - [u0 + s // 2, v0 + s // 2]) / s}
+        found = {"image": self._wide_pixels(uv)}
         n, c = self.options.ee_crop, self.options.ee_crop_scale
         if n > 0:
             e0, _, f0, _ = ee_window(self.model, x_e, n * c)
             found["ee_image"] = (uv - [e0 + c // 2, f0 + c // 2]) / c
         return found
+
+    def image_points(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Where global points (..., 3) lie in the wide image, [column, row] in its pixels,
+        (..., 2) (`view_points`'s ``image``)."""
+        p = np.asarray(points, float)
+        uv = pixel_of(self.model.to_camera(p.reshape(-1, 3)), self.model)
+        return self._wide_pixels(uv).reshape(*p.shape[:-1], 2)
+
+    def _wide_pixels(self, uv: NDArray[np.float64]) -> NDArray[np.float64]:
+        u0, _, v0, _ = self.window
+        s = self.scale
+        return (uv - [u0 + s // 2, v0 + s // 2]) / s
 
     def render_ee(
         self,

@@ -192,6 +192,19 @@ def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: 
             "the teacher's observation is for a pixel student of ppo or a2c (--observation-source "
             f"pixels); this run is {config.algo} on {config.observation_source}: leave it out"
         )
+    features = settings.policy_kwargs.get("features_extractor")
+    if settings.imitation_keypoint_weight and (
+        config.observation_source != PIXELS
+        or config.algo not in ACTOR_CRITIC_ALGOS
+        or features != "marker_keypoints"
+    ):
+        raise ConfigError(
+            f"imitation_keypoint_weight {settings.imitation_keypoint_weight:g}: the fit's "
+            "keypoint targets are for the markers' reader of a pixel student of ppo or a2c "
+            "(--observation-source pixels, policy_kwargs.features_extractor: marker_keypoints); "
+            f"this run is {config.algo} on {config.observation_source} with features "
+            f"{features or 'default'}: set that extractor, or leave the weight out"
+        )
     if config.observation_source == PIXELS and config.vec_env != "batched":
         raise ConfigError(
             f"imitate {teacher} with pixels: the controller reads the estimate of the step the "

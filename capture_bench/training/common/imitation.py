@@ -34,6 +34,15 @@ error says little of where the target is; the head shapes the features extractor
 fit and is not part of the policy (the policy saved and evaluated is the same network as
 without it).
 
+With the ``marker_keypoints`` features extractor
+(`capture_bench.agents.marker_reader.MarkerKeypointExtractor`) the extractor's standardisation is
+set from the data set before each round's fit, and with ``imitation_keypoint_weight`` w > 0 (PPO
+and A2C) the fit also asks its reader for the markers where they are: on each labelled step the
+env's true image points of the target's markers (`CaptureVectorEnv.true_image_points`) are the
+targets of the newest frame's keypoints, w times their squared pixel error plus the detection
+logits' cross-entropy (`KeypointTargets`). The reader reads every frame of the stack alike, so
+the newest frame's targets teach it for all of them.
+
 Each complete round is kept on disk (`capture_bench.training.common.imitation_progress`): a run
 stopped during its imitation goes on from its last complete round.
 
@@ -211,6 +220,58 @@ class StateTargets:
     last_mse: float | None = None
 
 
+@dataclass
+class KeypointTargets:
+    """The keypoint supervision of `fit`: ``points`` (N, F, 2), where each row's markers lie in
+    the newest frame of its wide image, pixels, and ``weight`` w of the keypoints' loss;
+    ``last_px``, set by `fit`: the keypoints' median pixel error over the last epoch."""
+
+    points: np.ndarray
+    weight: float
+    last_px: float | None = None
+
+
+def _marker_extractor(policy: Any) -> Any:
+    """The actor's features extractor where it reads the markers (``marker_keypoints``), else
+    None."""
+    from capture_bench.agents.marker_reader import MarkerKeypointExtractor
+
+    extractor = getattr(policy, "pi_features_extractor", None)
+    return extractor if isinstance(extractor, MarkerKeypointExtractor) else None
+
+
+def _keypoint_loss(extractor: Any, images: Any, points: Any) -> tuple[Any, Any]:
+    """The newest frames' keypoints' mean squared pixel error against ``points`` (B, F, 2) plus
+    the detection logits' cross-entropy (`heatmap_loss`), points outside the image counting
+    nothing; and each keypoint's pixel error (B, F)."""
+    import torch
+
+    from capture_bench.agents.marker_reader import heatmap_loss
+
+    pixels, _, logits = extractor.read(images.float() / 255.0)
+    size = images.shape[-1]
+    inside = torch.all((points >= 0) & (points <= size - 1), dim=-1).float()
+    squared = torch.sum((pixels - points) ** 2, dim=-1)
+    loss = torch.mean(inside * squared) + heatmap_loss(logits, points, inside)
+    return loss, torch.sqrt(squared.detach())[inside > 0]
+
+
+def _standardise(extractor: Any, observations: Any, seed: int) -> None:
+    """Set a ``marker_keypoints`` extractor's standardisation from up to 2,048 rows of the data
+    set (its images scaled as the policy's preprocessing scales them)."""
+    import torch
+
+    n = len(next(iter(observations.values())))
+    index = np.sort(np.random.default_rng(seed).choice(n, min(n, 2048), replace=False))
+    device = extractor.mean.device
+    sample = {
+        key: torch.as_tensor(value[index], device=device).float()
+        / (255.0 if value.dtype == np.uint8 else 1.0)
+        for key, value in observations.items()
+    }
+    extractor.standardise(sample)
+
+
 def standardised(rows: np.ndarray) -> np.ndarray:
     """``rows`` (N, D) less their mean over N, over their standard deviation (1 where it is
     below 1e-6: a constant entry stays 0), float32."""
@@ -249,15 +310,24 @@ def fit(
     lr: float = IMITATION_LR,
     batch_size: int = IMITATION_BATCH,
     state: StateTargets | None = None,
+    keypoints: KeypointTargets | None = None,
 ) -> float:
     """Fit the policy's mean action on ``observations`` (an array, or with pixels a dict of
     arrays) to ``targets`` (squared error, weighted by
     `label_weights` of ``floor``; Adam at ``lr`` on the actor's parameters, minibatches of
     ``batch_size`` in a seeded order), with ``state`` also its auxiliary regression (module
-    docstring; the head's parameters join Adam's); return the last epoch's mean loss of the
-    action (the auxiliary's not included)."""
+    docstring; the head's parameters join Adam's) and with ``keypoints`` its reader's keypoints
+    (module docstring); return the last epoch's mean loss of the action (the auxiliaries' not
+    included)."""
     import torch
 
+    extractor = _marker_extractor(policy)
+    if keypoints is not None:
+        if extractor is None:
+            raise ValueError("keypoint targets need the marker_keypoints features extractor")
+        kp = torch.as_tensor(keypoints.points, dtype=torch.float32, device=policy.device)
+    if extractor is not None:
+        _standardise(extractor, observations, seed)
     params = list(actor_parameters(policy))
     if state is not None:
         params += list(state.head.parameters())
@@ -270,9 +340,11 @@ def fit(
     w = None if weights is None else torch.as_tensor(weights[:, None], device=policy.device)
     policy.set_training_mode(True)
     loss_sum = state_sum = 0.0
+    errors: list[Any] = []
     for _ in range(epochs):
         order = torch.as_tensor(rng.permutation(len(y)), device=policy.device)
         loss_sum = state_sum = 0.0
+        errors = []
         for start in range(0, len(y), batch_size):
             batch = order[start : start + batch_size]
             if state is None:
@@ -286,6 +358,10 @@ def fit(
                 state_loss = torch.mean((said - s[batch]) ** 2)
                 total = loss + state.weight * state_loss
                 state_sum += state_loss.item() * len(batch)
+            if keypoints is not None:
+                kp_loss, error = _keypoint_loss(extractor, x["image"][batch], kp[batch])
+                total = total + keypoints.weight * kp_loss
+                errors.append(error)
             optimizer.zero_grad()
             total.backward()
             optimizer.step()
@@ -293,6 +369,8 @@ def fit(
     policy.set_training_mode(False)
     if state is not None:
         state.last_mse = state_sum / len(y)
+    if keypoints is not None and errors:
+        keypoints.last_px = float(torch.cat(errors).median())
     return loss_sum / len(y)
 
 
@@ -332,16 +410,20 @@ def dagger(  # noqa: PLR0913
     batch_size: int = IMITATION_BATCH,
     state_weight: float = 0.0,
     store: RoundStore | None = None,
+    keypoint_weight: float = 0.0,
+    keypoint_view: Callable[[], np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """DAgger on ``venv`` (the raw training envs, auto-resetting): see the module docstring
     (``floor``, ``lr``, ``batch_size``: the fit's, `fit`; ``teacher_view``: what the teacher
     reads of the step whose observation the student sees, ``teacher_view(obs)``; None: the
     observation itself; ``state_weight`` > 0: the fit's auxiliary regression of what the teacher
-    reads, `StateTargets`).
+    reads, `StateTargets`; ``keypoint_weight`` > 0: the fit's keypoint supervision,
+    `KeypointTargets`, on the points ``keypoint_view()`` gives for each step, (num_envs, F, 2)).
     Returns what it did: rounds, environment steps, data set size, each round's fit loss and the
     share of the round's actions on which policy and teacher agree within 0.05 in every joint
     (None for round 0, where the teacher acts), with ``state_weight`` each round's error of the
-    regression of the teacher's observation (``state_mse``, a share of its variance), the wall
+    regression of the teacher's observation (``state_mse``, a share of its variance), with
+    ``keypoint_weight`` each round's median keypoint error (``keypoint_px``, pixels), the wall
     clock, s, and with ``validate`` (the run's validation: pooled statistics of the policy on
     validation seeds) the policy's validation after each round and the wall clock then, its
     learning curve (``validations``).
@@ -356,6 +438,7 @@ def dagger(  # noqa: PLR0913
     per_round = max(1, math.ceil(steps / venv.num_envs))
     done, head_state = (Progress(), None) if store is None else store.load(model.policy)
     observations, labels, views = done.observations, done.labels, done.views
+    points = done.points
     head = None
     if done.rounds:
         if state_weight > 0:
@@ -374,6 +457,8 @@ def dagger(  # noqa: PLR0913
             labels.append(target)
             if state_weight > 0:
                 views.append(np.array(seen, dtype=np.float32))
+            if keypoint_weight > 0:
+                points.append(np.asarray(keypoint_view(), dtype=np.float32))
             if r == 0:
                 action = target
             else:
@@ -385,11 +470,16 @@ def dagger(  # noqa: PLR0913
             if head is None:
                 head = _state_head(model.policy, views[0].shape[1], seed)
             state = StateTargets(head, standardised(np.concatenate(views)), state_weight)
+        marks = None
+        if keypoint_weight > 0:
+            marks = KeypointTargets(np.concatenate(points), keypoint_weight)
         loss = fit(model.policy, _stacked(observations), np.concatenate(labels), epochs,
-                   seed + r, floor, lr, batch_size, state)  # fmt: skip
+                   seed + r, floor, lr, batch_size, state, marks)  # fmt: skip
         done.losses.append(loss)
         if state is not None and state.last_mse is not None:
             done.state_losses.append(state.last_mse)
+        if marks is not None and marks.last_px is not None:
+            done.keypoint_px.append(marks.last_px)
         done.agreement.append(float(np.mean(np.concatenate(close))) if close else None)
         rows = sum(len(label) for label in labels)
         note = "" if r == 0 else f", policy within 0.05 of the teacher on {done.agreement[-1]:.0%}"
@@ -404,6 +494,8 @@ def dagger(  # noqa: PLR0913
         said = ""
         if done.state_losses:
             said = f" (the teacher's observation: {done.state_losses[-1]:.3f} of its variance)"
+        if done.keypoint_px:
+            said += f" (keypoints: {done.keypoint_px[-1]:.2f} px median)"
         log(f"imitation round {r + 1}/{rounds}: {rows} labelled steps, fit MSE {loss:.2e}{said}"
             f"{note}")  # fmt: skip
         if store is not None:
@@ -416,6 +508,7 @@ def dagger(  # noqa: PLR0913
         "fit_mse": done.losses,
         "agreement": done.agreement,
         **({"state_mse": done.state_losses} if done.state_losses else {}),
+        **({"keypoint_px": done.keypoint_px} if done.keypoint_px else {}),
         "wall_time_s": round(done.elapsed_s + time.perf_counter() - start, 1),
         **({"validations": done.curve} if validate is not None else {}),
     }

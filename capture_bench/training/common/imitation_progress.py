@@ -4,8 +4,9 @@ last complete round (`capture_bench.training.common.imitation.dagger`).
 After round r the store holds, under ``<run>/imitation_progress/``:
 
 * ``round_<r>.npz``: the rows round r added to the data set: the observations (``obs``, or with
-  pixels ``obs/<key>`` per key, images kept uint8), the teacher's labels (``labels``) and, with
-  the state regression, what the teacher read (``views``);
+  pixels ``obs/<key>`` per key, images kept uint8), the teacher's labels (``labels``), with the
+  state regression what the teacher read (``views``) and with the keypoint supervision the
+  markers' image points (``points``);
 * ``state.pt``: the policy's parameters after round r's fit (and the state regression's head),
   the rounds done and the log so far (fit losses, agreement, state errors, validations, wall
   clock), written after the rows and atomically, so it names only rounds whose rows are whole on
@@ -43,16 +44,19 @@ _COUNT = "rounds.json"
 @dataclass
 class Progress:
     """What DAgger has done so far: ``rounds`` complete, the data set's ``observations``,
-    ``labels`` and ``views`` (batches: one per environment step as `dagger` gathers them, one per
-    round as `RoundStore.load` gives them back), each round's ``losses``, ``state_losses``,
-    ``agreement`` and ``curve`` (validations), and the wall clock ``elapsed_s`` spent on them."""
+    ``labels``, ``views`` and ``points`` (batches: one per environment step as `dagger` gathers
+    them, one per round as `RoundStore.load` gives them back), each round's ``losses``,
+    ``state_losses``, ``keypoint_px``, ``agreement`` and ``curve`` (validations), and the wall
+    clock ``elapsed_s`` spent on them."""
 
     rounds: int = 0
     observations: list[Any] = field(default_factory=list)
     labels: list[np.ndarray] = field(default_factory=list)
     views: list[np.ndarray] = field(default_factory=list)
+    points: list[np.ndarray] = field(default_factory=list)
     losses: list[float] = field(default_factory=list)
     state_losses: list[float] = field(default_factory=list)
+    keypoint_px: list[float] = field(default_factory=list)
     agreement: list[float | None] = field(default_factory=list)
     curve: list[dict[str, Any]] = field(default_factory=list)
     elapsed_s: float = 0.0
@@ -62,6 +66,7 @@ class Progress:
             "rounds": self.rounds,
             "losses": self.losses,
             "state_losses": self.state_losses,
+            "keypoint_px": self.keypoint_px,
             "agreement": self.agreement,
             "curve": self.curve,
             "elapsed_s": self.elapsed_s,
@@ -94,6 +99,8 @@ class RoundStore:
             arrays["obs"] = np.concatenate(batches)
         if progress.views:
             arrays["views"] = np.concatenate(progress.views[first_row:])
+        if progress.points:
+            arrays["points"] = np.concatenate(progress.points[first_row:])
         rows = self.directory / f"round_{progress.rounds}.npz"
         atomic_write(rows, writer=lambda tmp: _save_npz(tmp, arrays))
         state = {
@@ -128,6 +135,7 @@ class RoundStore:
             rounds=int(log["rounds"]),
             losses=list(log["losses"]),
             state_losses=list(log["state_losses"]),
+            keypoint_px=list(log.get("keypoint_px", [])),
             agreement=list(log["agreement"]),
             curve=list(log["curve"]),
             elapsed_s=float(log["elapsed_s"]),
@@ -143,6 +151,8 @@ class RoundStore:
                 progress.observations.append(arrays["obs"])
             if "views" in arrays:
                 progress.views.append(arrays["views"])
+            if "points" in arrays:
+                progress.points.append(arrays["points"])
         policy.load_state_dict(state["policy"])
         return progress, state["head"]
 

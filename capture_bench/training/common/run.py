@@ -412,18 +412,23 @@ def imitate(
     teacher = make_teacher(names, descriptions, shares)
     raw = venv.venv  # inside VecMonitor (no VecNormalize: check_imitation)
     validate = (lambda: progress.play(model)[0]) if settings.eval_freq else None
-    view = None
+    view = points = None
     if config.observation_source == PIXELS:  # the student sees pixels, the teacher the estimate
 
         def view(_obs: Any) -> Any:
             return raw.env_method("estimate_observation", indices=[0])[0]
+
+        def points() -> Any:
+            return raw.env_method("true_image_points", indices=[0])[0]
 
     return dagger(model, raw, teacher, settings.imitation_rounds, settings.imitation_steps,
                   settings.imitation_epochs, config.seed or 0, validate=validate,
                   floor=settings.imitation_floor, teacher_view=view, lr=settings.imitation_lr,
                   batch_size=settings.imitation_batch,
                   state_weight=settings.imitation_state_weight or 0.0,
-                  store=RoundStore.of_run(config.run_dir))  # fmt: skip
+                  store=RoundStore.of_run(config.run_dir),
+                  keypoint_weight=settings.imitation_keypoint_weight or 0.0,
+                  keypoint_view=points)  # fmt: skip
 
 
 def resolved_yaml(config: TrainConfig, settings: TrainingSettings, origin: dict) -> str:

@@ -113,6 +113,9 @@ TRAINING_KEYS = {
     # > 0, pixels (ppo, a2c): the fit also regresses the teacher's estimate-fed observation from
     # the actor's features, this weight times its squared error (imitation.StateTargets)
     "imitation_state_weight": Rule("float", 0.0, 100.0),
+    # > 0, pixels (ppo, a2c) with marker_keypoints: the fit also fits the reader's keypoints to
+    # the markers' true image points, this weight times their loss (imitation.KeypointTargets)
+    "imitation_keypoint_weight": Rule("float", 0.0, 100.0),
     # a mixture's sub-envs per scenario, relative to the scenarios it leaves out (weight 1 each):
     # {grasp: 4} gives grasp four times the share of each other scenario (mixture.mixture_shares)
     "mixture_weights": Rule("weights"),
@@ -161,6 +164,7 @@ IMITATION_DEFAULTS = {
     "imitation_lr": 1e-3,
     "imitation_batch": 1024,
     "imitation_state_weight": 0.0,
+    "imitation_keypoint_weight": 0.0,
 }
 #: The curricula that ``curriculum_steps`` schedules (each key: its starting value).
 CURRICULA = ("curriculum_tolerance", "curriculum_hold")

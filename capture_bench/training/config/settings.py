@@ -70,6 +70,7 @@ class TrainingSettings:
     imitation_lr: float | None = None
     imitation_batch: int | None = None
     imitation_state_weight: float | None = None
+    imitation_keypoint_weight: float | None = None
     mixture_weights: Mapping[str, Any] | None = None
     curriculum_hold: float | None = None
     curriculum_steps: int | None = None  # `with_curriculum_steps` fills it in for a run

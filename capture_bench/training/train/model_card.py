@@ -522,6 +522,11 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
                 f"plus {hp['imitation_state_weight']:g} x the error of a regression of the "
                 "teacher's observation from the policy's features; "
             )
+        if hp.get("imitation_keypoint_weight"):
+            fit_steps += (
+                f"plus {hp['imitation_keypoint_weight']:g} x the keypoints' loss against the "
+                "markers' true image points; "
+            )
         imitated = [
             f"- imitation: DAgger from `{imitation['teacher']}`, {imitation['rounds']} rounds, "
             f"{imitation['environment_steps']:,} environment steps on training seeds, "
