@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -716,8 +717,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="write the report here as JSON")
     args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else argv
     try:
-        report = probe(args)
+        report = {"command": shlex.join(["python", "scripts/pixel_keypoint_probe.py", *words]),
+                  **probe(args)}  # fmt: skip
     except (ConfigError, ValueError) as error:
         print(f"pixel_keypoint_probe: {error}", file=sys.stderr)
         return 2

@@ -86,6 +86,7 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
         assert probe.main(args) == 0
         report = __import__("json").loads(out.read_text())
         assert report["rows"] == 32 and report["episodes"] == 2
+        assert report["command"].startswith("python scripts/pixel_keypoint_probe.py --train-steps")
         assert report["window"] == {"image": 2} and report["reader"] == reader
         assert 0 <= report["captured"] <= 2
         read = 4 if reader == "marker" else 5  # the marker reader reads no X_E
