@@ -131,6 +131,19 @@ def test_the_reader_learns_the_markers_to_a_tenth_of_a_pixel():
     assert torch.all(mass > 0)
 
 
+def test_the_reader_weighs_the_windows_pixels_as_its_maps_of_the_whole_frame_do():
+    """The reader computes the weights at its windows' pixels alone: the same keypoints and
+    weights as the whole frame's weight maps read in the same windows."""
+    torch.manual_seed(1)
+    reader = MarkerReader()
+    frames = torch.rand(4, 3, 30, 40)
+    pixels, mass, logits = reader(frames)
+    peak = logits.flatten(2).argmax(-1)
+    whole, whole_mass = local_centroid(reader.weight_maps(frames), reader.window, peak)
+    torch.testing.assert_close(pixels, whole)
+    torch.testing.assert_close(mass, whole_mass)
+
+
 def _pixel_space(**options):
     with CaptureEnv("paper", observation_source="pixels", image_size=(SIZE,) * 2,
                     **options) as env:  # fmt: skip

@@ -140,10 +140,25 @@ class MarkerReader(nn.Module):
         )
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The reading; the weights are computed at the windows' pixels alone (`weight_maps`
+        over the whole frame gives the same there)."""
         logits = self.detect(x)
-        peak = logits.flatten(2).argmax(-1)
-        pixels, mass = local_centroid(self.weights(colour_channels(x)), self.window, peak)
-        return pixels, mass, logits
+        b, k, h, w = logits.shape
+        rows, cols, _ = window_pixels(logits, self.window)  # (B, K, P) each
+        index = (rows * w + cols).reshape(b, 1, -1).expand(-1, x.shape[1], -1)
+        colours = x.flatten(2).gather(-1, index).reshape(b, x.shape[1], k * rows.shape[-1], 1)
+        weights = self.weights(colour_channels(colours))  # (B, K maps, K * P, 1)
+        own = weights[:, :, :, 0].reshape(b, k, k, -1).diagonal(dim1=1, dim2=2)  # (B, P, K)
+        weights = own.transpose(1, 2)  # map k's weights in window k, (B, K, P)
+        mass = weights.sum(-1)
+        centre_x, centre_y = cols.float().mean(-1), rows.float().mean(-1)
+        x_ = centre_x + (weights * (cols - centre_x[..., None])).sum(-1) / (mass + 1e-6)
+        y_ = centre_y + (weights * (rows - centre_y[..., None])).sum(-1) / (mass + 1e-6)
+        return torch.stack((x_, y_), dim=-1).float(), mass, logits
+
+    def weight_maps(self, x: torch.Tensor) -> torch.Tensor:
+        """Every pixel's weight for each marker, (B, K, H, W)."""
+        return self.weights(colour_channels(x))
 
 
 class MarkerKeypointExtractor(BaseFeaturesExtractor):
