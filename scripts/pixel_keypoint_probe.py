@@ -59,6 +59,7 @@ from torch import nn
 from capture_bench.agents.features import SpatialSoftmax
 from capture_bench.agents.marker_reader import (
     MARKERS,
+    WINDOW,
     MarkerReader,
     colour_channels,
     feature_width,
@@ -283,7 +284,7 @@ class ViewKeypoints(nn.Module):
         self.reader = reader
         self.size = size
         if reader == "marker":
-            self.marker = MarkerReader(max(window, 1))
+            self.marker = MarkerReader(window or WINDOW)  # train.py's window where none given
             self.read = min(read, MARKERS)
             self.dim = feature_width(self.read)
             return
@@ -646,7 +647,7 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
         student = Student(net, noise, np.random.default_rng(args.seed + 10 + r))
         train = joined(train, collect(args.scenario, options, args.dagger_steps, seeds, stack,
                                       student))  # fmt: skip
-        if args.head_epochs:  # the reader stays as fitted, the head is fitted anew
+        if args.head_epochs:  # the reader stays as fitted, the head is fitted again
             fit_head(net, train, args.head_epochs, args.lr, args.seed, noise, args.head_stack)
         else:
             fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed, noise)

@@ -15,6 +15,7 @@ import torch
 import train
 from capture_bench.agents.marker_reader import (
     MARKERS,
+    MIN_STD,
     MarkerKeypointExtractor,
     MarkerReader,
     colour_channels,
@@ -160,6 +161,8 @@ def test_the_extractor_reads_each_frame_alike_oldest_first_and_standardises():
     extractor = MarkerKeypointExtractor(space)
     width = feature_width(MARKERS)
     assert extractor.features_dim == 3 * width + 7
+    newest = obs["image"][:, -3:]  # three frames that differ, oldest first
+    obs["image"] = torch.cat([newest.flip(-1), torch.roll(newest, 9, dims=-2), newest], dim=1)
     batch = {k: torch.cat([v, v.flip(-1)]) for k, v in obs.items()}  # two rows
     with torch.no_grad():
         features = extractor(batch)
@@ -179,7 +182,7 @@ def test_the_extractor_reads_each_frame_alike_oldest_first_and_standardises():
     with torch.no_grad():
         x, raw = extractor(many), extractor.raw(many)
     np.testing.assert_allclose(x.mean(0).numpy(), 0.0, atol=1e-4)
-    torch.testing.assert_close(x, (raw - raw.mean(0)) / (raw.std(0) + 1e-3))
+    torch.testing.assert_close(x, (raw - raw.mean(0)) / raw.std(0).clamp_min(MIN_STD))
     assert torch.all(x.std(0)[raw.std(0) > 0.1] > 0.95)
     assert "mean" in extractor.state_dict() and "std" in extractor.state_dict()
 
@@ -199,7 +202,9 @@ TINY = ["n_envs=2", "n_steps=16", "batch_size=16", "n_epochs=1", "policy_kwargs.
 
 def test_a_run_with_marker_keypoints_stores_a_plain_policy_that_loads_safely(tmp_path):
     run = tmp_path / "run"
-    assert train.main([*PIXELS, *(f"--set={s}" for s in TINY), "--run-dir", str(run)]) == 0
+    sets = [*TINY, "imitate=dls", "imitation_steps=32", "imitation_rounds=1",
+            "imitation_epochs=1"]  # fmt: skip
+    assert train.main([*PIXELS, *(f"--set={s}" for s in sets), "--run-dir", str(run)]) == 0
     meta = json.loads((run / "metadata.json").read_text())
     assert meta["policy_kwargs"]["features_extractor"] == "marker_keypoints"
     metadata = read_metadata(run)
@@ -212,12 +217,19 @@ def test_a_run_with_marker_keypoints_stores_a_plain_policy_that_loads_safely(tmp
             obs = env.step(a)[0]
 
 
-def test_marker_keypoints_with_the_crop_is_refused_in_one_line(tmp_path, capsys):
-    sets = [*TINY, "ee_crop=37"]
-    args = [*PIXELS, *(f"--set={s}" for s in sets), "--run-dir", str(tmp_path / "r")]
+@pytest.mark.parametrize(
+    ("more", "expected"),
+    [
+        (["ee_crop=37", "imitate=dls"], "ee_crop"),
+        (["asymmetric_critic=true", "imitate=dls"], "asymmetric_critic"),
+        ([], "set imitate"),
+    ],
+)
+def test_what_marker_keypoints_cannot_take_is_one_line(tmp_path, capsys, more, expected):
+    args = [*PIXELS, *(f"--set={s}" for s in [*TINY, *more]), "--run-dir", str(tmp_path / "r")]
     assert train.main(args) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "marker_keypoints" in err and "ee_crop" in err
+    assert len(err.splitlines()) == 1 and "marker_keypoints" in err and expected in err
     assert not (tmp_path / "r").exists()
 
 
@@ -251,7 +263,8 @@ def _marker_model(n_envs: int):
 
     from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
 
-    venv = CaptureSB3VecEnv(n_envs, "paper", seed=0, observation_source="pixels", frame_stack=2)
+    venv = CaptureSB3VecEnv(n_envs, "paper", seed=0, observation_source="pixels", frame_stack=2,
+                            image_supersample=3)  # fmt: skip
     policy_kwargs = {"net_arch": [16], "features_extractor_class": MarkerKeypointExtractor}
     model = PPO("MultiInputPolicy", venv, n_steps=32, batch_size=32, n_epochs=1, seed=0,
                 policy_kwargs=policy_kwargs, device="cpu")  # fmt: skip
@@ -259,15 +272,17 @@ def _marker_model(n_envs: int):
 
 
 def test_dagger_fits_the_readers_keypoints_to_the_markers_true_image_points(monkeypatch):
-    """Each labelled step's targets are the env's true image points at that step; the fit sets
-    the extractor's standardisation from the data set and brings the keypoints to the targets."""
+    """Each labelled step's targets are where its newest frame shows the markers (the
+    detector's centroids, independent of the projection); the fit sets the extractor's
+    standardisation from the data set and brings the keypoints to the targets."""
+    from capture_bench.sensing.detector import detect_markers
     from capture_bench.task.episode import describe_task
     from capture_bench.task.scenarios import load_scenario
     from capture_bench.training.common import imitation
 
     model, venv = _marker_model(2)
     teacher = imitation.make_teacher(["dls"], [describe_task(load_scenario("paper"))], [2])
-    passed, truth = [], []
+    passed = []
     raw_fit = imitation.fit
 
     def spying_fit(policy, observations, targets, *args, **kwargs):
@@ -275,7 +290,6 @@ def test_dagger_fits_the_readers_keypoints_to_the_markers_true_image_points(monk
         return raw_fit(policy, observations, targets, *args, **kwargs)
 
     def points():
-        truth.append(venv.venv.true_image_points())
         return venv.env_method("true_image_points", indices=[0])[0]
 
     def view(_obs):
@@ -290,7 +304,13 @@ def test_dagger_fits_the_readers_keypoints_to_the_markers_true_image_points(monk
         venv.close()
     observations, targets, (epochs, seed, floor, lr, batch, state, marks) = passed[0]
     assert marks.weight == 1.0 and marks.points.shape == (64, MARKERS, 2)
-    np.testing.assert_array_equal(marks.points, np.concatenate(truth).astype(np.float32))
+    gaps = []  # a marker the block hides in part is found off its centre: most are not
+    for i in range(0, 64, 3):
+        newest = np.ascontiguousarray(observations["image"][i, -3:].transpose(1, 2, 0))
+        found = detect_markers(newest, None, min_area=1, min_fill=0.0)
+        gaps += [np.linalg.norm(found.pixels[k] - marks.points[i, k]) for k in range(MARKERS)
+                 if found.found[k]]  # fmt: skip
+    assert len(gaps) > 40 and np.median(gaps) < 0.25 and np.mean(np.less(gaps, 0.5)) > 0.8
     assert len(done["keypoint_px"]) == 1 and np.isfinite(done["keypoint_px"][0])
     extractor = model.policy.pi_features_extractor
     assert torch.any(extractor.mean != 0) and torch.any(extractor.std != 1)

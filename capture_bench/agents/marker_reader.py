@@ -37,6 +37,7 @@ MARKERS = len(MARKER_COLOURS)  # one keypoint per marker
 HIDDEN = 16  # maps of the detection's and of the weights' hidden layer
 WINDOW = 3  # the window's half side, wide-image pixels: a marker and a pixel either side
 SHARPNESS = 10.0  # beta of the weights' softplus: near a ReLU, never without a gradient
+MIN_STD = 0.01  # the least standard deviation a feature is divided by
 
 
 def window_pixels(
@@ -165,10 +166,11 @@ class MarkerKeypointExtractor(BaseFeaturesExtractor):
     """The pixel observation's features from the markers' keypoints: each frame of the wide
     image (``image``, its frames stacked along the channels) read by one `MarkerReader`, its
     `keypoint_features` (the log weights as found), the frames' side by side, oldest first; the
-    arm's state beside them. Each feature is standardised by ``mean`` and ``std`` (buffers, kept
-    with the weights; 0 and 1 until `standardise` sets them from a batch of observations), as
-    the spacings' millimetre changes are thousandths of their log. Declared as
-    ``marker_keypoints``; it reads the wide image alone (no end-effector crop)."""
+    arm's state beside them (the keys of its observation space alone: an asymmetric critic's
+    ``critic_state`` is not read). Each feature is standardised by ``mean`` and ``std`` (buffers,
+    kept with the weights; 0 and 1 until `standardise` sets them from a batch of observations,
+    as DAgger's fit does), as the spacings' millimetre changes are thousandths of their log.
+    Declared as ``marker_keypoints``; it reads the wide image alone (no end-effector crop)."""
 
     def __init__(self, observation_space: gym.spaces.Dict) -> None:
         spaces = observation_space.spaces
@@ -184,7 +186,8 @@ class MarkerKeypointExtractor(BaseFeaturesExtractor):
                 f"marker_keypoints reads square RGB frames; the image is {spaces['image'].shape}"
             )
         self.frames, self.size = channels // 3, width
-        flat = sum(int(np.prod(box.shape)) for k, box in spaces.items() if k != "image")
+        self.flat_keys = sorted(k for k in spaces if k != "image")
+        flat = sum(int(np.prod(spaces[k].shape)) for k in self.flat_keys)
         size = self.frames * feature_width(MARKERS) + flat
         super().__init__(observation_space, features_dim=size)
         self.reader = MarkerReader()
@@ -202,15 +205,21 @@ class MarkerKeypointExtractor(BaseFeaturesExtractor):
         frames = image.reshape(b * self.frames, 3, self.size, self.size)
         pixels, mass, _ = self.reader(frames)
         found = keypoint_features(to_unit(pixels, self.size), torch.log(mass + 1e-3))
-        rest = [observations[k].flatten(1) for k in sorted(observations) if k != "image"]
+        rest = [observations[k].flatten(1) for k in self.flat_keys]
         return torch.cat([found.reshape(b, -1), *rest], dim=1)
 
     @torch.no_grad()
-    def standardise(self, observations: dict[str, torch.Tensor]) -> None:
-        """Set ``mean`` and ``std`` to those of the raw features of ``observations``."""
-        x = self.raw(observations)
+    def standardise(self, observations: dict[str, torch.Tensor], chunk: int = 256) -> None:
+        """Set ``mean`` and ``std`` to those of the raw features of ``observations`` (read
+        ``chunk`` rows at a time); a std below `MIN_STD` counts as `MIN_STD`, so that a feature
+        nearly constant in this batch (a reader not fitted yet) is not magnified later."""
+        n = len(observations["image"])
+        x = torch.cat([
+            self.raw({k: v[i : i + chunk] for k, v in observations.items()})
+            for i in range(0, n, chunk)
+        ])  # fmt: skip
         self.mean.copy_(x.mean(0))
-        self.std.copy_(x.std(0) + 1e-3)
+        self.std.copy_(x.std(0).clamp_min(MIN_STD))
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         return (self.raw(observations) - self.mean) / self.std

@@ -105,6 +105,19 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
             )
     if pixels:
         _check_pixel_options(config, settings)
+    features = settings.policy_kwargs.get("features_extractor")
+    if features == "marker_keypoints" and settings.asymmetric_critic:
+        raise ConfigError(
+            "asymmetric_critic with features_extractor marker_keypoints: the asymmetric policy is "
+            "stored through the per-image extractors of combined or keypoints; use one of those, "
+            "or leave asymmetric_critic out"
+        )
+    if features == "marker_keypoints" and settings.imitate is None:
+        raise ConfigError(
+            "features_extractor marker_keypoints: its features are standardised on the "
+            "imitation's data set before each fit; set imitate (e.g. imitate: dls, with "
+            "imitation_keypoint_weight: 1 to fit its reader to the markers)"
+        )
     if settings.asymmetric_critic and (
         config.algo not in ACTOR_CRITIC_ALGOS or config.vec_env != "batched"
     ):

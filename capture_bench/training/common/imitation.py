@@ -240,15 +240,24 @@ def _marker_extractor(policy: Any) -> Any:
     return extractor if isinstance(extractor, MarkerKeypointExtractor) else None
 
 
+def _preprocessed(policy: Any, observations: Any) -> Any:
+    """``observations`` as the policy's features extractor reads them (SB3's preprocessing: the
+    images scaled to [0, 1] where the policy normalises them)."""
+    from stable_baselines3.common.preprocessing import preprocess_obs
+
+    return preprocess_obs(observations, policy.observation_space, policy.normalize_images)
+
+
 def _keypoint_loss(extractor: Any, images: Any, points: Any) -> tuple[Any, Any]:
-    """The newest frames' keypoints' mean squared pixel error against ``points`` (B, F, 2) plus
-    the detection logits' cross-entropy (`heatmap_loss`), points outside the image counting
-    nothing; and each keypoint's pixel error (B, F)."""
+    """The newest frames' keypoints (of ``images`` preprocessed, `_preprocessed`) against
+    ``points`` (B, F, 2): their mean squared pixel error plus the detection logits'
+    cross-entropy (`heatmap_loss`), points outside the image counting nothing; and the pixel
+    errors of the points inside."""
     import torch
 
     from capture_bench.agents.marker_reader import heatmap_loss
 
-    pixels, _, logits = extractor.read(images.float() / 255.0)
+    pixels, _, logits = extractor.read(images)
     size = images.shape[-1]
     inside = torch.all((points >= 0) & (points <= size - 1), dim=-1).float()
     squared = torch.sum((pixels - points) ** 2, dim=-1)
@@ -256,20 +265,15 @@ def _keypoint_loss(extractor: Any, images: Any, points: Any) -> tuple[Any, Any]:
     return loss, torch.sqrt(squared.detach())[inside > 0]
 
 
-def _standardise(extractor: Any, observations: Any, seed: int) -> None:
+def _standardise(policy: Any, extractor: Any, observations: Any, seed: int) -> None:
     """Set a ``marker_keypoints`` extractor's standardisation from up to 2,048 rows of the data
-    set (its images scaled as the policy's preprocessing scales them)."""
+    set, preprocessed as the policy reads them."""
     import torch
 
     n = len(next(iter(observations.values())))
     index = np.sort(np.random.default_rng(seed).choice(n, min(n, 2048), replace=False))
-    device = extractor.mean.device
-    sample = {
-        key: torch.as_tensor(value[index], device=device).float()
-        / (255.0 if value.dtype == np.uint8 else 1.0)
-        for key, value in observations.items()
-    }
-    extractor.standardise(sample)
+    rows = {k: torch.as_tensor(v[index], device=policy.device) for k, v in observations.items()}
+    extractor.standardise(_preprocessed(policy, rows))
 
 
 def standardised(rows: np.ndarray) -> np.ndarray:
@@ -327,7 +331,7 @@ def fit(
             raise ValueError("keypoint targets need the marker_keypoints features extractor")
         kp = torch.as_tensor(keypoints.points, dtype=torch.float32, device=policy.device)
     if extractor is not None:
-        _standardise(extractor, observations, seed)
+        _standardise(policy, extractor, observations, seed)
     params = list(actor_parameters(policy))
     if state is not None:
         params += list(state.head.parameters())
@@ -359,7 +363,8 @@ def fit(
                 total = loss + state.weight * state_loss
                 state_sum += state_loss.item() * len(batch)
             if keypoints is not None:
-                kp_loss, error = _keypoint_loss(extractor, x["image"][batch], kp[batch])
+                image = _preprocessed(policy, {"image": x["image"][batch]})["image"]
+                kp_loss, error = _keypoint_loss(extractor, image, kp[batch])
                 total = total + keypoints.weight * kp_loss
                 errors.append(error)
             optimizer.zero_grad()
@@ -369,8 +374,9 @@ def fit(
     policy.set_training_mode(False)
     if state is not None:
         state.last_mse = state_sum / len(y)
-    if keypoints is not None and errors:
-        keypoints.last_px = float(torch.cat(errors).median())
+    found = torch.cat(errors) if errors else torch.zeros(0)
+    if keypoints is not None and found.numel():  # none: every marker outside the image
+        keypoints.last_px = float(found.median())
     return loss_sum / len(y)
 
 
@@ -445,6 +451,14 @@ def dagger(  # noqa: PLR0913
             head = _state_head(model.policy, views[0].shape[1], seed)
             if head_state is not None:
                 head.load_state_dict(head_state)
+        if keypoint_weight > 0 and sum(map(len, points)) != sum(map(len, labels)):
+            from capture_bench.training.common.checkpoint import CheckpointError
+
+            raise CheckpointError(
+                f"imitation_keypoint_weight {keypoint_weight:g}: the kept rounds hold no keypoint "
+                "targets for every row; resume with the weight they were made with, or remove "
+                "the run's imitation_progress folder to start the imitation again"
+            )
         log(f"imitation: {done.rounds} of {rounds} rounds done before; going on from there")
     obs = venv.reset()
     for r in range(done.rounds, rounds):
