@@ -24,9 +24,10 @@ from capture_bench.agents.marker_reader import (
     local_centroid,
     window_pixels,
 )
-from capture_bench.agents.sb3_policy import SB3Policy, load_policy, load_trusted, read_metadata
+from capture_bench.agents.sb3_policy import load_policy, read_metadata
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.sim.markers import MARKER_COLOURS
+from tests.stored_policies import assert_loads_safely_and_acts_as_trusted
 
 SIZE = 36
 
@@ -207,14 +208,7 @@ def test_a_run_with_marker_keypoints_stores_a_plain_policy_that_loads_safely(tmp
     assert train.main([*PIXELS, *(f"--set={s}" for s in sets), "--run-dir", str(run)]) == 0
     meta = json.loads((run / "metadata.json").read_text())
     assert meta["policy_kwargs"]["features_extractor"] == "marker_keypoints"
-    metadata = read_metadata(run)
-    safe, trusted = load_policy(metadata), load_trusted(metadata)
-    with CaptureEnv("paper", **metadata.env_options) as env:
-        obs, _ = env.reset(seed=5)
-        for _ in range(3):
-            a = SB3Policy(safe.policy).predict(obs)[0]
-            np.testing.assert_array_equal(a, SB3Policy(trusted.policy).predict(obs)[0])
-            obs = env.step(a)[0]
+    assert_loads_safely_and_acts_as_trusted(run)
 
 
 @pytest.mark.parametrize(

@@ -13,10 +13,11 @@ from stable_baselines3.common.vec_env import VecEnvWrapper
 
 import train
 from capture_bench.agents.features import SpatialSoftmax, SpatialSoftmaxExtractor
-from capture_bench.agents.sb3_policy import SB3Policy, load_policy, load_trusted, read_metadata
+from capture_bench.agents.sb3_policy import load_policy, read_metadata
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.training.common.augmentation import install_random_shift, random_shift
 from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
+from tests.stored_policies import assert_loads_safely_and_acts_as_trusted
 
 SIZE = 36
 TINY = ["n_envs=2", "n_steps=16", "batch_size=16", "n_epochs=1", "policy_kwargs.net_arch=[8]",
@@ -145,14 +146,7 @@ def test_a_run_with_the_shift_and_keypoints_stores_a_plain_policy_that_loads_saf
     meta = json.loads((run / "metadata.json").read_text())
     assert meta["policy_kwargs"]["features_extractor"] == "keypoints"
     assert meta["hyperparameters"]["augment_shift"] == 4
-    metadata = read_metadata(run)
-    safe, trusted = load_policy(metadata), load_trusted(metadata)
-    with CaptureEnv("paper", **metadata.env_options) as env:
-        obs, _ = env.reset(seed=5)
-        for _ in range(3):
-            a = SB3Policy(safe.policy).predict(obs)[0]
-            np.testing.assert_array_equal(a, SB3Policy(trusted.policy).predict(obs)[0])
-            obs = env.step(a)[0]
+    assert_loads_safely_and_acts_as_trusted(run)
 
 
 def test_the_shift_without_pixels_is_one_line(tmp_path, capsys):
