@@ -66,6 +66,14 @@ def local_centroid(
     linear in how much of a pixel a marker covers (an area-sampled edge pixel), the centroid is
     the marker's sub-pixel centre. An empty window gives its centre."""
     rows, cols, weights = window_pixels(maps, half, peak)
+    return _centroid(rows, cols, weights)
+
+
+def _centroid(
+    rows: torch.Tensor, cols: torch.Tensor, weights: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The centroid of ``weights`` at the window pixels ``rows``, ``cols`` (B, K, P each),
+    [x, y], (B, K, 2), and their sum (B, K); an empty window gives its centre."""
     mass = weights.sum(-1)
     centre_x, centre_y = cols.float().mean(-1), rows.float().mean(-1)
     x = centre_x + (weights * (cols - centre_x[..., None])).sum(-1) / (mass + 1e-6)
@@ -150,12 +158,8 @@ class MarkerReader(nn.Module):
         colours = x.flatten(2).gather(-1, index).reshape(b, x.shape[1], k * rows.shape[-1], 1)
         weights = self.weights(colour_channels(colours))  # (B, K maps, K * P, 1)
         own = weights[:, :, :, 0].reshape(b, k, k, -1).diagonal(dim1=1, dim2=2)  # (B, P, K)
-        weights = own.transpose(1, 2)  # map k's weights in window k, (B, K, P)
-        mass = weights.sum(-1)
-        centre_x, centre_y = cols.float().mean(-1), rows.float().mean(-1)
-        x_ = centre_x + (weights * (cols - centre_x[..., None])).sum(-1) / (mass + 1e-6)
-        y_ = centre_y + (weights * (rows - centre_y[..., None])).sum(-1) / (mass + 1e-6)
-        return torch.stack((x_, y_), dim=-1).float(), mass, logits
+        pixels, mass = _centroid(rows, cols, own.transpose(1, 2))  # map k's weights, window k
+        return pixels, mass, logits
 
     def weight_maps(self, x: torch.Tensor) -> torch.Tensor:
         """Every pixel's weight for each marker, (B, K, H, W)."""
