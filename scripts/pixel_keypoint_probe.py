@@ -28,8 +28,9 @@ few millimetres, along the line of sight too) before anything is trained on it f
    the relative vector.
 3. **Fit.** Adam, one-cycle schedule, minibatches of 128: the action's squared error, the relative
    vector's (standardised) and, with privileged supervision, the squared pixel error of keypoint
-   k against feature point k (then X_E) where that point lies inside the view (and for the
-   centroid reader the detection logits' cross-entropy against it, `heatmap_loss`). With
+   k against feature point k (then X_E) where that point lies inside the view (the ``marker``
+   reader: its robust error, `keypoint_loss`, as train.py fits it; and for the centroid readers
+   the detection logits' cross-entropy against it, `heatmap_loss`). With
    ``--head-epochs`` E the reader is then frozen, its features computed once, and the MLP fitted
    E more epochs on them (`fit_head`): the head's precision for the cost of an MLP's fit.
 4. **Report.** On the validation rows: each supervised keypoint's median pixel error, the relative
@@ -65,6 +66,7 @@ from capture_bench.agents.marker_reader import (
     feature_width,
     heatmap_loss,
     keypoint_features,
+    keypoint_loss,
     local_centroid,
     to_unit,
     window_pixels,
@@ -474,8 +476,12 @@ def fit(
                 for k, found in keypoints.items():
                     for p in found:  # the whole view's keypoints and the local ones
                         f = min(points[k].shape[1], p.shape[1])  # the marker reader: no X_E
-                        err = ((p[:, :f] - points[k][index, :f]) ** 2).sum(-1)
-                        loss = loss + weight * (inside[k][index, :f] * err).mean()
+                        target, seen = points[k][index, :f], inside[k][index, :f]
+                        if net.views[k].reader == "marker":  # fitted as train.py fits it
+                            loss = loss + keypoint_loss(p[:, :f], target, seen)
+                            continue
+                        err = ((p[:, :f] - target) ** 2).sum(-1)
+                        loss = loss + weight * (seen * err).mean()
                     if logits[k] is not None:
                         f = min(points[k].shape[1], logits[k].shape[1])
                         target, seen = points[k][index, :f], inside[k][index, :f]

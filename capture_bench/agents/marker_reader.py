@@ -18,6 +18,10 @@ recedes (docs/pixels.md), so the reader has to be that precise. One frame is rea
    window's centre, half a pixel off;
 3. **keypoint**: the weights' centroid in the window (`local_centroid`) and the weight found.
 
+The reader is fitted by `heatmap_loss` and `keypoint_loss`, whose pixel error is robust: a marker
+the gripper or the block hides has no centroid to find, and its error, pixels off, would
+otherwise outweigh the visible markers' hundredths of a pixel.
+
 The features of a frame (`keypoint_features`): the keypoints in [-1, 1] (`to_unit`), the log of
 each one's weight and the log distances between them. X_E is not read: its place is in the arm's
 state.
@@ -38,6 +42,7 @@ HIDDEN = 16  # maps of the detection's and of the weights' hidden layer
 WINDOW = 3  # the window's half side, wide-image pixels: a marker and a pixel either side
 SHARPNESS = 10.0  # beta of the weights' softplus: near a ReLU, never without a gradient
 MIN_STD = 0.01  # the least standard deviation a feature is divided by
+ROBUST_PX = 0.5  # pixels: the keypoint error beyond which `keypoint_loss` levels off
 
 
 def window_pixels(
@@ -109,6 +114,15 @@ def heatmap_loss(logits: torch.Tensor, points: torch.Tensor, inside: torch.Tenso
         index = ((y0 + dy) * w + x0 + dx).long()
         loss = loss - share * logp.gather(-1, index[..., None])[..., 0]
     return (inside * loss).mean()
+
+
+def keypoint_loss(pixels: torch.Tensor, points: torch.Tensor, inside: torch.Tensor) -> torch.Tensor:
+    """The keypoints' (B, K, 2) robust error against the points (B, K, 2), pixels: the mean over
+    the points inside the view (``inside`` (B, K)) of e^2 / (e^2 + `ROBUST_PX`^2), e the pixel
+    error: near the squared error (over `ROBUST_PX`^2) below `ROBUST_PX`, levelling off to 1
+    beyond it, so that a hidden marker (no centroid to find) weighs little."""
+    squared = torch.sum((pixels - points) ** 2, dim=-1)
+    return torch.mean(inside * squared / (squared + ROBUST_PX**2))
 
 
 def to_unit(pixels: torch.Tensor, size: int) -> torch.Tensor:

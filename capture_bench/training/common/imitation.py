@@ -39,9 +39,9 @@ With the ``marker_keypoints`` features extractor
 set from the data set before each round's fit, and with ``imitation_keypoint_weight`` w > 0 (PPO
 and A2C) the fit also asks its reader for the markers where they are: on each labelled step the
 env's true image points of the target's markers (`CaptureVectorEnv.true_image_points`) are the
-targets of the newest frame's keypoints, w times their squared pixel error plus the detection
-logits' cross-entropy (`KeypointTargets`). The reader reads every frame of the stack alike, so
-the newest frame's targets teach it for all of them.
+targets of the newest frame's keypoints, w times their robust pixel error (`keypoint_loss`)
+plus the detection logits' cross-entropy (`KeypointTargets`). The reader reads every frame of
+the stack alike, so the newest frame's targets teach it for all of them.
 
 Each complete round is kept on disk (`capture_bench.training.common.imitation_progress`): a run
 stopped during its imitation goes on from its last complete round.
@@ -250,19 +250,19 @@ def _preprocessed(policy: Any, observations: Any) -> Any:
 
 def _keypoint_loss(extractor: Any, images: Any, points: Any) -> tuple[Any, Any]:
     """The newest frames' keypoints (of ``images`` preprocessed, `_preprocessed`) against
-    ``points`` (B, F, 2): their mean squared pixel error plus the detection logits'
+    ``points`` (B, F, 2): their robust pixel error (`keypoint_loss`) plus the detection logits'
     cross-entropy (`heatmap_loss`), points outside the image counting nothing; and the pixel
     errors of the points inside."""
     import torch
 
-    from capture_bench.agents.marker_reader import heatmap_loss
+    from capture_bench.agents.marker_reader import heatmap_loss, keypoint_loss
 
     pixels, _, logits = extractor.read(images)
     size = images.shape[-1]
     inside = torch.all((points >= 0) & (points <= size - 1), dim=-1).float()
-    squared = torch.sum((pixels - points) ** 2, dim=-1)
-    loss = torch.mean(inside * squared) + heatmap_loss(logits, points, inside)
-    return loss, torch.sqrt(squared.detach())[inside > 0]
+    loss = keypoint_loss(pixels, points, inside) + heatmap_loss(logits, points, inside)
+    error = torch.linalg.vector_norm(pixels.detach() - points, dim=-1)
+    return loss, error[inside > 0]
 
 
 def _standardise(policy: Any, extractor: Any, observations: Any, seed: int) -> None:
