@@ -18,7 +18,8 @@ few millimetres, along the line of sight too) before anything is trained on it f
    convolutions as detection logits that place a window on each map's peak, and a per-pixel
    network of the pixel's colour (`colour_channels`; ``centroid-rgb``: its RGB alone) whose
    non-negative weights' centroid in that window is the keypoint; ``marker``, train.py's
-   reader of the markers (`capture_bench.agents.marker_reader.MarkerReader`); ``oracle``, no
+   reader of the markers (`capture_bench.agents.marker_reader.MarkerReader`); ``hand``, the
+   markers' colours read by hand (`HandReader`, no parameters); ``oracle``, no
    image: the privileged points themselves plus Gaussian noise (what a head does with keypoints
    that precise). The features: the keypoints, how much each map found, and the log distances
    between keypoints (the markers' spacing, which is what tells depth); with ``--features
@@ -74,6 +75,7 @@ from capture_bench.agents.marker_reader import (
 from capture_bench.engine.engine import FrameStack
 from capture_bench.engine.task import CaptureTask, resolve_scenario
 from capture_bench.envs.vector_env import CaptureVectorEnv
+from capture_bench.sim.markers import MARKER_COLOURS
 from capture_bench.task.episode import describe_task
 from capture_bench.task.observation import RELATIVE_SCALE, SLICES
 from capture_bench.task.scenarios import ConfigError, load_scenario
@@ -85,7 +87,8 @@ NEAR = 0.05  # m: rows this close to the target are reported apart
 NUM_ENVS = 16
 DART_NOISE = 0.3  # std of the action noise on every second sub-env (actions in [-1, 1])
 BATCH = 128
-CENTROIDS = ("centroid", "centroid-rgb", "marker")  # readers whose keypoints are centroids
+CENTROIDS = ("centroid", "centroid-rgb", "marker", "hand")  # readers whose keypoints are centroids
+HAND_GATE = 0.9  # the hand reader's least cosine between a pixel's chromatic drop and a marker's
 
 
 @dataclass
@@ -263,6 +266,33 @@ def local_soft_argmax(maps: torch.Tensor, temperature: torch.Tensor, half: int) 
     return torch.stack((x, y), dim=-1).float()
 
 
+class HandReader(nn.Module):
+    """The markers read by hand, no parameters: one frame (B, 3, H, W) in [0, 1] -> keypoints
+    (B, `MARKERS`, 2), weights (B, `MARKERS`) and no logits, as `MarkerReader` gives them. Each
+    pixel's weight for marker k is one less its darkest channel (on the scene's white
+    background, the share of the pixel a marker covers, however lit, for colours with a channel
+    near 0) where the chromatic part of its drop from white points within `HAND_GATE` (cosine)
+    of marker k's, else 0; the window is the 5 x 5 pixels around the largest 3 x 3 sum of those
+    weights, and the keypoint their centroid there (`local_centroid`). What a reader of the
+    frame's colours alone reaches, hidden markers and all."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        drop = 1.0 - torch.tensor([c[:3] for c in MARKER_COLOURS])
+        chroma = drop - drop.mean(1, keepdim=True)
+        self.register_buffer("chroma", chroma / torch.linalg.vector_norm(chroma, dim=1)[:, None])
+
+    def forward(self, x: torch.Tensor):
+        drop = 1.0 - x
+        chroma = drop - drop.mean(1, keepdim=True)
+        norm = torch.linalg.vector_norm(chroma, dim=1)[:, None] + 1e-6
+        cosine = torch.einsum("bchw,kc->bkhw", chroma, self.chroma) / norm
+        weights = drop.max(1, keepdim=True).values * (cosine > HAND_GATE)
+        peak = nn.functional.avg_pool2d(weights, 3, 1, 1).flatten(2).argmax(-1)
+        pixels, mass = local_centroid(weights, 2, peak)
+        return pixels, mass, None
+
+
 class ViewKeypoints(nn.Module):
     """One view (B, 3, H, W) uint8 -> its keypoints in pixels, a list of (B, K, 2), features
     (B, D) and, for the ``centroid`` reader, its detection logits (B, K, H, W), by ``reader``:
@@ -276,7 +306,8 @@ class ViewKeypoints(nn.Module):
       whose `local_centroid` in that window is the keypoint;
     * ``marker``: `capture_bench.agents.marker_reader.MarkerReader`, the reader of train.py's
       ``marker_keypoints`` (as ``centroid`` with one map per marker and the weights' last
-      activation a sharp softplus); its keypoints are the markers' alone.
+      activation a sharp softplus); its keypoints are the markers' alone;
+    * ``hand``: `HandReader`, no parameters (the MLP alone is fitted).
     """
 
     def __init__(
@@ -285,8 +316,9 @@ class ViewKeypoints(nn.Module):
         super().__init__()
         self.reader = reader
         self.size = size
-        if reader == "marker":
-            self.marker = MarkerReader(window or WINDOW)  # train.py's window where none given
+        if reader in ("marker", "hand"):
+            # train.py's window where none given
+            self.marker = MarkerReader(window or WINDOW) if reader == "marker" else HandReader()
             self.read = min(read, MARKERS)
             self.dim = feature_width(self.read)
             return
@@ -314,7 +346,7 @@ class ViewKeypoints(nn.Module):
 
     def forward(self, image: torch.Tensor):
         x = image.float() / 255.0
-        if self.reader == "marker":
+        if self.reader in ("marker", "hand"):
             pixels, mass, logits = self.marker(x)
             unit = to_unit(pixels[:, : self.read], self.size)
             return [pixels], keypoint_features(unit, torch.log(mass[:, : self.read] + 1e-3)), logits
@@ -694,11 +726,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="w > 0: the features read each map's soft-argmax over the (2w+1)^2 "
                         "pixels around its peak (both keypoints supervised)")  # fmt: skip
     parser.add_argument("--reader",
-                        choices=("softmax", "centroid", "centroid-rgb", "marker", "oracle"),
+                        choices=("softmax", "centroid", "centroid-rgb", "marker", "hand",
+                                 "oracle"),
                         default="softmax",
                         help="how each view's keypoints are read: a spatial softmax, local "
                         "centroids of non-negative maps of each pixel's colour (centroid-rgb: of "
-                        "its RGB alone; marker: train.py's marker_keypoints reader), or the true "
+                        "its RGB alone; marker: train.py's marker_keypoints reader; hand: the "
+                        "markers' colours read by hand, no parameters), or the true "
                         "points plus "
                         "--oracle-noise (what a head does with such keypoints)")  # fmt: skip
     parser.add_argument("--head-stack", type=int, default=1,
