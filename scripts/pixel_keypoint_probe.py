@@ -372,20 +372,25 @@ class OracleKeypoints(nn.Module):
     """One view's privileged points (B, F + 1, 2), view pixels, given in place of its image (or
     with ``stack`` > 1 those of the last S steps, (B, S, F + 1, 2)) -> the newest as the
     keypoints and `ViewKeypoints`'s features of each step (no mass): what the head does with
-    keypoints as precise as the points given."""
+    keypoints as precise as the points given; ``leave_out`` k: the features read every point
+    but point k (0: marker 1, the capture point)."""
 
     reader = "oracle"
 
-    def __init__(self, size: int, points: int, stack: int = 1, read: int | None = None) -> None:
+    def __init__(
+        self, size: int, points: int, stack: int = 1, read: int | None = None,
+        leave_out: int | None = None,
+    ) -> None:  # fmt: skip
         super().__init__()
         self.size = size
         self.stack = stack
-        self.read = points if read is None else read
-        self.dim = stack * feature_width(self.read)
+        first = points if read is None else read
+        self.read = [i for i in range(first) if i != leave_out]  # the points the features read
+        self.dim = stack * feature_width(len(self.read))
 
     def forward(self, points: torch.Tensor):
         steps = points if self.stack > 1 else points[:, None]
-        read = steps[:, :, : self.read]
+        read = steps[:, :, self.read]
         zero = torch.zeros(read.shape[:1] + read.shape[2:3])
         found = [keypoint_features(to_unit(read[:, i], self.size), zero) for i in range(self.stack)]
         return [steps[:, -1]], torch.cat(found, dim=1), None
@@ -397,18 +402,18 @@ class ProbeNet(nn.Module):
     pixels. ``reader``: `ViewKeypoints`'s, or ``oracle`` (`OracleKeypoints` of ``points`` points,
     fed the privileged points, of the last ``stack`` steps). ``read``: the features read the
     first ``read`` keypoints alone (the feature points, not X_E, whose place the state gives);
-    None: all of them."""
+    None: all of them; ``leave_out`` (an oracle's): one point the features do not read."""
 
     def __init__(
         self, sizes: dict[str, int], window: int | dict[str, int] = 0, reader: str = "softmax",
         points: int = 5, hidden: int = 256, depth: int = 2, stack: int = 1,
-        read: int | None = None,
+        read: int | None = None, leave_out: int | None = None,
     ) -> None:  # fmt: skip
         super().__init__()
         self.oracle = reader == "oracle"
         windows = window if isinstance(window, dict) else dict.fromkeys(sizes, window)
         self.views = nn.ModuleDict({
-            k: OracleKeypoints(s, points, stack, read) if self.oracle
+            k: OracleKeypoints(s, points, stack, read, leave_out) if self.oracle
             else ViewKeypoints(s, windows[k], reader, KEYPOINTS if read is None else read)
             for k, s in sizes.items()
         })  # fmt: skip
@@ -672,7 +677,10 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
         windows["ee_image"] = -(-args.window * imager.scale // args.ee_crop_scale)
         imager.close()
     read = points - 1 if args.features == "markers" else None  # the last point is X_E
-    net = ProbeNet(sizes, windows, args.reader, points, args.hidden, args.layers, stack, read)
+    leave_out = None if args.leave_out is None else args.leave_out - 1
+    net = ProbeNet(
+        sizes, windows, args.reader, points, args.hidden, args.layers, stack, read, leave_out
+    )
     noise = args.oracle_noise if args.reader == "oracle" else None
     fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed, noise)
     if args.head_epochs:
@@ -690,6 +698,7 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
         else:
             fit(net, train, args.epochs, args.lr, not args.no_supervision, args.seed, noise)
     report = {"options": options, "supervised": not args.no_supervision, "window": windows,
+              **({"leave_out": args.leave_out} if args.leave_out is not None else {}),
               "reader": args.reader, "features": args.features, "mlp": [args.hidden] * args.layers,
               "train_rows": len(train.state), "epochs": args.epochs,
               "head_epochs": args.head_epochs, "head_stack": net.head_stack, "stack": stack,
@@ -752,12 +761,19 @@ def main(argv: list[str] | None = None) -> int:
                         "network without --head-epochs) is fitted again on all rows")  # fmt: skip
     parser.add_argument("--dagger-steps", type=int, default=16000,
                         help="rows each DAgger round adds")  # fmt: skip
+    parser.add_argument("--leave-out", type=int,
+                        help="marker k (1-4) whose point the oracle's features do not read "
+                        "(1: the capture point, which the gripper hides)")  # fmt: skip
     parser.add_argument("--hidden", type=int, default=256, help="units of each layer of the MLP")
     parser.add_argument("--layers", type=int, default=2, help="layers of the MLP")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="write the report here as JSON")
     args = parser.parse_args(argv)
+    if args.leave_out is not None and (args.reader != "oracle" or not 1 <= args.leave_out <= 4):
+        print("pixel_keypoint_probe: --leave-out takes a marker 1-4 with --reader oracle; got "
+              f"{args.leave_out} with --reader {args.reader}", file=sys.stderr)  # fmt: skip
+        return 2
     words = sys.argv[1:] if argv is None else argv
     try:
         report = {"command": shlex.join(["python", "scripts/pixel_keypoint_probe.py", *words]),

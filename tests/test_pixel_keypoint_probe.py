@@ -75,21 +75,22 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
     np.testing.assert_allclose(rows.relative[0], start, atol=1e-6)
 
     out = tmp_path / "probe.json"
-    for reader in ("softmax", "centroid", "marker", "oracle"):
+    for reader in ("softmax", "centroid", "marker", "hand", "oracle"):
         args = ["--train-steps", "48", "--validation-steps", "32", "--epochs", "1",
                 "--episodes", "2", "--window", "2", "--reader", reader, "--oracle-noise", "0.1",
                 "--out", str(out)]  # fmt: skip
         if reader == "centroid":  # then the head alone, reading the last two steps' features
             args += ["--head-epochs", "1", "--head-stack", "2"]
-        if reader == "oracle":  # the markers' features, and a DAgger round
-            args += ["--features", "markers", "--dagger", "1", "--dagger-steps", "32"]
+        if reader == "oracle":  # markers 2-4's features, and a DAgger round
+            args += ["--features", "markers", "--leave-out", "1", "--dagger", "1",
+                     "--dagger-steps", "32"]  # fmt: skip
         assert probe.main(args) == 0
         report = __import__("json").loads(out.read_text())
         assert report["rows"] == 32 and report["episodes"] == 2
         assert report["command"].startswith("python scripts/pixel_keypoint_probe.py --train-steps")
         assert report["window"] == {"image": 2} and report["reader"] == reader
         assert 0 <= report["captured"] <= 2
-        read = 4 if reader == "marker" else 5  # the marker reader reads no X_E
+        read = 4 if reader in ("marker", "hand") else 5  # the markers' readers read no X_E
         assert len(report["image_keypoint_median_px"]) == read
         assert all(np.isfinite(report["relative_median_mm"]))
         assert report["head_stack"] == (2 if reader == "centroid" else 1)
@@ -99,7 +100,7 @@ def test_the_probe_collects_fits_measures_and_plays(tmp_path, load_script):
         if rounds:  # played before the round, on the first collection's rows
             assert rounds[0]["rows"] == 48 and 0 <= rounds[0]["captured"] <= 2
         if reader == "oracle":  # fed the true points plus the noise asked for
-            assert report["oracle_noise_px"] == 0.1
+            assert report["oracle_noise_px"] == 0.1 and report["leave_out"] == 1
             assert all(0.05 < e < 0.2 for e in report["image_keypoint_median_px"])
 
 
@@ -312,3 +313,24 @@ def test_the_hand_reader_finds_rendered_markers_to_a_tenth_of_a_pixel(load_scrip
     shows = mass.numpy() >= 0.5 * np.median(mass.numpy(), axis=0)
     assert shows.mean() > 0.8
     assert np.all(error[shows] < 1.0), error[shows].max()
+
+
+def test_the_oracle_left_without_a_marker_reads_the_others_alone(load_script, capsys):
+    """``--leave-out 1``: the oracle's features read markers 2-4; moving marker 1's point (or
+    X_E's) changes none of them, moving marker 2's does; with another reader it is refused in
+    one line."""
+    import torch
+
+    probe = load_script("pixel_keypoint_probe")
+    net = probe.ProbeNet({"image": 84}, 0, "oracle", points=5, read=4, leave_out=0)
+    assert net.views["image"].dim == probe.feature_width(3)
+    points = torch.rand((2, 5, 2)) * 83
+    x, _, _ = net.features({"image": points}, torch.zeros((2, 7)))
+    for moved_point, changes in ((0, False), (4, False), (1, True)):
+        moved = points.clone()
+        moved[:, moved_point] += 7.0
+        moved_x, _, _ = net.features({"image": moved}, torch.zeros((2, 7)))
+        assert (not torch.allclose(moved_x, x)) == changes, moved_point
+    assert probe.main(["--reader", "hand", "--leave-out", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pixel_keypoint_probe: --leave-out") and "\n" not in err
