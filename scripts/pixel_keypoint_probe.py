@@ -36,8 +36,10 @@ few millimetres, along the line of sight too) before anything is trained on it f
    E more epochs on them (`fit_head`): the head's precision for the cost of an MLP's fit.
 4. **Report.** On the validation rows: each supervised keypoint's median pixel error, the relative
    vector's median and 90th-percentile error per axis (all rows, and the rows within 50 mm of
-   the target), the action's error; then the network plays the first validation seeds of the
-   scenario closed-loop and the captures are counted under the scenario's envelope.
+   the target), the action's error, with the ``hand`` reader the share of the rows within 50 mm
+   in which each marker shows (`shown_share`); then the network plays the first validation
+   seeds of the scenario closed-loop and the captures are counted under the scenario's
+   envelope.
 
 ``python scripts/pixel_keypoint_probe.py --ee-crop 75 --ee-crop-scale 3`` (docs/pixels.md,
 "What a keypoint network reads").
@@ -89,6 +91,7 @@ DART_NOISE = 0.3  # std of the action noise on every second sub-env (actions in 
 BATCH = 128
 CENTROIDS = ("centroid", "centroid-rgb", "marker", "hand")  # readers whose keypoints are centroids
 HAND_GATE = 0.9  # the hand reader's least cosine between a pixel's chromatic drop and a marker's
+SHOWN = 0.5  # a marker shows where its hand-read weight is at least this share of the largest
 
 
 @dataclass
@@ -579,6 +582,19 @@ def fit_head(
             schedule.step()
 
 
+def shown_share(views: np.ndarray) -> np.ndarray:
+    """The share of frames (N, 3, H, W) uint8 in which each marker shows, (`MARKERS`,): its
+    `HandReader` weight at least `SHOWN` of the frame's largest marker's (the markers are the
+    same size and about as far from the lens, so a marker the gripper or the block hides in
+    part weighs less)."""
+    reader, masses = HandReader(), []
+    with torch.no_grad():
+        for lo in range(0, len(views), 512):
+            masses.append(reader(torch.as_tensor(views[lo : lo + 512]) / 255.0)[1])
+    mass = torch.cat(masses).numpy()
+    return np.mean(mass >= SHOWN * mass.max(axis=1, keepdims=True), axis=0)
+
+
 def measure(net: ProbeNet, rows: Rows, noise: float | None = None) -> dict[str, object]:
     """Module docstring, 4 (the offline part)."""
     actions, relatives = [], []
@@ -604,6 +620,9 @@ def measure(net: ProbeNet, rows: Rows, noise: float | None = None) -> dict[str, 
     if near.any():
         report["near_median_mm"] = np.median(error[near], 0).round(1).tolist()
         report["near_p90_mm"] = np.percentile(error[near], 90, 0).round(1).tolist()
+    for k, view in net.views.items():
+        if getattr(view, "reader", None) == "hand" and near.any():
+            report[f"{k}_near_shown_share"] = shown_share(rows.views[k][near]).round(3).tolist()
     for k, p in found.items():
         found_k = np.concatenate(p)
         f = min(rows.points[k].shape[1], found_k.shape[1])

@@ -334,3 +334,17 @@ def test_the_oracle_left_without_a_marker_reads_the_others_alone(load_script, ca
     assert probe.main(["--reader", "hand", "--leave-out", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("pixel_keypoint_probe: --leave-out") and "\n" not in err
+
+
+def test_a_marker_shows_where_its_hand_weight_is_near_the_frames_largest(load_script):
+    """`shown_share`: on most first frames every marker shows (the block hides some); a grey
+    square over a marker of a frame where all four show hides that marker alone."""
+    probe = load_script("pixel_keypoint_probe")
+    rows = probe.collect("paper", {"image_supersample": 3}, 16, list(range(16 * 64)))
+    views = rows.views["image"]
+    assert np.all(probe.shown_share(views) > 0.75)
+    whole = next(i for i in range(len(views)) if np.all(probe.shown_share(views[i : i + 1]) == 1))
+    frame = views[whole : whole + 1].copy()
+    x, y = np.round(rows.points["image"][whole, 2]).astype(int)
+    frame[:, :, y - 3 : y + 4, x - 3 : x + 4] = 128  # marker 3 behind something grey
+    np.testing.assert_array_equal(probe.shown_share(frame), [1, 1, 0, 1])
