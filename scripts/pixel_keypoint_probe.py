@@ -173,6 +173,7 @@ class Student:
 
     def __init__(self, net: ProbeNet, noise: float | None, rng: np.random.Generator) -> None:
         self.net, self.noise, self.rng = net, noise, rng
+        self.points = list(net.views) if net.oracle else []  # the privileged points it reads
         points_stack = max(v.stack for v in net.views.values()) if net.oracle else 1
         self.history = FrameStack(NUM_ENVS, points_stack)
         self.recent = FrameStack(NUM_ENVS, net.head_stack)
@@ -637,15 +638,18 @@ def measure(net: ProbeNet, rows: Rows, noise: float | None = None) -> dict[str, 
 
 
 def play(
-    net: ProbeNet, scenario: str, options: dict[str, int], episodes: int,
-    noise: float | None = None,
+    net: ProbeNet | None, scenario: str, options: dict[str, int], episodes: int,
+    noise: float | None = None, student: Student | None = None,
 ) -> int:  # fmt: skip
     """The captures of the network on the scenario's first ``episodes`` validation seeds (an
-    oracle's fed the privileged points plus Gaussian noise of std ``noise``, pixels)."""
+    oracle's fed the privileged points plus Gaussian noise of std ``noise``, pixels), or of
+    another ``student`` (its ``restart`` and call as `Student`'s; ``points``: the views whose
+    privileged points it reads)."""
     seeds = list(load_scenario(scenario).validation_seeds[:episodes])
     venv = make_env(scenario, options, autoreset_mode="Disabled")
     imager = CaptureTask(load_scenario(scenario), observation_source="pixels", **options).imager()
-    student = Student(net, noise, np.random.default_rng(2))
+    if student is None:
+        student = Student(net, noise, np.random.default_rng(2))
     captured = 0
     try:
         for lo in range(0, episodes, NUM_ENVS):
@@ -658,8 +662,8 @@ def play(
             counted = ended.copy()
             while not ended.all():
                 found = (
-                    privileged_points(imager, venv, obs["state"], list(net.views))
-                    if net.oracle else None
+                    privileged_points(imager, venv, obs["state"], student.points)
+                    if student.points else None
                 )  # fmt: skip
                 obs, _, terminated, truncated, info = venv.step(student(obs, found, t))
                 now = (terminated | truncated) & ~counted

@@ -1,0 +1,292 @@
+"""What a clone of `dls` does when the markers it reads in the wide image go through the
+estimator's photogrammetry before its MLP: the target's geometry given, not learned.
+
+A probe beside `scripts/pixel_keypoint_probe.py` (docs/pixels.md, "The target's geometry"), whose
+rows, readers and closed-loop play it shares:
+
+1. **Data.** The keypoint probe's rows (`collect`: `dls` with DART noise on `paper`'s training
+   seeds; validation rows from the validation seeds after the first ``--episodes``).
+2. **Markers.** Each frame's four markers by ``--reader``: ``hand`` (`HandReader`, the markers'
+   colours read by hand, no parameters) or ``oracle`` (the privileged points, exact, of the
+   markers that show). A marker shows where its hand-read weight is at least `SHOWN` of the
+   frame's largest (`shown_share`'s rule): partly hidden, its centroid is pulled off.
+3. **Pose** (`PoseReading`). Where three or four markers show, eqs. 1-2 are solved for the
+   target's pose from those markers alone (`capture_bench.sensing.photogrammetry.solve_poses`,
+   the estimator's own solve), warm-started from the sub-env's last pose, as the estimator's
+   photogrammetry is (three points have up to four poses; the last one picks the branch). The
+   features of a step: the capture point (the target frame's origin) less X_E, in decimetres,
+   from the last pose solved (0 before any), whether this step's was solved, and the share of
+   markers that show. Fewer than three: the last pose stands.
+4. **Head.** An MLP (256 x 2) on the features of the last ``--stack`` steps and the arm's state,
+   standardised, fitted ``--epochs`` epochs (Adam, one-cycle, minibatches of 128) to the
+   teacher's action and the relative vector.
+5. **Report.** The relative vector's error (all validation rows and those within 50 mm of the
+   target), the pose alone's error there, the share of steps solved, and the captures of the
+   first ``--episodes`` validation seeds played closed-loop.
+
+    python scripts/pixel_pose_probe.py --train-steps 64000 --stack 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import pixel_keypoint_probe as keypoint_probe  # noqa: E402 (beside this script)
+
+from capture_bench.engine.engine import FrameStack  # noqa: E402
+from capture_bench.engine.task import CaptureTask  # noqa: E402
+from capture_bench.sensing.photogrammetry import solve_poses  # noqa: E402
+from capture_bench.sensing.pixels import pixel_to_image_plane  # noqa: E402
+from capture_bench.task.scenarios import ConfigError, load_scenario  # noqa: E402
+
+NUM_ENVS = keypoint_probe.NUM_ENVS
+SHOWN = keypoint_probe.SHOWN
+MARKERS = keypoint_probe.MARKERS
+WIDTH = 5  # features a step: the capture point less X_E (3), solved, the share that shows
+DECIMETRES = 10.0  # the capture point's offset from X_E, metres -> the features' units
+BATCH = 128
+
+
+class PoseReading:
+    """`NUM_ENVS` sub-envs' markers, step after step -> their features (module docstring, 3)."""
+
+    def __init__(self, scenario: str, options: dict[str, int]) -> None:
+        task = CaptureTask(load_scenario(scenario), observation_source="pixels", **options)
+        imager = task.imager()
+        self.model, self.features = task.camera.model, np.asarray(task.features, dtype=float)
+        self.scale = imager.scale
+        self.u0, _, self.v0, _ = imager.window
+        imager.close()
+        self.last = np.full((NUM_ENVS, 6), np.nan)  # each sub-env's last pose solved
+
+    def restart(self, rows: np.ndarray) -> None:
+        self.last[rows] = np.nan
+
+    def image_plane(self, pixels: np.ndarray) -> np.ndarray:
+        """Wide-image pixels (..., 2) -> the image plane, metres (image pixel j shows the sensor
+        pixels around u0 + s j + s // 2)."""
+        s = self.scale
+        sensor = np.stack(
+            (self.u0 + s * pixels[..., 0] + s // 2, self.v0 + s * pixels[..., 1] + s // 2), -1
+        )
+        return pixel_to_image_plane(sensor.reshape(-1, 2), self.model).reshape(pixels.shape)
+
+    def __call__(self, pixels: np.ndarray, shown: np.ndarray, x_e: np.ndarray) -> np.ndarray:
+        """Markers (NUM_ENVS, 4, 2), wide-image pixels, which show (NUM_ENVS, 4) and X_E
+        (NUM_ENVS, 3), m -> features (NUM_ENVS, `WIDTH`), float32."""
+        plane = self.image_plane(np.asarray(pixels, dtype=float))
+        solved = np.zeros(len(plane), dtype=bool)
+        for pattern in {tuple(row) for row in shown if row.sum() >= 3}:
+            rows = np.flatnonzero(np.all(shown == pattern, axis=1))
+            used = np.flatnonzero(pattern)
+            found = solve_poses(plane[rows][:, used], self.features[used],
+                                self.model.focal_length, self.last[rows])  # fmt: skip
+            for row, solution in zip(rows, found, strict=True):
+                if solution.converged:
+                    self.last[row], solved[row] = solution.pose, True
+        out = np.zeros((len(plane), WIDTH), dtype=np.float32)
+        have = ~np.isnan(self.last[:, 0])
+        if have.any():
+            capture_point = self.model.to_global(self.last[have, :3])
+            out[have, :3] = (capture_point - x_e[have]) * DECIMETRES
+        out[:, 3] = solved
+        out[:, 4] = shown.mean(axis=1)
+        return out
+
+
+def markers(views: np.ndarray, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Frames (N, 3, H, W) uint8 -> the markers (N, 4, 2), wide-image pixels, hand-read or, given
+    the privileged ``points`` (N, >= 4, 2), those; and which show (N, 4) (module docstring, 2)."""
+    with torch.no_grad():
+        pixels, mass, _ = keypoint_probe.HandReader()(torch.as_tensor(views) / 255.0)
+    mass = mass.numpy()
+    shown = mass >= SHOWN * mass.max(axis=1, keepdims=True)
+    found = pixels.numpy() if points is None else np.asarray(points)[:, :MARKERS]
+    return found.astype(float), shown
+
+
+def pose_rows(rows: keypoint_probe.Rows, reading: PoseReading, oracle: bool) -> np.ndarray:
+    """Every row's features (N, `WIDTH`), the rows in `collect`'s order (step after step,
+    `NUM_ENVS` rows a step), each sub-env's poses warm-started from its last."""
+    n = len(rows.state)
+    out = np.zeros((n, WIDTH), dtype=np.float32)
+    reading.restart(np.arange(NUM_ENVS))
+    for lo in range(0, n, NUM_ENVS):
+        index = np.arange(lo, min(lo + NUM_ENVS, n))
+        reading.restart(np.flatnonzero(rows.first[index]))
+        found, shown = markers(rows.views["image"][index],
+                               rows.points["image"][index] if oracle else None)  # fmt: skip
+        pad = NUM_ENVS - len(index)  # a last, partial step
+        if pad:
+            found, shown = (
+                np.pad(found, ((0, pad), (0, 0), (0, 0))),
+                np.pad(shown, ((0, pad), (0, 0))),
+            )
+        x_e = np.pad(rows.state[index, 3:6].astype(float), ((0, pad), (0, 0)))
+        out[index] = reading(found, shown, x_e)[: len(index)]
+    return out
+
+
+class PoseHead(nn.Module):
+    """The features of the last ``stack`` steps and the arm's state, standardised -> the action
+    (3) and the relative vector (3, standardised)."""
+
+    def __init__(self, stack: int, state: int = 7, hidden: int = 256) -> None:
+        super().__init__()
+        width = stack * (WIDTH + state)
+        self.stack = stack
+        self.net = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(), nn.Linear(hidden, hidden),
+                                 nn.ReLU(), nn.Linear(hidden, 6))  # fmt: skip
+        for name in ("mean", "std"):
+            self.register_buffer(name, torch.zeros(width) if name == "mean" else torch.ones(width))
+        self.register_buffer("relative_mean", torch.zeros(3))
+        self.register_buffer("relative_std", torch.ones(3))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        out = self.net((x - self.mean) / self.std)
+        return out[:, :3], out[:, 3:]
+
+
+def inputs(features: np.ndarray, rows: keypoint_probe.Rows, stack: int) -> torch.Tensor:
+    """Each row's features and state, with those of its last ``stack`` steps, (N, S D)."""
+    x = torch.as_tensor(np.concatenate((features, rows.state), axis=1))
+    return keypoint_probe.stacked(x, rows.first, stack).flatten(1)
+
+
+def fit(head: PoseHead, x: torch.Tensor, rows: keypoint_probe.Rows, epochs: int, lr: float,
+        seed: int) -> None:  # fmt: skip
+    """Module docstring, 4."""
+    rng = np.random.default_rng(seed)
+    head.mean.copy_(x.mean(0))
+    head.std.copy_(x.std(0) + 1e-3)
+    head.relative_mean.copy_(torch.as_tensor(rows.relative.mean(0)))
+    head.relative_std.copy_(torch.as_tensor(rows.relative.std(0) + 1e-6))
+    action = torch.as_tensor(rows.action)
+    relative = (torch.as_tensor(rows.relative) - head.relative_mean) / head.relative_std
+    optimizer = torch.optim.Adam(head.parameters(), lr=lr)
+    per_epoch = max(1, len(x) // BATCH)
+    schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, lr, total_steps=epochs * per_epoch)
+    for _ in range(epochs):
+        order = torch.as_tensor(rng.permutation(len(x)))
+        for b in range(per_epoch):
+            index = order[b * BATCH : (b + 1) * BATCH]
+            a, r = head(x[index])
+            loss = ((a - action[index]) ** 2).mean() + ((r - relative[index]) ** 2).mean()
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            schedule.step()
+
+
+class PoseStudent:
+    """The head acting on `NUM_ENVS` sub-envs (`keypoint_probe.play`'s student): each step's
+    newest frame (and, an oracle's, the privileged points) -> its markers -> `PoseReading` ->
+    the last steps' features -> actions in [-1, 1]."""
+
+    def __init__(self, head: PoseHead, reading: PoseReading, oracle: bool) -> None:
+        self.head, self.reading, self.oracle = head, reading, oracle
+        self.points = ["image"] if oracle else []
+        self.recent = FrameStack(NUM_ENVS, head.stack)
+
+    def restart(self, rows: np.ndarray) -> None:
+        self.reading.restart(rows)
+        self.recent.restart(rows)
+
+    def __call__(self, obs: dict, found: dict | None, t: int) -> np.ndarray:
+        pixels, shown = markers(obs["image"][:, -3:], found["image"] if self.oracle else None)
+        f = self.reading(pixels, shown, obs["state"][:, 3:6].astype(float))
+        x = np.concatenate((f, obs["state"]), axis=1).astype(np.float32)
+        x = self.recent.push({"x": x}, np.full(NUM_ENVS, t))["x"].reshape(NUM_ENVS, -1)
+        with torch.no_grad():
+            a, _ = self.head(torch.as_tensor(x))
+        return np.clip(a.numpy(), -1, 1)
+
+
+def probe(args: argparse.Namespace) -> dict[str, object]:
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(1)
+    scenario = load_scenario(args.scenario)
+    options = {"image_supersample": args.image_supersample}
+    oracle = args.reader == "oracle"
+    start = time.perf_counter()
+    train = keypoint_probe.collect(args.scenario, options, args.train_steps,
+                                   scenario.training_seeds)  # fmt: skip
+    validation = keypoint_probe.collect(args.scenario, options, args.validation_steps,
+                                        scenario.validation_seeds[args.episodes :])  # fmt: skip
+    collected = time.perf_counter() - start
+    reading = PoseReading(args.scenario, options)
+    f_train, f_val = pose_rows(train, reading, oracle), pose_rows(validation, reading, oracle)
+    head = PoseHead(args.stack)
+    fit(head, inputs(f_train, train, args.stack), train, args.epochs, args.lr, args.seed)
+    with torch.no_grad():
+        _, r = head(inputs(f_val, validation, args.stack))
+    predicted = (r * head.relative_std + head.relative_mean).numpy()
+    error = np.abs(predicted - validation.relative) * 1e3
+    alone = np.abs(f_val[:, :3] / DECIMETRES - validation.relative) * 1e3
+    near = np.linalg.norm(validation.relative, axis=1) < keypoint_probe.NEAR
+    student = PoseStudent(head, reading, oracle)
+    captured = keypoint_probe.play(None, args.scenario, options, args.episodes, student=student)
+    near_report = {
+        "near_median_mm": np.median(error[near], 0).round(1).tolist(),
+        "near_p90_mm": np.percentile(error[near], 90, 0).round(1).tolist(),
+        "near_pose_alone_median_mm": np.median(alone[near], 0).round(1).tolist(),
+        "near_solved_share": round(float(f_val[near, 3].mean()), 3),
+    } if near.any() else {}  # fmt: skip
+    return {
+        "options": options, "reader": args.reader, "stack": args.stack, "epochs": args.epochs,
+        "train_rows": len(train.state), "rows": len(validation.state),
+        "relative_median_mm": np.median(error, 0).round(1).tolist(),
+        "relative_p90_mm": np.percentile(error, 90, 0).round(1).tolist(),
+        "solved_share": round(float(f_val[:, 3].mean()), 3), "near_share": float(near.mean()),
+        **near_report, "captured": captured, "episodes": args.episodes,
+        "collect_s": round(collected, 1), "wall_clock_s": round(time.perf_counter() - start, 1),
+    }  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenario", default="paper")
+    parser.add_argument("--image-supersample", type=int, default=3)
+    parser.add_argument("--reader", choices=("hand", "oracle"), default="hand",
+                        help="the markers read by hand, or the privileged points of those that "
+                        "show")  # fmt: skip
+    parser.add_argument("--train-steps", type=int, default=64000)
+    parser.add_argument("--validation-steps", type=int, default=8000)
+    parser.add_argument("--stack", type=int, default=3, help="the head reads the last S steps")
+    parser.add_argument("--epochs", type=int, default=32)
+    parser.add_argument("--lr", type=float, default=2e-3)
+    parser.add_argument("--episodes", type=int, default=48, help="validation seeds played")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, help="write the report here as JSON")
+    args = parser.parse_args(argv)
+    if min(args.train_steps, args.validation_steps, args.stack, args.epochs) < 1:
+        print("pixel_pose_probe: --train-steps, --validation-steps, --stack and --epochs must "
+              "be at least 1", file=sys.stderr)  # fmt: skip
+        return 2
+    words = sys.argv[1:] if argv is None else argv
+    try:
+        report = {"command": shlex.join(["python", "scripts/pixel_pose_probe.py", *words]),
+                  **probe(args)}  # fmt: skip
+    except (ConfigError, ValueError) as error:
+        print(f"pixel_pose_probe: {error}", file=sys.stderr)
+        return 2
+    text = json.dumps(report, indent=1)
+    print(text)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
