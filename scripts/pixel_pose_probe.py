@@ -13,7 +13,8 @@ rows, readers and closed-loop play it shares:
 3. **Pose** (`PoseReading`). Where three or four markers show, eqs. 1-2 are solved for the
    target's pose from those markers alone (`capture_bench.sensing.photogrammetry.solve_poses`,
    the estimator's own solve), warm-started from the sub-env's last pose, as the estimator's
-   photogrammetry is (three points have up to four poses; the last one picks the branch). The
+   photogrammetry is (three points have up to four poses; the last one picks the branch;
+   ``--cold``: every step's solved by the multi-start alone, none carried). The
    features of a step: the capture point (the target frame's origin) less X_E, in decimetres,
    from the last pose solved (0 before any), whether this step's was solved, and the share of
    markers that show. Fewer than three: the last pose stands.
@@ -60,7 +61,8 @@ BATCH = 128
 class PoseReading:
     """`NUM_ENVS` sub-envs' markers, step after step -> their features (module docstring, 3)."""
 
-    def __init__(self, scenario: str, options: dict[str, int]) -> None:
+    def __init__(self, scenario: str, options: dict[str, int], warm: bool = True) -> None:
+        self.warm = warm  # False: every pose solved cold (the multi-start), none carried
         task = CaptureTask(load_scenario(scenario), observation_source="pixels", **options)
         imager = task.imager()
         self.model, self.features = task.camera.model, np.asarray(task.features, dtype=float)
@@ -89,11 +91,14 @@ class PoseReading:
         for pattern in {tuple(row) for row in shown if row.sum() >= 3}:
             rows = np.flatnonzero(np.all(shown == pattern, axis=1))
             used = np.flatnonzero(pattern)
+            guesses = self.last[rows] if self.warm else None
             found = solve_poses(plane[rows][:, used], self.features[used],
-                                self.model.focal_length, self.last[rows])  # fmt: skip
+                                self.model.focal_length, guesses)  # fmt: skip
             for row, solution in zip(rows, found, strict=True):
                 if solution.converged:
                     self.last[row], solved[row] = solution.pose, True
+        if not self.warm:
+            self.last[~solved] = np.nan
         out = np.zeros((len(plane), WIDTH), dtype=np.float32)
         have = ~np.isnan(self.last[:, 0])
         if have.any():
@@ -224,7 +229,7 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     validation = keypoint_probe.collect(args.scenario, options, args.validation_steps,
                                         scenario.validation_seeds[args.episodes :])  # fmt: skip
     collected = time.perf_counter() - start
-    reading = PoseReading(args.scenario, options)
+    reading = PoseReading(args.scenario, options, warm=not args.cold)
     f_train, f_val = pose_rows(train, reading, oracle), pose_rows(validation, reading, oracle)
     head = PoseHead(args.stack)
     fit(head, inputs(f_train, train, args.stack), train, args.epochs, args.lr, args.seed)
@@ -244,6 +249,7 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     } if near.any() else {}  # fmt: skip
     return {
         "options": options, "reader": args.reader, "stack": args.stack, "epochs": args.epochs,
+        "warm_start": not args.cold,
         "train_rows": len(train.state), "rows": len(validation.state),
         "relative_median_mm": np.median(error, 0).round(1).tolist(),
         "relative_p90_mm": np.percentile(error, 90, 0).round(1).tolist(),
@@ -260,6 +266,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--reader", choices=("hand", "oracle"), default="hand",
                         help="the markers read by hand, or the privileged points of those that "
                         "show")  # fmt: skip
+    parser.add_argument(
+        "--cold",
+        action="store_true",
+        help="solve every step's pose from scratch, none carried from the last",
+    )
     parser.add_argument("--train-steps", type=int, default=64000)
     parser.add_argument("--validation-steps", type=int, default=8000)
     parser.add_argument("--stack", type=int, default=3, help="the head reads the last S steps")

@@ -74,3 +74,17 @@ def test_the_pose_probe_runs_and_refuses_bad_input_in_one_line(tmp_path, capsys,
     assert probe.main(["--scenario", "nowhere", "--train-steps", "16"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("pixel_pose_probe:") and "\n" not in err
+
+
+def test_a_cold_reading_carries_no_pose(rows_and_probe):
+    """``--cold``: each step's pose from the multi-start alone; four exact markers still give
+    the relative vector, and a step it cannot solve has no pose (zeros), not the last one."""
+    probe, rows = rows_and_probe
+    reading = probe.PoseReading("paper", OPTIONS, warm=False)
+    step = np.arange(16)
+    points = rows.points["image"][step, :4].astype(float)
+    x_e = rows.state[step, 3:6].astype(float)
+    four = reading(points, np.ones((16, 4), dtype=bool), x_e)
+    np.testing.assert_allclose(four[:, :3] / probe.DECIMETRES, rows.relative[step], atol=1e-3)
+    two = reading(points, np.array([[False, False, True, True]] * 16), x_e)
+    assert np.all(two[:, :4] == 0)
