@@ -52,7 +52,7 @@ import json
 import shlex
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -797,12 +797,21 @@ def main(argv: list[str] | None = None) -> int:
         print("pixel_keypoint_probe: --leave-out takes a marker 1-4 with --reader oracle; got "
               f"{args.leave_out} with --reader {args.reader}", file=sys.stderr)  # fmt: skip
         return 2
+    return run_and_report("pixel_keypoint_probe", probe, args, argv)
+
+
+def run_and_report(
+    name: str, run: Callable[[argparse.Namespace], dict], args: argparse.Namespace,
+    argv: list[str] | None,
+) -> int:  # fmt: skip
+    """``run(args)``'s report, its command first (``scripts/<name>.py`` and ``argv``), printed
+    and written to ``args.out`` as JSON; a configuration error is one line on stderr and exit
+    code 2."""
     words = sys.argv[1:] if argv is None else argv
     try:
-        report = {"command": shlex.join(["python", "scripts/pixel_keypoint_probe.py", *words]),
-                  **probe(args)}  # fmt: skip
+        report = {"command": shlex.join(["python", f"scripts/{name}.py", *words]), **run(args)}
     except (ConfigError, ValueError) as error:
-        print(f"pixel_keypoint_probe: {error}", file=sys.stderr)
+        print(f"{name}: {error}", file=sys.stderr)
         return 2
     text = json.dumps(report, indent=1)
     print(text)

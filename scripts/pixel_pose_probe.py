@@ -31,8 +31,6 @@ rows, readers and closed-loop play it shares:
 from __future__ import annotations
 
 import argparse
-import json
-import shlex
 import sys
 import time
 from pathlib import Path
@@ -48,7 +46,7 @@ from capture_bench.engine.engine import FrameStack  # noqa: E402
 from capture_bench.engine.task import CaptureTask  # noqa: E402
 from capture_bench.sensing.photogrammetry import solve_poses  # noqa: E402
 from capture_bench.sensing.pixels import pixel_to_image_plane  # noqa: E402
-from capture_bench.task.scenarios import ConfigError, load_scenario  # noqa: E402
+from capture_bench.task.scenarios import load_scenario  # noqa: E402
 
 NUM_ENVS = keypoint_probe.NUM_ENVS
 SHOWN = keypoint_probe.SHOWN
@@ -284,19 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         print("pixel_pose_probe: --train-steps, --validation-steps, --stack and --epochs must "
               "be at least 1", file=sys.stderr)  # fmt: skip
         return 2
-    words = sys.argv[1:] if argv is None else argv
-    try:
-        report = {"command": shlex.join(["python", "scripts/pixel_pose_probe.py", *words]),
-                  **probe(args)}  # fmt: skip
-    except (ConfigError, ValueError) as error:
-        print(f"pixel_pose_probe: {error}", file=sys.stderr)
-        return 2
-    text = json.dumps(report, indent=1)
-    print(text)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
-    return 0
+    return keypoint_probe.run_and_report("pixel_pose_probe", probe, args, argv)
 
 
 if __name__ == "__main__":
