@@ -234,8 +234,8 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     with torch.no_grad():
         _, r = head(inputs(f_val, validation, args.stack))
     predicted = (r * head.relative_std + head.relative_mean).numpy()
-    error = np.abs(predicted - validation.relative) * 1e3
-    alone = np.abs(f_val[:, :3] / DECIMETRES - validation.relative) * 1e3
+    error = np.abs(predicted - validation.relative).astype(float) * 1e3  # mm
+    alone = np.abs(f_val[:, :3] / DECIMETRES - validation.relative).astype(float) * 1e3
     near = np.linalg.norm(validation.relative, axis=1) < keypoint_probe.NEAR
     student = PoseStudent(head, reading, oracle)
     captured = keypoint_probe.play(None, args.scenario, options, args.episodes, student=student)
