@@ -20,7 +20,7 @@ recedes (docs/pixels.md), so the reader has to be that precise. One frame is rea
 
 The reader is fitted by `heatmap_loss` and `keypoint_loss`, whose pixel error is robust: a marker
 the gripper or the block hides has no centroid to find, and its error, pixels off, would
-otherwise outweigh the visible markers' hundredths of a pixel.
+otherwise outweigh the visible markers' tenths of a pixel or less.
 
 The features of a frame (`keypoint_features`): the keypoints in [-1, 1] (`to_unit`), the log of
 each one's weight and the log distances between them. X_E is not read: its place is in the arm's
