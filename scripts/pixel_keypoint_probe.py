@@ -583,6 +583,12 @@ def fit_head(
             schedule.step()
 
 
+def shown_markers(mass: np.ndarray) -> np.ndarray:
+    """Which markers show, (N, `MARKERS`) bool, from their hand-read weights (N, `MARKERS`): at
+    least `SHOWN` of the frame's largest, and not none."""
+    return (mass >= SHOWN * mass.max(axis=1, keepdims=True)) & (mass > 0)
+
+
 def shown_share(views: np.ndarray) -> np.ndarray:
     """The share of frames (N, 3, H, W) uint8 in which each marker shows, (`MARKERS`,): its
     `HandReader` weight at least `SHOWN` of the frame's largest marker's (the markers are the
@@ -593,7 +599,7 @@ def shown_share(views: np.ndarray) -> np.ndarray:
         for lo in range(0, len(views), 512):
             masses.append(reader(torch.as_tensor(views[lo : lo + 512]) / 255.0)[1])
     mass = torch.cat(masses).numpy()
-    return np.mean(mass >= SHOWN * mass.max(axis=1, keepdims=True), axis=0)
+    return np.mean(shown_markers(mass), axis=0)
 
 
 def measure(net: ProbeNet, rows: Rows, noise: float | None = None) -> dict[str, object]:

@@ -8,7 +8,7 @@ rows, readers and closed-loop play it shares:
    seeds; validation rows from the validation seeds after the first ``--episodes``).
 2. **Markers.** Each frame's four markers by ``--reader``: ``hand`` (`HandReader`, the markers'
    colours read by hand, no parameters) or ``oracle`` (the privileged points, exact, of the
-   markers that show). A marker shows where its hand-read weight is at least `SHOWN` of the
+   markers that show). A marker shows where its hand-read weight is at least half of the
    frame's largest (`shown_share`'s rule): partly hidden, its centroid is pulled off.
 3. **Pose** (`PoseReading`). Where three or four markers show, eqs. 1-2 are solved for the
    target's pose from those markers alone (`capture_bench.sensing.photogrammetry.solve_poses`,
@@ -49,7 +49,6 @@ from capture_bench.sensing.pixels import pixel_to_image_plane  # noqa: E402
 from capture_bench.task.scenarios import load_scenario  # noqa: E402
 
 NUM_ENVS = keypoint_probe.NUM_ENVS
-SHOWN = keypoint_probe.SHOWN
 MARKERS = keypoint_probe.MARKERS
 WIDTH = 5  # features a step: the capture point less X_E (3), solved, the share that shows
 DECIMETRES = 10.0  # the capture point's offset from X_E, metres -> the features' units
@@ -113,7 +112,7 @@ def markers(views: np.ndarray, points: np.ndarray | None) -> tuple[np.ndarray, n
     with torch.no_grad():
         pixels, mass, _ = keypoint_probe.HandReader()(torch.as_tensor(views) / 255.0)
     mass = mass.numpy()
-    shown = mass >= SHOWN * mass.max(axis=1, keepdims=True)
+    shown = keypoint_probe.shown_markers(mass)
     found = pixels.numpy() if points is None else np.asarray(points)[:, :MARKERS]
     return found.astype(float), shown
 

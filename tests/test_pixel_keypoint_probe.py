@@ -348,3 +348,4 @@ def test_a_marker_shows_where_its_hand_weight_is_near_the_frames_largest(load_sc
     x, y = np.round(rows.points["image"][whole, 2]).astype(int)
     frame[:, :, y - 3 : y + 4, x - 3 : x + 4] = 128  # marker 3 behind something grey
     np.testing.assert_array_equal(probe.shown_share(frame), [1, 1, 0, 1])
+    np.testing.assert_array_equal(probe.shown_share(np.full_like(frame, 255)), [0, 0, 0, 0])
