@@ -9,7 +9,7 @@ rows, readers and closed-loop play it shares:
 2. **Markers.** Each frame's four markers by ``--reader``: ``hand`` (`HandReader`, the markers'
    colours read by hand, no parameters) or ``oracle`` (the privileged points, exact, of the
    markers that show). A marker shows where its hand-read weight is at least half of the
-   frame's largest (`shown_share`'s rule): partly hidden, its centroid is pulled off.
+   frame's largest (`shown_markers`): partly hidden, its centroid is pulled off.
 3. **Pose** (`PoseReading`). Where three or four markers show, eqs. 1-2 are solved for the
    target's pose from those markers alone (`capture_bench.sensing.photogrammetry.solve_poses`,
    the estimator's own solve), warm-started from the sub-env's last pose, as the estimator's
