@@ -560,14 +560,24 @@ def fit_head(
     (`stacked`; ``net.head_stack``), as a frame stack read by the same reader frame by frame
     would give them."""
     rng = np.random.default_rng(seed + 1)
-    n = len(rows.state)
     x, _ = all_features(net, rows, noise, rng)
     if stack > 1:
         x = stacked(x, rows.first, stack)
         net.stack_head(stack)
     relative = (torch.as_tensor(rows.relative) - net.relative_mean) / net.relative_std
-    action = torch.as_tensor(rows.action)
     params = [*net.trunk.parameters(), *net.head.parameters()]
+    fit_on_features(net.heads, params, x, torch.as_tensor(rows.action), relative, epochs, lr, rng)
+
+
+def fit_on_features(
+    heads: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]], params: list,
+    x: torch.Tensor, action: torch.Tensor, relative: torch.Tensor, epochs: int, lr: float,
+    rng: np.random.Generator,
+) -> None:  # fmt: skip
+    """``epochs`` epochs of Adam on ``params`` (one-cycle schedule, minibatches of `BATCH` in
+    ``rng``'s order): ``heads`` of the features ``x`` (N, ...) against the actions and the
+    standardised relative vectors, the sum of their mean squared errors."""
+    n = len(x)
     optimizer = torch.optim.Adam(params, lr=lr)
     per_epoch = max(1, n // BATCH)
     schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, lr, total_steps=epochs * per_epoch)
@@ -575,7 +585,7 @@ def fit_head(
         order = torch.as_tensor(rng.permutation(n))
         for b in range(per_epoch):
             index = order[b * BATCH : (b + 1) * BATCH]
-            a, r = net.heads(x[index])
+            a, r = heads(x[index])
             loss = ((a - action[index]) ** 2).mean() + ((r - relative[index]) ** 2).mean()
             optimizer.zero_grad()
             loss.backward()

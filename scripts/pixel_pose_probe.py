@@ -52,7 +52,6 @@ NUM_ENVS = keypoint_probe.NUM_ENVS
 MARKERS = keypoint_probe.MARKERS
 WIDTH = 5  # features a step: the capture point less X_E (3), solved, the share that shows
 DECIMETRES = 10.0  # the capture point's offset from X_E, metres -> the features' units
-BATCH = 128
 
 
 class PoseReading:
@@ -175,19 +174,8 @@ def fit(head: PoseHead, x: torch.Tensor, rows: keypoint_probe.Rows, epochs: int,
     head.relative_std.copy_(torch.as_tensor(rows.relative.std(0) + 1e-6))
     action = torch.as_tensor(rows.action)
     relative = (torch.as_tensor(rows.relative) - head.relative_mean) / head.relative_std
-    optimizer = torch.optim.Adam(head.parameters(), lr=lr)
-    per_epoch = max(1, len(x) // BATCH)
-    schedule = torch.optim.lr_scheduler.OneCycleLR(optimizer, lr, total_steps=epochs * per_epoch)
-    for _ in range(epochs):
-        order = torch.as_tensor(rng.permutation(len(x)))
-        for b in range(per_epoch):
-            index = order[b * BATCH : (b + 1) * BATCH]
-            a, r = head(x[index])
-            loss = ((a - action[index]) ** 2).mean() + ((r - relative[index]) ** 2).mean()
-            optimizer.zero_grad()
-            loss.backward()
-            optimizer.step()
-            schedule.step()
+    params = list(head.parameters())
+    keypoint_probe.fit_on_features(head, params, x, action, relative, epochs, lr, rng)
 
 
 class PoseStudent:
