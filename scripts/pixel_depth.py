@@ -34,7 +34,7 @@ from capture_bench.engine.task import CaptureTask
 from capture_bench.sensing.detector import MARKER_BANDS, detect_markers
 from capture_bench.sensing.photogrammetry import solve_poses
 from capture_bench.sensing.pixels import pixel_to_image_plane
-from capture_bench.sensing.workspace_image import PixelOptions
+from capture_bench.sensing.workspace_image import PixelOptions, sensor_pixels
 from capture_bench.sim.kinematics import HOME
 from capture_bench.task.episode import draw_plans
 from capture_bench.task.scenarios import ConfigError, load_scenario
@@ -88,8 +88,6 @@ def depth_reading(scenario_name: str, supersample: int, seeds: int) -> DepthRead
     task = CaptureTask(scenario, observation_source="pixels", image_supersample=supersample)
     imager = task.imager()
     model, features = task.camera.model, task.features
-    s = imager.scale
-    u0, _, v0, _ = imager.window
     rngs = [gym.utils.seeding.np_random(seed)[0] for seed in scenario.training_seeds[:seeds]]
     errors, frames = [], 0
     try:
@@ -101,10 +99,7 @@ def depth_reading(scenario_name: str, supersample: int, seeds: int) -> DepthRead
                 centroids = read_markers(image)
                 if centroids is None:
                     continue
-                # image pixel j shows (or averages around) sensor pixel u0 + s j + s // 2
-                sensor = np.column_stack(
-                    (u0 + s * centroids[:, 0] + s // 2, v0 + s * centroids[:, 1] + s // 2)
-                )
+                sensor = sensor_pixels(model, imager.size, centroids)
                 plane = pixel_to_image_plane(sensor, model)
                 (solution,) = solve_poses(plane[None], features, model.focal_length)
                 errors.append(solution.pose[:3] - model.to_camera(position[k][None])[0])

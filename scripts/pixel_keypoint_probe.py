@@ -64,6 +64,7 @@ from capture_bench.agents.features import SpatialSoftmax
 from capture_bench.agents.marker_reader import (
     MARKERS,
     WINDOW,
+    HandReader,
     MarkerReader,
     colour_channels,
     feature_width,
@@ -71,13 +72,13 @@ from capture_bench.agents.marker_reader import (
     keypoint_features,
     keypoint_loss,
     local_centroid,
+    shown_markers,
     to_unit,
     window_pixels,
 )
 from capture_bench.engine.engine import FrameStack
 from capture_bench.engine.task import CaptureTask, resolve_scenario
 from capture_bench.envs.vector_env import CaptureVectorEnv
-from capture_bench.sim.markers import MARKER_COLOURS
 from capture_bench.task.episode import describe_task
 from capture_bench.task.observation import RELATIVE_SCALE, SLICES
 from capture_bench.task.scenarios import ConfigError, load_scenario
@@ -90,8 +91,6 @@ NUM_ENVS = 16
 DART_NOISE = 0.3  # std of the action noise on every second sub-env (actions in [-1, 1])
 BATCH = 128
 CENTROIDS = ("centroid", "centroid-rgb", "marker", "hand")  # readers whose keypoints are centroids
-HAND_GATE = 0.9  # the hand reader's least cosine between a pixel's chromatic drop and a marker's
-SHOWN = 0.5  # a marker shows where its hand-read weight is at least this share of the largest
 
 
 @dataclass
@@ -268,33 +267,6 @@ def local_soft_argmax(maps: torch.Tensor, temperature: torch.Tensor, half: int) 
     x = (weights * cols).sum(-1)
     y = (weights * rows).sum(-1)
     return torch.stack((x, y), dim=-1).float()
-
-
-class HandReader(nn.Module):
-    """The markers read by hand, no parameters: one frame (B, 3, H, W) in [0, 1] -> keypoints
-    (B, `MARKERS`, 2), weights (B, `MARKERS`) and no logits, as `MarkerReader` gives them. Each
-    pixel's weight for marker k is one less its darkest channel (on the scene's white
-    background, the share of the pixel a marker covers, however lit, for colours with a channel
-    near 0) where the chromatic part of its drop from white points within `HAND_GATE` (cosine)
-    of marker k's, else 0; the window is the 5 x 5 pixels around the largest 3 x 3 sum of those
-    weights, and the keypoint their centroid there (`local_centroid`). What a reader of the
-    frame's colours alone reaches, hidden markers and all."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        drop = 1.0 - torch.tensor([c[:3] for c in MARKER_COLOURS])
-        chroma = drop - drop.mean(1, keepdim=True)
-        self.register_buffer("chroma", chroma / torch.linalg.vector_norm(chroma, dim=1)[:, None])
-
-    def forward(self, x: torch.Tensor):
-        drop = 1.0 - x
-        chroma = drop - drop.mean(1, keepdim=True)
-        norm = torch.linalg.vector_norm(chroma, dim=1)[:, None] + 1e-6
-        cosine = torch.einsum("bchw,kc->bkhw", chroma, self.chroma) / norm
-        weights = drop.max(1, keepdim=True).values * (cosine > HAND_GATE)
-        peak = nn.functional.avg_pool2d(weights, 3, 1, 1).flatten(2).argmax(-1)
-        pixels, mass = local_centroid(weights, 2, peak)
-        return pixels, mass, None
 
 
 class ViewKeypoints(nn.Module):
@@ -591,12 +563,6 @@ def fit_on_features(
             loss.backward()
             optimizer.step()
             schedule.step()
-
-
-def shown_markers(mass: np.ndarray) -> np.ndarray:
-    """Which markers show, (N, `MARKERS`) bool, from their hand-read weights (N, `MARKERS`): at
-    least `SHOWN` of the frame's largest, and not none."""
-    return (mass >= SHOWN * mass.max(axis=1, keepdims=True)) & (mass > 0)
 
 
 def shown_share(views: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ rows, readers and closed-loop play it shares:
    colours read by hand, no parameters) or ``oracle`` (the privileged points, exact, of the
    markers that show). A marker shows where its hand-read weight is at least half of the
    frame's largest (`shown_markers`): partly hidden, its centroid is pulled off.
-3. **Pose** (`PoseReading`). Where three or four markers show, eqs. 1-2 are solved for the
+3. **Pose** (`pose_reading`). Where three or four markers show, eqs. 1-2 are solved for the
    target's pose from those markers alone (`capture_bench.sensing.photogrammetry.solve_poses`,
    the estimator's own solve), warm-started from the sub-env's last pose, as the estimator's
    photogrammetry is (three points have up to four poses; the last one picks the branch;
@@ -42,81 +42,37 @@ from torch import nn
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import pixel_keypoint_probe as keypoint_probe  # noqa: E402 (beside this script)
 
+from capture_bench.agents.marker_pose import (  # noqa: E402
+    DECIMETRES,
+    MarkerCalibration,
+    MarkerPoseTracker,
+    read_markers,
+)
+from capture_bench.agents.marker_pose import POSE_WIDTH as WIDTH  # noqa: E402
 from capture_bench.engine.engine import FrameStack  # noqa: E402
-from capture_bench.engine.task import CaptureTask  # noqa: E402
-from capture_bench.sensing.photogrammetry import solve_poses  # noqa: E402
-from capture_bench.sensing.pixels import pixel_to_image_plane  # noqa: E402
+from capture_bench.sensing.workspace_image import IMAGE_SIZE  # noqa: E402
 from capture_bench.task.scenarios import load_scenario  # noqa: E402
 
 NUM_ENVS = keypoint_probe.NUM_ENVS
 MARKERS = keypoint_probe.MARKERS
-WIDTH = 5  # features a step: the capture point less X_E (3), solved, the share that shows
-DECIMETRES = 10.0  # the capture point's offset from X_E, metres -> the features' units
 
 
-class PoseReading:
-    """`NUM_ENVS` sub-envs' markers, step after step -> their features (module docstring, 3)."""
-
-    def __init__(self, scenario: str, options: dict[str, int], warm: bool = True) -> None:
-        self.warm = warm  # False: every pose solved cold (the multi-start), none carried
-        task = CaptureTask(load_scenario(scenario), observation_source="pixels", **options)
-        imager = task.imager()
-        self.model, self.features = task.camera.model, np.asarray(task.features, dtype=float)
-        self.scale = imager.scale
-        self.u0, _, self.v0, _ = imager.window
-        imager.close()
-        self.last = np.full((NUM_ENVS, 6), np.nan)  # each sub-env's last pose solved
-
-    def restart(self, rows: np.ndarray) -> None:
-        self.last[rows] = np.nan
-
-    def image_plane(self, pixels: np.ndarray) -> np.ndarray:
-        """Wide-image pixels (..., 2) -> the image plane, metres (image pixel j shows the sensor
-        pixels around u0 + s j + s // 2)."""
-        s = self.scale
-        sensor = np.stack(
-            (self.u0 + s * pixels[..., 0] + s // 2, self.v0 + s * pixels[..., 1] + s // 2), -1
-        )
-        return pixel_to_image_plane(sensor.reshape(-1, 2), self.model).reshape(pixels.shape)
-
-    def __call__(self, pixels: np.ndarray, shown: np.ndarray, x_e: np.ndarray) -> np.ndarray:
-        """Markers (NUM_ENVS, 4, 2), wide-image pixels, which show (NUM_ENVS, 4) and X_E
-        (NUM_ENVS, 3), m -> features (NUM_ENVS, `WIDTH`), float32."""
-        plane = self.image_plane(np.asarray(pixels, dtype=float))
-        solved = np.zeros(len(plane), dtype=bool)
-        for pattern in {tuple(row) for row in shown if row.sum() >= 3}:
-            rows = np.flatnonzero(np.all(shown == pattern, axis=1))
-            used = np.flatnonzero(pattern)
-            guesses = self.last[rows] if self.warm else None
-            found = solve_poses(plane[rows][:, used], self.features[used],
-                                self.model.focal_length, guesses)  # fmt: skip
-            for row, solution in zip(rows, found, strict=True):
-                if solution.converged:
-                    self.last[row], solved[row] = solution.pose, True
-        if not self.warm:
-            self.last[~solved] = np.nan
-        out = np.zeros((len(plane), WIDTH), dtype=np.float32)
-        have = ~np.isnan(self.last[:, 0])
-        if have.any():
-            capture_point = self.model.to_global(self.last[have, :3])
-            out[have, :3] = (capture_point - x_e[have]) * DECIMETRES
-        out[:, 3] = solved
-        out[:, 4] = shown.mean(axis=1)
-        return out
+def pose_reading(scenario: str, warm: bool = True) -> MarkerPoseTracker:
+    """`NUM_ENVS` sub-envs' front end (module docstring, 3): `MarkerPoseTracker.pose` on the
+    markers read (``warm`` False: every pose solved cold, none carried)."""
+    return MarkerPoseTracker(MarkerCalibration.of_scenario(scenario, IMAGE_SIZE), NUM_ENVS,
+                             warm=warm)  # fmt: skip
 
 
 def markers(views: np.ndarray, points: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Frames (N, 3, H, W) uint8 -> the markers (N, 4, 2), wide-image pixels, hand-read or, given
     the privileged ``points`` (N, >= 4, 2), those; and which show (N, 4) (module docstring, 2)."""
-    with torch.no_grad():
-        pixels, mass, _ = keypoint_probe.HandReader()(torch.as_tensor(views) / 255.0)
-    mass = mass.numpy()
-    shown = keypoint_probe.shown_markers(mass)
-    found = pixels.numpy() if points is None else np.asarray(points)[:, :MARKERS]
+    pixels, shown = read_markers(views)
+    found = pixels if points is None else np.asarray(points)[:, :MARKERS]
     return found.astype(float), shown
 
 
-def pose_rows(rows: keypoint_probe.Rows, reading: PoseReading, oracle: bool) -> np.ndarray:
+def pose_rows(rows: keypoint_probe.Rows, reading: MarkerPoseTracker, oracle: bool) -> np.ndarray:
     """Every row's features (N, `WIDTH`), the rows in `collect`'s order (step after step,
     `NUM_ENVS` rows a step), each sub-env's poses warm-started from its last."""
     n = len(rows.state)
@@ -134,7 +90,7 @@ def pose_rows(rows: keypoint_probe.Rows, reading: PoseReading, oracle: bool) -> 
                 np.pad(shown, ((0, pad), (0, 0))),
             )
         x_e = np.pad(rows.state[index, 3:6].astype(float), ((0, pad), (0, 0)))
-        out[index] = reading(found, shown, x_e)[: len(index)]
+        out[index] = reading.pose(found, shown, x_e)[: len(index)]
     return out
 
 
@@ -180,10 +136,10 @@ def fit(head: PoseHead, x: torch.Tensor, rows: keypoint_probe.Rows, epochs: int,
 
 class PoseStudent:
     """The head acting on `NUM_ENVS` sub-envs (`keypoint_probe.play`'s student): each step's
-    newest frame (and, an oracle's, the privileged points) -> its markers -> `PoseReading` ->
+    newest frame (and, an oracle's, the privileged points) -> its markers -> `pose_reading` ->
     the last steps' features -> actions in [-1, 1]."""
 
-    def __init__(self, head: PoseHead, reading: PoseReading, oracle: bool) -> None:
+    def __init__(self, head: PoseHead, reading: MarkerPoseTracker, oracle: bool) -> None:
         self.head, self.reading, self.oracle = head, reading, oracle
         self.points = ["image"] if oracle else []
         self.recent = FrameStack(NUM_ENVS, head.stack)
@@ -194,7 +150,7 @@ class PoseStudent:
 
     def __call__(self, obs: dict, found: dict | None, t: int) -> np.ndarray:
         pixels, shown = markers(obs["image"][:, -3:], found["image"] if self.oracle else None)
-        f = self.reading(pixels, shown, obs["state"][:, 3:6].astype(float))
+        f = self.reading.pose(pixels, shown, obs["state"][:, 3:6].astype(float))
         x = np.concatenate((f, obs["state"]), axis=1).astype(np.float32)
         x = self.recent.push({"x": x}, np.full(NUM_ENVS, t))["x"].reshape(NUM_ENVS, -1)
         with torch.no_grad():
@@ -214,7 +170,7 @@ def probe(args: argparse.Namespace) -> dict[str, object]:
     validation = keypoint_probe.collect(args.scenario, options, args.validation_steps,
                                         scenario.validation_seeds[args.episodes :])  # fmt: skip
     collected = time.perf_counter() - start
-    reading = PoseReading(args.scenario, options, warm=not args.cold)
+    reading = pose_reading(args.scenario, warm=not args.cold)
     f_train, f_val = pose_rows(train, reading, oracle), pose_rows(validation, reading, oracle)
     head = PoseHead(args.stack)
     fit(head, inputs(f_train, train, args.stack), train, args.epochs, args.lr, args.seed)

@@ -25,29 +25,29 @@ def test_the_markers_pose_puts_the_capture_point_where_the_target_is(rows_and_pr
     warm-started from that pose, the same to a tenth of a millimetre; a step with two markers
     keeps the last pose and says it was not solved."""
     probe, rows = rows_and_probe
-    reading = probe.PoseReading("paper", OPTIONS)
+    reading = probe.pose_reading("paper")
     step = np.arange(16)
     points = rows.points["image"][step, :4].astype(float)
     x_e = rows.state[step, 3:6].astype(float)
-    all_four = reading(points, np.ones((16, 4), dtype=bool), x_e)
+    all_four = reading.pose(points, np.ones((16, 4), dtype=bool), x_e)
     assert np.all(all_four[:, 3] == 1) and np.all(all_four[:, 4] == 1)
     np.testing.assert_allclose(all_four[:, :3] / probe.DECIMETRES, rows.relative[step], atol=1e-3)
     three = np.array([[False, True, True, True]] * 16)
-    from_three = reading(points, three, x_e)
+    from_three = reading.pose(points, three, x_e)
     np.testing.assert_allclose(from_three[:, :3], all_four[:, :3], atol=1e-3)  # 0.1 mm
     np.testing.assert_allclose(from_three[:, 4], 0.75)
     two = np.array([[False, False, True, True]] * 16)
-    kept = reading(points + 3.0, two, x_e)  # the points moved: not read, the last pose stands
+    kept = reading.pose(points + 3.0, two, x_e)  # the points moved: not read, the last pose stands
     assert np.all(kept[:, 3] == 0)
     np.testing.assert_allclose(kept[:, :3], from_three[:, :3])
     reading.restart(np.arange(8))
-    restarted = reading(points, two, x_e)
+    restarted = reading.pose(points, two, x_e)
     assert np.all(restarted[:8, :3] == 0) and np.all(restarted[8:, :3] == kept[8:, :3])
 
 
 def test_pose_rows_read_the_hand_markers_of_every_row(rows_and_probe):
     probe, rows = rows_and_probe
-    reading = probe.PoseReading("paper", OPTIONS)
+    reading = probe.pose_reading("paper")
     features = probe.pose_rows(rows, reading, oracle=False)
     assert features.shape == (32, probe.WIDTH)
     solved = features[:, 3] == 1
@@ -80,11 +80,11 @@ def test_a_cold_reading_carries_no_pose(rows_and_probe):
     """``--cold``: each step's pose from the multi-start alone; four exact markers still give
     the relative vector, and a step it cannot solve has no pose (zeros), not the last one."""
     probe, rows = rows_and_probe
-    reading = probe.PoseReading("paper", OPTIONS, warm=False)
+    reading = probe.pose_reading("paper", warm=False)
     step = np.arange(16)
     points = rows.points["image"][step, :4].astype(float)
     x_e = rows.state[step, 3:6].astype(float)
-    four = reading(points, np.ones((16, 4), dtype=bool), x_e)
+    four = reading.pose(points, np.ones((16, 4), dtype=bool), x_e)
     np.testing.assert_allclose(four[:, :3] / probe.DECIMETRES, rows.relative[step], atol=1e-3)
-    two = reading(points, np.array([[False, False, True, True]] * 16), x_e)
+    two = reading.pose(points, np.array([[False, False, True, True]] * 16), x_e)
     assert np.all(two[:, :4] == 0)

@@ -13,7 +13,14 @@ from gymnasium import spaces
 from capture_bench.engine.task import CaptureTask
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
-from capture_bench.sensing.workspace_image import WorkspaceImager, crop_scale, crop_window
+from capture_bench.sensing.pixels import pixel_of
+from capture_bench.sensing.workspace_image import (
+    WorkspaceImager,
+    crop_scale,
+    crop_window,
+    sensor_pixels,
+    wide_pixels,
+)
 from capture_bench.sim import kinematics
 
 SEED = 12
@@ -45,6 +52,25 @@ def test_the_crop_of_the_shipped_camera_is_the_documented_one():
         s = crop_scale(model, size)
         assert s % 2 == 1 and (u1 - u0, v1 - v0) == (s * size[0], s * size[1])
         assert 0 <= u0 and u1 <= 1280 and 0 <= v0 and v1 <= 960
+
+
+@pytest.mark.parametrize("size", [(84, 84), (64, 48)])
+def test_wide_image_pixels_and_sensor_pixels_are_each_others_inverse(size):
+    model = CaptureTask("paper").camera.model
+    u0, _, v0, _ = crop_window(model, size)
+    s = crop_scale(model, size)
+    # wide pixel (j, i) shows sensor pixel (u0 + s j + s // 2, v0 + s i + s // 2): the sampled one
+    assert np.array_equal(sensor_pixels(model, size, [[0, 0], [2, 1]]),
+                          [[u0 + s // 2, v0 + s // 2], [u0 + 2 * s + s // 2, v0 + s + s // 2]])  # fmt: skip
+    wide = np.random.default_rng(1).uniform(-1.0, 84.0, (5, 3, 2))
+    assert np.allclose(wide_pixels(model, size, sensor_pixels(model, size, wide)), wide, atol=1e-12)
+    imager = WorkspaceImager(model, CaptureTask("paper").features, size)
+    try:
+        points = np.array([[0.5, 0.05, 0.3], [0.45, -0.02, 0.42]])
+        uv = sensor_pixels(model, size, imager.image_points(points))
+        assert np.allclose(uv, pixel_of(model.to_camera(points), model), atol=1e-9)
+    finally:
+        imager.close()
 
 
 @pytest.mark.parametrize("size", [(84, 84), (48, 36)])

@@ -43,6 +43,8 @@ WINDOW = 3  # the window's half side, wide-image pixels: a marker and a pixel ei
 SHARPNESS = 10.0  # beta of the weights' softplus: near a ReLU, never without a gradient
 MIN_STD = 0.01  # the least standard deviation a feature is divided by
 ROBUST_PX = 0.5  # pixels: the keypoint error beyond which `keypoint_loss` levels off
+HAND_GATE = 0.9  # the hand reader's least cosine between a pixel's chromatic drop and a marker's
+SHOWN = 0.5  # a marker shows where its hand-read weight is at least this share of the largest
 
 
 def window_pixels(
@@ -241,3 +243,36 @@ class MarkerKeypointExtractor(BaseFeaturesExtractor):
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         return (self.raw(observations) - self.mean) / self.std
+
+
+class HandReader(nn.Module):
+    """The markers read by hand, no parameters: one frame (B, 3, H, W) in [0, 1] -> keypoints
+    (B, `MARKERS`, 2), weights (B, `MARKERS`) and no logits, as `MarkerReader` gives them. Each
+    pixel's weight for marker k is one less its darkest channel (on the scene's white
+    background, the share of the pixel a marker covers, however lit, for colours with a channel
+    near 0) where the chromatic part of its drop from white points within `HAND_GATE` (cosine)
+    of marker k's, else 0; the window is the 5 x 5 pixels around the largest 3 x 3 sum of those
+    weights, and the keypoint their centroid there (`local_centroid`). What a reader of the
+    frame's colours alone reaches, hidden markers and all."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        drop = 1.0 - torch.tensor([c[:3] for c in MARKER_COLOURS])
+        chroma = drop - drop.mean(1, keepdim=True)
+        self.register_buffer("chroma", chroma / torch.linalg.vector_norm(chroma, dim=1)[:, None])
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, None]:
+        drop = 1.0 - x
+        chroma = drop - drop.mean(1, keepdim=True)
+        norm = torch.linalg.vector_norm(chroma, dim=1)[:, None] + 1e-6
+        cosine = torch.einsum("bchw,kc->bkhw", chroma, self.chroma) / norm
+        weights = drop.max(1, keepdim=True).values * (cosine > HAND_GATE)
+        peak = nn.functional.avg_pool2d(weights, 3, 1, 1).flatten(2).argmax(-1)
+        pixels, mass = local_centroid(weights, 2, peak)
+        return pixels, mass, None
+
+
+def shown_markers(mass: np.ndarray) -> np.ndarray:
+    """Which markers show, (N, `MARKERS`) bool, from their hand-read weights (N, `MARKERS`): at
+    least `SHOWN` of the frame's largest, and not none."""
+    return (mass >= SHOWN * mass.max(axis=1, keepdims=True)) & (mass > 0)

@@ -101,6 +101,38 @@ def _pixel_options(value: Any, meta_file: Path) -> dict[str, int]:
 
 
 @dataclass(frozen=True)
+class FrontEnd:
+    """A policy's front end (`capture_bench.agents.marker_pose`): its ``name``, the ``stack`` of
+    steps the network reads, and the ``image_size`` (width, height) of the pixels it reads."""
+
+    name: str
+    stack: int
+    image_size: tuple[int, int]
+
+    def check(self, env: Any, where: str) -> None:
+        """Raise `PolicyLoadError` unless ``env`` gives the pixel observation the front end reads:
+        a ``Dict`` whose ``image`` is one frame of `image_size`."""
+        space = env.observation_space
+        image = getattr(space, "spaces", {}).get("image") if hasattr(space, "spaces") else None
+        width, height = self.image_size
+        if image is None or tuple(image.shape) != (3, height, width):
+            raise PolicyLoadError(
+                f"{where}: the model reads the camera's pixels through its front end {self.name} "
+                f"(one {width} x {height} frame), the environment gives {_describe(space)}; "
+                f"make the environment with observation_source='pixels', image_size=({width}, "
+                f"{height}) and frame_stack 1"
+            )
+
+    def agent(self, learned: Any, env: Any, name: str) -> Any:
+        """The agent of ``learned`` (the network's) behind the front end, calibrated for
+        ``env``'s scenario (`capture_bench.agents.marker_pose.MarkerPoseAgent`)."""
+        from capture_bench.agents.marker_pose import MarkerCalibration, MarkerPoseAgent
+
+        calibration = MarkerCalibration.of_scenario(env.unwrapped.task.scenario, self.image_size)
+        return MarkerPoseAgent(learned, calibration, self.stack, name)
+
+
+@dataclass(frozen=True)
 class ModelMetadata:
     """What a model directory says about its model.
 
@@ -123,6 +155,9 @@ class ModelMetadata:
         pixel_options: the pixel observation's options it was trained with (key
             ``pixel_observation``: frame stack, end-effector crop, area sampling;
             `PixelOptions`), those that differ from the defaults; empty: the original one.
+        front_end: where the policy network reads a front end's vector of the pixel
+            observation (key ``front_end: {name: marker_pose, stack: 3, image_size: [84, 84]}``;
+            `capture_bench.agents.marker_pose`), or None.
     """
 
     directory: Path
@@ -137,6 +172,7 @@ class ModelMetadata:
     residual: tuple[str, float] | None = None
     actions: str = "deterministic"
     pixel_options: Mapping[str, int] = field(default_factory=dict)
+    front_end: FrontEnd | None = None
 
     @property
     def env_options(self) -> dict[str, Any]:
@@ -149,6 +185,8 @@ class ModelMetadata:
         """The (width, height) of the images the policy sees, where it observes pixels
         (``observation_source: pixels``, or a declared ``Dict`` observation with an image);
         None where it observes an estimate."""
+        if self.front_end is not None:
+            return self.front_end.image_size
         declared = self.declaration.observation_space if self.declaration else None
         if declared is not None and declared["type"] == "Dict":
             box = declared["spaces"].get("image")  # the wide image (not the end-effector crop)
@@ -175,12 +213,18 @@ class LoadedPolicy:
     normalizer: ObservationNormalizer | None
     residual: tuple[str, float] | None = None
     sampled: bool = False
+    front_end: FrontEnd | None = None
 
-    def agent(self, name: str, description: Any) -> Any:
+    def agent(self, name: str, description: Any, env: Any = None) -> Any:
         """The policy as an agent labelled ``name``: `SB3Policy`, or, for a residual,
         `capture_bench.agents.residual.ResidualAgent` over the base built from
-        ``description``."""
+        ``description``, or, behind a front end, its agent calibrated for ``env``'s scenario
+        (`FrontEnd.agent`)."""
         learned = SB3Policy(self.policy, name, self.normalizer, sampled=self.sampled)
+        if self.front_end is not None:
+            if env is None:
+                raise ValueError(f"{name}: a policy behind a front end is built for an env")
+            return self.front_end.agent(learned, env, name)
         if self.residual is None:
             return learned
         from capture_bench.agents.residual import ResidualAgent, make_base
@@ -279,6 +323,7 @@ def read_metadata(directory: str | Path) -> ModelMetadata:
         "residual": _residual(data.get("residual"), meta_file),
         "actions": _actions(data.get("actions", "deterministic"), meta_file),
         "pixel_options": _pixel_options(data.get("pixel_observation"), meta_file),
+        "front_end": _front_end(data.get("front_end"), meta_file),
     }
     vecnormalize = data.get("vecnormalize")
     vecnormalize_file = directory / str(vecnormalize) if vecnormalize else None
@@ -314,6 +359,36 @@ def _actions(value: Any, meta_file: Path) -> str:
             f"{meta_file}: key 'actions' is {value!r}; valid: {', '.join(ACTION_RULES)}"
         )
     return str(value)
+
+
+def _whole(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _front_end(value: Any, meta_file: Path) -> FrontEnd | None:
+    """The metadata's ``front_end`` entry, checked: None, or ``{name: <one of FRONT_ENDS>,
+    stack: 1-16, image_size: [width, height]}``."""
+    from capture_bench.agents.marker_pose import FRONT_ENDS
+
+    if value is None:
+        return None
+    valid = (
+        f"null or {{name: one of {', '.join(FRONT_ENDS)}, stack: a whole number 1-16, "
+        "image_size: [width, height]}"
+    )
+    size = value.get("image_size") if isinstance(value, dict) else None
+    if not (
+        isinstance(value, dict)
+        and set(value) == {"name", "stack", "image_size"}
+        and value["name"] in FRONT_ENDS
+        and _whole(value["stack"])
+        and 1 <= value["stack"] <= 16
+        and isinstance(size, list)
+        and len(size) == 2
+        and all(_whole(x) and x > 0 for x in size)
+    ):
+        raise PolicyLoadError(f"{meta_file}: key 'front_end' is {value!r}; valid: {valid}")
+    return FrontEnd(str(value["name"]), int(value["stack"]), (int(size[0]), int(size[1])))
 
 
 def _residual(value: Any, meta_file: Path) -> tuple[str, float] | None:
@@ -353,6 +428,7 @@ def load_policy(metadata: ModelMetadata, trust_model: bool = False) -> LoadedPol
             metadata.declaration.normalization,
             metadata.residual,
             metadata.actions == "sampled",
+            metadata.front_end,
         )
     if not trust_model:
         raise PolicyLoadError(
@@ -434,7 +510,11 @@ def load_trusted(metadata: ModelMetadata) -> LoadedPolicy:
         ) from None
     model.policy.set_training_mode(False)
     return LoadedPolicy(
-        model.policy, _load_vecnormalize(metadata), metadata.residual, metadata.actions == "sampled"
+        model.policy,
+        _load_vecnormalize(metadata),
+        metadata.residual,
+        metadata.actions == "sampled",
+        metadata.front_end,
     )
 
 
@@ -504,6 +584,18 @@ def check_spaces(model: Any, observation_space: Any, action_space: Any, where: s
                 f"{where}: model {kind} space {_describe(ours)} does not match the "
                 f"environment's {_describe(theirs)}{hint}"
             )
+
+
+def check_model_spaces(loaded: LoadedPolicy, env: Any, where: str) -> None:
+    """`check_spaces` of a loaded policy on ``env``; behind a front end, ``env`` gives what
+    the front end reads (`FrontEnd.check`) and the network reads the front end's vector."""
+    observation_space = env.observation_space
+    if loaded.front_end is not None:
+        from capture_bench.agents.marker_pose import front_end_space
+
+        loaded.front_end.check(env, where)
+        observation_space = front_end_space(loaded.front_end.stack)
+    check_spaces(loaded.policy, observation_space, env.action_space, where)
 
 
 class SB3Policy:
@@ -638,5 +730,5 @@ def load_sb3_policy(
     metadata = read_metadata(directory)
     loaded = load_policy(metadata, trust_model=trust_model)
     label = name or metadata.directory.name
-    check_spaces(loaded.policy, env.observation_space, env.action_space, str(metadata.directory))
-    return loaded.agent(label, env.unwrapped.description)
+    check_model_spaces(loaded, env, str(metadata.directory))
+    return loaded.agent(label, env.unwrapped.description, env)

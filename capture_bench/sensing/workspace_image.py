@@ -190,6 +190,23 @@ def crop_window(model: CameraModel, size: tuple[int, int]) -> Window:
     return check_window((u0, u0 + s * width, v0, v0 + s * height), model)
 
 
+def wide_pixels(model: CameraModel, size: tuple[int, int], uv: ArrayLike) -> FloatArray:
+    """Sensor pixels ``[u, v]`` (..., 2) -> where they lie in the wide image of ``size``,
+    [column, row] in its pixels, fractional: image pixel j shows sensor column u0 + s j + s // 2
+    (`crop_window`'s u0, `crop_scale`'s s; the same in rows), so column (u - u0 - s // 2) / s."""
+    u0, _, v0, _ = crop_window(model, size)
+    s = crop_scale(model, size)
+    return (np.asarray(uv, dtype=float) - [u0 + s // 2, v0 + s // 2]) / s
+
+
+def sensor_pixels(model: CameraModel, size: tuple[int, int], pixels: ArrayLike) -> FloatArray:
+    """Wide-image pixels [column, row] (..., 2) of an image of ``size`` -> the sensor pixels
+    ``[u, v]`` they show (the inverse of `wide_pixels`)."""
+    u0, _, v0, _ = crop_window(model, size)
+    s = crop_scale(model, size)
+    return np.asarray(pixels, dtype=float) * s + [u0 + s // 2, v0 + s // 2]
+
+
 def area_mean(rgba: Any, size: tuple[int, int], m: int) -> NDArray[np.uint8]:
     """A render of ``m`` times ``size`` ``(width, height)`` (pybullet's flat RGBA buffer) as the
     image of ``size``, channel-first RGB: each pixel the mean of its m x m render pixels,
@@ -318,9 +335,7 @@ class WorkspaceImager:
         return self._wide_pixels(uv).reshape(*p.shape[:-1], 2)
 
     def _wide_pixels(self, uv: NDArray[np.float64]) -> NDArray[np.float64]:
-        u0, _, v0, _ = self.window
-        s = self.scale
-        return (uv - [u0 + s // 2, v0 + s // 2]) / s
+        return wide_pixels(self.model, self.size, uv)
 
     def render_ee(
         self,

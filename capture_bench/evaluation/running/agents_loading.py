@@ -294,7 +294,7 @@ def build_agent(spec: AgentSpec, env: Any, seed: int) -> Any:
             import torch
 
             torch.manual_seed(seed)
-        return loaded.agent(spec.label, description)
+        return loaded.agent(spec.label, description, env)
     return _call_user_factory(spec, env.unwrapped.description)
 
 
@@ -304,10 +304,9 @@ def check_agent(spec: AgentSpec, env: Any, scenario: str) -> None:
     from capture_bench.agents.protocol import Agent
 
     if spec.kind == "model":
-        from capture_bench.agents.sb3_policy import check_spaces
+        from capture_bench.agents.sb3_policy import check_model_spaces
 
-        policy = _model(spec).policy
-        check_spaces(policy, env.observation_space, env.action_space, f"{spec.spec} on {scenario}")
+        check_model_spaces(_model(spec), env, f"{spec.spec} on {scenario}")
     elif spec.kind == "python":
         try:
             agent = _call_user_factory(spec, env.unwrapped.description)

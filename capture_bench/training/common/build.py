@@ -18,7 +18,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from capture_bench.agents.marker_pose import DEFAULT_STACK
 from capture_bench.sensing.sources import PIXELS
+from capture_bench.sensing.workspace_image import IMAGE_SIZE
 from capture_bench.task.scenarios import CONFIG_DIR, ConfigError, load_scenario
 from capture_bench.training.common.mixture import (
     MixtureVecEnv,
@@ -72,7 +74,9 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
 
     shipped = pixel_config(config.algo)
     hint = f" (--config {display_path(shipped)})" if pixels and shipped.is_file() else ""
-    if pixels and settings.policy != "MultiInputPolicy":
+    if settings.front_end is not None:
+        _check_front_end(config, settings)
+    elif pixels and settings.policy != "MultiInputPolicy":
         raise ConfigError(
             f"{given}: the agent sees a Dict (image, state), which policy {settings.policy} cannot "
             f"read; use policy MultiInputPolicy with features_extractor combined{hint}"
@@ -96,7 +100,8 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
             check_image_size(settings.pixel_size, load_scenario(config.scenario).camera.model())
         except ValueError as exc:
             raise ConfigError(f"key 'image_size': {exc}") from None
-    for key in ("image_size", *PIXEL_OPTION_KEYS, "augment_shift", "asymmetric_critic"):
+    for key in ("image_size", *PIXEL_OPTION_KEYS, "augment_shift", "asymmetric_critic",
+                "front_end"):  # fmt: skip
         if getattr(settings, key) not in (None, False) and not pixels:
             seen = config.observation_source or "each scenario's estimate"
             raise ConfigError(
@@ -125,6 +130,38 @@ def check_observation(config: TrainConfig, settings: TrainingSettings) -> None:
             f"asymmetric_critic: the critic's true state comes from the batched env to PPO's or "
             f"A2C's value net; use --algo ppo or a2c with --vec-env batched (got {config.algo}, "
             f"{config.vec_env})"
+        )
+
+
+def _check_front_end(config: TrainConfig, settings: TrainingSettings) -> None:
+    """A front end (`capture_bench.agents.marker_pose`) turns the pixel observation's newest
+    wide image and the arm's state into a vector: the policy is ``MlpPolicy`` on it, and the
+    pixel options and methods that shape what a network reads of the image (a frame stack, the
+    end-effector crop, the random shift, the asymmetric critic) have nothing to act on."""
+    if config.observation_source != PIXELS:
+        return  # refused below, with the other pixel keys
+    name = settings.front_end
+    if settings.policy != "MlpPolicy":
+        raise ConfigError(
+            f"front_end {name}: the policy reads the front end's vector, not the image; use "
+            f"policy MlpPolicy, not {settings.policy}"
+        )
+    features = settings.policy_kwargs.get("features_extractor", "flatten")
+    if features != "flatten":
+        raise ConfigError(
+            f"front_end {name}: the policy reads the front end's vector as it is; set "
+            f"policy_kwargs.features_extractor: flatten, not {features}"
+        )
+    for key in ("ee_crop", "augment_shift", "asymmetric_critic"):
+        if getattr(settings, key):
+            raise ConfigError(
+                f"front_end {name} reads the newest wide image alone, so {key} has nothing to "
+                f"act on; leave {key} out"
+            )
+    if (settings.frame_stack or 1) > 1:
+        raise ConfigError(
+            f"front_end {name} reads the newest wide image and stacks its own steps "
+            f"(front_end_stack); set frame_stack 1, not {settings.frame_stack}"
         )
 
 
@@ -298,6 +335,13 @@ def build_venv(config: TrainConfig, settings: TrainingSettings) -> Any:
         subprocess = config.vec_env == "subproc"
         fns = [make_env(config, settings, i, subprocess) for i in range(n_envs)]
         venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
+    if settings.front_end is not None:  # the policy reads the front end's vector of the image
+        from capture_bench.agents.marker_pose import MarkerCalibration
+        from capture_bench.training.common.front_end_vec_env import FrontEndVecEnv
+
+        size = settings.pixel_size or IMAGE_SIZE
+        calibration = MarkerCalibration.of_scenario(config.scenario, size)
+        venv = FrontEndVecEnv(venv, calibration, settings.front_end_stack or DEFAULT_STACK)
     venv = VecMonitor(venv)
     if settings.residual != "none":  # a hybrid: the policy's action is a residual on the base
         from capture_bench.engine.task import resolve_scenario

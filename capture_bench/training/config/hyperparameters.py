@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from capture_bench.agents.algorithms import ALGORITHMS
+from capture_bench.agents.marker_pose import DEFAULT_STACK, FRONT_ENDS
 from capture_bench.agents.residual import RESIDUAL_BASES, TEACHERS
 from capture_bench.task.observation import OBSERVATION_SIZE, STATE_SIZE
 from capture_bench.task.rewards import REWARD_MODES
@@ -144,6 +145,11 @@ TRAINING_KEYS = {
     # with pixels (ppo, a2c): the critic also reads the true state, the actor the pixels alone
     # (capture_bench/training/common/asymmetric.py); training only
     "asymmetric_critic": Rule("bool"),
+    # with pixels: the policy network reads the target's pose that a front end reads from the
+    # image (capture_bench/agents/marker_pose.py: marker_pose, the hand-read markers through the
+    # estimator's photogrammetry), over its last front_end_stack steps, beside the arm's state
+    "front_end": Rule("choice", choices=FRONT_ENDS),
+    "front_end_stack": Rule("int", 1, 16),
 }
 #: The keys of ``TRAINING_KEYS`` that are the pixel observation's options, env keyword arguments.
 PIXEL_OPTION_KEYS = (
@@ -335,6 +341,13 @@ def validate_hyperparameters(
     out.setdefault("residual", "none")
     if out["residual"] != "none":
         out.setdefault("residual_scale", 0.5)
+    if "front_end_stack" in out and "front_end" not in out:
+        raise ConfigError(
+            f"{source}: key 'front_end_stack' needs front_end (one of {', '.join(FRONT_ENDS)}) "
+            "beside it"
+        )
+    if "front_end" in out:
+        out.setdefault("front_end_stack", DEFAULT_STACK)
     return out
 
 

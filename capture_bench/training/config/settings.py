@@ -83,6 +83,8 @@ class TrainingSettings:
     ee_crop_supersample: int | None = None
     augment_shift: int | None = None  # DrQ's random shift of training batches, pixels only
     asymmetric_critic: bool | None = None  # the critic reads the true state, pixels only
+    front_end: str | None = None  # the pose a front end reads from the image, pixels only
+    front_end_stack: int | None = None  # its steps the policy reads: set with front_end
     #: SB3's own keys for the algorithm (``learning_rate``, ``n_steps``, ...), as validated.
     algorithm: Mapping[str, Any] = field(default_factory=dict)
     #: The validated mapping's keys in its order (`to_mapping` writes them so).

@@ -127,7 +127,7 @@ def validate_policy(model_dir: Path, scenario: str, seeds: list[int]) -> dict[st
         batch = seeds[start : start + CARD_BATCH]
         env = CaptureVectorEnv(len(batch), scenario, **options)
         try:
-            played += run_validation(loaded.agent("card", env.description), env, batch)
+            played += run_validation(loaded.agent("card", env.description, env), env, batch)
         finally:
             env.close()
     summary = summarize(played)
