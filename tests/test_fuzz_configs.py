@@ -663,6 +663,8 @@ def hyperparameters(draw: st.DrawFn) -> tuple[str, dict[str, Any], set[str]]:
     for key in ("curriculum_steps", "curriculum_delay"):
         if not bad and key in data and not any(k in data for k in curricula):
             bad.add(key)  # a curriculum needs its starting value
+    if not bad and "front_end_stack" in data and "front_end" not in data:
+        bad.add("front_end_stack")  # the front end's stack needs the front end
     return algo, data, bad
 
 
@@ -675,6 +677,9 @@ def _same_number(got: Any, want: Any) -> bool:
 @settings(FUZZ, max_examples=150)
 @given(case=hyperparameters())
 @example(case=("ppo", {"n_envs": 2**1024, "total_timesteps": 1}, {"n_envs"}))
+@example(
+    case=("ppo", {"n_envs": 1, "total_timesteps": 1, "front_end_stack": 1}, {"front_end_stack"})
+)
 @example(
     case=("ppo", {"n_envs": 1, "total_timesteps": 1, "learning_rate": "lin_nan"}, {"learning_rate"})
 )
