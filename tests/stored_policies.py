@@ -19,3 +19,14 @@ def assert_loads_safely_and_acts_as_trusted(run, steps: int = 3) -> None:
             a = SB3Policy(safe.policy).predict(obs)[0]
             np.testing.assert_array_equal(a, SB3Policy(trusted.policy).predict(obs)[0])
             obs = env.step(a)[0]
+
+
+def assert_evaluates_in_pixel_envs(run, out) -> None:
+    """``evaluate.py`` plays the model in ``run`` (a directory named ``run``) on two episodes of
+    ``paper`` into ``out``, its row labelled as a pixel policy's."""
+    import evaluate
+
+    argv = ["--agents", str(run), "--scenarios", "paper", "--episodes", "2", "--workers", "1"]
+    assert evaluate.main([*argv, "--out", str(out)]) == 0
+    rows = next(out.rglob("episodes.csv")).read_text().splitlines()
+    assert sum(row.startswith("run (pixels),paper,") for row in rows) == 2

@@ -36,6 +36,7 @@ from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.envs.vector_env import CaptureVectorEnv
 from capture_bench.task.observation import decode_observation, pixel_observation_space
 from capture_bench.training.common.front_end_vec_env import FrontEndVecEnv
+from tests.stored_policies import assert_evaluates_in_pixel_envs
 
 SIZE = (84, 84)
 OPTIONS = {"observation_source": "pixels", "image_supersample": 3}
@@ -188,8 +189,6 @@ def pose_run(tmp_path_factory):
 
 
 def test_a_front_end_run_stores_a_policy_that_loads_safely_and_evaluates(pose_run, tmp_path):
-    import evaluate
-
     meta = json.loads((pose_run / "metadata.json").read_text())
     assert meta["front_end"] == {"name": "marker_pose", "stack": 3, "image_size": [84, 84]}
     metadata = read_metadata(pose_run)
@@ -204,11 +203,7 @@ def test_a_front_end_run_stores_a_policy_that_loads_safely_and_evaluates(pose_ru
             actions = [agent.predict(obs)[0] for agent in agents]
             np.testing.assert_array_equal(actions[0], actions[1])
             obs = env.step(actions[0])[0]
-    out = tmp_path / "reports"
-    argv = ["--agents", str(pose_run), "--scenarios", "paper", "--episodes", "2", "--workers", "1"]
-    assert evaluate.main([*argv, "--out", str(out)]) == 0
-    rows = next(out.rglob("episodes.csv")).read_text().splitlines()
-    assert sum(row.startswith("run (pixels),paper,") for row in rows) == 2
+    assert_evaluates_in_pixel_envs(pose_run, tmp_path / "reports")
 
 
 @pytest.mark.parametrize(

@@ -17,7 +17,10 @@ from capture_bench.agents.sb3_policy import load_policy, read_metadata
 from capture_bench.envs.capture_env import CaptureEnv
 from capture_bench.training.common.augmentation import install_random_shift, random_shift
 from capture_bench.training.common.sb3_vec_env import CaptureSB3VecEnv
-from tests.stored_policies import assert_loads_safely_and_acts_as_trusted
+from tests.stored_policies import (
+    assert_evaluates_in_pixel_envs,
+    assert_loads_safely_and_acts_as_trusted,
+)
 
 SIZE = 36
 TINY = ["n_envs=2", "n_steps=16", "batch_size=16", "n_epochs=1", "policy_kwargs.net_arch=[8]",
@@ -233,8 +236,6 @@ def test_the_stored_policy_is_the_actor_and_the_critic_less_the_truth():
 
 
 def test_an_asymmetric_run_stores_a_plain_pixel_policy_that_evaluates(tmp_path):
-    import evaluate
-
     run = tmp_path / "run"
     sets = [*TINY, "asymmetric_critic=true", "eval_freq=32", "eval_episodes=2"]
     assert train.main([*PIXELS, *(f"--set={s}" for s in sets), "--run-dir", str(run)]) == 0
@@ -242,11 +243,7 @@ def test_an_asymmetric_run_stores_a_plain_pixel_policy_that_evaluates(tmp_path):
     assert set(meta["observation_space"]["spaces"]) == {"image", "state"}
     assert meta["policy_kwargs"]["share_features_extractor"] is False
     load_policy(read_metadata(run))
-    out = tmp_path / "reports"
-    argv = ["--agents", str(run), "--scenarios", "paper", "--episodes", "2", "--workers", "1"]
-    assert evaluate.main([*argv, "--out", str(out)]) == 0
-    rows = next(out.rglob("episodes.csv")).read_text().splitlines()
-    assert sum(row.startswith("run (pixels),paper,") for row in rows) == 2
+    assert_evaluates_in_pixel_envs(run, tmp_path / "reports")
 
 
 @pytest.mark.parametrize(
