@@ -206,6 +206,18 @@ def test_a_front_end_run_stores_a_policy_that_loads_safely_and_evaluates(pose_ru
     assert_evaluates_in_pixel_envs(pose_run, tmp_path / "reports")
 
 
+def test_shipping_a_front_end_run_says_it_sees_pixels_through_the_front_end(pose_run, tmp_path):
+    from capture_bench.training.train.model_card import ship
+
+    target = ship(pose_run, "pose", episodes=2, out=tmp_path / "models")
+    card = json.loads((target / "metadata.json").read_text())
+    assert card["front_end"]["name"] == "marker_pose"
+    assert len(card["model_card"]["validation"]["paper"]["episodes"]) == 2
+    readme = (target / "README.md").read_text()
+    assert "from the camera's pixels" in readme and "`marker_pose` front end" in readme
+    assert "--suite pixels" in readme and "reports/published/default" not in readme
+
+
 @pytest.mark.parametrize(
     ("options", "words"),
     [

@@ -508,6 +508,22 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
         else "a learned controller on its own"
         + (f", started by imitating `{imitation['teacher']}`" if imitation else "")
     )
+    front_end = meta.get("front_end")
+    if meta.get("observation_source") == "pixels":
+        kind += (
+            "; from the camera's pixels, no estimator"
+            + (f", through the `{front_end['name']}` front end" if front_end else "")
+            + " ([docs/pixels.md](../../docs/pixels.md))"
+        )
+        published = (
+            "Its figures on the published evaluation seeds come from `python evaluate.py --suite "
+            "pixels` (a policy that sees pixels is not in the default suite's `models/*`)."
+        )
+    else:
+        published = (
+            "The leaderboard's figures on the published evaluation seeds are in "
+            "`reports/published/default`."
+        )
     steps = card["total_timesteps"] + (imitation["environment_steps"] if imitation else 0)
     imitated = []
     if imitation:
@@ -571,8 +587,7 @@ def _readme(name: str, meta: dict[str, Any], card: dict[str, Any]) -> str:
         *rows,
         "",
         "Each episode is in `metadata.json` (`model_card.validation`); " + REPLAY_CHECK
-        + " The leaderboard's figures on the published evaluation seeds are in "
-        "`reports/published/default`.",
+        + " " + published,
         "",
         *(_seeds_section(card["seeds"]) if "seeds" in card else []),
     ])  # fmt: skip
