@@ -253,6 +253,7 @@ def test_a_front_end_model_on_an_env_it_cannot_read_is_one_line(pose_run, option
         ([*POSE, "--set", "policy_kwargs.features_extractor=relative_log_distance"], ["flatten"]),
         (["--set", "front_end_stack=2"], ["front_end_stack", "front_end"]),
         ([*POSE, "--set", "front_end=pose"], ["front_end", "marker_pose"]),
+        ([*POSE, "--set", "imitation_state_weight=1"], ["imitation_state_weight", "flatten"]),
     ],
 )
 def test_a_front_end_it_cannot_have_is_one_line(tmp_path, capsys, argv, words):

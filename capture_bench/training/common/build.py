@@ -242,6 +242,13 @@ def check_imitation(config: TrainConfig, settings: TrainingSettings, scenarios: 
             "the teacher's observation is for a pixel student of ppo or a2c (--observation-source "
             f"pixels); this run is {config.algo} on {config.observation_source}: leave it out"
         )
+    if settings.imitation_state_weight and settings.front_end is not None:
+        raise ConfigError(
+            f"imitation_state_weight {settings.imitation_state_weight:g} with front_end "
+            f"{settings.front_end}: the regression shapes the policy's features extractor, and "
+            "the front end's vector reaches the policy through flatten, which has nothing to "
+            "shape (the policy comes out the same); leave the weight out"
+        )
     features = settings.policy_kwargs.get("features_extractor")
     if settings.imitation_keypoint_weight and (
         config.observation_source != PIXELS
