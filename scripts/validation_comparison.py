@@ -96,8 +96,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="write the report here as JSON")
     args = parser.parse_args(argv)
     bad = [arm[0] for arm in args.arm if len(arm) < 2]
-    if bad or args.episodes < 1:
-        what = f"arm {bad[0]!r} names no policy" if bad else "--episodes must be at least 1"
+    names = [arm[0] for arm in args.arm]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if bad or twice or args.episodes < 1:
+        what = (
+            f"arm {bad[0]!r} names no policy"
+            if bad
+            else f"arm name {twice[0]!r} is given twice; give each arm its own name"
+            if twice
+            else "--episodes must be at least 1"
+        )
         print(f"validation_comparison: {what}", file=sys.stderr)
         return 2
     start = time.perf_counter()

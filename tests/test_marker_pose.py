@@ -262,6 +262,18 @@ def test_a_front_end_it_cannot_have_is_one_line(tmp_path, capsys, argv, words):
     assert len(err.splitlines()) == 1 and all(w in err for w in words), err
 
 
+def test_the_memory_estimate_counts_the_front_ends_vector_not_images():
+    from capture_bench.task.scenarios import load_scenario
+    from capture_bench.training.config.settings import resolve_settings
+
+    pose, _, _ = resolve_settings("ppo", load_scenario("paper"), "configs/pixels/ppo_pose.yaml")
+    parts = dict((what, size) for _, what, size in pose.memory_estimate(True))
+    rows = 4 * 16000  # imitation_rounds x imitation_steps, 32 envs dividing 16,000
+    # three copies of each row: the vector (3 steps x STEP_WIDTH float32) and two actions
+    assert parts["the imitation's data set"] == 3 * rows * (3 * STEP_WIDTH * 4 + 2 * 3 * 4)
+    assert parts["the rollout buffer"] == 2 * 64 * 32 * (3 * STEP_WIDTH + 3 + 6) * 4
+
+
 def test_a_bad_front_end_entry_in_the_metadata_is_one_line(pose_run, tmp_path):
     import shutil
 

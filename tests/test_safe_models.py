@@ -43,9 +43,9 @@ class _Payload:
         return (Path.touch, (self.marker,))
 
 
-def _observations(n: int = 100) -> np.ndarray:
+def _observations(n: int = 100, shape: tuple[int, ...] = (16,)) -> np.ndarray:
     rng = np.random.default_rng(7)
-    return rng.uniform(-3, 3, (n, 16)).astype(np.float32)
+    return rng.uniform(-3, 3, (n, *shape)).astype(np.float32)
 
 
 def _assert_same_actions(a: SB3Policy, b: SB3Policy) -> None:
@@ -53,8 +53,8 @@ def _assert_same_actions(a: SB3Policy, b: SB3Policy) -> None:
     if hasattr(space, "spaces"):  # a pixel policy's Dict: sampled images and states
         space.seed(7)
         observations = [space.sample() for _ in range(10)]
-    else:
-        observations = list(_observations())
+    else:  # the estimate's 16 numbers, or a front end's vector (models/pose-dagger-dls-paper)
+        observations = list(_observations(shape=space.shape))
     for obs in observations:
         np.testing.assert_array_equal(a.predict(obs)[0], b.predict(obs)[0])
 

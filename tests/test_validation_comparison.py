@@ -45,7 +45,12 @@ def test_arms_play_the_same_seeds_and_the_report_says_so(load_script, tmp_path):
 
 @pytest.mark.parametrize(
     "argv",
-    [["--arm", "a"], ["--arm", "a", "nowhere"], ["--episodes", "0", "--arm", "a", MODEL]],
+    [
+        ["--arm", "a"],
+        ["--arm", "a", "nowhere"],
+        ["--episodes", "0", "--arm", "a", MODEL],
+        ["--arm", "a", MODEL, "--arm", "a", MODEL],
+    ],
 )
 def test_bad_input_is_one_line(load_script, capsys, argv):
     script = load_script("validation_comparison")

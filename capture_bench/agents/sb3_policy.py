@@ -120,7 +120,7 @@ class FrontEnd:
                 f"{where}: the model reads the camera's pixels through its front end {self.name} "
                 f"(one {width} x {height} frame), the environment gives {_describe(space)}; "
                 f"make the environment with observation_source='pixels', image_size=({width}, "
-                f"{height}) and frame_stack 1"
+                f"{height}), frame_stack 1 and its card's other pixel_observation options"
             )
 
     def agent(self, learned: Any, env: Any, name: str) -> Any:
@@ -715,8 +715,9 @@ def load_sb3_policy(
     directory: str | Path, env: Any, name: str | None = None, trust_model: bool = False
 ) -> Any:
     """Load the model in ``directory`` (safely; see `load_policy`) and check it fits
-    ``env``; an `SB3Policy`, or a `capture_bench.agents.residual.ResidualAgent`
-    for a residual.
+    ``env``; an `SB3Policy`, a `capture_bench.agents.residual.ResidualAgent`
+    for a residual, or a `capture_bench.agents.marker_pose.MarkerPoseAgent` for a policy behind
+    a front end.
 
     Args:
         directory: the model directory.

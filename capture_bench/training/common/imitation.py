@@ -23,7 +23,9 @@ image and the arm's state while the teacher reads the estimate-fed observation o
 step (`capture_bench.envs.vector_env.CaptureVectorEnv.estimate_observation`: the scenario's
 estimator, which runs beside the pixels for ``info``): each visited pixel observation is labelled
 with the controller's action on that step's estimate. The controller acts as it would in the
-estimate-fed env; only the student's input differs.
+estimate-fed env; only the student's input differs. Behind a front end (``front_end``,
+`capture_bench.training.common.front_end_vec_env`) the student's observation is the front end's
+vector of that step's image and state.
 
 With ``imitation_state_weight`` w > 0 (pixels, PPO and A2C) the fit also asks the student's
 features to say what the teacher reads: a linear head from the actor's features to that step's

@@ -423,13 +423,20 @@ def memory_estimate(
     action and six numbers, and the flattened copy SB3 makes of it for the update), or the replay
     buffer (off-policy: ``buffer_size`` rows of two observations, the action and three numbers);
     the networks (`PARAMETER_COPIES` copies of each parameter: actor, critics and the
-    target copies, the CNN on pixels); an update's batch of activations; and the imitation's
+    target copies, the CNN on pixels; behind a front end, its vector instead of the image and no
+    CNN); an update's batch of activations; and the imitation's
     data set (``imitation_rounds x imitation_steps`` observations and labels, and the copies
     each round's fit makes).
     """
     n_envs = int(hp["n_envs"])
     kwargs = hp.get("policy_kwargs", {})
-    if pixels:
+    if pixels and hp.get("front_end"):  # the front end's vector: float32 numbers, no CNN
+        from capture_bench.agents.marker_pose import STEP_WIDTH
+
+        cnn_parameters = cnn_activations = 0
+        observation = features = int(hp.get("front_end_stack") or DEFAULT_STACK) * STEP_WIDTH
+        kept_bytes = observation * NUMBER_BYTES
+    elif pixels:
         from capture_bench.sensing.workspace_image import IMAGE_SIZE
 
         side = image_size(hp) or IMAGE_SIZE
