@@ -25,23 +25,20 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from capture_bench.agents.policy_file import PolicyLoadError
 from capture_bench.files import atomic_write
 from capture_bench.task.scenarios import ConfigError, load_scenario
+from capture_bench.training.curves.command import mean_interval
 from capture_bench.training.train.model_card import validate_policy
 
 DRAWS = 10_000
 
 
 def interval(values: list[float]) -> list[float]:
-    """The mean of ``values`` and its 95 % interval (Student's t; the mean alone for one)."""
-    x = np.asarray(values, dtype=float)
-    if len(x) < 2:
-        return [float(x.mean())] * 3
-    half = stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / np.sqrt(len(x))
-    return [float(x.mean()), float(x.mean() - half), float(x.mean() + half)]
+    """The mean of ``values`` and its 95 % interval (Student's t over them, `mean_interval`, as
+    the learning curves give it; the mean alone for one)."""
+    return list(mean_interval(np.asarray(values, dtype=float))[:3])
 
 
 def paired_difference(ours: np.ndarray, theirs: np.ndarray, seed: int = 0) -> list[float]:
