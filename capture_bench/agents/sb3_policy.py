@@ -123,13 +123,24 @@ class FrontEnd:
                 f"{height}), frame_stack 1 and its card's other pixel_observation options"
             )
 
+    def calibration(self, scenario: Any) -> Any:
+        """What the front end knows of ``scenario``'s camera and target (a name or `Scenario`),
+        for images of `image_size` (`capture_bench.agents.marker_pose.MarkerCalibration`)."""
+        from capture_bench.agents.marker_pose import MarkerCalibration
+
+        return MarkerCalibration.of_scenario(scenario, self.image_size)
+
     def agent(self, learned: Any, env: Any, name: str) -> Any:
         """The agent of ``learned`` (the network's) behind the front end, calibrated for
         ``env``'s scenario (`capture_bench.agents.marker_pose.MarkerPoseAgent`)."""
-        from capture_bench.agents.marker_pose import MarkerCalibration, MarkerPoseAgent
+        from capture_bench.agents.marker_pose import MarkerPoseAgent
 
-        calibration = MarkerCalibration.of_scenario(env.unwrapped.task.scenario, self.image_size)
+        calibration = self.calibration(env.unwrapped.task.scenario)
         return MarkerPoseAgent(learned, calibration, self.stack, name)
+
+    def metadata(self) -> dict[str, Any]:
+        """The metadata's ``front_end`` entry (`read_metadata` reads it back)."""
+        return {"name": self.name, "stack": self.stack, "image_size": list(self.image_size)}
 
 
 @dataclass(frozen=True)

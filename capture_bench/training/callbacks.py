@@ -326,12 +326,9 @@ class Progress(BaseCallback):
                 base = make_base(self.settings.residual, env.description)
                 scale = self.settings.residual_scale
                 predictor, scaled = ResidualAgent(base, learned, scale), None
-            if self.settings.front_end is not None:  # a fresh front end: no pose carried over
-                from capture_bench.agents.marker_pose import MarkerCalibration, MarkerPoseAgent
-
-                size = tuple(env.single_observation_space["image"].shape[:0:-1])
-                calibration = MarkerCalibration.of_scenario(scenario, size)
-                predictor = MarkerPoseAgent(model, calibration, self.settings.front_end_stack)
+            front_end = self.settings.front_end_spec
+            if front_end is not None:  # a fresh front end: no pose carried over
+                predictor = front_end.agent(model, env, "validation")
             played = run_validation(predictor, env, chosen, scaled)
             if len(scenarios) > 1:
                 own[scenario.name] = summarize(played)

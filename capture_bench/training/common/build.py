@@ -18,9 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from capture_bench.agents.marker_pose import DEFAULT_STACK
 from capture_bench.sensing.sources import PIXELS
-from capture_bench.sensing.workspace_image import IMAGE_SIZE
 from capture_bench.task.scenarios import CONFIG_DIR, ConfigError, load_scenario
 from capture_bench.training.common.mixture import (
     MixtureVecEnv,
@@ -342,13 +340,12 @@ def build_venv(config: TrainConfig, settings: TrainingSettings) -> Any:
         subprocess = config.vec_env == "subproc"
         fns = [make_env(config, settings, i, subprocess) for i in range(n_envs)]
         venv = SubprocVecEnv(fns) if subprocess else DummyVecEnv(fns)
-    if settings.front_end is not None:  # the policy reads the front end's vector of the image
-        from capture_bench.agents.marker_pose import MarkerCalibration
+    front_end = settings.front_end_spec
+    if front_end is not None:  # the policy reads the front end's vector of the image
         from capture_bench.training.common.front_end_vec_env import FrontEndVecEnv
 
-        size = settings.pixel_size or IMAGE_SIZE
-        calibration = MarkerCalibration.of_scenario(config.scenario, size)
-        venv = FrontEndVecEnv(venv, calibration, settings.front_end_stack or DEFAULT_STACK)
+        calibration = front_end.calibration(config.scenario)
+        venv = FrontEndVecEnv(venv, calibration, front_end.stack)
     venv = VecMonitor(venv)
     if settings.residual != "none":  # a hybrid: the policy's action is a residual on the base
         from capture_bench.engine.task import resolve_scenario

@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 from capture_bench.files import atomic_write
-from capture_bench.sensing.workspace_image import IMAGE_SIZE
 from capture_bench.task.scenarios import load_scenario
 from capture_bench.training.config.options import command_line
 from capture_bench.training.config.settings import TrainingSettings
@@ -107,6 +106,7 @@ def policy_metadata(
     scenario = None if mixed else load_scenario(config.scenario)
     normalized = model.get_vec_normalize_env() is not None
     steps = int(model.num_timesteps)
+    front_end = settings.front_end_spec
     return {
         "algorithm": config.algo.upper(),
         "scenario": mixture_name(config.scenario) if scenario is None else scenario.name,
@@ -129,13 +129,7 @@ def policy_metadata(
         if settings.residual == "none"
         else {"base": settings.residual, "scale": settings.residual_scale},
         # the front end the policy network reads the pixels through (its steps, the image size)
-        "front_end": None
-        if settings.front_end is None
-        else {
-            "name": settings.front_end,
-            "stack": settings.front_end_stack,
-            "image_size": list(settings.pixel_size or IMAGE_SIZE),
-        },
+        "front_end": None if front_end is None else front_end.metadata(),
         # the pixel observation's options (frame stack, end-effector crop, area sampling) that
         # evaluation makes the model's envs with; none: the original observation
         "pixel_observation": {

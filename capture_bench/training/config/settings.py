@@ -144,6 +144,20 @@ class TrainingSettings:
         return None if self.image_size is None else (self.image_size, self.image_size)
 
     @property
+    def front_end_spec(self) -> Any:
+        """The front end the policy reads the pixels through
+        (`capture_bench.agents.sb3_policy.FrontEnd`: its name, stack and image size, the
+        default image where ``image_size`` is left out), or None without one."""
+        if self.front_end is None:
+            return None
+        from capture_bench.agents.sb3_policy import FrontEnd
+        from capture_bench.sensing.workspace_image import IMAGE_SIZE
+
+        stack = self.front_end_stack
+        assert stack is not None  # set with front_end by validate_hyperparameters
+        return FrontEnd(self.front_end, stack, self.pixel_size or IMAGE_SIZE)
+
+    @property
     def pixel_options(self) -> dict[str, Any]:
         """The pixel observation's env keyword arguments these settings give: ``image_size``
         and the options they set
