@@ -434,7 +434,7 @@ def memory_estimate(
         from capture_bench.agents.marker_pose import STEP_WIDTH
 
         cnn_parameters = cnn_activations = 0
-        observation = features = int(hp.get("front_end_stack") or DEFAULT_STACK) * STEP_WIDTH
+        observation = features = int(hp["front_end_stack"]) * STEP_WIDTH  # set with front_end
         kept_bytes = observation * NUMBER_BYTES
     elif pixels:
         from capture_bench.sensing.workspace_image import IMAGE_SIZE
